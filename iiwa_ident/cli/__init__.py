@@ -1,0 +1,15 @@
+"""Command-line interface: a thin layer over the library.
+
+Each ``*_cmds`` module registers its subcommands on :data:`app`.
+"""
+
+from iiwa_ident.cli._app import app, fail, run_app
+from iiwa_ident.cli import data_cmds as _data_cmds  # noqa: F401  (registers commands)
+from iiwa_ident.cli import sim_cmds as _sim_cmds  # noqa: F401
+
+__all__ = ["app", "fail", "main"]
+
+
+def main() -> None:
+    """Console-script entry point ``iiwa-ident``."""
+    run_app()

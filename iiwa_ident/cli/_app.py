@@ -1,0 +1,34 @@
+"""The typer application and the error convention shared by all subcommands."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["app", "fail"]
+
+app = typer.Typer(
+    name="iiwa-ident",
+    help="Identify and tune the joint torque control of a KUKA LBR iiwa.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def fail(message: str, code: int = 2) -> "typer.Exit":
+    """Print ``error: message`` on stderr and return the exit to raise."""
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(code)
+
+
+def run_app(argv: list[str] | None = None) -> None:
+    """Run the CLI; user errors become one line on stderr and exit code 2."""
+    try:
+        app(args=argv, standalone_mode=True)
+    except IiwaIdentError as err:  # raised outside a command's own handler
+        typer.echo(f"error: {err}", err=True)
+        sys.exit(2)

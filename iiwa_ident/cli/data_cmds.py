@@ -1,0 +1,176 @@
+"""Subcommands ``import`` and ``info``: bring logs into the dataset format and inspect files."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from iiwa_ident.cli._app import app, fail
+from iiwa_ident.datasets import (
+    dataset_info,
+    format_info,
+    import_columns,
+    import_csv,
+    read_dataset,
+    write_dataset,
+)
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["import_cmd", "info_cmd", "parse_pairs"]
+
+
+def parse_pairs(items: list[str] | None, option: str, value_name: str) -> dict[str, str]:
+    """Parse repeated ``KEY=VALUE`` options into a dict.
+
+    Parameters
+    ----------
+    items : list of str or None
+        Raw option values, e.g. ``["q_m=pos.txt", "tau_j=trq.txt"]``.
+    option : str
+        Option name for messages, e.g. ``"--columns"``.
+    value_name : str
+        What the value is, for messages, e.g. ``"FILE"``.
+
+    Returns
+    -------
+    dict of str to str
+        Keys and values with surrounding blanks removed.
+
+    Raises
+    ------
+    IiwaIdentError
+        On an item without ``=``, with an empty side, or a repeated key.
+    """
+    pairs: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep or not key or not value:
+            raise IiwaIdentError(f"{option} expects SIGNAL={value_name}, got {item!r}")
+        if key in pairs:
+            raise IiwaIdentError(f"{option} gives {key!r} twice")
+        pairs[key] = value
+    return pairs
+
+
+def _parse_scale(items: list[str] | None) -> dict[str, float]:
+    scale: dict[str, float] = {}
+    for key, text in parse_pairs(items, "--scale", "FACTOR").items():
+        try:
+            factor = float(text)
+        except ValueError:
+            raise IiwaIdentError(f"--scale {key}={text}: {text!r} is not a number") from None
+        if not math.isfinite(factor):
+            raise IiwaIdentError(f"--scale {key}={text}: factor must be finite")
+        scale[key] = factor
+    return scale
+
+
+@app.command("import")
+def import_cmd(
+    out: Annotated[Path, typer.Option("--out", help="Dataset file to write (.h5); replaced atomically if it exists.")],
+    joint: Annotated[int, typer.Option("--joint", help="Joint that moved, 1..7.")],
+    experiment: Annotated[
+        str,
+        typer.Option(
+            "--experiment",
+            help="chirp, constant_velocity, quasi_static, hand_guided, step, sine or free.",
+        ),
+    ],
+    columns: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--columns",
+            metavar="SIGNAL=FILE",
+            help="Whitespace-separated column file of one signal (repeat per signal).",
+        ),
+    ] = None,
+    csv_file: Annotated[
+        Optional[Path], typer.Option("--csv", metavar="FILE", help="CSV file with a header row.")
+    ] = None,
+    mapping: Annotated[
+        Optional[list[str]],
+        typer.Option("--map", metavar="SIGNAL=COLUMN", help="CSV column of a signal (repeat per signal)."),
+    ] = None,
+    rate: Annotated[
+        Optional[float],
+        typer.Option("--rate", help="Sample rate in Hz; default 1/median period of the time signal."),
+    ] = None,
+    column: Annotated[
+        Optional[int],
+        typer.Option("--column", help="0-based column of multi-column files; default joint-1."),
+    ] = None,
+    scale: Annotated[
+        Optional[list[str]],
+        typer.Option("--scale", metavar="SIGNAL=FACTOR", help="Multiply a signal, e.g. tau_j=-1 (repeatable)."),
+    ] = None,
+) -> None:
+    r"""Convert a recorded log into an iiwa-ident dataset file.
+
+    Signals and units: t (s), q_m (rad), tau_j (Nm) are required (t may be
+    replaced by --rate); optional tau_c, tau_ext_fri, tau_ext_ref (Nm),
+    q_l_ref, q_cmd (rad), dq_m (rad/s). Give either --columns files (one row
+    per sample, one column per joint) or --csv with --map.
+
+    Example, the real joint-2 constant-velocity log (position-controlled,
+    200 Hz, so no tau_c):
+
+        D=../shared/data/real/iiwa14-constant-velocity/joint2/vel_p3
+
+        iiwa-ident import --joint 2 --experiment constant_velocity \
+          --columns t=$D/cur_traj_time_s.txt \
+          --columns q_m=$D/joint_position_measured.txt \
+          --columns tau_j=$D/joint_torque_measured.txt \
+          --columns dq_m=$D/joint_velocity_measured.txt \
+          --out runs/j2_vel_p3.h5
+    """
+    try:
+        column_files = parse_pairs(columns, "--columns", "FILE")
+        csv_map = parse_pairs(mapping, "--map", "COLUMN")
+        factors = _parse_scale(scale)
+        if column_files and csv_file is not None:
+            raise IiwaIdentError("give either --columns or --csv, not both")
+        if csv_file is not None:
+            if not csv_map:
+                raise IiwaIdentError("--csv needs at least one --map SIGNAL=COLUMN")
+            if column is not None:
+                raise IiwaIdentError("--column applies to --columns files, not to --csv")
+            dataset = import_csv(
+                csv_file, csv_map, joint=joint, experiment=experiment,
+                sample_rate_hz=rate, scale=factors,
+            )
+        elif column_files:
+            if csv_map:
+                raise IiwaIdentError("--map applies to --csv; use --columns SIGNAL=FILE for column files")
+            dataset = import_columns(
+                {name: Path(p) for name, p in column_files.items()},
+                joint=joint, experiment=experiment, sample_rate_hz=rate,
+                column=column, scale=factors,
+            )
+        else:
+            raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE or --csv FILE --map SIGNAL=COLUMN")
+        written = write_dataset(out, dataset)
+    except IiwaIdentError as err:
+        raise fail(str(err)) from None
+    typer.echo(
+        f"wrote {written}: {dataset.experiment}, joint {dataset.joint}, "
+        f"{dataset.n_samples} samples at {dataset.sample_rate_hz:.6g} Hz "
+        f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
+    )
+
+
+@app.command("info")
+def info_cmd(
+    file: Annotated[Path, typer.Argument(help="Dataset file (.h5).")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """Show a dataset's metadata and per-signal statistics."""
+    try:
+        info = dataset_info(read_dataset(file))
+    except IiwaIdentError as err:
+        raise fail(str(err)) from None
+    typer.echo(json.dumps(info, indent=2) if as_json else format_info(info))

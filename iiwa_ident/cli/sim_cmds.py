@@ -1,0 +1,198 @@
+"""Subcommands ``chirp``, ``simulate`` and ``plant``: run experiments and inspect plants."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from pathlib import Path
+from typing import Annotated, Iterator, Optional
+
+import typer
+
+from iiwa_ident.cli._app import app, fail
+from iiwa_ident.datasets import dataset_info, format_info, write_dataset
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.excite import (
+    Chirp,
+    ConstantVelocity,
+    Experiment,
+    HandGuided,
+    QuasiStatic,
+    SineTorque,
+    StepTorque,
+    record,
+)
+from iiwa_ident.sim import EFFECTS, SimulatedJoint, default_plant, load_plant
+
+__all__ = ["chirp_cmd", "simulate_cmd", "plant_cmd", "run_on_target"]
+
+_PlantOpt = Annotated[Optional[Path], typer.Option("--plant", help="Plant TOML file (default: the shipped default plant).")]
+_SeedOpt = Annotated[int, typer.Option("--seed", help="Seed of the sensor noise.")]
+_OutOpt = Annotated[Path, typer.Option("--out", help="Dataset file to write (HDF5).")]
+_RateOpt = Annotated[float, typer.Option("--rate", help="Recording rate [Hz]: 1000 or a divisor of it (e.g. 200).")]
+
+
+def _floats(text: str, option: str) -> list[float]:
+    try:
+        values = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise IiwaIdentError(f"{option} expects comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise IiwaIdentError(f"{option} expects at least one number")
+    return values
+
+
+@contextlib.contextmanager
+def _progress(label: str) -> Iterator:
+    """A progress bar on stderr for long runs (hidden when stderr is not a terminal)."""
+    with typer.progressbar(length=1, label=label, file=sys.stderr) as bar:
+        state = {"done": 0}
+
+        def update(done: int, total: int) -> None:
+            bar.length = total
+            bar.update(done - state["done"])
+            state["done"] = done
+
+        yield update
+
+
+def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], seed: int, rate: float,
+                  out: Path, q0: float = 0.0) -> None:
+    """Run ``experiment`` on the target, write the dataset and print its summary."""
+    if target != "sim":
+        raise IiwaIdentError(f"--target {target}: only 'sim' is available here; the robot target needs the FRI runtime")
+    the_plant = load_plant(plant) if plant else default_plant()
+    every = 1000.0 / rate / (the_plant.cycle_s * 1000.0)
+    if rate <= 0 or abs(every - round(every)) > 1e-9 or round(every) < 1:
+        raise IiwaIdentError(f"--rate {rate:g}: must divide the robot's {1 / the_plant.cycle_s:g} Hz cycle rate")
+    robot = SimulatedJoint(the_plant, seed=seed, q0=q0)
+    with _progress(f"{experiment.name} ({experiment.duration_s:.0f} s simulated)") as progress:
+        ds = record(robot, experiment, record_every=int(round(every)), progress=progress)
+    path = write_dataset(out, ds)
+    typer.echo(format_info(dataset_info(ds)))
+    if "stopped_reason" in ds.experiment_attrs:
+        typer.echo(f"warning: stopped early: {ds.experiment_attrs['stopped_reason']}", err=True)
+    typer.echo(f"wrote {path}")
+
+
+@app.command("chirp")
+def chirp_cmd(
+    out: _OutOpt,
+    target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint) or 'robot' (FRI).")] = "sim",
+    plant: _PlantOpt = None,
+    f0: Annotated[float, typer.Option("--f0", help="Start frequency [Hz].")] = 0.5,
+    f1: Annotated[float, typer.Option("--f1", help="End frequency [Hz].")] = 200.0,
+    duration: Annotated[float, typer.Option("--duration", help="Sweep duration [s].")] = 30.0,
+    amplitude: Annotated[float, typer.Option("--amplitude", help="Sweep amplitude [Nm].")] = 10.0,
+    bias: Annotated[float, typer.Option("--bias", help="Constant torque keeping clear of the 1 Nm standstill threshold [Nm].")] = 3.0,
+    hold: Annotated[float, typer.Option("--hold", help="Weak position-hold stiffness against drift [Nm/rad].")] = 30.0,
+    seed: _SeedOpt = 0,
+    rate: _RateOpt = 1000.0,
+) -> None:
+    """Record an exponential chirp (torque-commanded) as a dataset.
+
+    Example: iiwa-ident chirp --target sim --duration 30 --out chirp.h5
+    """
+    try:
+        run_on_target(Chirp(f0, f1, duration, amplitude, bias, hold), target, plant, seed, rate, out)
+    except IiwaIdentError as err:
+        raise fail(str(err))
+
+
+@app.command("simulate")
+def simulate_cmd(
+    experiment: Annotated[str, typer.Argument(help="constant_velocity | quasi_static | hand_guided | step | sine")],
+    out: _OutOpt,
+    plant: _PlantOpt = None,
+    seed: _SeedOpt = 0,
+    rate: _RateOpt = 1000.0,
+    velocity: Annotated[str, typer.Option("--velocity", help="constant_velocity: speeds [rad/s], comma-separated; quasi_static: agent speed.")] = "",
+    range_: Annotated[Optional[float], typer.Option("--range", help="Travel [rad].")] = None,
+    repeats: Annotated[int, typer.Option("--repeats", help="constant_velocity: back-and-forth passes per speed.")] = 1,
+    mode: Annotated[str, typer.Option("--mode", help="constant_velocity: 'torque' (client tracking) or 'position'.")] = "torque",
+    torque: Annotated[str, typer.Option("--torque", help="quasi_static: commanded loads [Nm], comma-separated.")] = "2,5,10",
+    duration: Annotated[Optional[float], typer.Option("--duration", help="hand_guided, sine: duration [s].")] = None,
+    kappa: Annotated[float, typer.Option("--kappa", help="hand_guided: command kappa * F/T torque.")] = 0.0,
+    amplitude: Annotated[Optional[float], typer.Option("--amplitude", help="step, sine: amplitude [Nm].")] = None,
+    frequency: Annotated[float, typer.Option("--frequency", help="sine: frequency [Hz].")] = 0.25,
+    period: Annotated[float, typer.Option("--period", help="step: square-wave period [s].")] = 1.0,
+    cycles: Annotated[int, typer.Option("--cycles", help="step: number of periods.")] = 3,
+    q0: Annotated[float, typer.Option("--q0", help="Initial joint position [rad].")] = 0.0,
+) -> None:
+    """Simulate one of the other experiments on the simulated joint.
+
+    Examples:
+      iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
+      iiwa-ident simulate constant_velocity --mode position --rate 200 --out cv200.h5
+      iiwa-ident simulate quasi_static --torque 2,5,10 --out qs.h5
+      iiwa-ident simulate hand_guided --duration 20 --out hand.h5
+      iiwa-ident simulate sine --amplitude 15 --frequency 25 --duration 4 --out sine.h5
+    """
+    try:
+        exp = _experiment(experiment, velocity, range_, repeats, mode, torque, duration, kappa, amplitude,
+                          frequency, period, cycles)
+        run_on_target(exp, "sim", plant, seed, rate, out, q0=q0)
+    except IiwaIdentError as err:
+        raise fail(str(err))
+
+
+def _experiment(name, velocity, range_, repeats, mode, torque, duration, kappa, amplitude, frequency, period,
+                cycles) -> Experiment:
+    opt = {} if range_ is None else {"range_rad": range_}
+    if name == "constant_velocity":
+        speeds = _floats(velocity, "--velocity") if velocity else [0.3, 0.6, 1.2]
+        return ConstantVelocity(speeds, repeats=repeats, mode=mode, **opt)
+    if name == "quasi_static":
+        if velocity:
+            opt["velocity_rad_s"] = _floats(velocity, "--velocity")[0]
+        return QuasiStatic(_floats(torque, "--torque"), **opt)
+    if name == "hand_guided":
+        return HandGuided(duration_s=duration or 20.0, kappa=kappa, **opt)
+    if name == "step":
+        return StepTorque(amplitude_nm=10.0 if amplitude is None else amplitude, period_s=period, cycles=cycles)
+    if name == "sine":
+        return SineTorque(amplitude_nm=5.0 if amplitude is None else amplitude, frequency_hz=frequency,
+                          duration_s=duration or 8.0)
+    if name == "chirp":
+        raise IiwaIdentError("use 'iiwa-ident chirp' for the chirp experiment")
+    raise IiwaIdentError(f"unknown experiment {name!r} (constant_velocity, quasi_static, hand_guided, step, sine)")
+
+
+@app.command("plant")
+def plant_cmd(
+    file: Annotated[Optional[Path], typer.Argument(help="Plant TOML file to check and show.")] = None,
+    effects: Annotated[bool, typer.Option("--effects", help="List the effects a plant file can switch on.")] = False,
+    write_default: Annotated[Optional[Path], typer.Option("--write-default", help="Write the default plant to this file.")] = None,
+) -> None:
+    """Check a plant file, list effects, or write the default plant as a starting point.
+
+    Examples:
+      iiwa-ident plant --write-default my_plant.toml
+      iiwa-ident plant my_plant.toml
+      iiwa-ident plant --effects
+    """
+    try:
+        if effects:
+            for name, cls in EFFECTS.items():
+                typer.echo(f"{name}: {cls.summary}")
+                for p in cls.params:
+                    typer.echo(f"    {p.name} = {p.default:g} [{p.unit}]  {p.doc}")
+                if name == "transmission_ripple":
+                    typer.echo("    harmonics = [[amplitude_rad, phase_rad], ...]  or  lut = [f_0, ..., f_N-1] [rad]")
+            return
+        if write_default:
+            from importlib import resources
+
+            from iiwa_ident._toml import write_atomic
+
+            write_atomic(write_default, resources.files("iiwa_ident").joinpath("data/default_plant.toml").read_text())
+            typer.echo(f"wrote {write_default}")
+            return
+        plant = load_plant(file) if file else default_plant()
+        d = plant.dynamics
+        typer.echo(f"{plant.robot_model} joint {plant.joint}: Jc={d['Jc']:g} kg m^2, bc={d['bc']:g} Nm s/rad, "
+                   f"K={d['K']:g} Nm/rad, Jl={d['Jl']:g} kg m^2, Td={d['Td'] * 1e3:g} ms")
+        typer.echo("effects: " + (", ".join(e.name for e in plant.effects) or "none"))
+    except IiwaIdentError as err:
+        raise fail(str(err))
+

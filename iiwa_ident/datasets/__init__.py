@@ -1,0 +1,43 @@
+"""Dataset files: the HDF5 format, importers for foreign logs, and summaries.
+
+Identification code reads data only through :func:`read_dataset`, which never
+exposes ground truth; :func:`read_truth` is reserved for evaluation code.
+"""
+
+from iiwa_ident.datasets._format import (
+    EXPERIMENTS,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    REQUIRED_SIGNALS,
+    SIGNAL_UNITS,
+    SOURCES,
+    Dataset,
+    read_dataset,
+    read_truth,
+    sha256_file,
+    validate_dataset,
+    write_dataset,
+)
+from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv
+from iiwa_ident.datasets._info import dataset_info, format_info
+
+__all__ = [
+    "EXPERIMENTS",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "REQUIRED_SIGNALS",
+    "SIGNAL_UNITS",
+    "SOURCES",
+    "MIN_RATE_HZ",
+    "MAX_RATE_HZ",
+    "Dataset",
+    "read_dataset",
+    "read_truth",
+    "sha256_file",
+    "validate_dataset",
+    "write_dataset",
+    "import_columns",
+    "import_csv",
+    "dataset_info",
+    "format_info",
+]

@@ -1,0 +1,367 @@
+"""Convert logs recorded by other tools into :class:`Dataset` objects.
+
+Two layouts are supported:
+
+* column files (:func:`import_columns`): one whitespace-separated text file
+  per signal, one row per sample and one column per joint, as exported by
+  many iiwa drivers;
+* a CSV with a header row (:func:`import_csv`), one column per signal.
+
+The result has ``source="import"`` and is validated like any dataset, so it
+can be written with :func:`iiwa_ident.datasets.write_dataset` directly.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from iiwa_ident.datasets._format import (
+    SIGNAL_UNITS,
+    Dataset,
+    _metadata_problem,
+    validate_dataset,
+)
+from iiwa_ident.errors import DatasetError
+
+__all__ = ["MIN_RATE_HZ", "MAX_RATE_HZ", "import_columns", "import_csv"]
+
+#: FRI runs at 200 Hz to 1 kHz; other rates mean a wrong time column or
+#: a wrong unit, so they are refused. A 2 % tolerance absorbs clock jitter
+#: in the median sample period.
+MIN_RATE_HZ = 200.0 * 0.98
+MAX_RATE_HZ = 1000.0 * 1.02
+
+# Signals an import must provide; t can be generated from a rate.
+_REQUIRED_IMPORTED = ("q_m", "tau_j")
+
+
+def _check_names(names: list[str], what: str) -> None:
+    """Refuse unknown signal names and missing required ones."""
+    for name in names:
+        if name not in SIGNAL_UNITS:
+            raise DatasetError(
+                f"unknown signal {name!r} in {what} (known: {', '.join(SIGNAL_UNITS)})"
+            )
+    for name in _REQUIRED_IMPORTED:
+        if name not in names:
+            raise DatasetError(f"missing required signal {name!r} in {what}")
+
+
+def _check_metadata(joint: int, experiment: str) -> None:
+    # source and rate are checked later; a placeholder rate isolates joint/experiment.
+    problem = _metadata_problem(experiment, "import", joint, 1.0)
+    if problem:
+        raise DatasetError(problem)
+
+
+def _check_scale(scale: Mapping[str, float] | None, names: list[str]) -> dict[str, float]:
+    scale = dict(scale or {})
+    for name, factor in scale.items():
+        if name not in names:
+            raise DatasetError(
+                f"scale given for signal {name!r}, which is not imported (imported: {', '.join(names)})"
+            )
+        if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not math.isfinite(factor) or factor == 0:
+            raise DatasetError(f"scale factor for {name!r} must be a finite non-zero number, got {factor!r}")
+    return scale
+
+
+def _read_text(path: Path, kind: str) -> str:
+    """A text file's content; unreadable files raise a one-line DatasetError naming them."""
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as fh:
+            return fh.read()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise DatasetError(f"{path}: is a directory, not {kind}") from None
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: not a text file") from None
+    except OSError as err:
+        raise DatasetError(f"{path}: cannot read: {err.strerror or err}") from err
+
+
+def _read_column_file(path: Path, column: int | None) -> np.ndarray:
+    """Read one column of a whitespace-separated numeric text file.
+
+    Blank lines and lines starting with ``#`` are skipped. A file with a single
+    column is used whatever ``column`` says (a time file, for example).
+    """
+    text = _read_text(path, "a column file")
+
+    values: list[float] = []
+    n_cols: int | None = None
+    use: int = 0
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        tokens = line.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        if n_cols is None:
+            n_cols = len(tokens)
+            if n_cols > 1 and column is not None:
+                use = column
+            if n_cols > 1 and not 0 <= use < n_cols:
+                raise DatasetError(
+                    f"{path}: column {use} out of range (file has {n_cols} columns, 0..{n_cols - 1})"
+                )
+        elif len(tokens) != n_cols:
+            raise DatasetError(f"{path}, line {lineno}: expected {n_cols} columns, found {len(tokens)}")
+        # Every field is parsed, not just the used one: garbage anywhere means a corrupt log.
+        for col, token in enumerate(tokens):
+            try:
+                value = float(token)
+            except ValueError:
+                raise DatasetError(
+                    f"{path}, line {lineno}, column {col}: cannot parse {token!r} as a number"
+                ) from None
+            if col == use:
+                values.append(value)
+        if not math.isfinite(values[-1]):
+            raise DatasetError(f"{path}, line {lineno}: non-finite value {values[-1]}")
+    if not values:
+        raise DatasetError(f"{path}: no data rows")
+    return np.asarray(values, dtype=np.float64)
+
+
+def _assemble(
+    raw: dict[str, np.ndarray],
+    origin: dict[str, str],
+    joint: int,
+    experiment: str,
+    sample_rate_hz: float | None,
+    scale: dict[str, float],
+    where: str,
+) -> Dataset:
+    """Scale, add or check time, check the rate and build the dataset.
+
+    ``raw`` maps signal names (time under ``"t"``) to arrays and ``origin``
+    maps them to a description of where they came from, for messages.
+    """
+    lengths = {name: arr.shape[0] for name, arr in raw.items()}
+    if len(set(lengths.values())) > 1:
+        listed = ", ".join(f"{origin[name]} has {n} rows" for name, n in lengths.items())
+        raise DatasetError(f"files of unequal length: {listed}")
+    n = next(iter(lengths.values()))
+    if n < 2:
+        raise DatasetError(f"{where}: only {n} sample, need at least 2")
+
+    signals = {name: arr * scale.get(name, 1.0) for name, arr in raw.items()}
+
+    if sample_rate_hz is not None and (
+        isinstance(sample_rate_hz, bool)
+        or not isinstance(sample_rate_hz, (int, float))
+        or not math.isfinite(sample_rate_hz)
+        or sample_rate_hz <= 0
+    ):
+        raise DatasetError(f"sample rate {sample_rate_hz!r} is not a finite number > 0")
+
+    given_rate = sample_rate_hz is not None
+    if "t" in signals:
+        t = signals["t"]
+        dt = np.diff(t)
+        bad = np.flatnonzero(dt <= 0)
+        if bad.size:
+            i = int(bad[0]) + 1
+            raise DatasetError(
+                f"{origin['t']}: time is not strictly increasing at sample {i} "
+                f"({t[i]!r} after {t[i - 1]!r})"
+            )
+        if sample_rate_hz is None:
+            # The median ignores the odd dropped or late packet.
+            sample_rate_hz = float(1.0 / np.median(dt))
+    elif sample_rate_hz is None:
+        raise DatasetError("no time signal given: give a time file/column or the sample rate")
+    else:
+        signals = {"t": np.arange(n, dtype=np.float64) / float(sample_rate_hz), **signals}
+
+    rate = float(sample_rate_hz)
+    if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        hint = "" if given_rate else " (estimated from the time signal; check its unit or give the rate)"
+        raise DatasetError(f"{where}: sample rate {rate:.6g} Hz is outside 200 Hz..1 kHz (±2%){hint}")
+
+    # Canonical order makes printed summaries and files predictable.
+    ordered = {name: signals[name] for name in SIGNAL_UNITS if name in signals}
+    dataset = Dataset(
+        signals=ordered,
+        experiment=experiment,
+        source="import",
+        joint=joint,
+        sample_rate_hz=rate,
+    )
+    validate_dataset(dataset, where)
+    return dataset
+
+
+def import_columns(
+    files: Mapping[str, Path],
+    joint: int,
+    experiment: str,
+    sample_rate_hz: float | None = None,
+    column: int | None = None,
+    scale: Mapping[str, float] | None = None,
+    time_signal: str = "t",
+) -> Dataset:
+    """Import whitespace-separated column files, one file per signal.
+
+    Parameters
+    ----------
+    files : mapping of str to pathlib.Path
+        Signal name (see :data:`~iiwa_ident.datasets.SIGNAL_UNITS`) to file.
+        The file under ``time_signal`` holds sample times [s]. Each file has
+        one row per sample and either a single column or one column per joint.
+        Values must already be in the signal's unit (rad, Nm, rad/s, s) up to
+        the factors in ``scale``.
+    joint : int
+        Joint the experiment moved, 1..7.
+    experiment : str
+        Kind of excitation, e.g. ``"constant_velocity"``.
+    sample_rate_hz : float or None, optional
+        Sample rate [Hz]. Required without a time file; with one, it
+        defaults to 1 / median sample period.
+    column : int or None, optional
+        0-based column to read from multi-column files; defaults to
+        ``joint - 1``.
+    scale : mapping of str to float, optional
+        Factor applied to a signal after reading, e.g. ``{"tau_j": -1.0}``
+        for a log with flipped torque sign or ``{"t": 1e-3}`` for a time
+        file in milliseconds.
+    time_signal : str, optional
+        Key of ``files`` that holds the time stamps (stored as ``t``).
+
+    Returns
+    -------
+    Dataset
+        With ``source="import"``, not yet written.
+
+    Raises
+    ------
+    DatasetError
+        One-line message for a missing file, an unparsable number (file and
+        line), a column out of range, files of unequal length, an unknown or
+        missing signal, or a sample rate outside 200 Hz..1 kHz (±2 %).
+    """
+    files = {name: Path(p) for name, p in files.items()}
+    if not files:
+        raise DatasetError("no column files given")
+    if time_signal != "t" and time_signal in files:
+        if "t" in files:
+            raise DatasetError(f"both 't' and time_signal {time_signal!r} given as time files")
+        # Rename so the rest of the code only knows 't'.
+        files = {("t" if name == time_signal else name): p for name, p in files.items()}
+    names = list(files)
+    _check_names(names, "the column files")
+    _check_metadata(joint, experiment)
+    factors = _check_scale(scale, names)
+    if column is not None and (isinstance(column, bool) or not isinstance(column, int) or column < 0):
+        raise DatasetError(f"column must be an integer >= 0, got {column!r}")
+
+    use = joint - 1 if column is None else column
+    raw = {name: _read_column_file(path, use) for name, path in files.items()}
+    origin = {name: f"{name} ({path})" for name, path in files.items()}
+    where = str(files.get("q_m", next(iter(files.values()))).parent)
+    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, where)
+
+
+def _sniff_delimiter(header: str) -> str:
+    """Pick ``;`` or ``,`` by which splits the header into more fields."""
+    return ";" if header.count(";") > header.count(",") else ","
+
+
+def _parse_csv_number(token: str, delimiter: str) -> float:
+    token = token.strip()
+    try:
+        return float(token)
+    except ValueError:
+        # Semicolon CSVs usually come from locales that write 1,5 for 1.5.
+        if delimiter == ";" and token.count(",") == 1 and "." not in token:
+            return float(token.replace(",", "."))
+        raise
+
+
+def import_csv(
+    path: Path,
+    mapping: Mapping[str, str],
+    joint: int,
+    experiment: str,
+    sample_rate_hz: float | None = None,
+    scale: Mapping[str, float] | None = None,
+) -> Dataset:
+    """Import a CSV file with a header row.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The CSV; comma or semicolon delimited (detected from the header).
+        With semicolons, a decimal comma (``1,5``) is accepted.
+    mapping : mapping of str to str
+        Signal name to column name in the header, e.g.
+        ``{"t": "time", "q_m": "pos2", "tau_j": "trq2"}``. A ``t`` column
+        holds times [s]; without one, ``sample_rate_hz`` is required.
+    joint : int
+        Joint the experiment moved, 1..7.
+    experiment : str
+        Kind of excitation, e.g. ``"chirp"``.
+    sample_rate_hz : float or None, optional
+        Sample rate [Hz]; defaults to 1 / median sample period of ``t``.
+    scale : mapping of str to float, optional
+        Factor applied to a signal after reading (e.g. ``{"tau_j": -1.0}``).
+
+    Returns
+    -------
+    Dataset
+        With ``source="import"``, not yet written.
+
+    Raises
+    ------
+    DatasetError
+        One-line message for a missing file or column, an unparsable number
+        (file and line), an unknown or missing signal, or a bad sample rate.
+    """
+    path = Path(path)
+    mapping = dict(mapping)
+    names = list(mapping)
+    _check_names(names, f"the mapping for {path}")
+    _check_metadata(joint, experiment)
+    factors = _check_scale(scale, names)
+    lines = _read_text(path, "a CSV file").splitlines()
+
+    numbered = [(i, line) for i, line in enumerate(lines, start=1) if line.strip()]
+    if not numbered:
+        raise DatasetError(f"{path}: empty file (expected a header row)")
+    delimiter = _sniff_delimiter(numbered[0][1])
+    rows = csv.reader((line for _, line in numbered), delimiter=delimiter)
+    header = [h.strip() for h in next(rows)]
+    index: dict[str, int] = {}
+    for name, col_name in mapping.items():
+        if col_name not in header:
+            raise DatasetError(
+                f"{path}: no column {col_name!r} (for {name}) in the header; columns: {', '.join(header)}"
+            )
+        index[name] = header.index(col_name)
+
+    values: dict[str, list[float]] = {name: [] for name in mapping}
+    for (lineno, _), row in zip(numbered[1:], rows):
+        for name, col in index.items():
+            if col >= len(row):
+                raise DatasetError(
+                    f"{path}, line {lineno}: row has {len(row)} fields, no column {mapping[name]!r}"
+                )
+            try:
+                value = _parse_csv_number(row[col], delimiter)
+            except ValueError:
+                raise DatasetError(
+                    f"{path}, line {lineno}, column {mapping[name]!r}: cannot parse {row[col]!r} as a number"
+                ) from None
+            if not math.isfinite(value):
+                raise DatasetError(f"{path}, line {lineno}, column {mapping[name]!r}: non-finite value {value}")
+            values[name].append(value)
+    if not values[names[0]]:
+        raise DatasetError(f"{path}: no data rows after the header")
+    raw = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
+    origin = {name: f"column {mapping[name]!r}" for name in mapping}
+    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, str(path))

@@ -1,0 +1,27 @@
+"""Experiment programs that drive a robot interface and record datasets.
+
+Public API
+----------
+record
+    Run an experiment on a robot interface under the limit guard.
+Experiment, ClientState
+    Base class of programs and the client-side state they see.
+Chirp, exponential_sweep, sweep_rate
+    The exponential chirp (section II.B).
+ConstantVelocity, QuasiStatic, HandGuided, StepTorque, SineTorque
+    The other programs (sections III-V).
+LimitGuard
+    Safety supervision against the joint limits.
+EXPERIMENTS
+    Program class by dataset experiment name.
+"""
+
+from iiwa_ident.excite._runner import ClientState, Experiment, record
+from iiwa_ident.excite.chirp import Chirp, exponential_sweep, sweep_rate
+from iiwa_ident.excite.programs import ConstantVelocity, HandGuided, QuasiStatic, SineTorque, StepTorque
+from iiwa_ident.excite.safety import LimitGuard
+
+EXPERIMENTS = {cls.name: cls for cls in (Chirp, ConstantVelocity, QuasiStatic, HandGuided, StepTorque, SineTorque)}
+
+__all__ = ["record", "Experiment", "ClientState", "Chirp", "exponential_sweep", "sweep_rate", "ConstantVelocity",
+           "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS"]

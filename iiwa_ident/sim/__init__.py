@@ -1,0 +1,36 @@
+"""The simulated iiwa joint: plant files, effects and the joint behind the robot interface.
+
+Public API
+----------
+Plant, load_plant, default_plant, save_plant, plant_from_dict
+    The plant description and its TOML file format (:mod:`iiwa_ident.sim.plant`).
+Effect, EFFECTS, register_effect, make_effect and the effect classes
+    Switchable plant effects (:mod:`iiwa_ident.sim.effects`).
+SimulatedJoint, SimTrace, ExternalAgent
+    The joint as the robot presents it through FRI (:mod:`iiwa_ident.sim.joint`).
+"""
+
+from iiwa_ident.sim.effects import (
+    EFFECTS,
+    Effect,
+    InputDelay,
+    LinkFriction,
+    Param,
+    PeriodicDisturbance,
+    PositionDependentLoad,
+    TorqueSensorOffset,
+    TorqueSensorScale,
+    TransmissionRipple,
+    make_effect,
+    register_effect,
+)
+from iiwa_ident.sim.joint import ExternalAgent, SimTrace, SimulatedJoint
+from iiwa_ident.sim.plant import Plant, default_plant, load_plant, plant_from_dict, save_plant
+
+__all__ = [
+    "EFFECTS", "Effect", "Param", "register_effect", "make_effect",
+    "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "TorqueSensorOffset",
+    "TorqueSensorScale", "PeriodicDisturbance", "InputDelay",
+    "Plant", "default_plant", "load_plant", "plant_from_dict", "save_plant",
+    "SimulatedJoint", "SimTrace", "ExternalAgent",
+]

@@ -1,0 +1,372 @@
+"""Plant effects: what a plant file can switch on in the simulated joint.
+
+Each effect is a small class that declares its parameters and overrides one
+or more hooks of :class:`Effect`. The simulator composes the hooks of all
+switched-on effects symbolically (casadi), so a new effect is one new
+subclass registered with :func:`register_effect` and nothing else changes.
+
+Hooks (all optional; the default contributes nothing):
+
+``deflection(theta_m, P)``
+    Transmission deflection f(theta_m) [rad] of eq (5); returns ``(f, df/dtheta_m)``.
+``link_torque(theta_l, omega_l, P)``
+    Torque acting on the link [Nm] (friction, loads).
+``robot_model_torque(theta_m, P)``
+    The part of ``link_torque`` the robot's own model knows (gravity); the
+    robot adds its negative to every command and its observer subtracts it.
+``sensor(tau, t, P)``
+    Transform of the joint torque as the torque sensor reads it [Nm]; the
+    internal torque loop regulates this reading.
+``extra_delay_s()``
+    Extra input delay [s] added to ``Td``.
+
+``P`` maps each parameter name to a casadi expression (scalar, or a vector
+for list parameters), so one compiled simulator serves every parameter value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+
+from iiwa_ident.errors import PlantError
+
+__all__ = [
+    "Param",
+    "Effect",
+    "EFFECTS",
+    "register_effect",
+    "make_effect",
+    "TransmissionRipple",
+    "LinkFriction",
+    "PositionDependentLoad",
+    "TorqueSensorOffset",
+    "TorqueSensorScale",
+    "PeriodicDisturbance",
+    "InputDelay",
+]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A scalar effect parameter.
+
+    Attributes
+    ----------
+    name : str
+        Key in the plant file.
+    default : float
+        Value when the key is absent.
+    unit : str
+        Unit, for documentation and error messages.
+    lower, upper : float
+        Inclusive valid range.
+    doc : str
+        One line of meaning.
+    """
+
+    name: str
+    default: float
+    unit: str
+    lower: float = -math.inf
+    upper: float = math.inf
+    doc: str = ""
+
+
+def _check_number(where: str, value: Any, lower: float = -math.inf, upper: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise PlantError(f"{where}: expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise PlantError(f"{where}: must be finite, got {value}")
+    if not lower <= value <= upper:
+        raise PlantError(f"{where}: {value:g} is outside [{lower:g}, {upper:g}]")
+    return value
+
+
+class Effect:
+    """Base class of plant effects (see the module docstring for the hooks).
+
+    Subclasses set :attr:`name` and :attr:`params` and override hooks.
+    Values are validated on construction; ``where`` prefixes error messages.
+    """
+
+    #: Name of the effect's table in the plant file, ``[effects.<name>]``.
+    name: ClassVar[str] = ""
+    #: Scalar parameters.
+    params: ClassVar[tuple[Param, ...]] = ()
+    #: One-line description.
+    summary: ClassVar[str] = ""
+
+    def __init__(self, values: dict[str, Any] | None = None, where: str = "") -> None:
+        values = dict(values or {})
+        values.pop("enabled", None)
+        where = where or f"effects.{self.name}"
+        self.values: dict[str, float] = {}
+        known = {p.name for p in self.params} | set(self.extra_keys())
+        for key in values:
+            if key not in known:
+                raise PlantError(f"{where}.{key}: unknown key (known: {', '.join(sorted(known))})")
+        for p in self.params:
+            self.values[p.name] = _check_number(f"{where}.{p.name}", values.get(p.name, p.default), p.lower, p.upper)
+        self._init_extra(values, where)
+
+    # -- structure -----------------------------------------------------
+    def extra_keys(self) -> tuple[str, ...]:
+        """Non-scalar keys a subclass accepts (validated in :meth:`_init_extra`)."""
+        return ()
+
+    def _init_extra(self, values: dict[str, Any], where: str) -> None:
+        """Validate and store non-scalar keys."""
+
+    def vector(self) -> np.ndarray:
+        """All numeric parameters as one flat vector, in :meth:`layout` order."""
+        return np.array([self.values[p.name] for p in self.params], dtype=float)
+
+    def layout(self) -> list[tuple[str, int]]:
+        """``(name, size)`` of each parameter in :meth:`vector`."""
+        return [(p.name, 1) for p in self.params]
+
+    def structure(self) -> tuple:
+        """What the compiled code depends on besides parameter values."""
+        return (self.name,)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plant-file table of this effect (round-trips through the constructor)."""
+        return dict(self.values)
+
+    # -- hooks ---------------------------------------------------------
+    def deflection(self, theta_m: ca.SX, P: dict[str, ca.SX]) -> tuple[Any, Any] | None:
+        return None
+
+    def link_torque(self, theta_l: ca.SX, omega_l: ca.SX, P: dict[str, ca.SX]) -> Any:
+        return None
+
+    def robot_model_torque(self, theta_m: ca.SX, P: dict[str, ca.SX]) -> Any:
+        return None
+
+    def sensor(self, tau: ca.SX, t: ca.SX, P: dict[str, ca.SX]) -> ca.SX:
+        return tau
+
+    def extra_delay_s(self) -> float:
+        return 0.0
+
+
+#: Registry of effect classes by plant-file name.
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Class decorator adding an :class:`Effect` subclass to :data:`EFFECTS`."""
+    if not cls.name:
+        raise ValueError("an effect needs a name")
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+def make_effect(name: str, values: dict[str, Any] | None = None, where: str = "") -> Effect:
+    """Build the effect ``name`` from its plant-file table."""
+    if name not in EFFECTS:
+        raise PlantError(f"{where or 'effects'}.{name}: unknown effect (known: {', '.join(sorted(EFFECTS))})")
+    return EFFECTS[name](values, where or f"effects.{name}")
+
+
+@register_effect
+class TransmissionRipple(Effect):
+    """Spatially periodic transmission deflection, eq (5).
+
+    ``theta_j = theta_m - f(theta_m mod rho)`` with f a Fourier series
+    ``f(x) = sum_k A_k sin(2 pi k x / rho + phi_k)``, given either as
+    ``harmonics = [[A_1, phi_1], [A_2, phi_2], ...]`` [rad, rad] or as a
+    lookup table ``lut`` of f sampled at ``x_i = i rho / N`` [rad]. A table is
+    turned into its trigonometric interpolant (mean removed: a constant
+    deflection is only a torque-sensor offset), truncated at
+    ``max_harmonics``. The motor-side reaction uses df/dtheta_m of the same
+    series, so it is consistent with the deflection by construction.
+    """
+
+    name = "transmission_ripple"
+    summary = "position-periodic transmission deflection f(theta_m mod rho), eq (5)"
+    params = (Param("period_rad", 0.01963, "rad", 1e-4, 1.0, "period rho of the deflection"),)
+
+    def extra_keys(self) -> tuple[str, ...]:
+        return ("harmonics", "lut", "max_harmonics")
+
+    def _init_extra(self, values: dict[str, Any], where: str) -> None:
+        if ("harmonics" in values) == ("lut" in values):
+            raise PlantError(f"{where}: give exactly one of 'harmonics' and 'lut'")
+        max_h = int(_check_number(f"{where}.max_harmonics", values.get("max_harmonics", 32), 1, 256))
+        if "harmonics" in values:
+            rows = values["harmonics"]
+            if not isinstance(rows, list) or not rows:
+                raise PlantError(f"{where}.harmonics: expected a non-empty list of [amplitude, phase] pairs")
+            amp_phase = []
+            for i, row in enumerate(rows):
+                if not isinstance(row, list) or len(row) != 2:
+                    raise PlantError(f"{where}.harmonics[{i}]: expected [amplitude_rad, phase_rad]")
+                amp_phase.append((
+                    _check_number(f"{where}.harmonics[{i}][0]", row[0], 0.0, 1e-2),
+                    _check_number(f"{where}.harmonics[{i}][1]", row[1]),
+                ))
+            a = np.array([A * math.sin(ph) for A, ph in amp_phase])  # cos coefficients
+            b = np.array([A * math.cos(ph) for A, ph in amp_phase])  # sin coefficients
+            self.source = {"harmonics": [list(r) for r in amp_phase]}
+        else:
+            lut = values["lut"]
+            if not isinstance(lut, list) or len(lut) < 4:
+                raise PlantError(f"{where}.lut: expected a list of at least 4 deflections [rad]")
+            table = np.array([_check_number(f"{where}.lut[{i}]", v, -1e-2, 1e-2) for i, v in enumerate(lut)])
+            a, b = lut_to_fourier(table, max_h)
+            self.source = {"lut": table.tolist(), "max_harmonics": max_h}
+        self.cos_coef, self.sin_coef = a, b
+
+    @property
+    def n_harmonics(self) -> int:
+        return len(self.cos_coef)
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([[self.values["period_rad"]], self.cos_coef, self.sin_coef])
+
+    def layout(self) -> list[tuple[str, int]]:
+        n = self.n_harmonics
+        return [("period_rad", 1), ("cos_coef", n), ("sin_coef", n)]
+
+    def structure(self) -> tuple:
+        return (self.name, self.n_harmonics)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"period_rad": self.values["period_rad"], **self.source}
+
+    def evaluate(self, theta_m: np.ndarray) -> np.ndarray:
+        """Numeric f(theta_m) [rad], for tests and plots."""
+        x = 2 * np.pi * np.asarray(theta_m, float)[..., None] / self.values["period_rad"]
+        k = np.arange(1, self.n_harmonics + 1)
+        return np.cos(k * x) @ self.cos_coef + np.sin(k * x) @ self.sin_coef
+
+    def deflection(self, theta_m, P):
+        omega = 2 * math.pi / P["period_rad"]
+        c1, s1 = ca.cos(omega * theta_m), ca.sin(omega * theta_m)
+        ck, sk = c1, s1
+        f = 0
+        df = 0
+        # cos/sin of k*x by the angle-addition recurrence: two trig calls for all harmonics.
+        for k in range(self.n_harmonics):
+            a, b = P["cos_coef"][k], P["sin_coef"][k]
+            f += a * ck + b * sk
+            df += (k + 1) * (b * ck - a * sk)
+            ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+        return f, omega * df
+
+
+def lut_to_fourier(table: np.ndarray, max_harmonics: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fourier coefficients of a periodic table sampled at ``x_i = i rho / N``.
+
+    Returns ``(a, b)`` with ``f(x) = sum_k a_k cos(k w x) + b_k sin(k w x)``,
+    ``w = 2 pi / rho``; the mean and, for even N, the Nyquist term are dropped.
+    """
+    n = len(table)
+    spec = np.fft.rfft(table) / n
+    kmax = min(max_harmonics, (n - 1) // 2)
+    a = 2 * spec.real[1:kmax + 1]
+    b = -2 * spec.imag[1:kmax + 1]
+    return a, b
+
+
+@register_effect
+class LinkFriction(Effect):
+    """Coulomb and viscous friction on the link [Nm].
+
+    ``tau = -F_c tanh(omega_l / v_s) - F_v omega_l``; the tanh with a small
+    ``v_s`` keeps the integrator smooth where sign(omega_l) would jump.
+    """
+
+    name = "link_friction"
+    summary = "link Coulomb + viscous friction"
+    params = (
+        Param("coulomb_nm", 2.0, "Nm", 0.0, 200.0, "Coulomb friction level"),
+        Param("viscous_nms_rad", 1.0, "Nm s/rad", 0.0, 500.0, "viscous coefficient"),
+        Param("smoothing_rad_s", 0.005, "rad/s", 1e-5, 1.0, "velocity scale of the Coulomb tanh"),
+    )
+
+    def link_torque(self, theta_l, omega_l, P):
+        return -P["coulomb_nm"] * ca.tanh(omega_l / P["smoothing_rad_s"]) - P["viscous_nms_rad"] * omega_l
+
+
+@register_effect
+class PositionDependentLoad(Effect):
+    """Position-dependent load ``A sin(theta_l + phi)`` on the link (gravity on joints 2, 4, 6).
+
+    ``compensated`` is the fraction the robot's own model knows (1: gravity
+    of a correctly configured robot, which the robot compensates and its
+    observer removes; 0: an unknown payload).
+    """
+
+    name = "position_dependent_load"
+    summary = "gravity-like load A sin(theta_l + phi)"
+    params = (
+        Param("amplitude_nm", 10.0, "Nm", -1000.0, 1000.0, "load amplitude A"),
+        Param("phase_rad", 0.0, "rad", -10.0, 10.0, "phase phi"),
+        Param("compensated", 1.0, "1", 0.0, 1.0, "fraction known to the robot's model"),
+    )
+
+    def link_torque(self, theta_l, omega_l, P):
+        return P["amplitude_nm"] * ca.sin(theta_l + P["phase_rad"])
+
+    def robot_model_torque(self, theta_m, P):
+        return P["compensated"] * P["amplitude_nm"] * ca.sin(theta_m + P["phase_rad"])
+
+
+@register_effect
+class TorqueSensorOffset(Effect):
+    """Constant offset of the joint torque sensor [Nm]."""
+
+    name = "torque_sensor_offset"
+    summary = "torque-sensor offset"
+    params = (Param("offset_nm", 0.5, "Nm", -50.0, 50.0, "added to the reading"),)
+
+    def sensor(self, tau, t, P):
+        return tau + P["offset_nm"]
+
+
+@register_effect
+class TorqueSensorScale(Effect):
+    """Scale error of the joint torque sensor: reading = scale * torque."""
+
+    name = "torque_sensor_scale"
+    summary = "torque-sensor scale error"
+    params = (Param("scale", 1.02, "1", 0.5, 2.0, "reading per true torque"),)
+
+    def sensor(self, tau, t, P):
+        return P["scale"] * tau
+
+
+@register_effect
+class PeriodicDisturbance(Effect):
+    """Time-periodic disturbance on the torque sensor (mains hum)."""
+
+    name = "periodic_disturbance"
+    summary = "time-periodic torque-sensor disturbance"
+    params = (
+        Param("amplitude_nm", 0.2, "Nm", 0.0, 50.0, "amplitude"),
+        Param("frequency_hz", 50.0, "Hz", 0.01, 499.0, "frequency"),
+        Param("phase_rad", 0.0, "rad", -10.0, 10.0, "phase at t = 0"),
+    )
+
+    def sensor(self, tau, t, P):
+        return tau + P["amplitude_nm"] * ca.sin(2 * math.pi * P["frequency_hz"] * t + P["phase_rad"])
+
+
+@register_effect
+class InputDelay(Effect):
+    """Extra input delay on top of the model's ``Td`` [s]."""
+
+    name = "input_delay"
+    summary = "extra input delay"
+    params = (Param("extra_s", 0.001, "s", 0.0, 0.05, "added to Td"),)
+
+    def extra_delay_s(self) -> float:
+        return self.values["extra_s"]

@@ -1,0 +1,37 @@
+"""Shared fixtures: plants with the sensor noise and quantisation switched off for exact checks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from iiwa_ident.sim import Plant, default_plant
+
+REPO = Path(__file__).resolve().parents[1]
+REAL_LOGS = REPO.parent / "shared" / "data" / "real" / "iiwa14-constant-velocity"
+
+
+def quiet(plant: Plant) -> Plant:
+    """The plant without sensor noise and encoder quantisation."""
+    plant.sensors.update(tau_noise_nm=0.0, ft_noise_nm=0.0, link_encoder_noise_rad=0.0, encoder_tick_rad=0.0)
+    return plant
+
+
+@pytest.fixture
+def linear_plant() -> Plant:
+    """Table I, no effects, no noise."""
+    return quiet(default_plant().without_effects())
+
+
+@pytest.fixture
+def ripple_plant() -> Plant:
+    """Table I with the default ripple, no noise."""
+    return quiet(default_plant())
+
+
+def smooth_command(n: int, dt: float = 1e-3, bias: float = 8.0, amp: float = 5.0, f: float = 3.0) -> np.ndarray:
+    """A command that starts above the standstill threshold and within the slew-rate limit."""
+    t = np.arange(n) * dt
+    return 1.5 + bias * np.sin(np.pi * np.minimum(t, 0.5)) ** 2 + amp * np.sin(2 * np.pi * f * t) * np.minimum(t / 0.3, 1)
