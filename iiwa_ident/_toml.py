@@ -56,25 +56,57 @@ def _value(v: Any) -> str:
 
 
 def _key(k: str) -> str:
-    return k if k.replace("_", "").replace("-", "").isalnum() else _value(k)
+    return k if k and k.replace("_", "").replace("-", "").isalnum() else _value(k)
+
+
+def _is_scalar(v: Any) -> bool:
+    return not isinstance(v, (dict, list, tuple)) and not hasattr(v, "tolist") or hasattr(v, "ndim") and v.ndim == 0
+
+
+def _inline(d: dict) -> str:
+    return "{ " + ", ".join(f"{_key(k)} = {_value(v)}" for k, v in d.items() if v is not None) + " }"
+
+
+def _is_table_list(v: Any) -> bool:
+    return isinstance(v, (list, tuple)) and bool(v) and all(isinstance(x, dict) for x in v)
+
+
+def _body(data: dict[str, Any], inline: bool = True) -> list[str]:
+    """Key-value lines of one table; all-scalar sub-tables are written inline if ``inline``."""
+    lines = []
+    for k, v in data.items():
+        if v is None or _is_table_list(v):
+            continue
+        if isinstance(v, dict):
+            if inline and v and all(_is_scalar(x) for x in v.values()):
+                lines.append(f"{_key(k)} = {_inline(v)}")
+            continue
+        lines.append(f"{_key(k)} = {_value(v)}")
+    return lines
 
 
 def dumps_toml(data: dict[str, Any], _prefix: str = "") -> str:
-    """Serialise nested dicts to TOML text (tables after plain keys)."""
-    lines: list[str] = []
-    tables = []
+    """Serialise nested dicts to TOML text.
+
+    Plain keys first, then sub-tables (``[a.b]``), with small all-scalar
+    tables inside a table written inline, and lists of dicts as arrays of
+    tables (``[[name]]``).
+    """
+    blocks: list[str] = []
+    body = _body(data, inline=bool(_prefix))
+    if body:
+        blocks.append("\n".join(body))
     for k, v in data.items():
-        if isinstance(v, dict):
-            tables.append((k, v))
-        elif v is not None:
-            lines.append(f"{_key(k)} = {_value(v)}")
-    for k, v in tables:
         name = f"{_prefix}.{_key(k)}" if _prefix else _key(k)
-        body = dumps_toml(v, name)
-        if any(not isinstance(x, dict) for x in v.values()) or not v:
-            lines.append(f"\n[{name}]")
-        lines.append(body)
-    return "\n".join(x for x in lines if x != "").strip() + "\n"
+        if isinstance(v, dict) and not (v and all(_is_scalar(x) for x in v.values()) and _prefix):
+            inner = dumps_toml(v, name).strip()
+            has_body = bool(_body(v, inline=True)) or not v
+            header = f"[{name}]" if has_body else ""
+            blocks.append("\n".join(x for x in (header, inner) if x))
+        elif _is_table_list(v):
+            for item in v:
+                blocks.append(f"[[{name}]]\n" + "\n".join(_body(item)))
+    return "\n\n".join(b for b in blocks if b).strip() + "\n"
 
 
 def write_atomic(path: str | os.PathLike, text: str | bytes) -> Path:

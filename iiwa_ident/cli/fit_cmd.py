@@ -1,0 +1,1 @@
+"""Subcommand ``fit`` (being written)."""

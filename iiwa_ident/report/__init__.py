@@ -1,0 +1,1 @@
+"""Figures and PDF reports (matplotlib, Agg backend)."""
