@@ -1,0 +1,735 @@
+"""Identification of the transmission nonlinearity of eq (5): period rho and lookup table.
+
+Both methods of section III.B estimate the deflection ``f = theta_m - theta_j``
+along the motor position and look for a component that is periodic in
+position:
+
+static (quasi-static runs with the external link reference)
+    ``f = q_m - q_l_ref - tau_j / K``, from eqs (3) and (5) directly.
+dynamic (constant-velocity runs)
+    ``f = q_m - theta_l - tau_j / K`` with the link position unknown but
+    held by the link inertia: its slow part is removed with a high-pass and
+    its fast part, the small link motion of eq (7), is restored from the
+    torque as ``theta_l'' = tau_j / J_l`` (eq (2) without external torque). This keeps the estimate unbiased at
+    low speeds, where eq (7)'s approximation fails (at 0.3 rad/s and rho =
+    0.0196 rad about 37% of the deflection reaches the link).
+
+Every run is cut into passes (constant speed, one direction, no gaps) and
+the passes into chunks. A position-periodic deflection is phase-locked to
+the absolute motor position in every chunk, whatever the speed or
+direction; noise, friction, gravity and time-periodic oscillations are not.
+So the test statistic at spatial frequency k is Hotelling's T^2 of the
+chunks' complex Fourier coefficients ``c_i(k)``: the squared magnitude of
+their mean over its standard error. Under "no periodic deflection" it
+follows an F(2, 2(n-1)) law, which gives a false-alarm probability corrected
+for the number of independent frequencies searched (after calibrating the
+statistic's floor on the data, for noise that is not independent between
+chunks). The period is refined
+by maximising the explained variance of a Fourier series in theta_m, and the
+table f(x_i), ``x_i = i rho / N``, is that series sampled.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+from scipy.interpolate import BSpline
+from scipy.ndimage import median_filter
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = [
+    "ENCODER_TICK_RAD",
+    "Pass",
+    "MethodResult",
+    "RippleResult",
+    "find_passes",
+    "deflection",
+    "identify_ripple",
+]
+
+#: Motor encoder quantisation of the iiwa (section III.B) [rad].
+ENCODER_TICK_RAD = 5.989e-8
+
+
+@dataclass
+class Pass:
+    """One stretch of constant-speed motion in one direction, without gaps.
+
+    Attributes
+    ----------
+    dataset : int
+        Index of the dataset it comes from.
+    method : str
+        ``"static"`` or ``"dynamic"``.
+    speed : float
+        Median signed speed [rad/s].
+    theta : numpy.ndarray
+        Motor position q_m of the kept samples [rad].
+    f : numpy.ndarray
+        Deflection estimate at those samples [rad].
+    t : numpy.ndarray
+        Sample times [s].
+    tau_hp : numpy.ndarray
+        High-passed joint torque [Nm] (for eq (6) checks).
+    nuisance : numpy.ndarray
+        Orthonormal basis of what is slow in time (projected out of ``f``);
+        fits project it out of their regressors too, so the estimate is the
+        joint least-squares one.
+    period_max : float
+        Longest period this pass resolves: half its travel, at most the search limit [rad].
+    weight : float
+        Inverse noise standard deviation of the pass [1/rad], set by the fit.
+    """
+
+    dataset: int
+    method: str
+    speed: float
+    theta: np.ndarray
+    f: np.ndarray
+    t: np.ndarray
+    tau_hp: np.ndarray
+    nuisance: np.ndarray
+    period_max: float
+    weight: float = 1.0
+
+
+@dataclass
+class MethodResult:
+    """Lookup table and fit of one method (or of all passes together)."""
+
+    method: str
+    lut: np.ndarray
+    harmonics: int
+    amplitude_rad: float
+    rms_rad: float
+    residual_rms_rad: float
+    n_passes: int
+    n_samples: int
+    shift_rad: float = 0.0
+
+
+@dataclass
+class RippleResult:
+    """Outcome of :func:`identify_ripple` (all angles in rad, at the motor side)."""
+
+    detected: bool
+    period_rad: float | None
+    period_std_rad: float | None
+    false_alarm: float
+    statistic: float
+    lut: np.ndarray | None
+    amplitude_rad: float | None
+    methods: dict[str, MethodResult]
+    spectrum_k: np.ndarray
+    spectrum_stat: np.ndarray
+    spectrum_power: np.ndarray
+    velocity_table: list[dict]
+    passes: list[Pass]
+    warnings: list[str] = field(default_factory=list)
+    K: float = 0.0
+    Jl: float = 0.0
+    link_motion: str = ""
+
+    @property
+    def cycles_per_rev(self) -> float | None:
+        """Ripple cycles per joint revolution, 2 pi / rho."""
+        return None if self.period_rad is None else 2 * math.pi / self.period_rad
+
+    @property
+    def period_ticks(self) -> float | None:
+        """The period in encoder ticks (5.989e-8 rad a tick)."""
+        return None if self.period_rad is None else self.period_rad / ENCODER_TICK_RAD
+
+    def to_json(self) -> dict:
+        """The ``--json`` document (SI units)."""
+        return {
+            "detected": self.detected,
+            "period_rad": self.period_rad,
+            "period_std_rad": self.period_std_rad,
+            "cycles_per_rev": self.cycles_per_rev,
+            "period_ticks": self.period_ticks,
+            "amplitude_rad": self.amplitude_rad,
+            "lut": None if self.lut is None else self.lut.tolist(),
+            "lut_bins": None if self.lut is None else len(self.lut),
+            "false_alarm_probability": self.false_alarm,
+            "statistic": self.statistic,
+            "methods": {name: {"amplitude_rad": m.amplitude_rad, "rms_rad": m.rms_rad,
+                               "residual_rms_rad": m.residual_rms_rad, "harmonics": m.harmonics,
+                               "passes": m.n_passes, "samples": m.n_samples, "shift_rad": m.shift_rad,
+                               "lut": m.lut.tolist()}
+                        for name, m in self.methods.items()},
+            "velocity_frequency": self.velocity_table,
+            "K_used": self.K,
+            "Jl_used": self.Jl,
+            "link_motion": self.link_motion,
+            "warnings": self.warnings,
+        }
+
+
+# --------------------------------------------------------------------------- passes
+
+def _smooth_velocity(t: np.ndarray, q: np.ndarray, window_s: float = 0.05) -> np.ndarray:
+    dt = np.median(np.diff(t))
+    v = np.gradient(q, t)
+    n = max(1, int(round(window_s / dt)))
+    if n > 1:
+        kernel = np.ones(n) / n
+        v = np.convolve(np.pad(v, (n // 2, n - 1 - n // 2), mode="edge"), kernel, mode="valid")
+    return v
+
+
+def find_passes(t: np.ndarray, q: np.ndarray, min_speed: float, min_travel: float,
+                tolerance: float = 0.15) -> list[tuple[int, int]]:
+    """Index ranges ``[i0, i1)`` of constant-speed motion in one direction without time gaps.
+
+    A sample belongs to a pass when the smoothed speed is above ``min_speed``
+    [rad/s] and within ``tolerance`` of the move's plateau speed; a pass
+    must travel at least ``min_travel`` [rad].
+    """
+    dt = np.median(np.diff(t))
+    v = _smooth_velocity(t, q)
+    gap = np.r_[False, np.diff(t) > 1.5 * dt]
+    moving = np.abs(v) >= min_speed
+    out = []
+    i = 0
+    n = len(t)
+    while i < n:
+        if not moving[i]:
+            i += 1
+            continue
+        j = i + 1
+        sgn = np.sign(v[i])
+        while j < n and moving[j] and np.sign(v[j]) == sgn and not gap[j]:
+            j += 1
+        # Keep the constant-speed core: samples within tolerance of the plateau speed (the
+        # median would be pulled down by the acceleration ramps of a short move).
+        seg = v[i:j]
+        plateau = sgn * np.percentile(np.abs(seg), 90)
+        ok = np.abs(seg - plateau) <= tolerance * abs(plateau)
+        k = 0
+        while k < len(seg):
+            if not ok[k]:
+                k += 1
+                continue
+            m = k
+            while m < len(seg) and ok[m]:
+                m += 1
+            if abs(q[i + m - 1] - q[i + k]) >= min_travel:
+                out.append((i + k, i + m))
+            k = m
+        i = j
+    return out
+
+
+def _smooth_basis(t: np.ndarray, knot_spacing: float) -> np.ndarray:
+    """Cubic B-spline basis over ``t`` with knots about ``knot_spacing`` apart (plus a constant)."""
+    t0, t1 = float(t[0]), float(t[-1])
+    n_int = max(1, int(math.ceil((t1 - t0) / knot_spacing)))
+    inner = np.linspace(t0, t1, n_int + 1)
+    knots = np.r_[[t0] * 3, inner, [t1] * 3]
+    return BSpline.design_matrix(np.clip(t, t0, t1), knots, 3).toarray()
+
+
+def _pass_deflection(t: np.ndarray, q: np.ndarray, tau: np.ndarray, q_l: np.ndarray | None, K: float,
+                     Jl: float, f_cut: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Deflection estimate, high-passed torque and nuisance basis of one pass.
+
+    ``q - tau/K - theta_l`` with theta_l the measured link position (static)
+    or the double integral of tau/J_l (dynamic: the link's own motion under
+    the joint torque, eq (2)); whatever is slow in time (integration
+    constants, friction, gravity, the tracking controller) lies in the span
+    of a cubic spline with knots 1/f_cut apart, which is projected out. It
+    passes every period shorter than the search limit essentially untouched.
+    """
+    Q, _ = np.linalg.qr(_smooth_basis(t, 1.0 / f_cut))
+    if q_l is None:
+        tc = t - t[0]
+        acc = (tau - tau.mean()) / Jl
+        vel = np.r_[0.0, np.cumsum(0.5 * (acc[1:] + acc[:-1]) * np.diff(tc))]
+        theta_l = np.r_[0.0, np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(tc))]
+    else:
+        theta_l = q_l
+    raw = q - tau / K - theta_l
+    return raw - Q @ (Q.T @ raw), tau - Q @ (Q.T @ tau), Q
+
+
+def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: float, min_speed: float,
+               min_travel: float, method: str | None = None) -> list[Pass]:
+    """The passes of one dataset with their deflection estimates.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Constant-velocity run (dynamic method) or quasi-static run with
+        ``q_l_ref`` (static method).
+    K, Jl : float
+        Stiffness [Nm/rad] and link inertia [kg m^2] of the model.
+    period_max : float
+        Longest period searched [rad]; a pass resolves periods up to half
+        its travel, and its high-pass keeps every period it resolves.
+    min_speed : float
+        Slowest motion used [rad/s].
+    min_travel : float
+        Shortest pass kept [rad].
+    method : str, optional
+        Force ``"static"`` or ``"dynamic"`` (default: static for quasi_static runs).
+    """
+    t, q, tau = dataset["t"], dataset["q_m"], dataset["tau_j"]
+    if method is None:
+        method = "static" if dataset.experiment == "quasi_static" else "dynamic"
+    if method == "static" and not dataset.has("q_l_ref"):
+        raise IiwaIdentError(f"{dataset.path or 'dataset'}: the static method needs the link reference q_l_ref")
+    q_l = dataset["q_l_ref"] if method == "static" else None
+    out = []
+    for i0, i1 in find_passes(t, q, min_speed, min_travel=min_travel):
+        if i1 - i0 < 16:
+            continue
+        speed = float(np.median(np.diff(q[i0:i1]) / np.diff(t[i0:i1])))
+        longest = min(period_max, abs(q[i1 - 1] - q[i0]) / 2)
+        f_cut = 0.5 * abs(speed) / longest
+        f, th, Q = _pass_deflection(t[i0:i1], q[i0:i1], tau[i0:i1], None if q_l is None else q_l[i0:i1], K, Jl,
+                                    f_cut)
+        out.append(Pass(index, method, speed, q[i0:i1], f, t[i0:i1], th, Q, longest))
+    return out
+
+
+# --------------------------------------------------------------------------- spectrum
+
+def _chunks(passes: list[Pass], span: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Cut passes into chunks of at least two of their longest periods (about span / 8).
+
+    Each chunk is ``(theta, f, k_min)``: it speaks only for spatial
+    frequencies above ``k_min`` = 1 / (its pass's longest period).
+    """
+    out = []
+    for p in passes:
+        travel = abs(p.theta[-1] - p.theta[0])
+        n = max(1, int(travel // max(2.0 * p.period_max, span / 8)))
+        for idx in np.array_split(np.arange(len(p.theta)), n):
+            if len(idx) >= 8:
+                out.append((p.theta[idx], p.f[idx], 1.0 / p.period_max))
+    return out
+
+
+def _chunk_coefficients(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hann-tapered complex Fourier coefficients of each chunk at ``k`` [cycles/rad], and validity.
+
+    The taper keeps strong slow leftovers from leaking into the ripple band;
+    a chunk is valid at k only above its pass's ``k_min``. ``k`` must be a
+    uniform grid: the phasors are advanced by one grid step at a time.
+    """
+    sizes = [len(f) for _, f, _ in chunks]
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    theta = np.concatenate([th for th, _, _ in chunks])
+    x = np.empty(len(theta))
+    norm = np.empty(len(chunks))
+    for i, (_, f, _) in enumerate(chunks):
+        w = _taper(len(f))
+        x[starts[i]:starts[i] + len(f)] = (f - np.average(f, weights=w)) * w
+        norm[i] = 2.0 / w.sum()
+    dk = k[1] - k[0] if len(k) > 1 else 0.0
+    phasor = np.exp(-2j * np.pi * k[0] * theta)
+    step = np.exp(-2j * np.pi * dk * theta)
+    coefs = np.empty((len(chunks), len(k)), dtype=complex)
+    for m in range(len(k)):
+        if m and m % 256 == 0:  # re-anchor to keep rounding from accumulating
+            phasor = np.exp(-2j * np.pi * k[m] * theta)
+        coefs[:, m] = np.add.reduceat(x * phasor, starts) * norm
+        phasor *= step
+    valid = k[None, :] >= np.array([k_min for _, _, k_min in chunks])[:, None]
+    coefs[~valid] = 0.0
+    return coefs, valid
+
+
+def _hotelling(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hotelling T^2 of the chunks' Fourier coefficients at ``k`` [cycles/rad].
+
+    Returns T^2, the power of the mean coefficient, and the number of chunks
+    that speak for each k (chunks of short passes are left out at long periods).
+    """
+    coefs, valid = _chunk_coefficients(chunks, k)
+    count = valid.sum(axis=0)
+    n = np.maximum(count, 1)
+    mean = coefs.sum(axis=0) / n
+    spread = np.where(valid, np.abs(coefs - mean) ** 2, 0.0).sum(axis=0)
+    var = spread / np.maximum(count - 1, 1) / n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t2 = np.where(count >= 3, np.abs(mean) ** 2 / var, 0.0)
+    return np.nan_to_num(t2, nan=0.0, posinf=0.0), np.abs(mean) ** 2, count
+
+
+def _period_std(passes: list[Pass], k_hat: float, harmonics: int, dk: float, parts: int = 8) -> float:
+    """Standard error of the spatial frequency by a delete-a-group jackknife over the passes [cycles/rad].
+
+    The residual is not white (double-integrated torque noise, slow leftovers), so the
+    curvature of the least-squares cost would understate the error.
+    """
+    groups = np.array_split(np.arange(len(passes)), min(parts, len(passes)))
+    if len(groups) < 3:
+        return float("nan")
+    estimates = []
+    for g in groups:
+        drop = set(g.tolist())
+        keep = [p for i, p in enumerate(passes) if i not in drop]
+        res = optimize.minimize_scalar(lambda kk: _fourier_fit(keep, 1.0 / kk, harmonics, grouped=True)[1],
+                                       bounds=(k_hat - 1.5 * dk, k_hat + 1.5 * dk), method="bounded",
+                                       options={"xatol": 1e-8 * k_hat})
+        estimates.append(res.x)
+    estimates = np.asarray(estimates)
+    m = len(estimates)
+    return float(math.sqrt((m - 1) / m * np.sum((estimates - estimates.mean()) ** 2)))
+
+
+def _false_alarm(t2: float, n: int, m_eff: float) -> float:
+    """Probability that noise alone gives a maximum statistic this large among m_eff frequencies.
+
+    With n chunks of independent circular noise, T^2 = |mean|^2 / (s^2 / n) follows F(2, 2(n-1)).
+    """
+    p = float(stats.f.sf(t2, 2, 2 * (n - 1))) if n > 1 else 1.0
+    return float(min(1.0, -math.expm1(m_eff * math.log1p(-min(p, 1 - 1e-16)))))
+
+
+# --------------------------------------------------------------------------- fits
+
+def _design(theta: np.ndarray, period: float, harmonics: int) -> np.ndarray:
+    x = 2 * np.pi * theta[:, None] / period * np.arange(1, harmonics + 1)
+    return np.hstack([np.cos(x), np.sin(x)])
+
+
+def _taper(n: int) -> np.ndarray:
+    """Hann window of n samples without its zero end points."""
+    return np.hanning(n + 2)[1:-1]
+
+
+def _group(p: Pass) -> tuple:
+    """Passes of one dataset, method, direction and speed see the deflection through the same dynamics."""
+    return (p.dataset, p.method, round(p.speed, 1))
+
+
+def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
+                 grouped: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
+    """Joint least squares of a Fourier series in theta and each pass's slow nuisance.
+
+    By Frisch-Waugh-Lovell the nuisance is projected out of the regressors of
+    each pass as it was out of the data. Each pass is weighted by its
+    ``weight`` and tapered (Hann), which keeps slow leftovers from leaking
+    into the fit as in the detection. With ``grouped`` each group of passes
+    (same dataset, method, speed and direction) gets its own coefficients:
+    the dynamic method sees the ripple through speed-dependent link dynamics
+    (eq (7)), which then cannot bias the common period; only the residual sum
+    of squares is meaningful then. Returns the Fourier coefficients (cos then
+    sin), the weighted residual sum of squares and the coefficients' covariance.
+    """
+    if grouped:
+        ss = 0.0
+        for g in sorted({_group(p) for p in passes}):
+            ss += _fourier_fit([p for p in passes if _group(p) == g], period, harmonics)[1]
+        return np.zeros(0), ss, np.zeros((0, 0))
+    blocks, data = [], []
+    for p in passes:
+        A = _design(p.theta, period, harmonics)
+        w = p.weight * np.sqrt(_taper(len(p.f)))
+        blocks.append(w[:, None] * (A - p.nuisance @ (p.nuisance.T @ A)))
+        data.append(w * p.f)
+    A = np.vstack(blocks)
+    f = np.concatenate(data)
+    coef, *_ = np.linalg.lstsq(A, f, rcond=None)
+    resid = f - A @ coef
+    ss = float(resid @ resid)
+    dof = max(1, len(f) - A.shape[1] - sum(p.nuisance.shape[1] for p in passes))
+    cov = np.linalg.pinv(A.T @ A) * ss / dof
+    return coef, ss, cov
+
+
+def _set_weights(passes: list[Pass], period: float, harmonics: int) -> None:
+    """Weight each pass by the inverse noise level of its residual around the ripple's frequencies.
+
+    The residual is far from white (the dynamic method's torque-integrated link
+    term amplifies torque noise as 1/f^2), so the level is taken where it
+    matters: in the band of the pass's ripple frequency |v| / rho and its harmonics.
+    """
+    for p in passes:
+        p.weight = 1.0
+    coef, _, _ = _fourier_fit(passes, period, harmonics)
+    for p in passes:
+        A = _design(p.theta, period, harmonics)
+        r = p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef
+        dt = float(np.median(np.diff(p.t)))
+        spec = np.abs(np.fft.rfft(r * _taper(len(r)))) ** 2
+        freqs = np.fft.rfftfreq(len(r), dt)
+        f_r = abs(p.speed) / period
+        band = (freqs >= 0.7 * f_r) & (freqs <= min(1.3 * harmonics * f_r, freqs[-1]))
+        if band.sum() < 3:
+            band = freqs >= 0.5 * f_r
+        level = float(np.mean(spec[band])) if band.any() else float(r @ r)
+        p.weight = 1.0 / max(math.sqrt(level), 1e-300)
+
+
+def _choose_harmonics(passes: list[Pass], period: float, max_harmonics: int) -> int:
+    """Most harmonics whose amplitude is at least 4 standard errors (at least 1)."""
+    coef, _, cov = _fourier_fit(passes, period, max_harmonics)
+    h = max_harmonics
+    a, b = coef[:h], coef[h:]
+    amp = np.hypot(a, b)
+    se = np.sqrt(np.maximum(np.diag(cov)[:h] + np.diag(cov)[h:], 1e-300) / 2)
+    significant = np.nonzero(amp > 4 * se)[0]
+    return int(significant.max() + 1) if len(significant) else 1
+
+
+def _table(coef: np.ndarray, period: float, harmonics: int, bins: int) -> np.ndarray:
+    x = np.arange(bins) * period / bins
+    lut = _design(x, period, harmonics) @ coef
+    return lut - lut.mean()
+
+
+def _method_result(name: str, passes: list[Pass], period: float, max_harmonics: int, bins: int) -> MethodResult:
+    h = _choose_harmonics(passes, period, max_harmonics)
+    coef, _, _ = _fourier_fit(passes, period, h)
+    lut = _table(coef, period, h, bins)
+    resid = []
+    for p in passes:
+        A = _design(p.theta, period, h)
+        resid.append(p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef)
+    resid = np.concatenate(resid)
+    return MethodResult(name, lut, h, float((lut.max() - lut.min()) / 2), float(np.sqrt(np.mean(lut ** 2))),
+                        float(np.sqrt(np.mean(resid ** 2))), len(passes), len(resid))
+
+
+def _circular_shift(reference: np.ndarray, other: np.ndarray) -> int:
+    """Shift (in bins) that best aligns ``other`` to ``reference`` (circular cross-correlation)."""
+    xc = np.fft.irfft(np.fft.rfft(reference) * np.conj(np.fft.rfft(other)), n=len(reference))
+    return int(np.argmax(xc))
+
+
+# --------------------------------------------------------------------------- main entry
+
+@dataclass
+class _LineSpectrum:
+    """Hotelling spectrum of a set of passes over the searched spatial frequencies."""
+
+    k: np.ndarray
+    t2: np.ndarray
+    power: np.ndarray
+    count: np.ndarray
+    dk: float
+    i_best: int
+    warnings: list[str]
+
+    def false_alarm(self, j: int, tries: float | None = None) -> float:
+        """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
+        return _false_alarm(float(self.t2[j]), int(self.count[j]), len(self.k) / 4.0 if tries is None else tries)
+
+
+def _line_search(passes: list[Pass], period_min: float, period_max: float) -> _LineSpectrum:
+    warnings = []
+    # A period is told from a slow trend only within a pass that travels two of them.
+    longest = max(p.period_max for p in passes)
+    if longest < period_max:
+        warnings.append(f"the longest pass travels {2 * longest:.3g} rad: periods searched up to {longest:.3g} rad")
+        period_max = longest
+    span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
+    chunks = _chunks(passes, span)
+    if len(chunks) < 3:
+        raise IiwaIdentError(f"ripple: too little motion: {len(chunks)} usable stretches (need 3 or more); "
+                             "record longer runs, both directions or more speeds")
+    # Spatial frequency grid: 4 points per resolution cell 1/span.
+    dk = 1.0 / (4.0 * span)
+    k = np.arange(1.0 / period_max, 1.0 / period_min + dk, dk)
+    t2_raw, power, count = _hotelling(chunks, k)
+    # Real logs have noise that is correlated between neighbouring chunks (slow oscillations,
+    # gravity and friction leftovers), which lifts the whole T^2 floor above its F(2, 2(n-1))
+    # law. Calibrate with the local median (ln 2 under that law), never making a line more
+    # significant than the law says.
+    floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
+    t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
+    return _LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings)
+
+
+@dataclass
+class _Candidate:
+    """One deflection estimate (a choice of link motion) with its line and refined period."""
+
+    name: str
+    passes: list[Pass]
+    spectrum: _LineSpectrum
+    period: float | None = None
+    period_std: float = math.inf
+
+    def refine(self, false_alarm: float, harmonics: int) -> None:
+        """Pick the fundamental and refine its period by a grouped, weighted Fourier fit."""
+        spec = self.spectrum
+        k, t2, power, dk, i_best = spec.k, spec.t2, spec.power, spec.dk, spec.i_best
+        # The most consistent line may be a harmonic: take the lowest integer fraction of it that is
+        # itself a significant line with at least a tenth of its power (T^2 measures consistency,
+        # not size: a weak, clean harmonic can beat a strong fundamental). Only the four fractions
+        # are tested, so the false alarm is corrected for four tries.
+        k_star = k[i_best]
+        for m in range(5, 1, -1):
+            near = np.abs(k - k_star / m) <= 2 * dk
+            if near.any():
+                j = np.nonzero(near)[0][np.argmax(t2[near])]
+                if spec.false_alarm(j, tries=4) < false_alarm and power[j] >= 0.1 * power[i_best]:
+                    k_star = k[j]
+                    break
+        # The period that best explains the deflection with a Fourier series (tapered, nuisance
+        # projected, one set of coefficients per group of passes so that what is left of the
+        # speed-dependent link dynamics cannot bias it), each pass weighted by its noise level.
+
+        def refine() -> float:
+            res = optimize.minimize_scalar(
+                lambda kk: _fourier_fit(self.passes, 1.0 / kk, harmonics, grouped=True)[1],
+                bounds=(k_star - 1.5 * dk, k_star + 1.5 * dk), method="bounded", options={"xatol": 1e-7 * k_star})
+            return float(res.x)
+
+        k_hat = refine()
+        _set_weights(self.passes, 1.0 / k_hat, harmonics)
+        k_hat = refine()
+        self.period = 1.0 / k_hat
+        std = _period_std(self.passes, k_hat, harmonics, dk) / k_hat ** 2
+        self.period_std = std if math.isfinite(std) else math.inf
+
+
+def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6, period_min: float = 0.004,
+                    period_max: float = 0.12, bins: int = 256, max_harmonics: int = 8, min_speed: float = 0.003,
+                    false_alarm: float = 1e-3, link_motion: str = "auto") -> RippleResult:
+    """Decide whether a position-periodic deflection exists; find its period and lookup table.
+
+    Parameters
+    ----------
+    datasets : list of Dataset
+        Constant-velocity runs (dynamic method) and/or quasi-static runs with
+        the link reference (static method), used together: both directions,
+        all speeds.
+    K : float
+        Series-elastic stiffness [Nm/rad] (Table I: 18500).
+    Jl : float
+        Link inertia [kg m^2] for the dynamic method's link-motion term (Table I: 5.6).
+    period_min, period_max : float
+        Search range of the period [rad].
+    bins : int
+        Lookup-table size.
+    max_harmonics : int
+        Most Fourier harmonics in the table.
+    min_speed : float
+        Slowest motion used [rad/s].
+    false_alarm : float
+        Largest false-alarm probability accepted as a detection.
+    link_motion : {"auto", "restored", "neglected"}
+        Dynamic method: restore the link's fast motion from the torque
+        (eq (2)), neglect it (eq (7)), or keep whichever gives the more
+        consistent line.
+
+    Returns
+    -------
+    RippleResult
+
+    Raises
+    ------
+    IiwaIdentError
+        When no usable motion is found (too short, too slow, standing still).
+    """
+    if not 0 < period_min < period_max:
+        raise IiwaIdentError("ripple: need 0 < period_min < period_max")
+    if bins < 16:
+        raise IiwaIdentError("ripple: the lookup table needs at least 16 bins")
+    joints = {ds.joint for ds in datasets}
+    if len(joints) > 1:
+        raise IiwaIdentError(f"ripple: the datasets are from different joints ({sorted(joints)}); "
+                             "a deflection is identified one joint at a time")
+    # The dynamic method restores the link's own fast motion from the torque (eq (2)); on a real arm
+    # other torques act on the link too, and the term can add more noise than it removes. Both
+    # estimates are tried, and the one whose period is the more reproducible across passes (smaller
+    # jackknife error) is kept.
+    if link_motion not in ("auto", "restored", "neglected"):
+        raise IiwaIdentError(f"ripple: link_motion must be auto, restored or neglected, got {link_motion!r}")
+    inertias = {"auto": (Jl, math.inf), "restored": (Jl,), "neglected": (math.inf,)}[link_motion]
+    candidates = []
+    for link_inertia in inertias:
+        passes: list[Pass] = []
+        for i, ds in enumerate(datasets):
+            passes += deflection(ds, i, K, link_inertia, period_max, min_speed, min_travel=4.0 * period_min)
+        if not passes:
+            names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
+            raise IiwaIdentError(f"{names}: no stretch of constant-speed motion (at least {min_speed} rad/s over "
+                                 f"{4 * period_min:g} rad) to identify a position-periodic deflection from")
+        dynamic = any(p.method == "dynamic" for p in passes)
+        name = ("restored" if math.isfinite(link_inertia) else "neglected") if dynamic else "measured"
+        candidates.append(_Candidate(name, passes, _line_search(passes, period_min, period_max)))
+        if not dynamic:
+            break  # static passes only: the link is measured, nothing to choose
+    for c in candidates:
+        if c.spectrum.false_alarm(c.spectrum.i_best) <= false_alarm:
+            c.refine(false_alarm, min(3, max_harmonics))
+    detected = [c for c in candidates if c.period is not None]
+    best = min(detected, key=lambda c: c.period_std / c.period) if detected else \
+        min(candidates, key=lambda c: c.spectrum.false_alarm(c.spectrum.i_best))
+    passes, spec = best.passes, best.spectrum
+    warnings = list(spec.warnings)
+    directions = {np.sign(p.speed) for p in passes}
+    speeds = [abs(p.speed) for p in passes]
+    if len(directions) == 1 and max(speeds) <= 1.1 * min(speeds):
+        warnings.append("one direction at one speed only: a disturbance periodic in time at speed/rho Hz "
+                        "cannot be told apart from a position-periodic one; run both directions or two speeds")
+    fap = spec.false_alarm(spec.i_best)
+    stat = float(spec.t2[spec.i_best])
+    base = dict(spectrum_k=spec.k, spectrum_stat=spec.t2, spectrum_power=spec.power, passes=passes,
+                warnings=warnings, K=K, Jl=Jl, link_motion=best.name)
+    if best.period is None:
+        return RippleResult(False, None, None, fap, stat, None, None, {}, velocity_table=[], **base)
+    period, period_std = best.period, best.period_std
+
+    methods = {}
+    by_method = {m: [p for p in passes if p.method == m] for m in ("static", "dynamic")}
+    for name, ps in by_method.items():
+        if ps:
+            methods[name] = _method_result(name, ps, period, max_harmonics, bins)
+    if len(methods) == 2:
+        # The static table is measured directly: align the dynamic one to it and record the shift.
+        shift = _circular_shift(methods["static"].lut, methods["dynamic"].lut)
+        if shift > bins // 2:
+            shift -= bins
+        methods["dynamic"].shift_rad = shift * period / bins
+        methods["dynamic"].lut = np.roll(methods["dynamic"].lut, shift)
+    # The table written to the model uses every pass, weighted by its noise.
+    combined = _method_result("combined", passes, period, max_harmonics, bins)
+    lut = combined.lut
+
+    velocity_table = _velocity_table(passes, period)
+    return RippleResult(True, period, period_std, fap, stat, lut, combined.amplitude_rad, methods,
+                        velocity_table=velocity_table, **base)
+
+
+def _velocity_table(passes: list[Pass], period: float) -> list[dict]:
+    """Eq (6) per speed: predicted ripple frequency |v| / rho against the torque spectrum's peak."""
+    # Passes within 10% of each other's speed form one row.
+    groups: dict[float, list[Pass]] = {}
+    for p in sorted(passes, key=lambda p: abs(p.speed)):
+        for speed in groups:
+            if abs(abs(p.speed) - speed) <= 0.1 * speed:
+                groups[speed].append(p)
+                break
+        else:
+            groups[abs(p.speed)] = [p]
+    groups = {float(np.median([abs(p.speed) for p in ps])): ps for ps in groups.values()}
+    rows = []
+    for speed, ps in sorted(groups.items()):
+        f_pred = speed / period
+        best = (0.0, float("nan"))
+        for p in ps:
+            dt = np.median(np.diff(p.t))
+            if f_pred >= 0.5 / dt or len(p.t) < 16:
+                continue
+            spec = np.abs(np.fft.rfft((p.tau_hp - p.tau_hp.mean()) * np.hanning(len(p.t))))
+            freqs = np.fft.rfftfreq(len(p.t), dt)
+            band = np.abs(freqs - f_pred) <= 0.2 * f_pred
+            if band.any():
+                j = np.nonzero(band)[0][np.argmax(spec[band])]
+                if spec[j] > best[0]:
+                    best = (spec[j], float(freqs[j]))
+        rows.append({"speed_rad_s": speed, "predicted_hz": f_pred, "measured_hz": best[1], "passes": len(ps)})
+    return rows

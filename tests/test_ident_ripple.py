@@ -1,0 +1,209 @@
+"""Ripple identification (section III.B): hidden-truth tests, clean data, real logs, edge cases."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from conftest import REAL_LOGS
+from iiwa_ident.cli import app
+from iiwa_ident.datasets import Dataset, import_columns, write_dataset
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record
+from iiwa_ident.ident import RippleTable, read_model
+from iiwa_ident.ident.correction import joint_position, link_position
+from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.sim import SimulatedJoint, TransmissionRipple, default_plant
+
+PAPER_RHO = 0.01963
+
+
+def random_ripple(rng: np.random.Generator) -> TransmissionRipple:
+    """A random truth: period in [0.005, 0.1] rad, two harmonics of random phase."""
+    rho = rng.uniform(0.005, 0.1)
+    amp = rng.uniform(3e-5, 8e-5)
+    return TransmissionRipple({"period_rad": rho, "harmonics": [[amp, rng.uniform(0, 2 * np.pi)],
+                                                                 [0.3 * amp, rng.uniform(0, 2 * np.pi)]]})
+
+
+def lut_error(result, effect: TransmissionRipple) -> float:
+    """RMS table error relative to the ripple amplitude (half peak-to-peak), at the true phases."""
+    x = np.arange(len(result.lut)) * result.period_rad / len(result.lut)
+    truth = effect.evaluate(x)
+    return float(np.sqrt(np.mean((result.lut - truth) ** 2)) / (np.ptp(truth) / 2))
+
+
+def cv_run(plant, seed=0, speeds=(0.3, 0.6, 1.2), range_rad=1.2, **kw) -> Dataset:
+    return record(SimulatedJoint(plant, seed=seed), ConstantVelocity(list(speeds), range_rad=range_rad, **kw))
+
+
+class TestIdentifyRipple:
+    @pytest.mark.parametrize("seed", [101, 102, 103])
+    def test_hidden_random_truth(self, seed):
+        # Draw a truth, simulate with the default noise, identify without seeing the truth.
+        rng = np.random.default_rng(seed)
+        effect = random_ripple(rng)
+        ds = cv_run(default_plant().with_effects(effect), seed=seed)
+        r = identify_ripple([ds])
+        rho = effect.values["period_rad"]
+        assert r.detected
+        assert abs(r.period_rad / rho - 1) < 1e-4
+        assert lut_error(r, effect) < 0.10
+
+    @pytest.mark.parametrize("seed", [1, 2])
+    def test_clean_data_reports_nothing(self, seed):
+        r = identify_ripple([cv_run(default_plant().without_effects(), seed=seed, speeds=(0.3, 1.2), range_rad=0.8)])
+        assert not r.detected
+        assert r.period_rad is None and r.lut is None
+        assert r.false_alarm > 1e-3
+
+    def test_static_method(self):
+        plant = default_plant()
+        ds = record(SimulatedJoint(plant, seed=3), QuasiStatic(torques_nm=[2, 5, 10], velocity_rad_s=0.01,
+                                                              range_rad=0.06))
+        r = identify_ripple([ds])
+        assert r.detected and set(r.methods) == {"static"} and r.link_motion == "measured"
+        assert abs(r.period_rad / PAPER_RHO - 1) < 1e-4
+        assert lut_error(r, plant.effect("transmission_ripple")) < 0.10
+
+    def test_both_methods_together_are_phase_aligned(self):
+        plant = default_plant()
+        qs = record(SimulatedJoint(plant, seed=3), QuasiStatic(torques_nm=[5], velocity_rad_s=0.02, range_rad=0.06))
+        cv = cv_run(plant, seed=4, speeds=(0.6, 1.2), range_rad=0.8)
+        r = identify_ripple([qs, cv])
+        assert set(r.methods) == {"static", "dynamic"}
+        effect = plant.effect("transmission_ripple")
+        amp = np.ptp(r.lut) / 2
+        # Both methods see the same function of the absolute motor position: no shift is needed.
+        assert abs(r.methods["dynamic"].shift_rad) < 0.02 * r.period_rad
+        diff = r.methods["static"].lut - r.methods["dynamic"].lut
+        assert np.sqrt(np.mean(diff ** 2)) < 0.1 * amp
+        assert lut_error(r, effect) < 0.10
+
+    def test_velocity_frequency_relation(self):
+        r = identify_ripple([cv_run(default_plant(), seed=5, speeds=(0.6, 1.2), range_rad=0.8)])
+        for row in r.velocity_table:
+            # Eq (6) within the spectral resolution of a pass.
+            assert row["measured_hz"] == pytest.approx(row["predicted_hz"], rel=0.05)
+
+    def test_units(self):
+        r = identify_ripple([cv_run(default_plant(), seed=6, speeds=(0.6, 1.2), range_rad=0.8)])
+        assert r.cycles_per_rev == pytest.approx(2 * np.pi / r.period_rad)
+        assert r.period_ticks == pytest.approx(r.period_rad / 5.989e-8)
+        doc = r.to_json()
+        for key in ("detected", "period_rad", "cycles_per_rev", "period_ticks", "amplitude_rad", "lut"):
+            assert key in doc
+        assert len(doc["lut"]) == 256
+
+
+class TestEdgeCases:
+    def test_too_short(self):
+        ds = cv_run(default_plant(), speeds=(0.6,), range_rad=0.01)
+        with pytest.raises(IiwaIdentError, match="constant-speed motion|too little motion"):
+            identify_ripple([ds])
+
+    def test_standing_still(self):
+        plant = default_plant()
+        ds = SimulatedJoint(plant).run_open_loop(np.zeros(3000))
+        still = Dataset(signals={"t": ds.measured["t"], "q_m": ds.measured["q_m"], "tau_j": ds.measured["tau_j"]},
+                        experiment="constant_velocity", source="simulation", joint=1, sample_rate_hz=1000.0)
+        with pytest.raises(IiwaIdentError, match="no stretch of constant-speed motion"):
+            identify_ripple([still])
+
+    def test_one_direction_only_warns(self):
+        ds = cv_run(default_plant(), speeds=(0.6,), range_rad=1.0)
+        keep = np.gradient(ds["q_m"], ds["t"]) >= -0.01  # drop the way back
+        one = Dataset(signals={k: v[keep] for k, v in ds.signals.items()}, experiment=ds.experiment,
+                      source=ds.source, joint=1, sample_rate_hz=1000.0)
+        r = identify_ripple([one])
+        assert r.detected and abs(r.period_rad / PAPER_RHO - 1) < 1e-3
+        assert any("one direction" in w for w in r.warnings)
+
+    def test_gaps_in_data(self):
+        ds = cv_run(default_plant(), speeds=(0.6, 1.2), range_rad=0.8)
+        n = len(ds["t"])
+        keep = np.ones(n, bool)
+        for start in range(1000, n, 2500):
+            keep[start:start + 150] = False  # dropped packets
+        gappy = Dataset(signals={k: v[keep] for k, v in ds.signals.items()}, experiment=ds.experiment,
+                        source=ds.source, joint=1, sample_rate_hz=1000.0)
+        r = identify_ripple([gappy])
+        assert r.detected and abs(r.period_rad / PAPER_RHO - 1) < 1e-4
+
+    def test_mixed_speeds_in_separate_runs(self):
+        plant = default_plant()
+        runs = [cv_run(plant, seed=s, speeds=(v,), range_rad=0.8) for s, v in ((7, 0.3), (8, 1.2))]
+        r = identify_ripple(runs)
+        assert r.detected and abs(r.period_rad / PAPER_RHO - 1) < 1e-4
+
+    def test_different_joints_refused(self):
+        ds = cv_run(default_plant(), speeds=(0.6,), range_rad=0.5)
+        other = Dataset(signals=dict(ds.signals), experiment=ds.experiment, source=ds.source, joint=2,
+                        sample_rate_hz=ds.sample_rate_hz)
+        with pytest.raises(IiwaIdentError, match="different joints"):
+            identify_ripple([ds, other])
+
+
+def _real(joint: int) -> Dataset:
+    d = REAL_LOGS / f"joint{joint}" / "vel_p3"
+    if not d.exists():
+        pytest.skip(f"real iiwa 14 logs not found at {d}")
+    return import_columns({"t": d / "cur_traj_time_s.txt", "q_m": d / "joint_position_measured.txt",
+                           "tau_j": d / "joint_torque_measured.txt"}, joint=joint, experiment="constant_velocity")
+
+
+class TestRealLogs:
+    @pytest.mark.parametrize("joint", [2, 4])
+    def test_finds_the_papers_period(self, joint):
+        # 200 Hz, position-controlled, no torque command; ripple of hundredths of a Nm.
+        r = identify_ripple([_real(joint)])
+        assert r.detected
+        assert abs(r.period_rad / PAPER_RHO - 1) < 2e-3
+        assert abs(r.period_ticks - 327680) < 700
+
+
+class TestPositionCorrection:
+    def test_eq8_eq9(self):
+        rho = 0.02
+        table = RippleTable(rho, 1e-5 * np.sin(2 * np.pi * np.arange(64) / 64))
+        q = np.array([0.0, rho / 4, 1.0 + rho / 4])
+        np.testing.assert_allclose(joint_position(q, table), q - 1e-5 * np.array([0.0, 1.0, 1.0]), rtol=0, atol=1e-18)
+        np.testing.assert_allclose(link_position(q, 185.0, 18500.0, table), joint_position(q, table) - 0.01,
+                                   rtol=0, atol=1e-15)
+        assert joint_position(0.3, None) == 0.3
+        assert float(link_position(rho / 4, 0.0, 18500.0, table)) == pytest.approx(rho / 4 - 1e-5, abs=1e-15)
+
+    def test_interpolates_between_bins(self):
+        table = RippleTable(0.01, np.array([0.0, 1.0, 0.0, -1.0]))
+        np.testing.assert_allclose(table(np.array([0.00125, 0.01125])), [0.5, 0.5], rtol=1e-12)
+
+
+class TestRippleCommand:
+    def test_writes_model_and_json(self, tmp_path):
+        ds = cv_run(default_plant(), seed=9, speeds=(0.6, 1.2), range_rad=0.8)
+        data = write_dataset(tmp_path / "cv.h5", ds)
+        res = CliRunner().invoke(app, ["ripple", str(data), "--out", str(tmp_path / "m.toml"),
+                                       "--json", str(tmp_path / "r.json"), "--figures", str(tmp_path / "fig")])
+        assert res.exit_code == 0, res.output
+        assert "encoder ticks" in res.output and "cycles per joint revolution" in res.output
+        model = read_model(tmp_path / "m.toml")
+        assert model.ripple is not None and len(model.ripple.lut) == 256
+        assert abs(model.ripple.period_rad / PAPER_RHO - 1) < 1e-4
+        assert model.value("K") == 18500.0  # Table I without --model
+        assert model.sources[-1].role == "ripple"
+        doc = json.loads((tmp_path / "r.json").read_text())
+        assert doc["detected"] is True and len(doc["lut"]) == 256
+        assert sorted(p.name for p in (tmp_path / "fig").iterdir()) == [
+            "ripple_lut.png", "ripple_spectrum.png", "ripple_velocity.png"]
+
+    def test_refuses_standing_still(self, tmp_path):
+        ds = SimulatedJoint(default_plant()).run_open_loop(np.zeros(2000)).measured
+        path = write_dataset(tmp_path / "still.h5", Dataset(
+            signals={"t": ds["t"], "q_m": ds["q_m"], "tau_j": ds["tau_j"]}, experiment="free",
+            source="simulation", joint=1, sample_rate_hz=1000.0))
+        res = CliRunner().invoke(app, ["ripple", str(path), "--out", str(tmp_path / "m.toml")])
+        assert res.exit_code == 2 and "constant-speed" in res.output and "Traceback" not in res.output
+        assert not (tmp_path / "m.toml").exists()
