@@ -13,6 +13,13 @@ from iiwa_ident.ident.ripple import RippleResult  # noqa: E402
 __all__ = ["spatial_spectrum_figure", "lookup_table_figure", "velocity_frequency_figure"]
 
 
+def _notice(fig: plt.Figure, ax: plt.Axes, text: str) -> plt.Figure:
+    """Say why there is nothing to draw instead of leaving empty axes."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes)
+    ax.set_axis_off()
+    return fig
+
+
 def spatial_spectrum_figure(result: RippleResult) -> plt.Figure:
     """Consistency (Hotelling T^2) and power of the deflection against the period, with the detected period."""
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
@@ -40,9 +47,7 @@ def lookup_table_figure(result: RippleResult) -> plt.Figure:
     """Deflection samples folded modulo rho and the lookup tables of each method (like the paper's Fig. 6)."""
     fig, ax = plt.subplots(figsize=(8, 4.5))
     if not result.detected:
-        ax.text(0.5, 0.5, "no periodic deflection detected", ha="center", va="center", transform=ax.transAxes)
-        ax.set_axis_off()
-        return fig
+        return _notice(fig, ax, "no periodic deflection detected")
     rho = result.period_rad
     colours = {"static": "C0", "dynamic": "C1"}
     # Folded samples averaged in 64 bins per method: the raw samples of a real log are mostly noise.
@@ -77,9 +82,7 @@ def velocity_frequency_figure(result: RippleResult) -> plt.Figure:
     fig, ax = plt.subplots(figsize=(6, 4))
     rows = result.velocity_table
     if not rows:
-        ax.text(0.5, 0.5, "no periodic deflection detected", ha="center", va="center", transform=ax.transAxes)
-        ax.set_axis_off()
-        return fig
+        return _notice(fig, ax, "no periodic deflection detected")
     v = np.array([r["speed_rad_s"] for r in rows])
     vv = np.linspace(0, v.max() * 1.1, 50)
     ax.plot(vv, vv / result.period_rad, "C0-", label="f = |v| / ρ, eq (6)")
