@@ -9,8 +9,37 @@ SpatialFilter, spatial_filter_response, ripple_bandpass_coefficients, gamma_weig
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
 run_observers, compare_observers, observer_lag
     The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
+JointParameters, HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
+PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius
+    The additive torque controller of section V.B (:mod:`iiwa_ident.design.controller`).
+DesignRecord, FilterSettings, DesignFileError, make_record, read_design, write_design
+    The design file (:mod:`iiwa_ident.design.design_file`).
+paper_reproduction, format_reproduction
+    The paper's numbers beside the computed ones (:mod:`iiwa_ident.design.paper`).
 """
 
+from iiwa_ident.design.controller import (
+    PAPER_OBSERVER_POLES,
+    PAPER_POLES,
+    AdditiveController,
+    AdditiveDesign,
+    DesignError,
+    HumanArm,
+    JointParameters,
+    OuterLoopMargins,
+    design_controller,
+    exact_delay_spectral_radius,
+    kappa_max,
+    outer_loop_margins,
+)
+from iiwa_ident.design.design_file import (
+    DesignFileError,
+    DesignRecord,
+    FilterSettings,
+    make_record,
+    read_design,
+    write_design,
+)
 from iiwa_ident.design.observer import MomentumObserver
 from iiwa_ident.design.observers import (
     OBSERVERS,
@@ -23,6 +52,7 @@ from iiwa_ident.design.observers import (
     observer_lag,
     run_observers,
 )
+from iiwa_ident.design.paper import format_reproduction, paper_reproduction
 from iiwa_ident.design.spatial_filter import (
     SpatialFilter,
     gamma_weight,
@@ -35,4 +65,8 @@ __all__ = [
     "MomentumObserver", "SpatialFilter", "spatial_filter_response", "ripple_bandpass_coefficients", "gamma_weight",
     "ripple_line_cut", "ExternalTorqueObserver", "BuiltinObserver", "LinkVelocityObserver", "FilteredObserver",
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",
+    "JointParameters", "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",
+    "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
+    "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "DesignFileError", "make_record", "read_design",
+    "write_design", "paper_reproduction", "format_reproduction",
 ]

@@ -1,0 +1,516 @@
+"""The design file: TOML, format version 1, written by ``iiwa-ident design``.
+
+Everything a 1 kHz controller needs, plus what it was designed from::
+
+    format = "iiwa-ident-design"
+    format_version = 1
+    tool_version = "0.1.0"
+    created_utc = "2026-11-21T06:00:00+00:00"
+    sample_time_s = 0.001
+    feedforward = "reference"          # reference | paper | none (controller module)
+
+    [model]                            # the joint model the design is based on
+    file = "model.toml"                # optional: model file and its sha256
+    sha256 = "..."
+    [model.parameters]                 # SI units
+    Jc = { value = 1.03, unit = "kg m^2" }   # ... bc, K, Jl, Td, KI
+    [model.ripple]                     # optional: the model's ripple table, eq (5)
+    period_rad = 0.01963
+    lut = [...]
+
+    [filter]                           # spatial filter, eqs (10)-(12)
+    beta = 5.0
+    v_min_rad_s = 0.2
+    period_rad = 0.01963               # rho (ripple period of the model, or the paper's)
+
+    [torque_observer]                  # external-torque observer, eq (13)
+    KI = 25.0                          # [rad/s]
+
+    [poles]                            # [re, im] pairs
+    controller = [[-180.0, 30.0], ...] # continuous [rad/s]
+    observer = [[-620.0, 0.0], ...]    # continuous [rad/s]
+    builtin = [[-26.7, 143.4], ...]    # built-in controller, continuous [rad/s]
+    additive = [...]                   # additive feedback loop, continuous [rad/s] (8)
+    additive_discrete = [...]          # the same at 1 kHz, z-plane [-] (8)
+
+    [gains]
+    K_fsf = [...]                      # continuous, [s^3, s^2, s, 1]
+    L = [...]                          # continuous, [s^-4, s^-3, s^-2, s^-1]
+    Kr = 0.9656                        # unit DC gain of the feedback alone (the paper's Kr)
+    Kr_c = 0.0                         # gain on tau_r of the continuous controller in this mode
+    Kd = [...]                         # discrete gains of eqs (16)-(17)
+    Ld = [...]
+    Kr_d = 0.0
+
+    [continuous]                       # Padé-delayed eq (4), eqs (19)-(21)
+    c1 = 1200.0                        # [1/s]
+    c2 = 480000.0                      # [1/s^2]
+    A = [[...], ...]
+    B = [...]
+    C = [0.0, 0.0, 0.0, 1.0]
+
+    [discrete]                         # zero-order hold at sample_time_s
+    Ad = [[...], ...]
+    Bd = [...]
+
+    [prefilter]                        # F(s) P(s) of eq (22); absent with feedforward = "none"
+    natural_frequency_hz = 50.0
+    zeta = 1.0
+    A = ...; B = ...; C = ...; D = ... # continuous
+    Ad = ...; Bd = ...; Cd = ...; Dd = ...   # Tustin at sample_time_s
+
+    [outer_loop]                       # tau_r = kappa tau_ext with a human arm
+    arm_stiffness = 300.0              # [Nm/rad]
+    arm_damping = 40.0                 # [Nm s/rad]
+    arm_inertia = 0.0                  # [kg m^2]
+    kappa_limit = 100.0
+    kappa_max_builtin = 7.78           # inf: stable up to kappa_limit
+    kappa_max_additive = 23.0
+
+Reading validates every key (errors name the file and the key) and checks
+that the stored discrete gains place the stored poles, so a hand-edited or
+damaged file is refused rather than run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
+from iiwa_ident.design.controller import (
+    FEEDFORWARD_MODES,
+    AdditiveDesign,
+    DesignError,
+    HumanArm,
+    JointParameters,
+    OuterLoopMargins,
+    _scaling,
+    check_poles,
+)
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
+
+__all__ = [
+    "DESIGN_FORMAT",
+    "DESIGN_FORMAT_VERSION",
+    "DesignFileError",
+    "FilterSettings",
+    "DesignRecord",
+    "make_record",
+    "design_to_dict",
+    "design_from_dict",
+    "write_design",
+    "read_design",
+]
+
+DESIGN_FORMAT = "iiwa-ident-design"
+DESIGN_FORMAT_VERSION = 1
+#: The paper's ripple period rho [rad], used for the filter when the model has no ripple table.
+PAPER_PERIOD_RAD = 0.01963
+
+
+class DesignFileError(IiwaIdentError):
+    """A design file is missing, unreadable or invalid."""
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """Spatial-filter settings of eqs (10)-(12).
+
+    Attributes
+    ----------
+    beta : float
+        Band-pass sharpness [-] (paper: 5).
+    v_min_rad_s : float
+        Speed below which the filter fades out [rad/s] (paper: 0.2).
+    period_rad : float
+        Ripple period rho [rad].
+    """
+
+    beta: float = 5.0
+    v_min_rad_s: float = 0.2
+    period_rad: float = PAPER_PERIOD_RAD
+
+
+@dataclass
+class DesignRecord:
+    """A design file's content.
+
+    Attributes
+    ----------
+    design : AdditiveDesign
+        The controller (run it with ``record.design.controller()``).
+    margins : OuterLoopMargins
+        Outer-loop ``kappa_max`` of the built-in and the additive controller.
+    KI : float
+        External-torque observer gain of eq (13) [rad/s].
+    filter : FilterSettings
+        Spatial-filter settings.
+    ripple : RippleTable or None
+        The model's ripple table.
+    model_file, model_sha256 : str or None
+        The model file the design came from.
+    """
+
+    design: AdditiveDesign
+    margins: OuterLoopMargins
+    KI: float
+    filter: FilterSettings = field(default_factory=FilterSettings)
+    ripple: RippleTable | None = None
+    model_file: str | None = None
+    model_sha256: str | None = None
+    description: str = ""
+    tool_version: str = ""
+    created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+
+
+def _tool_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("iiwa-ident")
+    except Exception:  # running from a source tree without installed metadata
+        return "0.1.0"
+
+
+def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointModel,
+                model_path: str | os.PathLike | None = None, beta: float = 5.0, v_min_rad_s: float = 0.2,
+                description: str = "") -> DesignRecord:
+    """Bundle a design with its model reference and filter settings.
+
+    Parameters
+    ----------
+    design, margins
+        From :func:`~iiwa_ident.design.controller.design_controller` and
+        :func:`~iiwa_ident.design.controller.outer_loop_margins`.
+    model : JointModel
+        The model the design is based on (KI and the ripple table are taken from it).
+    model_path : path, optional
+        Its file; recorded with its sha256.
+    beta, v_min_rad_s : float
+        Spatial-filter settings [-], [rad/s].
+    """
+    sha = None
+    if model_path is not None:
+        sha = hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
+    period = model.ripple.period_rad if model.ripple is not None else PAPER_PERIOD_RAD
+    return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")),
+                        filter=FilterSettings(float(beta), float(v_min_rad_s), float(period)),
+                        ripple=model.ripple, model_file=None if model_path is None else str(model_path),
+                        model_sha256=sha, description=description, tool_version=_tool_version())
+
+
+# ---------------------------------------------------------------------------
+# Writing
+# ---------------------------------------------------------------------------
+def _pairs(z: np.ndarray) -> list[list[float]]:
+    return [[float(np.real(x)), float(np.imag(x))] for x in np.asarray(z, complex)]
+
+
+def _mat(m: np.ndarray) -> list:
+    return np.asarray(m, float).tolist()
+
+
+def design_to_dict(record: DesignRecord) -> dict[str, Any]:
+    """The TOML mapping of a :class:`DesignRecord` (module docstring)."""
+    d = record.design
+    out: dict[str, Any] = {
+        "format": DESIGN_FORMAT,
+        "format_version": DESIGN_FORMAT_VERSION,
+        "tool_version": record.tool_version or _tool_version(),
+        "created_utc": record.created_utc,
+    }
+    if record.description:
+        out["description"] = record.description
+    out["sample_time_s"] = float(d.sample_time_s)
+    out["feedforward"] = d.feedforward
+    model: dict[str, Any] = {}
+    if record.model_file:
+        model["file"] = record.model_file
+    if record.model_sha256:
+        model["sha256"] = record.model_sha256
+    params = {**d.params.as_dict(), "KI": record.KI}
+    model["parameters"] = {k: {"value": float(v), "unit": PARAMETER_UNITS[k]} for k, v in params.items()}
+    if record.ripple is not None:
+        model["ripple"] = {"period_rad": float(record.ripple.period_rad), "lut": _mat(record.ripple.lut)}
+    out["model"] = model
+    out["filter"] = {"beta": record.filter.beta, "v_min_rad_s": record.filter.v_min_rad_s,
+                     "period_rad": record.filter.period_rad}
+    out["torque_observer"] = {"KI": record.KI}
+    out["poles"] = {
+        "controller": _pairs(d.poles), "observer": _pairs(d.observer_poles), "builtin": _pairs(d.builtin_poles),
+        "additive": _pairs(d.additive_poles), "additive_discrete": _pairs(d.additive_poles_discrete),
+    }
+    out["gains"] = {"K_fsf": _mat(d.K_fsf), "L": _mat(d.L), "Kr": float(d.Kr), "Kr_c": float(d.Kr_c),
+                    "Kd": _mat(d.Kd), "Ld": _mat(d.Ld), "Kr_d": float(d.Kr_d)}
+    out["continuous"] = {"c1": float(d.c1), "c2": float(d.c2), "A": _mat(d.A), "B": _mat(d.B), "C": _mat(d.C)}
+    out["discrete"] = {"Ad": _mat(d.Ad), "Bd": _mat(d.Bd)}
+    if d.ff is not None and d.ffd is not None:
+        out["prefilter"] = {
+            "natural_frequency_hz": float(d.prefilter_hz), "zeta": float(d.prefilter_zeta),
+            "A": _mat(d.ff[0]), "B": _mat(d.ff[1]), "C": _mat(d.ff[2]), "D": float(d.ff[3]),
+            "Ad": _mat(d.ffd[0]), "Bd": _mat(d.ffd[1]), "Cd": _mat(d.ffd[2]), "Dd": float(d.ffd[3]),
+        }
+    m = record.margins
+    out["outer_loop"] = {
+        "arm_stiffness": m.arm.stiffness, "arm_damping": m.arm.damping, "arm_inertia": m.arm.inertia,
+        "kappa_limit": float(m.kappa_limit), "kappa_max_builtin": float(m.builtin),
+        "kappa_max_additive": float(m.additive),
+    }
+    return out
+
+
+def write_design(path: str | os.PathLike, record: DesignRecord) -> Path:
+    """Write ``record`` atomically (validated by reading back what is written)."""
+    text = dumps_toml(design_to_dict(record))
+    design_from_dict(tomllib.loads(text), where=f"{path}: ")
+    return write_atomic(path, text)
+
+
+# ---------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------
+_TOP = {"format", "format_version", "tool_version", "created_utc", "description", "sample_time_s", "feedforward",
+        "model", "filter", "torque_observer", "poles", "gains", "continuous", "discrete", "prefilter", "outer_loop"}
+_TABLE_KEYS = {
+    "model": {"file", "sha256", "parameters", "ripple"},
+    "filter": {"beta", "v_min_rad_s", "period_rad"},
+    "torque_observer": {"KI"},
+    "poles": {"controller", "observer", "builtin", "additive", "additive_discrete"},
+    "gains": {"K_fsf", "L", "Kr", "Kr_c", "Kd", "Ld", "Kr_d"},
+    "continuous": {"c1", "c2", "A", "B", "C"},
+    "discrete": {"Ad", "Bd"},
+    "prefilter": {"natural_frequency_hz", "zeta", "A", "B", "C", "D", "Ad", "Bd", "Cd", "Dd"},
+    "outer_loop": {"arm_stiffness", "arm_damping", "arm_inertia", "kappa_limit", "kappa_max_builtin",
+                   "kappa_max_additive"},
+}
+
+
+class _Reader:
+    """Typed access to the mapping; every error names the file and the dotted key."""
+
+    def __init__(self, data: dict[str, Any], where: str) -> None:
+        self.data, self.where = data, where
+
+    def fail(self, key: str, msg: str) -> DesignFileError:
+        return DesignFileError(f"{self.where}{key}: {msg}")
+
+    def get(self, key: str, required: bool = True) -> Any:
+        node: Any = self.data
+        parts = key.split(".")
+        for i, part in enumerate(parts):
+            if not isinstance(node, dict):
+                raise self.fail(".".join(parts[:i]), "expected a table")
+            if part not in node:
+                if required:
+                    raise self.fail(key, "missing")
+                return None
+            node = node[part]
+        return node
+
+    def table(self, key: str, required: bool = True) -> dict[str, Any] | None:
+        t = self.get(key, required)
+        if t is None:
+            return None
+        if not isinstance(t, dict):
+            raise self.fail(key, "expected a table")
+        return t
+
+    def number(self, key: str, positive: bool = False, nonneg: bool = False, allow_inf: bool = False) -> float:
+        v = self.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.fail(key, f"expected a number, got {v!r}")
+        v = float(v)
+        if math.isnan(v) or (math.isinf(v) and not allow_inf):
+            raise self.fail(key, f"must be finite, got {v}")
+        if positive and v <= 0:
+            raise self.fail(key, f"must be positive, got {v:g}")
+        if nonneg and v < 0:
+            raise self.fail(key, f"must not be negative, got {v:g}")
+        return v
+
+    def array(self, key: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+        v = self.get(key)
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise self.fail(key, "expected an array of numbers") from None
+        if a.dtype == object or (isinstance(v, (bool, str))):
+            raise self.fail(key, "expected an array of numbers")
+        if shape is not None and a.shape != shape:
+            want = "x".join(str(n) for n in shape)
+            raise self.fail(key, f"expected shape {want}, got {'x'.join(str(n) for n in a.shape) or 'scalar'}")
+        if not np.all(np.isfinite(a)):
+            raise self.fail(key, "entries must be finite")
+        return a
+
+    def square(self, key: str) -> np.ndarray:
+        a = self.array(key)
+        if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] == 0:
+            raise self.fail(key, "expected a non-empty square matrix")
+        return a
+
+    def poles(self, key: str, n: int) -> np.ndarray:
+        a = self.array(key)
+        if a.shape != (n, 2):
+            raise self.fail(key, f"expected {n} [re, im] pairs")
+        return a[:, 0] + 1j * a[:, 1]
+
+    def string(self, key: str) -> str:
+        v = self.get(key)
+        if not isinstance(v, str):
+            raise self.fail(key, f"expected a string, got {v!r}")
+        return v
+
+
+def _check_tables(r: _Reader) -> None:
+    for key in r.data:
+        if key not in _TOP:
+            raise r.fail(key, "unknown key")
+    for name, allowed in _TABLE_KEYS.items():
+        t = r.table(name, required=name != "prefilter")
+        for key in t or {}:
+            if key not in allowed:
+                raise r.fail(f"{name}.{key}", "unknown key")
+
+
+def _char_poly_close(M: np.ndarray, roots: np.ndarray, rtol: float) -> bool:
+    got, want = np.real(np.poly(M)), np.real(np.poly(roots))
+    return bool(np.all(np.abs(got - want) <= rtol * np.maximum(1.0, np.abs(want))))
+
+
+def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
+    """Validate a design-file mapping and build the :class:`DesignRecord`."""
+    r = _Reader(data, where)
+    if data.get("format") != DESIGN_FORMAT:
+        raise r.fail("format", f"expected {DESIGN_FORMAT!r}, got {data.get('format')!r}")
+    if data.get("format_version") != DESIGN_FORMAT_VERSION:
+        raise r.fail("format_version", f"unsupported version {data.get('format_version')!r} (this tool reads 1)")
+    _check_tables(r)
+    T = r.number("sample_time_s", positive=True)
+    mode = r.string("feedforward")
+    if mode not in FEEDFORWARD_MODES:
+        raise r.fail("feedforward", f"expected one of {', '.join(FEEDFORWARD_MODES)}, got {mode!r}")
+
+    # Model
+    values: dict[str, float] = {}
+    for name, unit in PARAMETER_UNITS.items():
+        key = f"model.parameters.{name}"
+        entry = r.table(key)
+        values[name] = r.number(f"{key}.value", positive=name != "bc", nonneg=True)
+        if entry.get("unit", unit) != unit:
+            raise r.fail(f"{key}.unit", f"expected {unit!r}, got {entry.get('unit')!r}")
+    try:
+        params = JointParameters(*(values[n] for n in ("Jc", "bc", "K", "Jl", "Td")))
+    except DesignError as err:
+        raise r.fail("model.parameters", str(err)) from None
+    model_file = r.get("model.file", required=False)
+    sha = r.get("model.sha256", required=False)
+    if model_file is not None:
+        model_file = r.string("model.file")
+    if sha is not None:
+        sha = r.string("model.sha256")
+        if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+            raise r.fail("model.sha256", "expected 64 lower-case hex digits")
+    ripple = None
+    if r.table("model.ripple", required=False) is not None:
+        period = r.number("model.ripple.period_rad", positive=True)
+        lut = r.array("model.ripple.lut")
+        if lut.ndim != 1 or len(lut) < 4:
+            raise r.fail("model.ripple.lut", "expected a list of at least 4 deflections [rad]")
+        ripple = RippleTable(period, lut)
+    flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True),
+                         r.number("filter.period_rad", positive=True))
+    KI = r.number("torque_observer.KI", positive=True)
+    if abs(KI - values["KI"]) > 1e-12 * max(1.0, KI):
+        raise r.fail("torque_observer.KI", f"differs from model.parameters.KI ({values['KI']:g})")
+
+    # Poles
+    poles = {}
+    for key, what in (("controller", "poles"), ("observer", "observer poles")):
+        p = r.poles(f"poles.{key}", 4)
+        try:
+            poles[key] = check_poles(p, what, T)
+        except DesignError as err:
+            raise r.fail(f"poles.{key}", str(err)) from None
+    builtin = r.poles("poles.builtin", 2)
+    additive = r.poles("poles.additive", 8)
+    additive_d = r.poles("poles.additive_discrete", 8)
+
+    # Matrices and gains
+    A = r.array("continuous.A", (4, 4))
+    B = r.array("continuous.B", (4,))
+    C = r.array("continuous.C", (4,))
+    if not np.array_equal(C, [0.0, 0.0, 0.0, 1.0]):
+        raise r.fail("continuous.C", "expected [0, 0, 0, 1] (observable canonical form, eq (21))")
+    c1, c2 = r.number("continuous.c1", positive=True), r.number("continuous.c2", positive=True)
+    Ad = r.array("discrete.Ad", (4, 4))
+    Bd = r.array("discrete.Bd", (4,))
+    g = {k: r.array(f"gains.{k}", (4,)) for k in ("K_fsf", "L", "Kd", "Ld")}
+    Kr, Kr_c, Kr_d = r.number("gains.Kr"), r.number("gains.Kr_c"), r.number("gains.Kr_d")
+
+    ff = ffd = None
+    prefilter_hz, prefilter_zeta = 0.0, 0.0
+    if mode == "none":
+        if r.table("prefilter", required=False) is not None:
+            raise r.fail("prefilter", 'present although feedforward = "none"')
+    else:
+        if r.table("prefilter", required=False) is None:
+            raise r.fail("prefilter", f'missing (required with feedforward = "{mode}")')
+        prefilter_hz = r.number("prefilter.natural_frequency_hz", positive=True)
+        prefilter_zeta = r.number("prefilter.zeta", positive=True)
+        Af = r.square("prefilter.A")
+        n = Af.shape[0]
+        ff = (Af, r.array("prefilter.B", (n,)), r.array("prefilter.C", (n,)), r.number("prefilter.D"))
+        ffd = (r.array("prefilter.Ad", (n, n)), r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)),
+               r.number("prefilter.Dd"))
+        if np.abs(np.linalg.eigvals(ffd[0])).max() >= 1.0:
+            raise r.fail("prefilter.Ad", "is not stable")
+
+    # The stored gains must place the stored poles (on the well-conditioned scaled state).
+    S = _scaling(A)
+    Si = np.linalg.inv(S)
+    checks = [
+        ("gains.K_fsf", Si @ (A - np.outer(B, g["K_fsf"])) @ S, poles["controller"]),
+        ("gains.L", Si @ (A - np.outer(g["L"], C)) @ S, poles["observer"]),
+        ("gains.Kd", Si @ (Ad - np.outer(Bd, g["Kd"])) @ S, np.exp(poles["controller"] * T)),
+        ("gains.Ld", Si @ (Ad - np.outer(g["Ld"], C)) @ S, np.exp(poles["observer"] * T)),
+    ]
+    for key, M, roots in checks:
+        if not _char_poly_close(M, roots, 1e-6):
+            raise r.fail(key, "does not place the poles stored in [poles] (file edited or damaged?)")
+
+    arm_k = r.number("outer_loop.arm_stiffness", positive=True)
+    arm_d = r.number("outer_loop.arm_damping", nonneg=True)
+    arm_j = r.number("outer_loop.arm_inertia", nonneg=True)
+    margins = OuterLoopMargins(
+        builtin=r.number("outer_loop.kappa_max_builtin", nonneg=True, allow_inf=True),
+        additive=r.number("outer_loop.kappa_max_additive", nonneg=True, allow_inf=True),
+        arm=HumanArm(arm_k, arm_d, arm_j),
+        kappa_limit=r.number("outer_loop.kappa_limit", positive=True),
+    )
+    design = AdditiveDesign(
+        params=params, sample_time_s=T, feedforward=mode, poles=poles["controller"],
+        observer_poles=poles["observer"], prefilter_hz=prefilter_hz, prefilter_zeta=prefilter_zeta,
+        c1=c1, c2=c2, A=A, B=B, C=C, K_fsf=g["K_fsf"], L=g["L"], Kr=Kr, Kr_c=Kr_c, Ad=Ad, Bd=Bd,
+        Kd=g["Kd"], Ld=g["Ld"], Kr_d=Kr_d, ff=ff, ffd=ffd, builtin_poles=builtin,
+        additive_poles=additive, additive_poles_discrete=additive_d,
+    )
+    description = data.get("description", "")
+    return DesignRecord(design=design, margins=margins, KI=KI, filter=flt, ripple=ripple, model_file=model_file,
+                        model_sha256=sha, description=str(description),
+                        tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")))
+
+
+def read_design(path: str | os.PathLike) -> DesignRecord:
+    """Read and validate a design file; errors name the file and the key."""
+    return design_from_dict(load_toml(path, DesignFileError), where=f"{path}: ")
