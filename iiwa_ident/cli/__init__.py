@@ -9,6 +9,7 @@ from iiwa_ident.cli import sim_cmds as _sim_cmds  # noqa: F401
 from iiwa_ident.cli import fit_cmd as _fit_cmd  # noqa: F401
 from iiwa_ident.cli import ripple_cmd as _ripple_cmd  # noqa: F401
 from iiwa_ident.cli import design_cmd as _design_cmd  # noqa: F401
+from iiwa_ident.cli import deploy_cmd as _deploy_cmd  # noqa: F401
 
 __all__ = ["app", "fail", "main"]
 

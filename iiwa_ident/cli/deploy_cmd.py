@@ -1,0 +1,144 @@
+"""``iiwa-ident deploy``: check a design and export the controller config for the FRI runtime."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+from iiwa_ident._toml import write_atomic
+from iiwa_ident.cli._app import app, fail
+from iiwa_ident.datasets import sha256_file
+from iiwa_ident.deploy import (
+    ControllerConfig,
+    DeployError,
+    deploy,
+    write_config,
+)
+from iiwa_ident.design.design_file import DesignRecord, read_design
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.model_file import JointModel, read_model
+
+__all__ = ["deploy_cmd", "config_json", "find_model"]
+
+
+def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | None, Path | None]:
+    """The model file the design records, if it can be found, checked against its recorded sha256.
+
+    The recorded path is tried as given, then relative to the design file.
+
+    Raises
+    ------
+    DeployError
+        If the file is found but differs from the one the design was made from.
+    """
+    if not record.model_file:
+        return None, None
+    recorded = Path(record.model_file)
+    for path in (recorded, design_path.parent / recorded):
+        if path.is_file():
+            if record.model_sha256 and sha256_file(path) != record.model_sha256:
+                raise DeployError(f"{path}: model file changed since the design was made (sha256 differs from "
+                                  f"the design's model.sha256); redesign or restore it")
+            return read_model(path), path
+    return None, None
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def config_json(config: ControllerConfig, out: Path) -> dict[str, Any]:
+    """The ``--json`` summary: limits, robot-side settings, sha256 and the checks with their values."""
+    lim, r, p = config.limits, config.robot, config.provenance
+    return {
+        "config": str(out),
+        "robot_model": config.robot_model,
+        "joint": config.joint,
+        "sample_time_s": config.sample_time_s,
+        "feedforward": config.feedforward,
+        "limits": {"torque_nm": lim.torque_nm, "torque_rate_nm_s": lim.torque_rate_nm_s,
+                   "velocity_rad_s": lim.velocity_rad_s, "reference_nm": lim.reference_nm,
+                   "data_sheet_torque_nm": config.data_sheet_torque_nm,
+                   "data_sheet_velocity_rad_s": config.data_sheet_velocity_rad_s},
+        "robot": {"control_mode": r.control_mode, "client_command_mode": r.client_command_mode,
+                  "send_period_ms": r.send_period_ms, "receive_multiplier": r.receive_multiplier,
+                  "watchdog_timeout_s": r.watchdog_timeout_s},
+        "sha256": {"config": config.sha256, "design": p.design_sha256 or None, "model": p.model_sha256 or None,
+                   "datasets": [{"file": s.file, "sha256": s.sha256, "role": s.role} for s in p.datasets]},
+        "checks": [{"name": c.name, "value": _finite_or_none(c.value), "threshold": _finite_or_none(c.threshold),
+                    "comparison": c.comparison, "unit": c.unit, "passed": c.passed} for c in config.checks],
+    }
+
+
+def _positive(value: float | None, option: str) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise DeployError(f"{option} must be a positive number, got {value:g}")
+
+
+@app.command("deploy")
+def deploy_cmd(
+    design: Annotated[Path, typer.Option("--design", help="Design TOML file (from 'iiwa-ident design').")],
+    out: Annotated[Path, typer.Option("--out", help="Controller config TOML file to write.")],
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write a summary as JSON.")] = None,
+    torque_limit: Annotated[Optional[float], typer.Option("--torque-limit", help="Torque clamp [Nm] "
+                                                          "(default: data sheet; may only be tighter).")] = None,
+    rate_limit: Annotated[Optional[float], typer.Option("--rate-limit", help="Torque-rate clamp [Nm/s] "
+                                                        "(default: data-sheet torque per 10 ms).")] = None,
+    velocity_limit: Annotated[Optional[float], typer.Option("--velocity-limit", help="Stop above this joint "
+                                                            "speed, rad/s (default: data sheet).")] = None,
+    robot_model: Annotated[Optional[str], typer.Option("--robot-model", help="iiwa7 | iiwa14, if the design's "
+                                                       "model file does not say.")] = None,
+    joint: Annotated[Optional[int], typer.Option("--joint", help="Joint 1-7, if the design's model file "
+                                                 "does not say.")] = None,
+) -> None:
+    """Check a design and export the controller config an FRI runtime executes at 1 kHz.
+
+    Refused (exit 2, nothing written) if the closed loop is unstable or has a
+    spectral radius above 0.999 (also with the exact delay), the outer-loop
+    kappa margin is below max(1, built-in kappa_max), a number is NaN/inf,
+    a limit exceeds the data sheet, or a reference step would need a command
+    of more than twice its size.
+
+    Examples:
+      iiwa-ident deploy --design design.toml --out controller.toml
+      iiwa-ident deploy --design design.toml --out controller.toml --torque-limit 100 --json deploy.json
+    """
+    try:
+        for value, option in ((torque_limit, "--torque-limit"), (rate_limit, "--rate-limit"),
+                              (velocity_limit, "--velocity-limit")):
+            _positive(value, option)
+        record = read_design(design)
+        model, _ = find_model(record, design)
+        known_model = model.robot_model if model is not None else None
+        known_joint = model.joint if model is not None else None
+        if robot_model is not None and known_model is not None and robot_model != known_model:
+            raise DeployError(f"--robot-model {robot_model} contradicts the model file ({known_model})")
+        if joint is not None and known_joint is not None and joint != known_joint:
+            raise DeployError(f"--joint {joint} contradicts the model file (joint {known_joint})")
+        robot_model = robot_model or known_model
+        joint = joint if joint is not None else known_joint
+        if robot_model is None or joint is None:
+            raise DeployError("cannot tell the robot model and joint from the design's model file; "
+                              "pass --robot-model and --joint")
+        config = deploy(record, robot_model, joint, torque_limit=torque_limit, rate_limit=rate_limit,
+                        velocity_limit=velocity_limit, design_file=str(design), design_sha256=sha256_file(design),
+                        model=model)
+        write_config(out, config)
+        for c in config.checks:
+            typer.echo(f"pass  {c.describe()}")
+        lim = config.limits
+        typer.echo(f"limits: torque {lim.torque_nm:g} Nm, rate {lim.torque_rate_nm_s:g} Nm/s, "
+                   f"velocity {lim.velocity_rad_s:.4g} rad/s, reference {lim.reference_nm:.4g} Nm")
+        typer.echo(f"robot: {config.robot.control_mode}, {config.robot.client_command_mode}, send period "
+                   f"{config.robot.send_period_ms} ms, receive multiplier {config.robot.receive_multiplier}, "
+                   f"watchdog {config.robot.watchdog_timeout_s * 1e3:g} ms")
+        typer.echo(f"wrote {out} (sha256 {config.sha256})")
+        if json_out is not None:
+            write_atomic(json_out, json.dumps(config_json(config, out), indent=2) + "\n")
+            typer.echo(f"wrote {json_out}")
+    except IiwaIdentError as err:
+        raise fail(str(err))

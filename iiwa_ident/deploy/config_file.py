@@ -1,0 +1,663 @@
+"""The controller config: everything an FRI runtime needs to run a design at 1 kHz.
+
+Written by ``iiwa-ident deploy`` after :func:`~iiwa_ident.deploy.checks.check_design`
+passed; self-contained (no other file is needed to run it) and protected by
+the sha256 of its own content. TOML, format version 1::
+
+    format = "iiwa-ident-controller"
+    format_version = 1
+    sha256 = "..."                     # of the canonical form of everything else (below)
+    tool_version = "0.1.0"
+    created_utc = "2026-11-21T07:00:00+00:00"
+    robot_model = "iiwa14"
+    joint = 1
+    sample_time_s = 0.001
+    feedforward = "reference"          # reference | paper | none
+
+    [robot]                            # what the robot side must be set to
+    control_mode = "JOINT_IMPEDANCE"
+    client_command_mode = "TORQUE"
+    send_period_ms = 1
+    receive_multiplier = 1
+    watchdog_timeout_s = 0.005         # stop after this long without a robot message
+
+    [limits]
+    torque_nm = 320.0                  # clamp of |tau_c|
+    torque_rate_nm_s = 32000.0         # clamp of d tau_r/dt and d tau_c/dt
+    velocity_rad_s = 1.4835            # stop above this joint speed
+    reference_nm = 219.9               # clamp of |tau_r|
+    data_sheet_torque_nm = 320.0       # the joint's data sheet, for reference
+    data_sheet_velocity_rad_s = 1.4835
+
+    [controller]                       # eqs (16)-(18), x_hat and x_ref on (Ad, Bd, C)
+    Ad = [[...], ...]
+    Bd = [...]
+    C = [0.0, 0.0, 0.0, 1.0]
+    Kd = [...]
+    Ld = [...]
+    Kr_d = 0.0
+
+    [prefilter]                        # F(s) P(s) of eq (22), discrete; absent with feedforward = "none"
+    Ad = ...; Bd = ...; Cd = ...; Dd = ...
+
+    [filter]                           # spatial filter, eqs (10)-(12)
+    beta = 5.0
+    v_min_rad_s = 0.2
+    period_rad = 0.01963               # rho
+
+    [ripple]                           # optional: lookup table of eq (5)
+    period_rad = 0.01963
+    lut = [...]                        # [rad]
+
+    [torque_observer]                  # eq (13)
+    KI = 25.0                          # [rad/s]
+    K = 18500.0                        # [Nm/rad]
+    Jl = 5.6                           # [kg m^2]
+
+    [provenance]
+    design_file = "design.toml"
+    design_sha256 = "..."
+    model_file = "model.toml"          # optional, as recorded in the design
+    model_sha256 = "..."
+    [[provenance.datasets]]            # the model's sources, if recorded
+    file = "chirp.h5"
+    sha256 = "..."
+    role = "fit"
+
+    [[checks]]                         # the deployment checks this config passed
+    name = "closed_loop_spectral_radius"
+    value = 0.9737
+    threshold = 0.999
+    comparison = "<="
+    unit = "-"
+
+The content hash is the sha256 of ``json.dumps(data_without_sha256,
+sort_keys=True, separators=(",", ":"))`` (UTF-8): it depends on the values
+only, not on the TOML layout, and floats survive the TOML round trip
+exactly. :func:`read_config` recomputes it and refuses a file whose content
+was changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
+from iiwa_ident.deploy.checks import (
+    Check,
+    ControllerLimits,
+    DeployError,
+    check_design,
+    default_rate_limit,
+    failed_checks,
+    step_peak_gain,
+)
+from iiwa_ident.design.controller import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
+from iiwa_ident.design.design_file import DesignRecord, FilterSettings
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.model_file import JointModel, RippleTable, Source
+from iiwa_ident.robot import ROBOT_MODELS, joint_limits
+
+__all__ = [
+    "CONFIG_FORMAT",
+    "CONFIG_FORMAT_VERSION",
+    "ConfigError",
+    "RobotSettings",
+    "Provenance",
+    "ControllerConfig",
+    "config_to_dict",
+    "config_from_dict",
+    "content_sha256",
+    "write_config",
+    "read_config",
+    "controller_from_config",
+    "deploy",
+]
+
+CONFIG_FORMAT = "iiwa-ident-controller"
+CONFIG_FORMAT_VERSION = 1
+_C = (0.0, 0.0, 0.0, 1.0)
+
+
+class ConfigError(IiwaIdentError):
+    """A controller config is missing, unreadable, invalid or tampered with."""
+
+
+@dataclass(frozen=True)
+class RobotSettings:
+    """Robot-side FRI settings the controller requires.
+
+    Attributes
+    ----------
+    control_mode : str
+        Sunrise control mode; JOINT_IMPEDANCE (with zero stiffness the
+        commanded torque acts as the additive torque of eq (18)).
+    client_command_mode : str
+        FRI client command mode: TORQUE.
+    send_period_ms : int
+        FRI send period [ms]: 1 (the design's cycle).
+    receive_multiplier : int
+        FRI receive multiplier [-]: 1 (a command every cycle).
+    watchdog_timeout_s : float
+        The runtime stops (brakes) after this long without a robot message [s].
+    """
+
+    control_mode: str = "JOINT_IMPEDANCE"
+    client_command_mode: str = "TORQUE"
+    send_period_ms: int = 1
+    receive_multiplier: int = 1
+    watchdog_timeout_s: float = 0.005
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Files the config was made from, with their sha256 (hex)."""
+
+    design_file: str = ""
+    design_sha256: str = ""
+    model_file: str = ""
+    model_sha256: str = ""
+    datasets: tuple[Source, ...] = ()
+
+
+@dataclass
+class ControllerConfig:
+    """Content of a controller config (module docstring for units and layout).
+
+    Attributes
+    ----------
+    robot_model : str
+        Key of :data:`iiwa_ident.robot.ROBOT_MODELS`.
+    joint : int
+        Joint 1-7.
+    sample_time_s : float
+        Controller cycle [s].
+    feedforward : str
+        Feed-forward mode of the design.
+    Ad, Bd, C, Kd, Ld : ndarray
+        Discrete model and gains of eqs (16)-(17).
+    Kr_d : float
+        Gain on ``tau_r`` in eq (16).
+    prefilter : tuple (Ad, Bd, Cd, Dd) or None
+        Discrete ``F(s) P(s)`` of eq (22).
+    filter : FilterSettings
+        Spatial filter.
+    ripple : RippleTable or None
+        Ripple lookup table (None if no ripple was identified).
+    KI, K, Jl : float
+        Torque-observer gain [rad/s], joint stiffness [Nm/rad], link inertia [kg m^2].
+    limits : ControllerLimits
+        Limits the runtime enforces.
+    data_sheet_torque_nm, data_sheet_velocity_rad_s : float
+        The joint's data-sheet limits [Nm], [rad/s].
+    robot : RobotSettings
+        Required robot-side settings and the watchdog.
+    provenance : Provenance
+        Source files and their sha256.
+    checks : list of Check
+        The deployment checks (all passed).
+    sha256 : str
+        Content hash (set by :func:`config_to_dict` / verified by :func:`read_config`).
+    """
+
+    robot_model: str
+    joint: int
+    sample_time_s: float
+    feedforward: str
+    Ad: np.ndarray
+    Bd: np.ndarray
+    C: np.ndarray
+    Kd: np.ndarray
+    Ld: np.ndarray
+    Kr_d: float
+    prefilter: tuple | None
+    filter: FilterSettings
+    ripple: RippleTable | None
+    KI: float
+    K: float
+    Jl: float
+    limits: ControllerLimits
+    data_sheet_torque_nm: float
+    data_sheet_velocity_rad_s: float
+    robot: RobotSettings = field(default_factory=RobotSettings)
+    provenance: Provenance = field(default_factory=Provenance)
+    checks: list[Check] = field(default_factory=list)
+    tool_version: str = ""
+    created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    sha256: str = ""
+
+
+# ---------------------------------------------------------------------------
+# Running the controller from a config
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _DiscreteDesign:
+    """The part of a design :class:`AdditiveController` runs on (the config holds no continuous data)."""
+
+    Ad: np.ndarray
+    Bd: np.ndarray
+    Kd: np.ndarray
+    Ld: np.ndarray
+    Kr_d: float
+    feedforward: str
+    ffd: tuple | None
+    sample_time_s: float
+
+
+def controller_from_config(config: ControllerConfig) -> AdditiveController:
+    """A fresh per-cycle :class:`AdditiveController` running the config's matrices.
+
+    It produces the same ``step`` outputs as ``design.controller()`` of the
+    design the config was deployed from. Limits are not applied here; the
+    runtime clamps reference and command with ``config.limits``.
+    """
+    return AdditiveController(_DiscreteDesign(  # type: ignore[arg-type]  # duck-typed: only these are read
+        config.Ad, config.Bd, config.Kd, config.Ld, config.Kr_d, config.feedforward, config.prefilter,
+        config.sample_time_s))
+
+
+# ---------------------------------------------------------------------------
+# Writing
+# ---------------------------------------------------------------------------
+def _mat(m: Any) -> Any:
+    return np.asarray(m, float).tolist()
+
+
+def content_sha256(data: dict[str, Any]) -> str:
+    """sha256 (hex) of the canonical JSON form of ``data`` without its ``sha256`` key."""
+    body = {k: v for k, v in data.items() if k != "sha256"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _check_dict(c: Check) -> dict[str, Any]:
+    out: dict[str, Any] = {"name": c.name, "value": float(c.value), "threshold": float(c.threshold),
+                           "passed": bool(c.passed), "comparison": c.comparison, "unit": c.unit}
+    if c.detail:
+        out["detail"] = c.detail
+    return out
+
+
+def config_to_dict(config: ControllerConfig) -> dict[str, Any]:
+    """The TOML mapping of ``config`` with its content ``sha256`` (module docstring)."""
+    out: dict[str, Any] = {
+        "format": CONFIG_FORMAT,
+        "format_version": CONFIG_FORMAT_VERSION,
+        "sha256": "",
+        "tool_version": config.tool_version or "0.1.0",
+        "created_utc": config.created_utc,
+        "robot_model": config.robot_model,
+        "joint": int(config.joint),
+        "sample_time_s": float(config.sample_time_s),
+        "feedforward": config.feedforward,
+    }
+    r = config.robot
+    out["robot"] = {"control_mode": r.control_mode, "client_command_mode": r.client_command_mode,
+                    "send_period_ms": int(r.send_period_ms), "receive_multiplier": int(r.receive_multiplier),
+                    "watchdog_timeout_s": float(r.watchdog_timeout_s)}
+    lim = config.limits
+    out["limits"] = {"torque_nm": float(lim.torque_nm), "torque_rate_nm_s": float(lim.torque_rate_nm_s),
+                     "velocity_rad_s": float(lim.velocity_rad_s), "reference_nm": float(lim.reference_nm),
+                     "data_sheet_torque_nm": float(config.data_sheet_torque_nm),
+                     "data_sheet_velocity_rad_s": float(config.data_sheet_velocity_rad_s)}
+    out["controller"] = {"Ad": _mat(config.Ad), "Bd": _mat(config.Bd), "C": _mat(config.C), "Kd": _mat(config.Kd),
+                         "Ld": _mat(config.Ld), "Kr_d": float(config.Kr_d)}
+    if config.prefilter is not None:
+        Af, Bf, Cf, Df = config.prefilter
+        out["prefilter"] = {"Ad": _mat(Af), "Bd": _mat(Bf), "Cd": _mat(Cf), "Dd": float(Df)}
+    f = config.filter
+    out["filter"] = {"beta": float(f.beta), "v_min_rad_s": float(f.v_min_rad_s), "period_rad": float(f.period_rad)}
+    if config.ripple is not None:
+        out["ripple"] = {"period_rad": float(config.ripple.period_rad), "lut": _mat(config.ripple.lut)}
+    out["torque_observer"] = {"KI": float(config.KI), "K": float(config.K), "Jl": float(config.Jl)}
+    p = config.provenance
+    prov: dict[str, Any] = {k: v for k, v in (("design_file", p.design_file), ("design_sha256", p.design_sha256),
+                                              ("model_file", p.model_file), ("model_sha256", p.model_sha256)) if v}
+    if p.datasets:
+        prov["datasets"] = [{"file": s.file, "sha256": s.sha256, "role": s.role} for s in p.datasets]
+    out["provenance"] = prov
+    out["checks"] = [_check_dict(c) for c in config.checks]
+    out["sha256"] = content_sha256(out)
+    return out
+
+
+def write_config(path: str | os.PathLike, config: ControllerConfig) -> Path:
+    """Write ``config`` atomically; what is written is read back and validated first.
+
+    Sets ``config.sha256`` to the content hash written.
+    """
+    data = config_to_dict(config)
+    text = dumps_toml(data)
+    config_from_dict(tomllib.loads(text), where=f"{path}: ")
+    written = write_atomic(path, text)
+    config.sha256 = data["sha256"]
+    return written
+
+
+# ---------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------
+_TABLES: dict[str, set[str]] = {
+    "": {"format", "format_version", "sha256", "tool_version", "created_utc", "robot_model", "joint",
+         "sample_time_s", "feedforward", "robot", "limits", "controller", "prefilter", "filter", "ripple",
+         "torque_observer", "provenance", "checks"},
+    "robot": {"control_mode", "client_command_mode", "send_period_ms", "receive_multiplier", "watchdog_timeout_s"},
+    "limits": {"torque_nm", "torque_rate_nm_s", "velocity_rad_s", "reference_nm", "data_sheet_torque_nm",
+               "data_sheet_velocity_rad_s"},
+    "controller": {"Ad", "Bd", "C", "Kd", "Ld", "Kr_d"},
+    "prefilter": {"Ad", "Bd", "Cd", "Dd"},
+    "filter": {"beta", "v_min_rad_s", "period_rad"},
+    "ripple": {"period_rad", "lut"},
+    "torque_observer": {"KI", "K", "Jl"},
+    "provenance": {"design_file", "design_sha256", "model_file", "model_sha256", "datasets"},
+}
+_OPTIONAL_TABLES = {"prefilter", "ripple"}
+
+
+class _Reader:
+    """Typed access to the mapping; every error names the file and the dotted key."""
+
+    def __init__(self, data: dict[str, Any], where: str) -> None:
+        self.data, self.where = data, where
+
+    def fail(self, key: str, msg: str) -> ConfigError:
+        return ConfigError(f"{self.where}{key}: {msg}")
+
+    def get(self, key: str) -> Any:
+        node: Any = self.data
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                raise self.fail(key, "missing")
+            node = node[part]
+        return node
+
+    def string(self, key: str) -> str:
+        v = self.get(key)
+        if not isinstance(v, str):
+            raise self.fail(key, f"expected a string, got {v!r}")
+        return v
+
+    def integer(self, key: str) -> int:
+        v = self.get(key)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.fail(key, f"expected an integer, got {v!r}")
+        return v
+
+    def number(self, key: str, positive: bool = False, allow_inf: bool = False) -> float:
+        v = self.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.fail(key, f"expected a number, got {v!r}")
+        v = float(v)
+        if math.isnan(v) or (math.isinf(v) and not allow_inf):
+            raise self.fail(key, f"must be finite, got {v}")
+        if positive and not v > 0:
+            raise self.fail(key, f"must be positive, got {v:g}")
+        return v
+
+    def array(self, key: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+        v = self.get(key)
+        if not isinstance(v, list):
+            raise self.fail(key, "expected an array of numbers")
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            raise self.fail(key, "expected an array of numbers") from None
+        if shape is not None and a.shape != shape:
+            want = "x".join(str(n) for n in shape)
+            raise self.fail(key, f"expected shape {want}, got {'x'.join(str(n) for n in a.shape) or 'scalar'}")
+        if not np.all(np.isfinite(a)):
+            raise self.fail(key, "entries must be finite")
+        return a
+
+    def sha(self, key: str) -> str:
+        s = self.string(key)
+        if len(s) != 64 or any(c not in "0123456789abcdef" for c in s):
+            raise self.fail(key, "expected 64 lower-case hex digits")
+        return s
+
+
+def _check_keys(r: _Reader) -> None:
+    for table, allowed in _TABLES.items():
+        if table:
+            if table not in r.data:
+                if table in _OPTIONAL_TABLES:
+                    continue
+                raise r.fail(table, "missing")
+            node = r.data[table]
+            if not isinstance(node, dict):
+                raise r.fail(table, "expected a table")
+        else:
+            node = r.data
+        for key in node:
+            if key not in allowed:
+                raise r.fail(f"{table}.{key}" if table else key, "unknown key")
+
+
+def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
+    """Validate a config mapping (format, keys, types, shapes, values, content hash) and build it."""
+    r = _Reader(data, where)
+    if data.get("format") != CONFIG_FORMAT:
+        raise r.fail("format", f"expected {CONFIG_FORMAT!r}, got {data.get('format')!r}")
+    if data.get("format_version") != CONFIG_FORMAT_VERSION:
+        raise r.fail("format_version", f"unsupported version {data.get('format_version')!r} (this tool reads 1)")
+    _check_keys(r)
+    sha = r.sha("sha256")
+    if content_sha256(data) != sha:
+        raise r.fail("sha256", "does not match the content: the file was modified after it was written; refused")
+
+    robot_model = r.string("robot_model")
+    if robot_model not in ROBOT_MODELS:
+        raise r.fail("robot_model", f"unknown robot model {robot_model!r} (known: {', '.join(ROBOT_MODELS)})")
+    joint = r.integer("joint")
+    if not 1 <= joint <= 7:
+        raise r.fail("joint", f"expected 1..7, got {joint}")
+    T = r.number("sample_time_s", positive=True)
+    if abs(T - SAMPLE_TIME_S) > 1e-12:
+        raise r.fail("sample_time_s", f"expected {SAMPLE_TIME_S} (the FRI cycle), got {T:g}")
+    mode = r.string("feedforward")
+    if mode not in FEEDFORWARD_MODES:
+        raise r.fail("feedforward", f"expected one of {', '.join(FEEDFORWARD_MODES)}, got {mode!r}")
+
+    # The runtime requires exactly these robot-side settings.
+    want = RobotSettings()
+    for key in ("control_mode", "client_command_mode"):
+        if r.string(f"robot.{key}") != getattr(want, key):
+            raise r.fail(f"robot.{key}", f"expected {getattr(want, key)!r}")
+    for key in ("send_period_ms", "receive_multiplier"):
+        if r.integer(f"robot.{key}") != getattr(want, key):
+            raise r.fail(f"robot.{key}", f"expected {getattr(want, key)}")
+    watchdog = r.number("robot.watchdog_timeout_s", positive=True)
+    if watchdog < T:
+        raise r.fail("robot.watchdog_timeout_s", f"shorter than one cycle ({T:g} s)")
+    robot = RobotSettings(watchdog_timeout_s=watchdog)
+
+    limits = ControllerLimits(r.number("limits.torque_nm", positive=True),
+                              r.number("limits.torque_rate_nm_s", positive=True),
+                              r.number("limits.velocity_rad_s", positive=True),
+                              r.number("limits.reference_nm", positive=True))
+    ds_torque = r.number("limits.data_sheet_torque_nm", positive=True)
+    ds_velocity = r.number("limits.data_sheet_velocity_rad_s", positive=True)
+    sheet = joint_limits(robot_model, joint)
+    if abs(ds_torque - sheet.torque_nm) > 1e-9 or abs(ds_velocity - sheet.velocity_rad_s) > 1e-9:
+        raise r.fail("limits.data_sheet_torque_nm", f"does not match the data sheet of {robot_model} A{joint}")
+    if limits.torque_nm > sheet.torque_nm:
+        raise r.fail("limits.torque_nm", f"above the data-sheet limit {sheet.torque_nm:g} Nm")
+    if limits.velocity_rad_s > sheet.velocity_rad_s:
+        raise r.fail("limits.velocity_rad_s", f"above the data-sheet limit {sheet.velocity_rad_s:g} rad/s")
+    if limits.torque_rate_nm_s > default_rate_limit(sheet):
+        raise r.fail("limits.torque_rate_nm_s", f"above the default limit {default_rate_limit(sheet):g} Nm/s")
+    if limits.reference_nm > limits.torque_nm:
+        raise r.fail("limits.reference_nm", "above limits.torque_nm")
+
+    Ad = r.array("controller.Ad", (4, 4))
+    Bd = r.array("controller.Bd", (4,))
+    C = r.array("controller.C", (4,))
+    if not np.array_equal(C, _C):
+        raise r.fail("controller.C", "expected [0, 0, 0, 1] (observable canonical form, eq (21))")
+    Kd, Ld = r.array("controller.Kd", (4,)), r.array("controller.Ld", (4,))
+    Kr_d = r.number("controller.Kr_d")
+
+    prefilter = None
+    if mode == "none":
+        if "prefilter" in data:
+            raise r.fail("prefilter", 'present although feedforward = "none"')
+    else:
+        if "prefilter" not in data:
+            raise r.fail("prefilter", f'missing (required with feedforward = "{mode}")')
+        Af = r.array("prefilter.Ad")
+        if Af.ndim != 2 or Af.shape[0] != Af.shape[1] or Af.shape[0] == 0:
+            raise r.fail("prefilter.Ad", "expected a non-empty square matrix")
+        n = Af.shape[0]
+        prefilter = (Af, r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)), r.number("prefilter.Dd"))
+
+    flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True),
+                         r.number("filter.period_rad", positive=True))
+    ripple = None
+    if "ripple" in data:
+        lut = r.array("ripple.lut")
+        if lut.ndim != 1 or len(lut) < 4:
+            raise r.fail("ripple.lut", "expected a list of at least 4 deflections [rad]")
+        ripple = RippleTable(r.number("ripple.period_rad", positive=True), lut)
+    KI = r.number("torque_observer.KI", positive=True)
+    K = r.number("torque_observer.K", positive=True)
+    Jl = r.number("torque_observer.Jl", positive=True)
+
+    prov = r.get("provenance")
+    fields: dict[str, str] = {}
+    for key in ("design_file", "model_file"):
+        if key in prov:
+            fields[key] = r.string(f"provenance.{key}")
+    for key in ("design_sha256", "model_sha256"):
+        if key in prov:
+            fields[key] = r.sha(f"provenance.{key}")
+    datasets = []
+    raw = prov.get("datasets", [])
+    if not isinstance(raw, list):
+        raise r.fail("provenance.datasets", "expected an array of tables")
+    for i, s in enumerate(raw):
+        key = f"provenance.datasets[{i}]"
+        if not isinstance(s, dict) or not isinstance(s.get("file"), str) or not isinstance(s.get("sha256"), str):
+            raise r.fail(key, "expected file and sha256")
+        datasets.append(Source(s["file"], s["sha256"], str(s.get("role", "fit"))))
+
+    checks = []
+    raw = data.get("checks")
+    if not isinstance(raw, list):
+        raise r.fail("checks", "expected an array of tables")
+    for i, c in enumerate(raw):
+        key = f"checks[{i}]"
+        try:
+            check = Check(str(c["name"]), float(c["value"]), float(c["threshold"]), bool(c["passed"]),
+                          str(c["comparison"]), str(c.get("unit", "-")), str(c.get("detail", "")))
+        except (KeyError, TypeError, ValueError):
+            raise r.fail(key, "expected name, value, threshold, passed and comparison") from None
+        if not check.passed:
+            raise r.fail(f"{key}.passed", f"check {check.name!r} failed; the config must not be run")
+        checks.append(check)
+
+    return ControllerConfig(
+        robot_model=robot_model, joint=joint, sample_time_s=T, feedforward=mode, Ad=Ad, Bd=Bd, C=C, Kd=Kd, Ld=Ld,
+        Kr_d=Kr_d, prefilter=prefilter, filter=flt, ripple=ripple, KI=KI, K=K, Jl=Jl, limits=limits,
+        data_sheet_torque_nm=ds_torque, data_sheet_velocity_rad_s=ds_velocity, robot=robot,
+        provenance=Provenance(datasets=tuple(datasets), **fields), checks=checks,
+        tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")), sha256=sha)
+
+
+def read_config(path: str | os.PathLike) -> ControllerConfig:
+    """Read and validate a controller config; errors name the file and the key.
+
+    Raises
+    ------
+    ConfigError
+        Missing or invalid key, a failed check, or content not matching ``sha256``.
+    """
+    return config_from_dict(load_toml(path, ConfigError), where=f"{path}: ")
+
+
+# ---------------------------------------------------------------------------
+# Deploying a design
+# ---------------------------------------------------------------------------
+def _option(value: float | None, default: float, name: str) -> float:
+    if value is None:
+        return default
+    if not (math.isfinite(value) and value > 0):
+        raise DeployError(f"{name} must be a positive finite number, got {value!r}")
+    return float(value)
+
+
+def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: float | None = None,
+           rate_limit: float | None = None, velocity_limit: float | None = None,
+           watchdog_timeout_s: float = RobotSettings.watchdog_timeout_s, design_file: str = "",
+           design_sha256: str = "", model: JointModel | None = None) -> ControllerConfig:
+    """Check a design and turn it into a controller config.
+
+    Parameters
+    ----------
+    record : DesignRecord
+        The design.
+    robot_model : str
+        Robot (key of :data:`iiwa_ident.robot.ROBOT_MODELS`).
+    joint : int
+        Joint 1-7.
+    torque_limit : float, optional
+        Clamp of the commanded torque [Nm]; default and maximum: the data sheet.
+    rate_limit : float, optional
+        Clamp of the torque rate [Nm/s]; default and maximum:
+        :func:`~iiwa_ident.deploy.checks.default_rate_limit`.
+    velocity_limit : float, optional
+        Joint speed at which the runtime stops [rad/s]; default and maximum: the data sheet.
+    watchdog_timeout_s : float
+        Stop after this long without a robot message [s] (default 5 ms).
+    design_file, design_sha256 : str
+        The design file and its sha256, recorded in the config.
+    model : JointModel, optional
+        The model the design came from; its dataset sources are recorded.
+
+    Returns
+    -------
+    ControllerConfig
+        With the checks it passed (write it with :func:`write_config`).
+
+    Raises
+    ------
+    DeployError
+        If a check fails (the message lists every failed check) or a setting is invalid.
+    """
+    sheet = joint_limits(robot_model, joint)
+    if not (math.isfinite(watchdog_timeout_s) and SAMPLE_TIME_S <= watchdog_timeout_s):
+        raise DeployError(f"watchdog timeout must be at least one cycle, got {watchdog_timeout_s!r} s")
+    limits = ControllerLimits(_option(torque_limit, sheet.torque_nm, "--torque-limit"),
+                              _option(rate_limit, default_rate_limit(sheet), "--rate-limit"),
+                              _option(velocity_limit, sheet.velocity_rad_s, "--velocity-limit"))
+    checks = check_design(record, limits, sheet)
+    bad = failed_checks(checks)
+    if bad:
+        raise DeployError("design refused: " + "; ".join(c.describe() for c in bad))
+    # The reference clamp keeps the peak command of any reference step within the torque limit.
+    limits = ControllerLimits(limits.torque_nm, limits.torque_rate_nm_s, limits.velocity_rad_s,
+                              min(limits.torque_nm, limits.torque_nm / step_peak_gain(record)))
+    d = record.design
+    datasets = tuple(model.sources) if model is not None else ()
+    return ControllerConfig(
+        robot_model=robot_model, joint=int(joint), sample_time_s=float(d.sample_time_s), feedforward=d.feedforward,
+        Ad=np.array(d.Ad, float), Bd=np.array(d.Bd, float), C=np.array(d.C, float), Kd=np.array(d.Kd, float),
+        Ld=np.array(d.Ld, float), Kr_d=float(d.Kr_d),
+        prefilter=None if d.ffd is None else tuple(d.ffd),
+        filter=record.filter, ripple=record.ripple, KI=float(record.KI), K=float(d.params.K),
+        Jl=float(d.params.Jl), limits=limits, data_sheet_torque_nm=float(sheet.torque_nm),
+        data_sheet_velocity_rad_s=float(sheet.velocity_rad_s),
+        robot=RobotSettings(watchdog_timeout_s=watchdog_timeout_s),
+        provenance=Provenance(design_file=design_file, design_sha256=design_sha256,
+                              model_file=record.model_file or "", model_sha256=record.model_sha256 or "",
+                              datasets=datasets),
+        checks=checks, tool_version=record.tool_version)

@@ -1,0 +1,159 @@
+"""Deployment library: checks, the controller config format and the rebuilt controller."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from iiwa_ident._toml import dumps_toml
+from iiwa_ident.deploy import (
+    MAX_SPECTRAL_RADIUS,
+    ConfigError,
+    DeployError,
+    Provenance,
+    check_design,
+    config_to_dict,
+    content_sha256,
+    controller_from_config,
+    deploy,
+    read_config,
+    write_config,
+)
+from iiwa_ident.design.controller import JointParameters, design_controller, outer_loop_margins
+from iiwa_ident.design.design_file import make_record
+from iiwa_ident.ident.model_file import RippleTable, Source, read_model
+
+TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"
+
+
+@pytest.fixture(scope="module")
+def record():
+    model = read_model(TABLE1)
+    design = design_controller(JointParameters.from_model(model))
+    return make_record(design, outer_loop_margins(design), model, TABLE1)
+
+
+@pytest.fixture(scope="module")
+def config(record):
+    return deploy(record, "iiwa14", 1, design_file="design.toml", design_sha256="a" * 64)
+
+
+def _refusal(record, name, **kw):
+    with pytest.raises(DeployError, match=name) as err:
+        deploy(record, "iiwa14", 1, **kw)
+    assert "\n" not in str(err.value)
+
+
+class TestChecks:
+    def test_good_design_passes_all(self, config):
+        names = [c.name for c in config.checks]
+        assert names == ["finite", "sample_time", "closed_loop_spectral_radius", "exact_delay_spectral_radius",
+                         "outer_loop_kappa_margin", "limits_within_data_sheet", "reference_range"]
+        assert all(c.passed for c in config.checks)
+        rho = {c.name: c.value for c in config.checks}
+        assert rho["closed_loop_spectral_radius"] < MAX_SPECTRAL_RADIUS
+        assert rho["outer_loop_kappa_margin"] == pytest.approx(23.0, abs=0.1)
+
+    def test_default_limits_are_the_data_sheet(self, config):
+        assert config.limits.torque_nm == 320.0
+        assert config.limits.velocity_rad_s == pytest.approx(math.radians(85))
+        assert config.limits.torque_rate_nm_s == pytest.approx(32000.0)
+        # The reference clamp keeps the peak command of a step at the torque limit.
+        assert 0.5 * 320 < config.limits.reference_nm < 320
+
+    def test_unstable_poles_refused(self, record):
+        bad = copy.deepcopy(record)
+        bad.design.Kd = -bad.design.Kd  # positive feedback
+        checks = {c.name: c for c in check_design(bad)}
+        assert checks["closed_loop_spectral_radius"].value >= 1
+        assert not checks["closed_loop_spectral_radius"].passed
+        _refusal(bad, "closed_loop_spectral_radius.*unstable")
+
+    def test_nan_refused(self, record):
+        bad = copy.deepcopy(record)
+        bad.design.Ld = bad.design.Ld.copy()
+        bad.design.Ld[2] = np.nan
+        _refusal(bad, "finite = 1 ")
+
+    def test_inf_in_ripple_refused(self, record):
+        bad = copy.deepcopy(record)
+        bad.ripple = RippleTable(0.01963, np.array([0.0, 1e-5, np.inf, -1e-5]))
+        _refusal(bad, "finite")
+
+    def test_kappa_margin_below_builtin_refused(self, record):
+        bad = copy.deepcopy(record)
+        bad.margins = type(record.margins)(builtin=record.margins.builtin, additive=2.0, arm=record.margins.arm)
+        _refusal(bad, "outer_loop_kappa_margin")
+
+    def test_limits_above_data_sheet_refused(self, record):
+        _refusal(record, "limits_within_data_sheet.*torque", torque_limit=321.0)
+        _refusal(record, "limits_within_data_sheet.*velocity", velocity_limit=2.0)
+
+    def test_feedforward_gain_too_large_refused(self, record):
+        bad = copy.deepcopy(record)
+        Af, Bf, Cf, Df = bad.design.ffd
+        bad.design.ffd = (Af, Bf, 5 * Cf, 5 * Df)
+        _refusal(bad, "reference_range")
+
+    def test_wrong_sample_time_refused(self, record):
+        bad = copy.deepcopy(record)
+        bad.design.sample_time_s = 0.002
+        _refusal(bad, "sample_time")
+
+
+class TestConfigFile:
+    def test_round_trip(self, config, tmp_path):
+        config = copy.deepcopy(config)
+        config.ripple = RippleTable(0.01963, np.array([0.0, 1e-5, 0.0, -1e-5]))
+        config.provenance = Provenance("d.toml", "b" * 64, "m.toml", "c" * 64, (Source("x.h5", "d" * 64, "fit"),))
+        path = write_config(tmp_path / "c.toml", config)
+        back = read_config(path)
+        assert back.sha256 == config.sha256 and len(back.sha256) == 64
+        assert config_to_dict(back) == config_to_dict(config)
+        assert back.robot.control_mode == "JOINT_IMPEDANCE" and back.robot.client_command_mode == "TORQUE"
+        assert back.robot.send_period_ms == 1 and back.robot.receive_multiplier == 1
+        assert back.robot.watchdog_timeout_s == 0.005
+        assert back.provenance.datasets[0].file == "x.h5"
+        np.testing.assert_array_equal(back.ripple.lut, config.ripple.lut)
+
+    def test_rebuilt_controller_equals_design(self, record, config, tmp_path):
+        back = read_config(write_config(tmp_path / "c.toml", config))
+        a, b = record.design.controller(), controller_from_config(back)
+        rng = np.random.default_rng(1)
+        for tau_r, tau_j in rng.normal(scale=50.0, size=(2000, 2)):
+            assert b.step(tau_r, tau_j) == pytest.approx(a.step(tau_r, tau_j), abs=1e-12)
+
+    def test_tampered_file_refused(self, config, tmp_path):
+        path = write_config(tmp_path / "c.toml", config)
+        text = path.read_text()
+        assert "torque_nm = 320.0" in text
+        path.write_text(text.replace("torque_nm = 320.0", "torque_nm = 300.0", 1))
+        with pytest.raises(ConfigError, match=r"c\.toml: sha256: .*modified"):
+            read_config(path)
+
+    @pytest.mark.parametrize("key", ["limits.torque_nm", "controller.Kd", "robot.watchdog_timeout_s", "joint"])
+    def test_missing_key_named(self, config, tmp_path, key):
+        data = config_to_dict(config)
+        node = data
+        *parents, leaf = key.split(".")
+        for p in parents:
+            node = node[p]
+        del node[leaf]
+        data["sha256"] = content_sha256(data)  # a consistent hash: the key check itself must catch it
+        path = tmp_path / "c.toml"
+        path.write_text(dumps_toml(data))
+        with pytest.raises(ConfigError, match=rf"c\.toml: {key}: missing"):
+            read_config(path)
+
+    def test_wrong_robot_setting_refused(self, config, tmp_path):
+        data = config_to_dict(config)
+        data["robot"]["client_command_mode"] = "POSITION"
+        data["sha256"] = content_sha256(data)
+        path = tmp_path / "c.toml"
+        path.write_text(dumps_toml(data))
+        with pytest.raises(ConfigError, match="robot.client_command_mode"):
+            read_config(path)
