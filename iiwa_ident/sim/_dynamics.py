@@ -8,7 +8,7 @@ virtual machine runs the same function, only slower.
 
 State ``x`` (per cycle, :data:`STATE`):
     theta_m [rad], z [Nm s] (integral state of eq (1)), theta_l [rad],
-    omega_l [rad/s], tau_f [Nm] (feasibility-filtered client command),
+    omega_l [rad/s], standing [s] (how long the motor has stood still),
     held (1 while torque control is suppressed at standstill),
     theta_m_prev [rad] (motor position one substep earlier).
 Input ``u`` (per cycle): the cycle's start time [s], then per substep the
@@ -42,11 +42,11 @@ __all__ = ["STATE", "INPUTS", "OUTPUTS", "CycleModel", "output_function", "cache
 
 log = logging.getLogger(__name__)
 
-STATE = ("theta_m", "z", "theta_l", "omega_l", "tau_f", "held", "theta_m_prev")
+STATE = ("theta_m", "z", "theta_l", "omega_l", "standing", "held", "theta_m_prev")
 INPUTS = ("tau_cmd", "q_cmd", "position_mode", "ext_tau", "ext_pos", "ext_vel", "ext_k", "ext_d")
 OUTPUTS = ("theta_m", "tau_j", "tau_s", "theta_l", "omega_l", "omega_m", "tau_ext", "tau_applied", "held", "tau_model")
-_BASE = ("Jc", "bc", "K", "Jl", "slew", "tau_still", "v_still", "kp", "kd", "cycle_s")
-_CODE_VERSION = "1"
+_BASE = ("Jc", "bc", "K", "Jl", "t_still", "tau_still", "v_still", "kp", "kd", "cycle_s")
+_CODE_VERSION = "2"
 
 
 def cache_dir() -> Path:
@@ -58,7 +58,7 @@ def cache_dir() -> Path:
 
 def _parameter_vector(plant: Plant) -> np.ndarray:
     d, i = plant.dynamics, plant.internal
-    base = [d["Jc"], d["bc"], d["K"], d["Jl"], i["slew_rate_nm_s"], i["standstill_torque_nm"],
+    base = [d["Jc"], d["bc"], d["K"], d["Jl"], i["standstill_time_s"], i["standstill_torque_nm"],
             i["standstill_velocity_rad_s"], i["position_kp"], i["position_kd"], plant.cycle_s]
     return np.concatenate([np.asarray(base, float), *[e.vector() for e in plant.effects]])
 
@@ -138,7 +138,7 @@ def _build(plant: Plant) -> ca.Function:
         return ca.vertcat(dtheta_m, dz, s[3], domega_l), tau_ext
 
     s = x[0:4]
-    tau_f, held, theta_prev = x[4], x[5], x[6]
+    standing_s, held, theta_prev = x[4], x[5], x[6]
     t0 = u[0]
     for j in range(M):
         row = u[1 + j * nin:1 + (j + 1) * nin]
@@ -147,14 +147,16 @@ def _build(plant: Plant) -> ca.Function:
         t = t0 + j * h
         omega_est = (s[0] - theta_prev) / h
         comp = -model_torque(s[0])  # the robot's own gravity compensation
-        tau_in = ca.if_else(pos_mode > 0.5, P["kp"] * (q_cmd - s[0]) - P["kd"] * omega_est, tau_cmd)
-        step = P["slew"] * h
-        tau_f = tau_f + ca.fmin(ca.fmax(tau_in - tau_f, -step), step)
-        # Torque control is suppressed from standstill while command and sensed
-        # load stay below the threshold (section II.A); position mode never is.
+        # The client's command arrives already through the feasibility filter's slew limit (applied
+        # per cycle by the caller); the position controller is the robot's own, at the internal rate.
+        tau_f = ca.if_else(pos_mode > 0.5, P["kp"] * (q_cmd - s[0]) - P["kd"] * omega_est, tau_cmd)
+        # Torque control is suppressed from standstill while command and sensed load stay below the
+        # threshold (section II.A): standstill means the motor has not moved for t_still; position
+        # mode never is.
         _, tau_s_now, _ = torques(s, t)
         small = ca.logic_and(ca.fabs(tau_f) < P["tau_still"], ca.fabs(tau_s_now - comp) < P["tau_still"])
-        standing = ca.fabs(omega_est) < P["v_still"]
+        standing_s = ca.if_else(ca.fabs(omega_est) < P["v_still"], standing_s + h, 0)
+        standing = standing_s >= P["t_still"]
         held = ca.if_else(pos_mode > 0.5, 0, ca.if_else(held > 0.5, small, ca.logic_and(small, standing)))
         free = 1 - held
         tau = free * (tau_f + comp)
@@ -168,7 +170,7 @@ def _build(plant: Plant) -> ca.Function:
     t_end = t0 + M * h
     deriv, tau_ext = rhs(s, t_end, tau, free, ext)
     tau_j, tau_s, _ = torques(s, t_end)
-    x_next = ca.vertcat(s, tau_f, held, theta_prev)
+    x_next = ca.vertcat(s, standing_s, held, theta_prev)
     y = ca.vertcat(s[0], tau_j, tau_s, s[2], s[3], deriv[0], tau_ext, tau, held, model_torque(s[0]))
     return ca.Function("iiwa_cycle", [x, u, p], [x_next, y])
 

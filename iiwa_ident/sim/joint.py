@@ -106,7 +106,7 @@ class SimulatedJoint(RobotInterface):
         for _ in range(20):  # fixed point of K (theta_m - f - theta_l) = -load(theta_l)
             load = self._link_load(theta_l)
             theta_l = theta_m - f + load / d["K"]
-        return np.array([theta_m, 0.0, theta_l, 0.0, 0.0, 1.0, theta_m])
+        return np.array([theta_m, 0.0, theta_l, 0.0, 1.0, 1.0, theta_m])
 
     def _link_load(self, theta_l: float) -> float:
         """Static link torque of the switched-on effects at rest [Nm]."""
@@ -139,10 +139,16 @@ class SimulatedJoint(RobotInterface):
         U[:, 1:] = rows.reshape(n, nin * M)
         return U
 
-    @staticmethod
-    def _command_row(command: Command) -> tuple[float, float, float]:
+    def _feasible(self, tau: float, previous: float) -> float:
+        """The feasibility filter's slew limit on a torque command, one cycle after ``previous`` [Nm]."""
+        step = self.plant.internal["slew_rate_nm_s"] * self.sample_time_s
+        return previous + min(max(tau - previous, -step), step)
+
+    def _command_row(self, command: Command) -> tuple[float, float, float]:
         if command.tau_c is not None:
-            return (float(command.tau_c), 0.0, 0.0)
+            self._tau_prev = self._feasible(float(command.tau_c), self._tau_prev)
+            return (self._tau_prev, 0.0, 0.0)
+        self._tau_prev = 0.0
         return (0.0, float(command.q_cmd), 1.0)
 
     # -- measurement model ------------------------------------------------
@@ -170,6 +176,7 @@ class SimulatedJoint(RobotInterface):
         self._rng = np.random.default_rng(self.seed)
         self._x = self._initial_state()
         self._k = 0
+        self._tau_prev = 0.0
         self._history: deque = deque(maxlen=self.delay_substeps // self.plant.substeps + 2)
         self._observer = MomentumObserver(self.plant.internal["KI"], self.plant.dynamics["Jl"], self.sample_time_s)
         y0 = self._y0()
@@ -245,7 +252,9 @@ class SimulatedJoint(RobotInterface):
         n = len(cmd)
         commands = np.zeros((n, 3))
         if tau_c is not None:
-            commands[:, 0] = cmd
+            self._tau_prev = 0.0
+            for k, tau in enumerate(cmd.tolist()):
+                commands[k, 0] = self._tau_prev = self._feasible(tau, self._tau_prev)
         else:
             commands[:, 1] = cmd
             commands[:, 2] = 1.0

@@ -54,9 +54,10 @@ SECTIONS: dict[str, tuple[Param, ...]] = {
     ),
     "internal": (
         Param("KI", 25.0, "rad/s", 0.0, 1e4, "gain of the built-in external-torque observer, eq (13)"),
-        Param("slew_rate_nm_s", 20000.0, "Nm/s", 1.0, 1e7, "feasibility filter: maximum command slew rate"),
+        Param("slew_rate_nm_s", 20000.0, "Nm/s", 1.0, 1e7, "feasibility filter: command slew-rate limit, per cycle"),
         Param("standstill_torque_nm", 1.0, "Nm", 0.0, 100.0, "torque control suppressed below this from standstill"),
         Param("standstill_velocity_rad_s", 0.002, "rad/s", 0.0, 1.0, "speed below which the joint counts as standing"),
+        Param("standstill_time_s", 0.01, "s", 0.0, 10.0, "how long the joint must stand to count as at standstill"),
         Param("position_kp", 3000.0, "Nm/rad", 0.0, 1e6, "stiffness of the robot's position controller"),
         Param("position_kd", 150.0, "Nm s/rad", 0.0, 1e5, "damping of the robot's position controller"),
     ),

@@ -1,0 +1,155 @@
+"""CLI ``iiwa-ident fit``: outputs, JSON keys, figures, base model and one-line refusals."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from iiwa_ident.cli import app
+from iiwa_ident.cli.fit_cmd import format_fit
+from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_dataset
+from iiwa_ident.excite import Chirp, record
+from iiwa_ident.ident import read_model, table1_model, write_model
+from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, fit_transfer_function
+from iiwa_ident.sim import SimulatedJoint, default_plant
+
+runner = CliRunner()
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def chirps(tmp_path_factory):
+    """Two short chirps (default plant, ripple on) of joint 1, and one relabelled as joint 2."""
+    folder = tmp_path_factory.mktemp("cli_fit")
+    paths = []
+    for seed in (1, 2):
+        ds = record(SimulatedJoint(default_plant(), seed=seed), Chirp(f0_hz=1.0, duration_s=10.0))
+        paths.append(write_dataset(folder / f"chirp{seed}.h5", ds))
+    ds = read_dataset(paths[0])
+    other = Dataset(dict(ds.signals), "chirp", "simulation", 2, ds.sample_rate_hz, dict(ds.experiment_attrs))
+    paths.append(write_dataset(folder / "joint2.h5", other))
+    return paths
+
+
+class TestFitCommand:
+    def test_writes_model_json_and_figures(self, chirps, tmp_path):
+        out, js, figs = tmp_path / "m.toml", tmp_path / "m.json", tmp_path / "figs"
+        res = invoke("fit", chirps[0], "--out", out, "--json", js, "--figures", figs)
+        assert res.exit_code == 0, res.output
+        model = read_model(out)
+        assert model.sources[0].sha256 == sha256_file(chirps[0])
+        assert model.parameters["KI"].value == 25.0
+        doc = json.loads(js.read_text())
+        assert {"parameters", "correlation", "bands", "nonlinear_share", "warnings"} <= set(doc)
+        assert set(doc["parameters"]) == set(PARAMETER_NAMES)
+        for name in PARAMETER_NAMES:
+            entry = doc["parameters"][name]
+            assert entry["value"] > 0 and entry["std"] > 0
+            assert entry["value"] == pytest.approx(model.value(name), rel=1e-12, abs=0)
+        assert doc["parameters"]["Td"]["value"] == pytest.approx(0.005, rel=0, abs=0.5e-3)  # seconds
+        assert doc["correlation"]["names"] == list(PARAMETER_NAMES)
+        assert np.asarray(doc["correlation"]["matrix"]).shape == (5, 5)
+        assert {"lo_hz", "hi_hz", "rel_error", "z_rms", "coherence"} <= set(doc["bands"][0])
+        assert {"lo_hz", "hi_hz", "share", "harmonics"} <= set(doc["nonlinear_share"][0])
+        assert all(isinstance(w, str) for w in doc["warnings"])
+        for name in ("bode.png", "harmonics.png"):
+            assert (figs / name).read_bytes()[:8] == PNG_MAGIC
+
+    def test_prints_tables(self, chirps, tmp_path):
+        res = invoke("fit", chirps[0], "--out", tmp_path / "m.toml")
+        assert res.exit_code == 0, res.output
+        text = res.output
+        for needle in ("parameter", "rel. std", "delay Td =", " ms", "fit quality per octave band",
+                       "nonlinear share per octave band", "wrote"):
+            assert needle in text
+        lines = {line.split()[0]: line for line in text.splitlines() if line.split()}
+        assert "kg m^2" in lines["Jc"] and "Nm/rad" in lines["K"] and "ms" in lines["Td"]
+
+    def test_two_files(self, chirps, tmp_path):
+        out, figs = tmp_path / "m.toml", tmp_path / "figs"
+        res = invoke("fit", chirps[0], chirps[1], "--out", out, "--figures", figs)
+        assert res.exit_code == 0, res.output
+        assert "chirp1.h5" in res.output and "chirp2.h5" in res.output
+        assert {s.file for s in read_model(out).sources} == {str(chirps[0]), str(chirps[1])}
+        assert sorted(p.name for p in figs.iterdir()) == ["bode_1.png", "bode_2.png", "harmonics_1.png",
+                                                         "harmonics_2.png"]
+
+    def test_base_model(self, chirps, tmp_path):
+        base = table1_model()
+        base.parameters["KI"].value = 40.0
+        base_path = write_model(tmp_path / "base.toml", base)
+        out = tmp_path / "m.toml"
+        res = invoke("fit", chirps[0], "--out", out, "--model", base_path)
+        assert res.exit_code == 0, res.output
+        model = read_model(out)
+        assert model.value("KI") == 40.0
+        assert [s.role for s in model.sources] == ["fit", "base"]
+
+    def test_help_has_example(self):
+        res = invoke("fit", "--help")
+        assert res.exit_code == 0
+        assert "Example" in res.output and "iiwa-ident fit chirp.h5" in res.output
+
+
+class TestFitErrors:
+    def assert_refused(self, res, message, *unwritten):
+        assert res.exit_code == 2, res.output
+        assert message in res.output
+        assert "Traceback" not in res.output
+        assert len([ln for ln in res.output.splitlines() if ln.startswith("error:")]) == 1
+        for path in unwritten:
+            assert not path.exists()
+
+    def test_no_torque_command(self, chirps, tmp_path):
+        ds = read_dataset(chirps[0])
+        signals = {k: v for k, v in ds.signals.items() if k != "tau_c"}
+        path = write_dataset(tmp_path / "no_tau_c.h5", Dataset(signals, "chirp", "simulation", 1, 1000.0))
+        out, js = tmp_path / "m.toml", tmp_path / "m.json"
+        res = invoke("fit", path, "--out", out, "--json", js)
+        self.assert_refused(res, f"{path}: no torque command: fit needs a torque-commanded chirp", out, js)
+
+    def test_missing_file(self, tmp_path):
+        out = tmp_path / "m.toml"
+        res = invoke("fit", tmp_path / "nope.h5", "--out", out)
+        self.assert_refused(res, "nope.h5", out)
+
+    def test_inconsistent_joints(self, chirps, tmp_path):
+        out = tmp_path / "m.toml"
+        res = invoke("fit", chirps[0], chirps[2], "--out", out)
+        self.assert_refused(res, "joint2.h5: joint 2", out)
+
+    def test_out_is_a_folder(self, chirps, tmp_path):
+        js = tmp_path / "m.json"
+        res = invoke("fit", chirps[0], "--out", tmp_path, "--json", js)
+        self.assert_refused(res, "is a directory", js)
+
+    def test_bad_base_model(self, chirps, tmp_path):
+        bad = tmp_path / "bad.toml"
+        bad.write_text("format = 'something else'\n")
+        out = tmp_path / "m.toml"
+        res = invoke("fit", chirps[0], "--out", out, "--model", bad)
+        self.assert_refused(res, f"{bad}: format", out)
+
+    def test_existing_output_untouched_on_error(self, chirps, tmp_path):
+        out = tmp_path / "m.toml"
+        out.write_text("keep me\n")
+        res = invoke("fit", tmp_path / "nope.h5", "--out", out)
+        assert res.exit_code == 2
+        assert out.read_text() == "keep me\n"
+
+
+class TestFormatFit:
+    def test_parameter_rows_and_units(self, chirps):
+        result = fit_transfer_function([read_dataset(chirps[0])])
+        text = format_fit(result)
+        td_line = next(line for line in text.splitlines() if line.startswith("Td "))
+        value_ms = float(td_line.split()[1])
+        assert value_ms == pytest.approx(result.parameters["Td"] * 1e3, rel=1e-5, abs=0)
+        assert text.count(" Hz") >= len(result.bands)
