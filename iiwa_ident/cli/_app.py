@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 import typer
 
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["app", "fail"]
+__all__ = ["app", "fail", "finite_or_none"]
 
 app = typer.Typer(
     name="iiwa-ident",
@@ -23,6 +24,11 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
     """Print ``error: message`` on stderr and return the exit to raise."""
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(code)
+
+
+def finite_or_none(x: float) -> float | None:
+    """A number for JSON output: inf and NaN become null."""
+    return float(x) if math.isfinite(x) else None
 
 
 def run_app(argv: list[str] | None = None) -> None:

@@ -10,7 +10,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from iiwa_ident._toml import write_atomic
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, fail, finite_or_none
 from iiwa_ident.datasets import sha256_file
 from iiwa_ident.deploy import (
     ControllerConfig,
@@ -47,10 +47,6 @@ def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | No
     return None, None
 
 
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def config_json(config: ControllerConfig, out: Path) -> dict[str, Any]:
     """The ``--json`` summary: limits, robot-side settings, sha256 and the checks with their values."""
     lim, r, p = config.limits, config.robot, config.provenance
@@ -69,7 +65,7 @@ def config_json(config: ControllerConfig, out: Path) -> dict[str, Any]:
                   "watchdog_timeout_s": r.watchdog_timeout_s},
         "sha256": {"config": config.sha256, "design": p.design_sha256 or None, "model": p.model_sha256 or None,
                    "datasets": [{"file": s.file, "sha256": s.sha256, "role": s.role} for s in p.datasets]},
-        "checks": [{"name": c.name, "value": _finite_or_none(c.value), "threshold": _finite_or_none(c.threshold),
+        "checks": [{"name": c.name, "value": finite_or_none(c.value), "threshold": finite_or_none(c.threshold),
                     "comparison": c.comparison, "unit": c.unit, "passed": c.passed} for c in config.checks],
     }
 

@@ -11,7 +11,7 @@ import numpy as np
 import typer
 
 from iiwa_ident._toml import write_atomic
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, fail, finite_or_none
 from iiwa_ident.design.controller import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
@@ -103,10 +103,6 @@ def format_design(design: AdditiveDesign, margins: OuterLoopMargins) -> str:
     return "\n".join(lines)
 
 
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def design_json(design: AdditiveDesign, margins: OuterLoopMargins) -> dict[str, Any]:
     """The ``--json`` content. Complex numbers as ``[re, im]``; an unbounded ``kappa_max`` is null."""
     def pairs(z):
@@ -127,7 +123,7 @@ def design_json(design: AdditiveDesign, margins: OuterLoopMargins) -> dict[str, 
         "dc_gain": design.dc_gain(True),
         "additive_poles": pairs(design.additive_poles),
         "sample_time_s": design.sample_time_s,
-        "kappa_max": {"builtin": _finite_or_none(margins.builtin), "additive": _finite_or_none(margins.additive)},
+        "kappa_max": {"builtin": finite_or_none(margins.builtin), "additive": finite_or_none(margins.additive)},
         "arm": {"stiffness": margins.arm.stiffness, "damping": margins.arm.damping, "inertia": margins.arm.inertia},
     }
 

@@ -104,6 +104,7 @@ from iiwa_ident.deploy.checks import (
 )
 from iiwa_ident.design.controller import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
 from iiwa_ident.design.design_file import DesignRecord, FilterSettings
+from iiwa_ident._schema import TableReader
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import JointModel, RippleTable, Source
 from iiwa_ident.robot import ROBOT_MODELS, joint_limits
@@ -364,66 +365,10 @@ _TABLES: dict[str, set[str]] = {
 _OPTIONAL_TABLES = {"prefilter", "ripple"}
 
 
-class _Reader:
+class _Reader(TableReader):
     """Typed access to the mapping; every error names the file and the dotted key."""
 
-    def __init__(self, data: dict[str, Any], where: str) -> None:
-        self.data, self.where = data, where
-
-    def fail(self, key: str, msg: str) -> ConfigError:
-        return ConfigError(f"{self.where}{key}: {msg}")
-
-    def get(self, key: str) -> Any:
-        node: Any = self.data
-        for part in key.split("."):
-            if not isinstance(node, dict) or part not in node:
-                raise self.fail(key, "missing")
-            node = node[part]
-        return node
-
-    def string(self, key: str) -> str:
-        v = self.get(key)
-        if not isinstance(v, str):
-            raise self.fail(key, f"expected a string, got {v!r}")
-        return v
-
-    def integer(self, key: str) -> int:
-        v = self.get(key)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.fail(key, f"expected an integer, got {v!r}")
-        return v
-
-    def number(self, key: str, positive: bool = False, allow_inf: bool = False) -> float:
-        v = self.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.fail(key, f"expected a number, got {v!r}")
-        v = float(v)
-        if math.isnan(v) or (math.isinf(v) and not allow_inf):
-            raise self.fail(key, f"must be finite, got {v}")
-        if positive and not v > 0:
-            raise self.fail(key, f"must be positive, got {v:g}")
-        return v
-
-    def array(self, key: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-        v = self.get(key)
-        if not isinstance(v, list):
-            raise self.fail(key, "expected an array of numbers")
-        try:
-            a = np.asarray(v, dtype=float)
-        except (TypeError, ValueError):
-            raise self.fail(key, "expected an array of numbers") from None
-        if shape is not None and a.shape != shape:
-            want = "x".join(str(n) for n in shape)
-            raise self.fail(key, f"expected shape {want}, got {'x'.join(str(n) for n in a.shape) or 'scalar'}")
-        if not np.all(np.isfinite(a)):
-            raise self.fail(key, "entries must be finite")
-        return a
-
-    def sha(self, key: str) -> str:
-        s = self.string(key)
-        if len(s) != 64 or any(c not in "0123456789abcdef" for c in s):
-            raise self.fail(key, "expected 64 lower-case hex digits")
-        return s
+    error = ConfigError
 
 
 def _check_keys(r: _Reader) -> None:

@@ -85,6 +85,7 @@ from typing import Any
 
 import numpy as np
 
+from iiwa_ident import tool_version
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.design.controller import (
     FEEDFORWARD_MODES,
@@ -96,6 +97,7 @@ from iiwa_ident.design.controller import (
     _scaling,
     check_poles,
 )
+from iiwa_ident._schema import TableReader
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
 
@@ -173,15 +175,6 @@ class DesignRecord:
     created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
 
-def _tool_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("iiwa-ident")
-    except Exception:  # running from a source tree without installed metadata
-        return "0.1.0"
-
-
 def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointModel,
                 model_path: str | os.PathLike | None = None, beta: float = 5.0, v_min_rad_s: float = 0.2,
                 description: str = "") -> DesignRecord:
@@ -206,7 +199,7 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
     return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")),
                         filter=FilterSettings(float(beta), float(v_min_rad_s), float(period)),
                         ripple=model.ripple, model_file=None if model_path is None else str(model_path),
-                        model_sha256=sha, description=description, tool_version=_tool_version())
+                        model_sha256=sha, description=description, tool_version=tool_version())
 
 
 # ---------------------------------------------------------------------------
@@ -226,7 +219,7 @@ def design_to_dict(record: DesignRecord) -> dict[str, Any]:
     out: dict[str, Any] = {
         "format": DESIGN_FORMAT,
         "format_version": DESIGN_FORMAT_VERSION,
-        "tool_version": record.tool_version or _tool_version(),
+        "tool_version": record.tool_version or tool_version(),
         "created_utc": record.created_utc,
     }
     if record.description:
@@ -295,81 +288,10 @@ _TABLE_KEYS = {
 }
 
 
-class _Reader:
+class _Reader(TableReader):
     """Typed access to the mapping; every error names the file and the dotted key."""
 
-    def __init__(self, data: dict[str, Any], where: str) -> None:
-        self.data, self.where = data, where
-
-    def fail(self, key: str, msg: str) -> DesignFileError:
-        return DesignFileError(f"{self.where}{key}: {msg}")
-
-    def get(self, key: str, required: bool = True) -> Any:
-        node: Any = self.data
-        parts = key.split(".")
-        for i, part in enumerate(parts):
-            if not isinstance(node, dict):
-                raise self.fail(".".join(parts[:i]), "expected a table")
-            if part not in node:
-                if required:
-                    raise self.fail(key, "missing")
-                return None
-            node = node[part]
-        return node
-
-    def table(self, key: str, required: bool = True) -> dict[str, Any] | None:
-        t = self.get(key, required)
-        if t is None:
-            return None
-        if not isinstance(t, dict):
-            raise self.fail(key, "expected a table")
-        return t
-
-    def number(self, key: str, positive: bool = False, nonneg: bool = False, allow_inf: bool = False) -> float:
-        v = self.get(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.fail(key, f"expected a number, got {v!r}")
-        v = float(v)
-        if math.isnan(v) or (math.isinf(v) and not allow_inf):
-            raise self.fail(key, f"must be finite, got {v}")
-        if positive and v <= 0:
-            raise self.fail(key, f"must be positive, got {v:g}")
-        if nonneg and v < 0:
-            raise self.fail(key, f"must not be negative, got {v:g}")
-        return v
-
-    def array(self, key: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-        v = self.get(key)
-        try:
-            a = np.asarray(v, dtype=float)
-        except (TypeError, ValueError):
-            raise self.fail(key, "expected an array of numbers") from None
-        if a.dtype == object or (isinstance(v, (bool, str))):
-            raise self.fail(key, "expected an array of numbers")
-        if shape is not None and a.shape != shape:
-            want = "x".join(str(n) for n in shape)
-            raise self.fail(key, f"expected shape {want}, got {'x'.join(str(n) for n in a.shape) or 'scalar'}")
-        if not np.all(np.isfinite(a)):
-            raise self.fail(key, "entries must be finite")
-        return a
-
-    def square(self, key: str) -> np.ndarray:
-        a = self.array(key)
-        if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] == 0:
-            raise self.fail(key, "expected a non-empty square matrix")
-        return a
-
-    def poles(self, key: str, n: int) -> np.ndarray:
-        a = self.array(key)
-        if a.shape != (n, 2):
-            raise self.fail(key, f"expected {n} [re, im] pairs")
-        return a[:, 0] + 1j * a[:, 1]
-
-    def string(self, key: str) -> str:
-        v = self.get(key)
-        if not isinstance(v, str):
-            raise self.fail(key, f"expected a string, got {v!r}")
-        return v
+    error = DesignFileError
 
 
 def _check_tables(r: _Reader) -> None:

@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from iiwa_ident import tool_version
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import IiwaIdentError
 
@@ -74,15 +75,6 @@ _POSITIVE = ("Jc", "K", "Jl", "KI")
 
 class ModelError(IiwaIdentError):
     """A model file is missing, unreadable or invalid."""
-
-
-def _tool_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("iiwa-ident")
-    except Exception:  # running from a source tree without installed metadata
-        return "0.1.0"
 
 
 @dataclass
@@ -143,7 +135,7 @@ class JointModel:
     joint: int | None = None
     robot_model: str | None = None
     description: str = ""
-    tool_version: str = field(default_factory=_tool_version)
+    tool_version: str = field(default_factory=tool_version)
     created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
     def value(self, name: str) -> float:
