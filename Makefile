@@ -13,9 +13,21 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
+DEMO := reports/demo
+CLI := $(BIN)/iiwa-ident
+
+# The main job on the default simulated joint: chirp -> fit -> constant velocity -> ripple -> design -> deploy.
 demo: $(STAMP)
-	$(BIN)/iiwa-ident chirp --target sim --duration 30 --seed 1 --out reports/demo/chirp.h5
-	@echo "outputs: reports/demo/chirp.h5 (inspect with: $(BIN)/iiwa-ident info reports/demo/chirp.h5)"
+	@mkdir -p $(DEMO)
+	$(CLI) chirp --target sim --duration 30 --seed 1 --out $(DEMO)/chirp.h5
+	$(CLI) fit $(DEMO)/chirp.h5 --out $(DEMO)/model.toml --json $(DEMO)/fit.json --figures $(DEMO)/figures
+	$(CLI) simulate constant_velocity --velocity 0.3,0.6,1.2 --seed 2 --out $(DEMO)/constant_velocity.h5
+	$(CLI) ripple $(DEMO)/constant_velocity.h5 --model $(DEMO)/model.toml --out $(DEMO)/model_ripple.toml \
+		--json $(DEMO)/ripple.json --figures $(DEMO)/figures
+	$(CLI) design --model $(DEMO)/model_ripple.toml --out $(DEMO)/design.toml --json $(DEMO)/design.json
+	$(CLI) deploy --design $(DEMO)/design.toml --out $(DEMO)/controller.toml --json $(DEMO)/controller.json
+	@echo "outputs in $(DEMO): chirp.h5, model.toml, constant_velocity.h5, model_ripple.toml, design.toml,"
+	@echo "  controller.toml, *.json and figures/*.png (inspect a dataset with: $(CLI) info $(DEMO)/chirp.h5)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
