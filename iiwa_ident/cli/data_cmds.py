@@ -168,7 +168,12 @@ def info_cmd(
     file: Annotated[Path, typer.Argument(help="Dataset file (.h5).")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
-    """Show a dataset's metadata and per-signal statistics."""
+    """Show a dataset's metadata and per-signal statistics.
+
+    Examples:
+      iiwa-ident info chirp.h5
+      iiwa-ident info chirp.h5 --json
+    """
     try:
         info = dataset_info(read_dataset(file))
     except IiwaIdentError as err:
