@@ -116,10 +116,10 @@ def import_cmd(
     q_l_ref, q_cmd (rad), dq_m (rad/s). Give either --columns files (one row
     per sample, one column per joint) or --csv with --map.
 
-    Example, the real joint-2 constant-velocity log (position-controlled,
-    200 Hz, so no tau_c):
+    Example, a joint-2 constant-velocity log as common iiwa drivers export it
+    (position-controlled, 200 Hz, so no tau_c):
 
-        D=../shared/data/real/iiwa14-constant-velocity/joint2/vel_p3
+        D=logs/joint2/vel_p3
 
         iiwa-ident import --joint 2 --experiment constant_velocity \
           --columns t=$D/cur_traj_time_s.txt \
