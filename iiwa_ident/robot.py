@@ -154,6 +154,16 @@ class RobotInterface(ABC):
         """Facts about the robot worth recording with a dataset."""
         return {}
 
+    def set_agent(self, agent) -> None:
+        """Attach what acts on the link from outside (a simulated arm or drive).
+
+        On a real robot that is the operator or the test rig, so the default does nothing.
+        """
+
+    def truth(self) -> dict | None:
+        """Ground truth to store with a dataset (simulation only; None for a real robot)."""
+        return None
+
     def __enter__(self) -> "RobotInterface":
         return self
 

@@ -98,6 +98,8 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
         Safety supervisor (default: the robot's data-sheet limits).
     progress : callable, optional
         Called as ``progress(done, total)`` every 1000 cycles.
+    q0 : float, optional
+        Position [rad] an external agent starts from (default: the simulated joint's start position).
 
     Returns
     -------
@@ -113,9 +115,7 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
     guard = guard or LimitGuard(robot.limits)
     dt = robot.sample_time_s
     n = int(round(experiment.duration_s / dt))
-    agent_q0 = q0
-    if hasattr(robot, "set_agent"):
-        robot.set_agent(experiment.agent(getattr(robot, "q0", 0.0) if agent_q0 is None else agent_q0))
+    robot.set_agent(experiment.agent(getattr(robot, "q0", 0.0) if q0 is None else q0))
     alpha = _velocity_filter(dt)
     rows: list[tuple] = []
     stopped = ""
@@ -142,8 +142,7 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
             stopped = guard.brake(robot, state, cmd.q_cmd is not None) or stopped
     finally:
         robot.stop()
-        if hasattr(robot, "set_agent"):
-            robot.set_agent(None)
+        robot.set_agent(None)
     if progress:
         progress(n, n)
     return _dataset(robot, experiment, rows, dt * record_every, stopped)
@@ -162,6 +161,6 @@ def _dataset(robot: RobotInterface, experiment: Experiment, rows: list[tuple], p
     attrs = experiment.attrs()
     if stopped:
         attrs["stopped_reason"] = stopped
-    truth = robot.truth() if hasattr(robot, "truth") else None
+    truth = robot.truth()
     return Dataset(signals=signals, experiment=experiment.name, source=robot.source, joint=robot.joint,
                    sample_rate_hz=1.0 / period, experiment_attrs=attrs, truth=truth)

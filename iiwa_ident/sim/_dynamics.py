@@ -321,15 +321,19 @@ class CycleModel:
 
 
 def output_function(plant: Plant) -> ca.Function:
-    """``g(theta_m, theta_l, t, p) -> (f, tau_j, tau_s, tau_model)`` at one instant.
+    """``g(theta_m, theta_l, t, p) -> (f, tau_j, tau_s, tau_model, tau_link)`` at one instant.
 
-    Deflection [rad], true and sensed joint torque [Nm] and the robot's model
-    torque [Nm], from the same effect hooks as the cycle function.
+    Deflection [rad], true and sensed joint torque [Nm], the robot's model
+    torque [Nm] and the torque the effects put on a link at rest [Nm], from
+    the same effect hooks as the cycle function.
     """
     th_m, th_l, t = ca.SX.sym("theta_m"), ca.SX.sym("theta_l"), ca.SX.sym("t")
     p = ca.SX.sym("p", _n_params(plant))
-    f, tau_model, sensed = 0, 0, []
+    f, tau_model, tau_link, sensed = 0, 0, 0, []
     for e, Pe in _effect_params(plant, p):
+        link = e.link_torque(th_l, 0.0, Pe)
+        if link is not None:
+            tau_link = tau_link + link
         out = e.deflection(th_m, Pe)
         if out is not None:
             f = f + out[0]
@@ -341,4 +345,4 @@ def output_function(plant: Plant) -> ca.Function:
     tau_s = tau_j
     for e, Pe in sensed:
         tau_s = e.sensor(tau_s, t, Pe)
-    return ca.Function("outputs", [th_m, th_l, t, p], [f, tau_j, tau_s, tau_model])
+    return ca.Function("outputs", [th_m, th_l, t, p], [f, tau_j, tau_s, tau_model, tau_link])

@@ -101,19 +101,12 @@ class SimulatedJoint(RobotInterface):
         d = self.plant.dynamics
         theta_m = self.q0
         f = float(self._outputs(theta_m, theta_m, 0.0, self.model.p)[0])
-        # The joint carries the uncompensated load; the robot holds the motor (held = 1).
+        # The joint carries the static link torque of the effects; the robot holds the motor (held = 1).
         theta_l = theta_m - f
-        for _ in range(20):  # fixed point of K (theta_m - f - theta_l) = -load(theta_l)
-            load = self._link_load(theta_l)
+        for _ in range(20):  # fixed point of K (theta_m - f - theta_l) = -tau_link(theta_l)
+            load = float(self._outputs(theta_m, theta_l, 0.0, self.model.p)[4])
             theta_l = theta_m - f + load / d["K"]
         return np.array([theta_m, 0.0, theta_l, 0.0, 1.0, 1.0, theta_m])
-
-    def _link_load(self, theta_l: float) -> float:
-        """Static link torque of the switched-on effects at rest [Nm]."""
-        eff = self.plant.effect("position_dependent_load")
-        if eff is None:
-            return 0.0
-        return eff.values["amplitude_nm"] * np.sin(theta_l + eff.values["phase_rad"])
 
     # -- inputs of one cycle ------------------------------------------------
     def _cycle_inputs(self, k0: int, n: int, commands: np.ndarray, first: int = 0) -> np.ndarray:
@@ -189,7 +182,7 @@ class SimulatedJoint(RobotInterface):
     def _y0(self) -> np.ndarray:
         """Outputs at the initial state, before any command."""
         x = self._x
-        f, tau_j, tau_s, tau_model = (float(v) for v in self._outputs(x[0], x[2], 0.0, self.model.p))
+        f, tau_j, tau_s, tau_model, _ = (float(v) for v in self._outputs(x[0], x[2], 0.0, self.model.p))
         y = np.zeros(len(OUTPUTS))
         y[_Y["theta_m"]], y[_Y["theta_l"]], y[_Y["held"]] = x[0], x[2], x[5]
         y[_Y["tau_j"]], y[_Y["tau_s"]], y[_Y["tau_model"]] = tau_j, tau_s, tau_model
