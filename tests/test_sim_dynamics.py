@@ -10,7 +10,7 @@ from iiwa_ident.robot import Command
 from iiwa_ident.sim import LinkFriction, SimulatedJoint, default_plant
 from iiwa_ident.sim.reference import simulate_reference
 
-from conftest import quiet, smooth_command
+from conftest import smooth_command
 
 
 def eq4(plant, s):

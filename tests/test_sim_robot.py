@@ -9,7 +9,7 @@ from iiwa_ident.robot import Command
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.agents import ImpedanceAgent
 
-from conftest import quiet, smooth_command
+from conftest import smooth_command
 
 
 def constant_push(torque: float, seconds: float = 10.0) -> ImpedanceAgent:

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import json
 import math
 import sys
+from pathlib import Path
 
 import typer
 
+from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["app", "fail", "finite_or_none"]
+__all__ = ["app", "fail", "finite_or_none", "json_text", "write_json"]
 
 app = typer.Typer(
     name="iiwa-ident",
@@ -29,6 +32,18 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
 def finite_or_none(x: float) -> float | None:
     """A number for JSON output: inf and NaN become null."""
     return float(x) if math.isfinite(x) else None
+
+
+def json_text(doc: dict) -> str:
+    """The ``--json`` document as every command writes it."""
+    return json.dumps(doc, indent=2) + "\n"
+
+
+def write_json(path: Path, doc: dict) -> Path:
+    """Write a ``--json`` document atomically and say so."""
+    write_atomic(path, json_text(doc))
+    typer.echo(f"wrote {path}")
+    return path
 
 
 def run_app(argv: list[str] | None = None) -> None:

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Any, Optional
 
 import typer
 
-from iiwa_ident._toml import write_atomic
-from iiwa_ident.cli._app import app, fail, finite_or_none
+from iiwa_ident.cli._app import app, fail, finite_or_none, write_json
 from iiwa_ident.datasets import sha256_file
 from iiwa_ident.deploy import (
     ControllerConfig,
@@ -134,7 +132,6 @@ def deploy_cmd(
                    f"watchdog {config.robot.watchdog_timeout_s * 1e3:g} ms")
         typer.echo(f"wrote {out} (sha256 {config.sha256})")
         if json_out is not None:
-            write_atomic(json_out, json.dumps(config_json(config, out), indent=2) + "\n")
-            typer.echo(f"wrote {json_out}")
+            write_json(json_out, config_json(config, out))
     except IiwaIdentError as err:
         raise fail(str(err))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Any, Optional
@@ -10,8 +9,7 @@ from typing import Annotated, Any, Optional
 import numpy as np
 import typer
 
-from iiwa_ident._toml import write_atomic
-from iiwa_ident.cli._app import app, fail, finite_or_none
+from iiwa_ident.cli._app import app, fail, finite_or_none, write_json
 from iiwa_ident.design.controller import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
@@ -177,7 +175,6 @@ def design_cmd(
         write_design(out, make_record(design, margins, the_model, model, beta=beta, v_min_rad_s=v_min))
         typer.echo(f"wrote {out}")
         if json_out is not None:
-            write_atomic(json_out, json.dumps(design_json(design, margins), indent=2) + "\n")
-            typer.echo(f"wrote {json_out}")
+            write_json(json_out, design_json(design, margins))
     except IiwaIdentError as err:
         raise fail(str(err))

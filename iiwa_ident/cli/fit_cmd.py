@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Optional
@@ -10,7 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from iiwa_ident._toml import write_atomic
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, write_model
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_model
@@ -106,15 +105,15 @@ def fit_cmd(
             raise IiwaIdentError(f"{figures}: exists and is not a folder")
         joint_model, result = fit_model(chirps, base_model=model)
         # Prepare every output before writing any, so a failure leaves no partial results.
-        json_text = json.dumps(result.to_json(), indent=2) + "\n" if json_out else None
+        json_doc = json_text(result.to_json()) if json_out else None
         pngs: dict[str, bytes] = {}
         if figures is not None:
             from iiwa_ident.report.fit_figures import fit_figure_pngs
 
             pngs = fit_figure_pngs(result)
         written = [write_model(out, joint_model)]
-        if json_text is not None:
-            written.append(write_atomic(json_out, json_text))
+        if json_doc is not None:
+            written.append(write_atomic(json_out, json_doc))
         for name, data in pngs.items():
             written.append(write_atomic(figures / name, data))
     except IiwaIdentError as err:

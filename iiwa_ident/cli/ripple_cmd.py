@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Optional
@@ -10,8 +9,7 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from iiwa_ident._toml import write_atomic
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import RippleTable, Source, read_model, table1_model, write_model
@@ -96,8 +94,7 @@ def ripple_cmd(
             write_model(out, base)
             typer.echo(f"wrote {out}")
         if json_out:
-            write_atomic(json_out, json.dumps(result.to_json(), indent=2))
-            typer.echo(f"wrote {json_out}")
+            write_json(json_out, result.to_json())
         if figures:
             from iiwa_ident.report.ripple_figures import (
                 lookup_table_figure,

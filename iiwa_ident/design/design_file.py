@@ -75,7 +75,6 @@ damaged file is refused rather than run.
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import tomllib
 from dataclasses import dataclass, field

@@ -9,7 +9,7 @@ client-side state estimate; :func:`record` drives any
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -99,7 +99,7 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
     progress : callable, optional
         Called as ``progress(done, total)`` every 1000 cycles.
     q0 : float, optional
-        Position [rad] an external agent starts from (default: the simulated joint's start position).
+        Position [rad] an external agent starts from (default: the first measured position).
 
     Returns
     -------
@@ -115,12 +115,13 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
     guard = guard or LimitGuard(robot.limits)
     dt = robot.sample_time_s
     n = int(round(experiment.duration_s / dt))
-    robot.set_agent(experiment.agent(getattr(robot, "q0", 0.0) if q0 is None else q0))
     alpha = _velocity_filter(dt)
     rows: list[tuple] = []
     stopped = ""
     meas = robot.start()
     try:
+        # The external agent starts where the joint is (the first measurement), on any robot.
+        robot.set_agent(experiment.agent(meas.q_m if q0 is None else q0))
         state = ClientState(t=0.0, q=meas.q_m, v=0.0, q0=meas.q_m, meas=meas)
         q_prev = meas.q_m
         for k in range(n):
