@@ -20,6 +20,8 @@ from iiwa_ident.deploy import (
     content_sha256,
     controller_from_config,
     deploy,
+    reference_limit,
+    step_peak_gain,
     read_config,
     write_config,
 )
@@ -56,14 +58,39 @@ class TestChecks:
         assert all(c.passed for c in config.checks)
         rho = {c.name: c.value for c in config.checks}
         assert rho["closed_loop_spectral_radius"] < MAX_SPECTRAL_RADIUS
-        assert rho["outer_loop_kappa_margin"] == pytest.approx(23.0, abs=0.1)
+        # Linear outer-loop margin with the default 250 Hz pre-filter (design.analysis docstring: 32.9).
+        assert rho["outer_loop_kappa_margin"] == pytest.approx(32.9, abs=0.1)
 
     def test_default_limits_are_the_data_sheet(self, config):
         assert config.limits.torque_nm == 320.0
         assert config.limits.velocity_rad_s == pytest.approx(math.radians(85))
         assert config.limits.torque_rate_nm_s == pytest.approx(32000.0)
-        # The reference clamp keeps the peak command of a step at the torque limit.
+        assert config.limits.reference_rate_nm_s == pytest.approx(8000.0)
+        # The reference clamp keeps the peak command of a rate-limited reversal at the torque limit.
         assert 0.5 * 320 < config.limits.reference_nm < 320
+
+
+class TestReferenceLimit:
+    def test_reversal_at_the_clamp_peaks_at_the_torque_limit(self, record):
+        from iiwa_ident.deploy.checks import _reversal_peak, _step_response
+        ref = reference_limit(record, 320.0, 8000.0)
+        step, dc = _step_response(record, 2000)
+        # Bisection to 0.1 %: at the clamp the peak is at the limit, a little above it is beyond.
+        assert _reversal_peak(step, dc, ref, 8.0) == pytest.approx(320.0, rel=2e-3)
+        assert _reversal_peak(step, dc, ref * 1.01, 8.0) > 320.0
+
+    def test_slow_reversal_peaks_at_the_dc_gain(self, record):
+        from iiwa_ident.deploy.checks import _reversal_peak, _step_response
+        step, dc = _step_response(record, 4000)
+        # Eq (22) has the DC gain (Jc + Jl) / Jl: 1.184 on Table I; a slow ramp barely overshoots it.
+        assert dc == pytest.approx((1.03 + 5.6) / 5.6, rel=1e-3)
+        assert _reversal_peak(step, dc, 100.0, 0.1) == pytest.approx(100.0 * dc, rel=0.01)
+
+    def test_ideal_step_refused_rate_limited_accepted(self, record):
+        # 250 Hz pre-filter: an unlimited step peaks at ~6.6x, so less than half the range is usable.
+        assert step_peak_gain(record) > 5.0
+        assert reference_limit(record, 320.0, 1e9) < 0.5 * 320
+        assert reference_limit(record, 320.0, 8000.0) >= 0.5 * 320
 
     def test_unstable_poles_refused(self, record):
         bad = copy.deepcopy(record)

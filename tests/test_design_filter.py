@@ -9,6 +9,7 @@ import pytest
 from scipy import signal
 
 from iiwa_ident.design.spatial_filter import (
+    DESIGN_BETA,
     RIPPLE_PERIOD_RAD,
     SpatialFilter,
     gamma_weight,
@@ -243,19 +244,20 @@ class TestPassband:
             gain = dict((s, g) for s, g, _ in _passband_gains(constant_velocity, 5.0, freq_hz))[1.2]
             assert abs(gain) <= 0.5
 
-    def test_beta_2_is_within_half_a_db_below_2_hz_at_every_speed(self, constant_velocity):
+    def test_design_beta_is_within_half_a_db_below_2_hz_at_every_speed(self, constant_velocity):
+        assert DESIGN_BETA == 2.0
         for freq_hz in (0.5, 1.0, 2.0):
-            for speed, gain, _ in _passband_gains(constant_velocity, 2.0, freq_hz):
+            for speed, gain, _ in _passband_gains(constant_velocity, DESIGN_BETA, freq_hz):
                 assert abs(gain) <= 0.5, (speed, freq_hz, gain)
         t, q, tau = constant_velocity
         rows = ripple_line_cut(t, q, tau, SpatialFilter(RHO, beta=2.0).apply(tau, q))
         assert min(r["cut_db"] for r in rows) >= 20.0
 
-    @pytest.mark.xfail(strict=True, reason="eq (11) with the paper's beta = 5 boosts 2 Hz by 1.24 dB at 0.3 rad/s "
-                                           "and 0.67 dB at 0.6 rad/s: 1 - H^2 = (1 - H)(1 + H) (see module doc)")
-    def test_paper_beta_within_half_a_db_below_2_hz_at_every_speed(self, constant_velocity):
-        for speed, gain, _ in _passband_gains(constant_velocity, 5.0, 2.0):
-            assert abs(gain) <= 0.5, (speed, gain)
+    def test_paper_beta_boosts_2_hz_at_0_3_rad_s(self, constant_velocity):
+        # 1 - H^2 = (1 - H)(1 + H): below the notch the gain exceeds one (module doc); with beta = 5
+        # a 2 Hz sine at 0.3 rad/s (ripple at 15.3 Hz) comes out 1.24 dB larger. DESIGN_BETA = 2 avoids it.
+        gains = {s: g for s, g, _ in _passband_gains(constant_velocity, 5.0, 2.0)}
+        assert gains[0.3] == pytest.approx(1.24, abs=0.1)
 
 
 class TestSpatialFilterFigure:

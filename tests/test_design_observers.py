@@ -176,9 +176,9 @@ class TestCompareObservers:
     def test_filtered_with_beta_2_cuts_the_builtin_error_3x_when_fast(self, comparison):
         assert comparison[2.0]["ratio_lagged_fast"] >= 3.0
 
-    def test_paper_beta_cuts_it_2x(self, comparison):
-        # beta = 5 widens the notch into the human's torque band (see spatial_filter): short of 3x.
-        assert comparison[5.0]["ratio_lagged_fast"] >= 2.0
+    def test_paper_beta_cuts_it_3x(self, comparison):
+        # beta = 5 widens the notch towards the human's torque band (see spatial_filter), yet stays above 3x.
+        assert comparison[5.0]["ratio_lagged_fast"] >= 3.0
 
     def test_against_the_raw_reference_every_variant_beats_the_builtin(self, comparison):
         # The raw error is dominated by eq (13)'s own 40 ms lag, common to all three.

@@ -55,7 +55,8 @@ def config_json(config: ControllerConfig, out: Path) -> dict[str, Any]:
         "sample_time_s": config.sample_time_s,
         "feedforward": config.feedforward,
         "limits": {"torque_nm": lim.torque_nm, "torque_rate_nm_s": lim.torque_rate_nm_s,
-                   "velocity_rad_s": lim.velocity_rad_s, "reference_nm": lim.reference_nm,
+                   "velocity_rad_s": lim.velocity_rad_s, "reference_rate_nm_s": lim.reference_rate_nm_s,
+                   "reference_nm": lim.reference_nm,
                    "data_sheet_torque_nm": config.data_sheet_torque_nm,
                    "data_sheet_velocity_rad_s": config.data_sheet_velocity_rad_s},
         "robot": {"control_mode": r.control_mode, "client_command_mode": r.client_command_mode,
@@ -84,6 +85,8 @@ def deploy_cmd(
                                                         "(default: data-sheet torque per 10 ms).")] = None,
     velocity_limit: Annotated[Optional[float], typer.Option("--velocity-limit", help="Stop above this joint "
                                                             "speed, rad/s (default: data sheet).")] = None,
+    reference_rate: Annotated[Optional[float], typer.Option("--reference-rate", help="Reference-rate clamp "
+                                                            "[Nm/s] (default: data-sheet torque per 40 ms).")] = None,
     robot_model: Annotated[Optional[str], typer.Option("--robot-model", help="iiwa7 | iiwa14, if the design's "
                                                        "model file does not say.")] = None,
     joint: Annotated[Optional[int], typer.Option("--joint", help="Joint 1-7, if the design's model file "
@@ -94,8 +97,9 @@ def deploy_cmd(
     Refused (exit 2, nothing written) if the closed loop is unstable or has a
     spectral radius above 0.999 (also with the exact delay), the outer-loop
     kappa margin is below max(1, built-in kappa_max), a number is NaN/inf,
-    a limit exceeds the data sheet, or a reference step would need a command
-    of more than twice its size.
+    a limit exceeds the data sheet, or less than half the torque limit is
+    usable as reference (a rate-limited reference reversal within the range
+    must keep the command within the torque limit).
 
     Examples:
       iiwa-ident deploy --design design.toml --out controller.toml
@@ -103,7 +107,7 @@ def deploy_cmd(
     """
     try:
         for value, option in ((torque_limit, "--torque-limit"), (rate_limit, "--rate-limit"),
-                              (velocity_limit, "--velocity-limit")):
+                              (velocity_limit, "--velocity-limit"), (reference_rate, "--reference-rate")):
             _positive(value, option)
         record = read_design(design)
         model, _ = find_model(record, design)
@@ -119,14 +123,15 @@ def deploy_cmd(
             raise DeployError("cannot tell the robot model and joint from the design's model file; "
                               "pass --robot-model and --joint")
         config = deploy(record, robot_model, joint, torque_limit=torque_limit, rate_limit=rate_limit,
-                        velocity_limit=velocity_limit, design_file=str(design), design_sha256=sha256_file(design),
+                        velocity_limit=velocity_limit, reference_rate_limit=reference_rate, design_file=str(design), design_sha256=sha256_file(design),
                         model=model)
         write_config(out, config)
         for c in config.checks:
             typer.echo(f"pass  {c.describe()}")
         lim = config.limits
         typer.echo(f"limits: torque {lim.torque_nm:g} Nm, rate {lim.torque_rate_nm_s:g} Nm/s, "
-                   f"velocity {lim.velocity_rad_s:.4g} rad/s, reference {lim.reference_nm:.4g} Nm")
+                   f"velocity {lim.velocity_rad_s:.4g} rad/s, reference {lim.reference_nm:.4g} Nm "
+                   f"at up to {lim.reference_rate_nm_s:g} Nm/s")
         typer.echo(f"robot: {config.robot.control_mode}, {config.robot.client_command_mode}, send period "
                    f"{config.robot.send_period_ms} ms, receive multiplier {config.robot.receive_multiplier}, "
                    f"watchdog {config.robot.watchdog_timeout_s * 1e3:g} ms")

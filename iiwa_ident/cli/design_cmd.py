@@ -26,6 +26,7 @@ from iiwa_ident.design.controller import (
     outer_loop_margins,
 )
 from iiwa_ident.design.design_file import make_record, write_design
+from iiwa_ident.design.spatial_filter import DESIGN_BETA
 from iiwa_ident.design.paper import format_reproduction, paper_reproduction, table1_parameters
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import read_model
@@ -144,7 +145,8 @@ def design_cmd(
     arm_stiffness: Annotated[float, typer.Option("--arm-stiffness", help="Human arm stiffness K_h [Nm/rad].")] = 300.0,
     arm_damping: Annotated[float, typer.Option("--arm-damping", help="Human arm damping D_h [Nm s/rad].")] = 40.0,
     arm_inertia: Annotated[float, typer.Option("--arm-inertia", help="Hand inertia J_h [kg m^2].")] = 0.0,
-    beta: Annotated[float, typer.Option("--beta", help="Spatial filter sharpness, eq (10).")] = 5.0,
+    beta: Annotated[float, typer.Option("--beta", help="Spatial filter sharpness, eq (10) (paper: 5; "
+                                        "2 keeps more outer-loop margin).")] = DESIGN_BETA,
     v_min: Annotated[float, typer.Option("--v-min", help="Spatial filter fade-out speed, eq (12) [rad/s].")] = 0.2,
 ) -> None:
     """Design the additive torque controller, report poles, gains and kappa margins, write the design file.

@@ -19,6 +19,9 @@ from iiwa_ident.deploy.checks import (
     default_rate_limit,
     failed_checks,
     step_peak_gain,
+    reference_limit,
+    default_reference_rate,
+    DEFAULT_REFERENCE_RISE_TIME_S,
 )
 from iiwa_ident.deploy.config_file import (
     CONFIG_FORMAT,
@@ -48,6 +51,9 @@ __all__ = [
     "default_rate_limit",
     "failed_checks",
     "step_peak_gain",
+    "reference_limit",
+    "default_reference_rate",
+    "DEFAULT_REFERENCE_RISE_TIME_S",
     "CONFIG_FORMAT",
     "CONFIG_FORMAT_VERSION",
     "ConfigError",

@@ -23,9 +23,10 @@ the sha256 of its own content. TOML, format version 1::
 
     [limits]
     torque_nm = 320.0                  # clamp of |tau_c|
-    torque_rate_nm_s = 32000.0         # clamp of d tau_r/dt and d tau_c/dt
+    torque_rate_nm_s = 32000.0         # clamp of d tau_c/dt
     velocity_rad_s = 1.4835            # stop above this joint speed
-    reference_nm = 219.9               # clamp of |tau_r|
+    reference_rate_nm_s = 8000.0       # clamp of d tau_r/dt
+    reference_nm = 270.4               # clamp of |tau_r|
     data_sheet_torque_nm = 320.0       # the joint's data sheet, for reference
     data_sheet_velocity_rad_s = 1.4835
 
@@ -41,7 +42,7 @@ the sha256 of its own content. TOML, format version 1::
     Ad = ...; Bd = ...; Cd = ...; Dd = ...
 
     [filter]                           # spatial filter, eqs (10)-(12)
-    beta = 5.0
+    beta = 2.0
     v_min_rad_s = 0.2
     period_rad = 0.01963               # rho
 
@@ -85,7 +86,7 @@ import json
 import math
 import os
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -99,8 +100,9 @@ from iiwa_ident.deploy.checks import (
     DeployError,
     check_design,
     default_rate_limit,
+    default_reference_rate,
     failed_checks,
-    step_peak_gain,
+    reference_limit,
 )
 from iiwa_ident.design.controller import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
 from iiwa_ident.design.design_file import DesignRecord, FilterSettings
@@ -308,7 +310,8 @@ def config_to_dict(config: ControllerConfig) -> dict[str, Any]:
                     "watchdog_timeout_s": float(r.watchdog_timeout_s)}
     lim = config.limits
     out["limits"] = {"torque_nm": float(lim.torque_nm), "torque_rate_nm_s": float(lim.torque_rate_nm_s),
-                     "velocity_rad_s": float(lim.velocity_rad_s), "reference_nm": float(lim.reference_nm),
+                     "velocity_rad_s": float(lim.velocity_rad_s),
+                     "reference_rate_nm_s": float(lim.reference_rate_nm_s), "reference_nm": float(lim.reference_nm),
                      "data_sheet_torque_nm": float(config.data_sheet_torque_nm),
                      "data_sheet_velocity_rad_s": float(config.data_sheet_velocity_rad_s)}
     out["controller"] = {"Ad": _mat(config.Ad), "Bd": _mat(config.Bd), "C": _mat(config.C), "Kd": _mat(config.Kd),
@@ -353,7 +356,7 @@ _TABLES: dict[str, set[str]] = {
          "sample_time_s", "feedforward", "robot", "limits", "controller", "prefilter", "filter", "ripple",
          "torque_observer", "provenance", "checks"},
     "robot": {"control_mode", "client_command_mode", "send_period_ms", "receive_multiplier", "watchdog_timeout_s"},
-    "limits": {"torque_nm", "torque_rate_nm_s", "velocity_rad_s", "reference_nm", "data_sheet_torque_nm",
+    "limits": {"torque_nm", "torque_rate_nm_s", "velocity_rad_s", "reference_rate_nm_s", "reference_nm", "data_sheet_torque_nm",
                "data_sheet_velocity_rad_s"},
     "controller": {"Ad", "Bd", "C", "Kd", "Ld", "Kr_d"},
     "prefilter": {"Ad", "Bd", "Cd", "Dd"},
@@ -429,6 +432,7 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
     limits = ControllerLimits(r.number("limits.torque_nm", positive=True),
                               r.number("limits.torque_rate_nm_s", positive=True),
                               r.number("limits.velocity_rad_s", positive=True),
+                              r.number("limits.reference_rate_nm_s", positive=True),
                               r.number("limits.reference_nm", positive=True))
     ds_torque = r.number("limits.data_sheet_torque_nm", positive=True)
     ds_velocity = r.number("limits.data_sheet_velocity_rad_s", positive=True)
@@ -441,6 +445,8 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
         raise r.fail("limits.velocity_rad_s", f"above the data-sheet limit {sheet.velocity_rad_s:g} rad/s")
     if limits.torque_rate_nm_s > default_rate_limit(sheet):
         raise r.fail("limits.torque_rate_nm_s", f"above the default limit {default_rate_limit(sheet):g} Nm/s")
+    if limits.reference_rate_nm_s > default_rate_limit(sheet):
+        raise r.fail("limits.reference_rate_nm_s", f"above the default limit {default_rate_limit(sheet):g} Nm/s")
     if limits.reference_nm > limits.torque_nm:
         raise r.fail("limits.reference_nm", "above limits.torque_nm")
 
@@ -542,6 +548,7 @@ def _option(value: float | None, default: float, name: str) -> float:
 
 def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: float | None = None,
            rate_limit: float | None = None, velocity_limit: float | None = None,
+           reference_rate_limit: float | None = None,
            watchdog_timeout_s: float = RobotSettings.watchdog_timeout_s, design_file: str = "",
            design_sha256: str = "", model: JointModel | None = None) -> ControllerConfig:
     """Check a design and turn it into a controller config.
@@ -561,6 +568,9 @@ def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: 
         :func:`~iiwa_ident.deploy.checks.default_rate_limit`.
     velocity_limit : float, optional
         Joint speed at which the runtime stops [rad/s]; default and maximum: the data sheet.
+    reference_rate_limit : float, optional
+        Clamp of the reference rate [Nm/s]; default
+        :func:`~iiwa_ident.deploy.checks.default_reference_rate`, maximum the torque-rate default.
     watchdog_timeout_s : float
         Stop after this long without a robot message [s] (default 5 ms).
     design_file, design_sha256 : str
@@ -583,14 +593,14 @@ def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: 
         raise DeployError(f"watchdog timeout must be at least one cycle, got {watchdog_timeout_s!r} s")
     limits = ControllerLimits(_option(torque_limit, sheet.torque_nm, "--torque-limit"),
                               _option(rate_limit, default_rate_limit(sheet), "--rate-limit"),
-                              _option(velocity_limit, sheet.velocity_rad_s, "--velocity-limit"))
+                              _option(velocity_limit, sheet.velocity_rad_s, "--velocity-limit"),
+                              _option(reference_rate_limit, default_reference_rate(sheet), "--reference-rate"))
     checks = check_design(record, limits, sheet)
     bad = failed_checks(checks)
     if bad:
         raise DeployError("design refused: " + "; ".join(c.describe() for c in bad))
-    # The reference clamp keeps the peak command of any reference step within the torque limit.
-    limits = ControllerLimits(limits.torque_nm, limits.torque_rate_nm_s, limits.velocity_rad_s,
-                              min(limits.torque_nm, limits.torque_nm / step_peak_gain(record)))
+    # The reference clamp keeps the peak command of any rate-limited reference move within the torque limit.
+    limits = replace(limits, reference_nm=reference_limit(record, limits.torque_nm, limits.reference_rate_nm_s))
     d = record.design
     datasets = tuple(model.sources) if model is not None else ()
     return ControllerConfig(

@@ -48,7 +48,7 @@ prediction :func:`~iiwa_ident.design.controller.kappa_max` and bisected.
 
 Measured on the default plant (Table I, ripple on, identified ripple table)
 -----------------------------------------------------------------------------
-With :func:`analysis_design` (paper poles, 250 Hz pre-filter), beta = 2,
+With the design defaults (paper poles, 250 Hz pre-filter, beta = 2),
 v_min = 0.2 rad/s, arm 300 Nm/rad and 40 Nm s/rad (seed 0):
 
 * step +-10 Nm: overshoot 38 % built-in (paper ~40 %), 16 % additive (raw tau_J);
@@ -60,8 +60,8 @@ v_min = 0.2 rad/s, arm 300 Nm/rad and 40 Nm s/rad (seed 0):
   (the additive margin moves by a few percent with plant details and the seed);
   with the paper's beta = 5 the additive margin is 20.9 (ratio 2.8).
 
-With the design default 50 Hz pre-filter the additive 25 Hz error is 13 Nm
-(the pre-filter's phase lag) and kappa_max drops to ~13 (12.5 with beta = 5): the spatial filter
+With a 50 Hz pre-filter the additive 25 Hz error is 13 Nm (the pre-filter's
+phase lag) and kappa_max drops to ~13 (12.5 with beta = 5): the spatial filter
 in the loop, whose notch sweeps 5-16 Hz at the hand's speeds, creates a
 ~20 Hz limit cycle (without the filter the same loop is stable at 20).
 beta = 1 or v_min = 0.5 rad/s push that to ~20. ``bench/bench_control.py``
@@ -79,6 +79,7 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from iiwa_ident.design.controller import (
+    DEFAULT_PREFILTER_HZ,
     AdditiveController,
     AdditiveDesign,
     HumanArm,
@@ -87,7 +88,7 @@ from iiwa_ident.design.controller import (
     design_controller,
     kappa_max,
 )
-from iiwa_ident.design.spatial_filter import RIPPLE_PERIOD_RAD, SpatialFilter
+from iiwa_ident.design.spatial_filter import DESIGN_BETA, RIPPLE_PERIOD_RAD, SpatialFilter
 from iiwa_ident.excite._runner import ClientState, _velocity_filter
 from iiwa_ident.excite.safety import LimitGuard
 from iiwa_ident.ident.correction import joint_position
@@ -124,15 +125,11 @@ __all__ = [
     "analysis_design",
 ]
 
-#: Spatial-filter bandwidth used by the analysis [-]. The paper uses 5; beta = 2 narrows the
-#: notch and the boost below it (1 - H^2 has gain ~1 + (beta f / f_ripple)^2 under the notch),
-#: which matters inside a feedback loop. See :func:`compare_controllers` for the effect.
-DEFAULT_BETA = 2.0
-#: Reference pre-filter of the feed-forward of eq (22) used by the analysis [Hz]. The design
-#: default (50 Hz) lags a 25 Hz reference by 0.93 rad, which alone leaves ~12 Nm of error at
-#: 15 Nm; 250 Hz keeps eq (22) close to the paper's unfiltered inverse below 50 Hz (0.2 rad at
-#: 25 Hz), at the price of command peaks of ~7x the height of a reference step.
-ANALYSIS_PREFILTER_HZ = 250.0
+#: Spatial-filter bandwidth used by the analysis [-]: the design default (see
+#: :data:`~iiwa_ident.design.spatial_filter.DESIGN_BETA`).
+DEFAULT_BETA = DESIGN_BETA
+#: Reference pre-filter of the feed-forward of eq (22) used by the analysis [Hz]: the design default.
+ANALYSIS_PREFILTER_HZ = DEFAULT_PREFILTER_HZ
 
 
 def analysis_design(model: JointModel, prefilter_hz: float = ANALYSIS_PREFILTER_HZ, **kwargs) -> AdditiveDesign:

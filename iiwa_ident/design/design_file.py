@@ -19,7 +19,7 @@ Everything a 1 kHz controller needs, plus what it was designed from::
     lut = [...]
 
     [filter]                           # spatial filter, eqs (10)-(12)
-    beta = 5.0
+    beta = 2.0
     v_min_rad_s = 0.2
     period_rad = 0.01963               # rho (ripple period of the model, or the paper's)
 
@@ -96,6 +96,7 @@ from iiwa_ident.design.controller import (
     _scaling,
     check_poles,
 )
+from iiwa_ident.design.spatial_filter import DESIGN_BETA
 from iiwa_ident._schema import TableReader
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
@@ -130,14 +131,14 @@ class FilterSettings:
     Attributes
     ----------
     beta : float
-        Band-pass sharpness [-] (paper: 5).
+        Band-pass sharpness [-] (paper: 5; default :data:`~iiwa_ident.design.spatial_filter.DESIGN_BETA`).
     v_min_rad_s : float
         Speed below which the filter fades out [rad/s] (paper: 0.2).
     period_rad : float
         Ripple period rho [rad].
     """
 
-    beta: float = 5.0
+    beta: float = DESIGN_BETA
     v_min_rad_s: float = 0.2
     period_rad: float = PAPER_PERIOD_RAD
 
@@ -175,7 +176,7 @@ class DesignRecord:
 
 
 def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointModel,
-                model_path: str | os.PathLike | None = None, beta: float = 5.0, v_min_rad_s: float = 0.2,
+                model_path: str | os.PathLike | None = None, beta: float = DESIGN_BETA, v_min_rad_s: float = 0.2,
                 description: str = "") -> DesignRecord:
     """Bundle a design with its model reference and filter settings.
 
