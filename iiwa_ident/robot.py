@@ -138,6 +138,12 @@ class RobotInterface(ABC):
     sample_time_s: float
     #: Data-sheet limits of the joint.
     limits: JointLimits
+    #: Cycles the robot sent but the client never saw before the latest measurement
+    #: (0 on a simulated joint; FRI counts gaps in the robot's sequence counter).
+    missed_cycles: int = 0
+    #: Time from receiving the latest measurement to sending the command that answered it [ns],
+    #: if the interface measures it (FRI); 0 otherwise.
+    last_compute_ns: int = 0
 
     @abstractmethod
     def start(self) -> Measurement:

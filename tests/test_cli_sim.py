@@ -33,7 +33,9 @@ class TestChirpCommand:
         assert res.exit_code == 0, res.output
 
     @pytest.mark.parametrize("args, message", [
-        (("--target", "robot"), "FRI runtime"),
+        (("--target", "robot"), "needs --robot HOST"),
+        (("--target", "robot", "--robot", "host:notaport"), "port must be an integer"),
+        (("--target", "moon"), "expected 'sim' or 'robot'"),
         (("--f0", "0"), "0 < f0 < f1"),
         (("--rate", "300"), "--rate"),
         (("--plant", "missing.toml"), "missing.toml: no such file"),

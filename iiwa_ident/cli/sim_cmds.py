@@ -22,6 +22,9 @@ from iiwa_ident.excite import (
     StepTorque,
     record,
 )
+from iiwa_ident.fri.connection import parse_host_port
+from iiwa_ident.fri.robot import FriRobot
+from iiwa_ident.robot import RobotInterface
 from iiwa_ident.sim import EFFECTS, SimulatedJoint, default_plant, load_plant
 
 __all__ = ["chirp_cmd", "simulate_cmd", "plant_cmd", "run_on_target"]
@@ -56,23 +59,46 @@ def _progress(label: str) -> Iterator:
         yield update
 
 
+def _robot_target(experiment: Experiment, robot: Optional[str], port: int, robot_model: str,
+                  joint: int) -> RobotInterface:
+    """The FRI robot the experiment runs on (``--target robot``)."""
+    if not robot:
+        raise IiwaIdentError("--target robot needs --robot HOST (the robot controller's address)")
+    host, port = parse_host_port(robot, port)
+    return FriRobot(host, joint, robot_model, port=port, mode=experiment.mode)
+
+
 def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], seed: int, rate: float,
-                  out: Path, q0: float = 0.0) -> None:
-    """Run ``experiment`` on the target, write the dataset and print its summary."""
-    if target != "sim":
-        raise IiwaIdentError(f"--target {target}: only 'sim' is available here; the robot target needs the FRI runtime")
-    the_plant = load_plant(plant) if plant else default_plant()
-    every = 1000.0 / rate / (the_plant.cycle_s * 1000.0)
+                  out: Path, q0: float = 0.0, robot: Optional[str] = None, port: int = 30200,
+                  robot_model: str = "iiwa14", joint: int = 1) -> None:
+    """Run ``experiment`` on the simulated joint or on a robot over FRI, write the dataset, print its summary."""
+    if target == "sim":
+        the_plant = load_plant(plant) if plant else default_plant()
+        target_robot: RobotInterface = SimulatedJoint(the_plant, seed=seed, q0=q0)
+    elif target == "robot":
+        if plant is not None:
+            raise IiwaIdentError("--plant only applies to --target sim")
+        target_robot = _robot_target(experiment, robot, port, robot_model, joint)
+    else:
+        raise IiwaIdentError(f"--target {target}: expected 'sim' or 'robot'")
+    cycle = target_robot.sample_time_s
+    every = 1.0 / rate / cycle if rate > 0 else 0.0
     if rate <= 0 or abs(every - round(every)) > 1e-9 or round(every) < 1:
-        raise IiwaIdentError(f"--rate {rate:g}: must divide the robot's {1 / the_plant.cycle_s:g} Hz cycle rate")
-    robot = SimulatedJoint(the_plant, seed=seed, q0=q0)
-    with _progress(f"{experiment.name} ({experiment.duration_s:.0f} s simulated)") as progress:
-        ds = record(robot, experiment, record_every=int(round(every)), progress=progress)
+        raise IiwaIdentError(f"--rate {rate:g}: must divide the robot's {1 / cycle:g} Hz cycle rate")
+    where = "simulated" if target == "sim" else "on the robot"
+    with _progress(f"{experiment.name} ({experiment.duration_s:.0f} s {where})") as progress:
+        ds = record(target_robot, experiment, record_every=int(round(every)), progress=progress)
     path = write_dataset(out, ds)
     typer.echo(format_info(dataset_info(ds)))
     if "stopped_reason" in ds.experiment_attrs:
         typer.echo(f"warning: stopped early: {ds.experiment_attrs['stopped_reason']}", err=True)
     typer.echo(f"wrote {path}")
+
+
+_RobotOpt = Annotated[Optional[str], typer.Option("--robot", help="--target robot: robot controller HOST[:PORT].")]
+_PortOpt = Annotated[int, typer.Option("--port", help="--target robot: local FRI UDP port.")]
+_RobotModelOpt = Annotated[str, typer.Option("--robot-model", help="--target robot: iiwa7 | iiwa14.")]
+_JointOpt = Annotated[int, typer.Option("--joint", help="--target robot: joint under test, 1-7.")]
 
 
 @app.command("chirp")
@@ -88,13 +114,23 @@ def chirp_cmd(
     hold: Annotated[float, typer.Option("--hold", help="Weak position-hold stiffness against drift [Nm/rad].")] = 30.0,
     seed: _SeedOpt = 0,
     rate: _RateOpt = 1000.0,
+    robot: _RobotOpt = None,
+    port: _PortOpt = 30200,
+    robot_model: _RobotModelOpt = "iiwa14",
+    joint: _JointOpt = 1,
 ) -> None:
     """Record an exponential chirp (torque-commanded) as a dataset.
 
-    Example: iiwa-ident chirp --target sim --duration 30 --out chirp.h5
+    On the robot the same program runs over FRI (robot side: JOINT_IMPEDANCE
+    control mode, TORQUE client command mode, 1 ms send period).
+
+    Examples:
+      iiwa-ident chirp --target sim --duration 30 --out chirp.h5
+      iiwa-ident chirp --target robot --robot 192.170.10.2 --joint 1 --duration 30 --out chirp.h5
     """
     try:
-        run_on_target(Chirp(f0, f1, duration, amplitude, bias, hold), target, plant, seed, rate, out)
+        run_on_target(Chirp(f0, f1, duration, amplitude, bias, hold), target, plant, seed, rate, out,
+                      robot=robot, port=port, robot_model=robot_model, joint=joint)
     except IiwaIdentError as err:
         raise fail(str(err))
 
@@ -118,8 +154,13 @@ def simulate_cmd(
     period: Annotated[float, typer.Option("--period", help="step: square-wave period [s].")] = 1.0,
     cycles: Annotated[int, typer.Option("--cycles", help="step: number of periods.")] = 3,
     q0: Annotated[float, typer.Option("--q0", help="Initial joint position [rad].")] = 0.0,
+    target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint) or 'robot' (FRI).")] = "sim",
+    robot: _RobotOpt = None,
+    port: _PortOpt = 30200,
+    robot_model: _RobotModelOpt = "iiwa14",
+    joint: _JointOpt = 1,
 ) -> None:
-    """Simulate one of the other experiments on the simulated joint.
+    """Run one of the other experiments on the simulated joint (or on the robot, --target robot).
 
     Examples:
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
@@ -127,11 +168,13 @@ def simulate_cmd(
       iiwa-ident simulate quasi_static --torque 2,5,10 --out qs.h5
       iiwa-ident simulate hand_guided --duration 20 --out hand.h5
       iiwa-ident simulate sine --amplitude 15 --frequency 25 --duration 4 --out sine.h5
+      iiwa-ident simulate constant_velocity --target robot --robot 192.170.10.2 --out cv.h5
     """
     try:
         exp = _experiment(experiment, velocity, range_, repeats, mode, torque, duration, kappa, amplitude,
                           frequency, period, cycles)
-        run_on_target(exp, "sim", plant, seed, rate, out, q0=q0)
+        run_on_target(exp, target, plant, seed, rate, out, q0=q0, robot=robot, port=port,
+                      robot_model=robot_model, joint=joint)
     except IiwaIdentError as err:
         raise fail(str(err))
 

@@ -11,6 +11,20 @@ Layout of a file::
 :func:`read_dataset` never opens ``/truth``: identification code must work
 on real data, where no ground truth exists, so only evaluation code (through
 :func:`read_truth`) may look at it.
+
+Recordings in progress
+----------------------
+A file that is still being written by a background logger
+(:class:`iiwa_ident.fri.logwriter.LogWriter`), or whose logger was killed,
+carries the root attribute ``in_progress = 1`` and a root array
+``/rows_flushed`` (int64, shape (1,)) holding how many rows of every signal
+are known to be on disk; complete files carry neither. Such a file is
+written in HDF5 SWMR mode, so its consistency flags stay set while the
+writer runs and after it is killed: :func:`read_dataset` then opens it as a
+SWMR reader, keeps only the first ``min(rows_flushed, shortest signal)``
+samples of every signal (the signals are separate arrays and may have been
+extended one by one) and reports this with ``experiment_attrs["incomplete"]
+= True``.
 """
 
 from __future__ import annotations
@@ -74,11 +88,22 @@ SIGNAL_UNITS: dict[str, str] = {
     "tau_ext_ref": "Nm",  # external F/T torque about the joint axis
     "q_cmd": "rad",  # commanded position
     "dq_m": "rad/s",  # measured joint velocity, as some drivers export
+    "tau_r": "Nm",  # reference torque of the controller
+    "tau_j_filt": "Nm",  # spatially filtered joint torque (eq 15)
+    "tau_ext_est": "Nm",  # client-side external torque estimate (eq 14)
+    "tau_add": "Nm",  # additive torque sent on top of the robot's controller
+    "watchdog": "-",  # watchdog scale 0..1, 1 = normal
+    "cycle_us": "us",  # compute time of the control cycle
 }
 #: Signals every dataset must contain.
 REQUIRED_SIGNALS: tuple[str, ...] = ("t", "q_m", "tau_j")
 
 _MIN_SAMPLES = 2
+
+# Markers of a recording in progress (see the module docstring); private
+# because only the background logger writes them.
+_IN_PROGRESS_ATTR = "in_progress"
+_ROWS_FLUSHED = "rows_flushed"
 
 
 def _now_utc() -> str:
@@ -276,6 +301,20 @@ def _truth_problem(tree: Any, where: str = "truth") -> str | None:
     return None
 
 
+def _experiment_attrs_problem(attrs: Any) -> str | None:
+    """Check the ``/experiment`` attributes; return a problem naming the key, or None."""
+    if not isinstance(attrs, Mapping):
+        return "experiment_attrs must be a dict"
+    for key, value in attrs.items():
+        key_problem = _key_problem(key)
+        if key_problem:
+            return f"experiment attribute {key_problem}"
+        value_problem = _attr_value_problem(value)
+        if value_problem:
+            return f"experiment attribute {key!r} {value_problem}"
+    return None
+
+
 def validate_dataset(dataset: Dataset, where: str) -> None:
     """Check a dataset against format version 1.
 
@@ -311,18 +350,7 @@ def validate_dataset(dataset: Dataset, where: str) -> None:
     if problem is None:
         problem = _signal_values_problem(dataset.signals)
     if problem is None:
-        if not isinstance(dataset.experiment_attrs, Mapping):
-            problem = "experiment_attrs must be a dict"
-        else:
-            for key, value in dataset.experiment_attrs.items():
-                key_problem = _key_problem(key)
-                value_problem = None if key_problem else _attr_value_problem(value)
-                if key_problem:
-                    problem = f"experiment attribute {key_problem}"
-                    break
-                if value_problem:
-                    problem = f"experiment attribute {key!r} {value_problem}"
-                    break
+        problem = _experiment_attrs_problem(dataset.experiment_attrs)
     if problem is None and dataset.truth is not None:
         problem = _truth_problem(dataset.truth)
     if problem is not None:
@@ -350,8 +378,8 @@ def _write_tree(group: h5py.Group, tree: Mapping[str, Any]) -> None:
             _write_attr_value(group.attrs, key, value)
 
 
-def _write_contents(h5: h5py.File, dataset: Dataset) -> None:
-    """Write a validated dataset into an open, empty HDF5 file."""
+def _write_root_attrs(h5: h5py.File, dataset: Dataset) -> None:
+    """Write the root attributes of a dataset (its signals are not looked at)."""
     h5.attrs["format"] = FORMAT_NAME
     h5.attrs["format_version"] = np.int64(FORMAT_VERSION)
     h5.attrs["experiment"] = dataset.experiment
@@ -359,6 +387,11 @@ def _write_contents(h5: h5py.File, dataset: Dataset) -> None:
     h5.attrs["joint"] = np.int64(dataset.joint)
     h5.attrs["sample_rate_hz"] = np.float64(dataset.sample_rate_hz)
     h5.attrs["created_utc"] = dataset.created_utc
+
+
+def _write_contents(h5: h5py.File, dataset: Dataset) -> None:
+    """Write a validated dataset into an open, empty HDF5 file."""
+    _write_root_attrs(h5, dataset)
     signals = h5.create_group("signals")
     for name in SIGNAL_UNITS:  # canonical order, for readers that list in order
         if name in dataset.signals:
@@ -460,6 +493,14 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def _open_swmr(path: Path) -> h5py.File | None:
+    """Open a file as a SWMR reader, or return None if that fails too."""
+    try:
+        return h5py.File(path, "r", swmr=True)
+    except OSError:
+        return None
+
+
 def _open(path: Path) -> h5py.File:
     """Open a dataset file read-only, with one-line errors."""
     if not path.exists():
@@ -475,7 +516,11 @@ def _open(path: Path) -> h5py.File:
     try:
         h5 = h5py.File(path, "r")
     except OSError as err:
-        raise DatasetError(f"{path}: cannot open as HDF5 ({_first_line(err)})") from err
+        # A SWMR writer that is running or was killed leaves the file's
+        # consistency flags set, which only a SWMR reader may ignore.
+        h5 = _open_swmr(path)
+        if h5 is None:
+            raise DatasetError(f"{path}: cannot open as HDF5 ({_first_line(err)})") from err
     try:
         fmt = _plain(h5.attrs.get("format"))
         if fmt is None:
@@ -499,6 +544,14 @@ def _read_group_attrs(group: h5py.Group) -> dict[str, Any]:
     return {key: _plain(value) for key, value in group.attrs.items()}
 
 
+def _rows_flushed(h5: h5py.File) -> int | None:
+    """Rows a logger marked as on disk, or None if the file does not say."""
+    node = h5.get(_ROWS_FLUSHED)
+    if not isinstance(node, h5py.Dataset) or node.shape != (1,) or node.dtype.kind not in ("i", "u"):
+        return None
+    return int(node[0])
+
+
 def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     """Read and validate a dataset file.
 
@@ -509,6 +562,11 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     ----------
     path : str or os.PathLike
         The ``.h5`` file.
+
+    A recording still in progress, or left by a killed logger (root
+    attribute ``in_progress`` set), is opened as a SWMR reader and cut to the
+    rows every signal has on disk; ``experiment_attrs["incomplete"]`` is then
+    True. See the module docstring.
 
     Returns
     -------
@@ -535,6 +593,11 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
             )
             if problem:
                 raise DatasetError(f"{where}: {problem}")
+            marker = _plain(attrs.get(_IN_PROGRESS_ATTR, 0))
+            in_progress = isinstance(marker, numbers.Real) and marker != 0
+            # Read before the signals are opened: a live writer only raises it
+            # after the rows it counts are on disk, and signals only grow.
+            flushed = _rows_flushed(h5) if in_progress else None
 
             group = h5.get("signals")
             if not isinstance(group, h5py.Group):
@@ -543,7 +606,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
             problem = _signal_names_problem(names)
             if problem:
                 raise DatasetError(f"{where}: {problem}")
-            signals: dict[str, np.ndarray] = {}
+            nodes: dict[str, h5py.Dataset] = {}
             for name in SIGNAL_UNITS:
                 if name not in group:
                     continue
@@ -562,10 +625,26 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
                     raise DatasetError(f"{where}: signal {name!r} is not 1-D (shape {node.shape})")
                 if node.dtype.kind not in ("f", "i", "u"):
                     raise DatasetError(f"{where}: signal {name!r} has non-numeric dtype {node.dtype}")
-                signals[name] = np.asarray(node[()], dtype=np.float64)
+                nodes[name] = node
+            signals: dict[str, np.ndarray] = {}
+            if in_progress:
+                lengths = [node.shape[0] for node in nodes.values()]
+                n_rows = max(0, min(lengths + ([] if flushed is None else [flushed])))
+                if n_rows < _MIN_SAMPLES:
+                    raise DatasetError(
+                        f"{where}: dataset is empty: {n_rows} sample(s) flushed so far, need at "
+                        f"least {_MIN_SAMPLES} (recording still in progress or interrupted)"
+                    )
+                for name, node in nodes.items():
+                    signals[name] = np.asarray(node[:n_rows], dtype=np.float64)
+            else:
+                for name, node in nodes.items():
+                    signals[name] = np.asarray(node[()], dtype=np.float64)
 
             exp_group = h5.get("experiment")
             experiment_attrs = _read_group_attrs(exp_group) if isinstance(exp_group, h5py.Group) else {}
+            if in_progress:
+                experiment_attrs["incomplete"] = True
     except OSError as err:  # damaged internals surface only when a node is read
         raise DatasetError(f"{where}: cannot read ({_first_line(err)})") from err
 

@@ -14,8 +14,9 @@ from typing import Callable
 
 import numpy as np
 
+from iiwa_ident._realtime import no_gc_pauses
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite.safety import LimitGuard
 from iiwa_ident.robot import Command, Measurement, RobotInterface
 
@@ -59,6 +60,8 @@ class Experiment:
     name: str = "free"
     #: Duration [s].
     duration_s: float = 1.0
+    #: ``"torque"`` or ``"position"``: the robot-side command mode the program needs.
+    mode: str = "torque"
 
     def command(self, s: ClientState) -> Command:
         """This cycle's command from the client state."""
@@ -119,6 +122,8 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
     rows: list[tuple] = []
     stopped = ""
     meas = robot.start()
+    quiet = no_gc_pauses()
+    quiet.__enter__()  # a collection pause mid-run is a dropped FRI session
     try:
         # The external agent starts where the joint is (the first measurement), on any robot.
         robot.set_agent(experiment.agent(meas.q_m if q0 is None else q0))
@@ -133,15 +138,23 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
             if reason:
                 stopped = reason
                 break
-            meas = robot.step(cmd)
+            try:
+                meas = robot.step(cmd)
+            except SafetyStop as err:  # the robot ended the session (FRI): keep what was recorded
+                stopped = str(err)
+                break
             v_raw = (meas.q_m - q_prev) / dt
             q_prev = meas.q_m
             state = ClientState(t=meas.t, q=meas.q_m, v=state.v + alpha * (v_raw - state.v), q0=state.q0, meas=meas)
             if progress and k % 1000 == 0:
                 progress(k, n)
         if stopped:
-            stopped = guard.brake(robot, state, cmd.q_cmd is not None) or stopped
+            try:
+                stopped = guard.brake(robot, state, cmd.q_cmd is not None) or stopped
+            except SafetyStop:
+                pass  # no session left to brake through; the robot's own controller holds the joint
     finally:
+        quiet.__exit__(None, None, None)
         robot.stop()
         robot.set_agent(None)
     if progress:

@@ -29,6 +29,11 @@
 
     [fit]                        # diagnostics of the fit (free-form numbers and strings)
 
+    [[effects]]                  # optional extra plant effects (``diagnose``), plant-effect vocabulary
+    name = "link_friction"       # of iiwa_ident/sim/effects.py; validated on read
+    coulomb_nm = 1.2
+    viscous_nms_rad = 0.8
+
     [[sources]]                  # what the model was identified from
     file = "chirp.h5"
     sha256 = "..."
@@ -112,6 +117,18 @@ class RippleTable:
         frac = x - np.floor(x)
         return (1 - frac) * self.lut[i0] + frac * self.lut[(i0 + 1) % n]
 
+    def at(self, theta_m: float) -> float:
+        """``self(theta_m)`` for one float [rad], without numpy (a few hundred ns in a 1 kHz loop)."""
+        lut = self.__dict__.get("_lut_list")
+        if lut is None:  # cached plain-float copy; the table is not modified after construction
+            lut = self.__dict__["_lut_list"] = [float(v) for v in self.lut]
+        n = len(lut)
+        x = (theta_m % self.period_rad) / self.period_rad * n
+        i0 = math.floor(x)
+        frac = x - i0
+        i0 %= n
+        return (1.0 - frac) * lut[i0] + frac * lut[(i0 + 1) % n]
+
 
 @dataclass
 class Source:
@@ -132,6 +149,8 @@ class JointModel:
     ripple: RippleTable | None = None
     fit: dict[str, Any] = field(default_factory=dict)
     sources: list[Source] = field(default_factory=list)
+    #: Extra plant effects as ``{"name": ..., <parameter>: value, ...}`` tables (see ``iiwa_ident.sim.effects``).
+    effects: list[dict[str, Any]] = field(default_factory=list)
     joint: int | None = None
     robot_model: str | None = None
     description: str = ""
@@ -168,6 +187,8 @@ class JointModel:
             out["fit"] = self.fit
         if self.sources:
             out["sources"] = [{"file": s.file, "sha256": s.sha256, "role": s.role} for s in self.sources]
+        if self.effects:
+            out["effects"] = [dict(e) for e in self.effects]
         return out
 
     def to_plant(self, base=None):
@@ -181,6 +202,11 @@ class JointModel:
         if self.ripple is not None:
             plant = plant.with_effects(TransmissionRipple({"period_rad": self.ripple.period_rad,
                                                           "lut": np.asarray(self.ripple.lut).tolist()}))
+        if self.effects:
+            from iiwa_ident.sim.effects import make_effect
+
+            plant = plant.with_effects(*[make_effect(e["name"], {k: v for k, v in e.items() if k != "name"})
+                                         for e in self.effects])
         return plant
 
 
@@ -200,7 +226,7 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     if data.get("format_version") != MODEL_FORMAT_VERSION:
         raise ModelError(f"{where}format_version: unsupported version {data.get('format_version')!r} (this tool reads 1)")
     known = {"format", "format_version", "tool_version", "created_utc", "joint", "robot_model", "description",
-             "parameters", "correlation", "ripple", "fit", "sources"}
+             "parameters", "correlation", "ripple", "fit", "sources", "effects"}
     for key in data:
         if key not in known:
             raise ModelError(f"{where}{key}: unknown key")
@@ -260,13 +286,37 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
         if not isinstance(s, dict) or "file" not in s or "sha256" not in s:
             raise ModelError(f"{where}sources[{i}]: expected file and sha256")
         sources.append(Source(str(s["file"]), str(s["sha256"]), str(s.get("role", "fit"))))
+    effects = _effects(data.get("effects", []), where)
     joint = data.get("joint")
     if joint is not None and (isinstance(joint, bool) or not isinstance(joint, int) or not 1 <= joint <= 7):
         raise ModelError(f"{where}joint: expected an integer 1..7")
     return JointModel(parameters=params, correlation_names=names, correlation=corr, ripple=ripple,
-                      fit=dict(data.get("fit", {})), sources=sources, joint=joint,
+                      fit=dict(data.get("fit", {})), sources=sources, effects=effects, joint=joint,
                       robot_model=data.get("robot_model"), description=str(data.get("description", "")),
                       tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")))
+
+
+def _effects(raw: Any, where: str) -> list[dict[str, Any]]:
+    """Validate ``[[effects]]`` tables with the simulator's own effect classes."""
+    from iiwa_ident.errors import PlantError
+    from iiwa_ident.sim.effects import make_effect
+
+    if not isinstance(raw, list):
+        raise ModelError(f"{where}effects: expected a list of [[effects]] tables")
+    out, seen = [], set()
+    for i, entry in enumerate(raw):
+        if not isinstance(entry, dict) or not isinstance(entry.get("name"), str):
+            raise ModelError(f"{where}effects[{i}]: expected a table with a name")
+        name = entry["name"]
+        if name in seen:
+            raise ModelError(f"{where}effects[{i}]: effect {name!r} given twice")
+        seen.add(name)
+        try:
+            make_effect(name, {k: v for k, v in entry.items() if k != "name"}, f"{where}effects[{i}].{name}")
+        except PlantError as err:  # re-raised as a model-file error, message unchanged
+            raise ModelError(str(err)) from None
+        out.append(dict(entry))
+    return out
 
 
 def read_model(path: str | os.PathLike) -> JointModel:

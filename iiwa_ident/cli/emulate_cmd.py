@@ -1,0 +1,177 @@
+"""Subcommand ``emulate``: play the robot side of FRI over UDP with the simulated joint behind it."""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.fri.emulator import (
+    AGENTS,
+    EmulatorConfig,
+    EmulatorReport,
+    Faults,
+    RobotEmulator,
+    parse_address,
+)
+from iiwa_ident.fri.protocol import ClientCommandMode, ControlMode
+from iiwa_ident.sim import load_plant
+
+__all__ = ["emulate_cmd", "format_summary"]
+
+
+def _ms(x: float | None) -> str:
+    return "-" if x is None else f"{x * 1e3:.3f} ms"
+
+
+def format_summary(report: EmulatorReport) -> str:
+    """Human-readable summary of an emulator run, several lines."""
+    r = report
+    lines = [
+        "session: " + " -> ".join(s.name for s in r.state_sequence()),
+        f"cycles: {r.cycles} ({r.skipped_cycles} skipped), overruns (> 0.5 ms late): {r.overruns}; "
+        f"cycle start delay median {_ms(r.cycle_delay_median_s)}, p99 {_ms(r.cycle_delay_p99_s)}, "
+        f"max {_ms(r.cycle_delay_max_s)}",
+        f"monitoring sent: {r.monitoring_sent}; answers: {r.answers_received} received, {r.answers_invalid} invalid, "
+        f"{r.answers_foreign} foreign, {r.answers_stale} stale, {r.late_answers} late; missed cycles: "
+        f"{r.missed_cycles}",
+        f"latency: median {_ms(r.latency_median_s)}, p99 {_ms(r.latency_p99_s)}, max {_ms(r.latency_max_s)}",
+        "quality (cycles): " + ", ".join(f"{name} {n}" for name, n in r.quality.items()),
+        f"session drops: {len(r.session_drops)}",
+    ]
+    lines += [f"  {t:8.3f} s  {reason}" for t, reason in r.session_drops]
+    injected = {k: v for k, v in r.faults.items() if v}
+    if injected:
+        lines.append("faults injected: " + ", ".join(f"{k} {v}" for k, v in injected.items()))
+    if r.send_errors:
+        lines.append(f"send errors: {r.send_errors}")
+    lines.append(f"commanding active: {r.commanding_s:.3f} s; wall time {r.wall_s:.3f} s; ended: {r.end_reason}")
+    return "\n".join(lines)
+
+
+def _check_probability(option: str, value: float) -> float:
+    if not 0.0 <= value <= 1.0:
+        raise IiwaIdentError(f"{option} {value:g}: must be a probability in [0, 1]")
+    return value
+
+
+def _check_positive(option: str, value: Optional[float]) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise IiwaIdentError(f"{option} {value:g}: must be a positive number of seconds")
+
+
+def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
+            record, max_time, hand_speed) -> EmulatorConfig:
+    """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
+    if mode not in ("torque", "position"):
+        raise IiwaIdentError(f"--mode {mode!r}: must be 'torque' or 'position'")
+    if agent is not None and agent not in AGENTS:
+        raise IiwaIdentError(f"--agent {agent!r}: must be one of {', '.join(AGENTS)}")
+    _check_positive("--duration", duration)
+    _check_positive("--max-time", max_time)
+    if not (math.isfinite(hand_speed) and hand_speed > 0):
+        raise IiwaIdentError(f"--hand-speed {hand_speed:g}: must be a positive speed [rad/s]")
+    if not (math.isfinite(jitter_ms) and 0.0 <= jitter_ms <= 1000.0):
+        raise IiwaIdentError(f"--jitter-ms {jitter_ms:g}: must be in [0, 1000] ms")
+    faults = Faults(
+        loss=_check_probability("--loss", loss), jitter_s=jitter_ms * 1e-3,
+        duplicate=_check_probability("--duplicate", duplicate), reorder=_check_probability("--reorder", reorder),
+        corrupt=_check_probability("--corrupt", corrupt), seed=seed)
+    torque = mode == "torque"
+    return EmulatorConfig(
+        client=parse_address(client, "--client"),
+        bind=parse_address(bind, "--bind"),
+        plant=load_plant(plant) if plant else None,
+        seed=seed,
+        control_mode=ControlMode.JOINT_IMPEDANCE if torque else ControlMode.POSITION,
+        client_command_mode=ClientCommandMode.TORQUE if torque else ClientCommandMode.POSITION,
+        duration_s=duration,
+        faults=faults,
+        agent=agent,
+        hand_peak_speed_rad_s=hand_speed,
+        record=record,
+        max_wall_s=max_time,
+    )
+
+
+@app.command("emulate")
+def emulate_cmd(
+    plant: Annotated[Optional[Path], typer.Option("--plant", help="Plant TOML file of the simulated joint "
+                                                  "(default: the shipped default plant).")] = None,
+    client: Annotated[str, typer.Option("--client", help="HOST:PORT the FRI client listens on.")] = "127.0.0.1:30200",
+    bind: Annotated[str, typer.Option("--bind", help="HOST:PORT of the robot-side socket (port 0: any free "
+                                      "port).")] = "127.0.0.1:0",
+    duration: Annotated[Optional[float], typer.Option("--duration", help="Seconds of COMMANDING_ACTIVE, then close "
+                                                      "the session and exit (default: until Ctrl-C).")] = None,
+    mode: Annotated[str, typer.Option("--mode", help="'torque' (JOINT_IMPEDANCE, client command mode TORQUE) or "
+                                      "'position' (POSITION, POSITION).")] = "torque",
+    loss: Annotated[float, typer.Option("--loss", help="Drop probability per datagram, both directions.")] = 0.0,
+    jitter_ms: Annotated[float, typer.Option("--jitter-ms", help="Extra delay of robot-to-client datagrams, "
+                                             "uniform in [0, MS], in ms.")] = 0.0,
+    duplicate: Annotated[float, typer.Option("--duplicate", help="Probability of sending a robot-to-client "
+                                             "datagram twice.")] = 0.0,
+    reorder: Annotated[float, typer.Option("--reorder", help="Probability of sending a robot-to-client datagram "
+                                           "after the next one.")] = 0.0,
+    corrupt: Annotated[float, typer.Option("--corrupt", help="Probability of flipping random bytes of a datagram, "
+                                           "both directions.")] = 0.0,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the sensor noise, the faults and the hand.")] = 0,
+    agent: Annotated[Optional[str], typer.Option("--agent", help="'hand': a human arm moves the link while "
+                                                 "commanding is active.")] = None,
+    hand_speed: Annotated[float, typer.Option("--hand-speed", help="--agent hand: peak hand speed, in "
+                                              "rad/s.")] = 0.5,
+    record: Annotated[Optional[Path], typer.Option("--record", help="Write the robot-side dataset (every "
+                                                   "simulated signal and the plant truth) here.")] = None,
+    max_time: Annotated[Optional[float], typer.Option("--max-time", help="Stop after this many seconds of wall "
+                                                      "time, whatever the session state.")] = None,
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the run report as JSON.")] = None,
+) -> None:
+    """Emulate the robot controller's side of FRI at 1 kHz over UDP, with the simulated joint behind it.
+
+    Sends a monitoring message every millisecond to the client, runs the session states
+    (IDLE, MONITORING_WAIT, MONITORING_READY, COMMANDING_WAIT, COMMANDING_ACTIVE), applies the
+    client's command to the simulated joint and drops the session after 5 ms without answers or on
+    a malformed or inconsistent command, as the robot does. Prints the state transitions and a
+    summary; Ctrl-C (SIGINT) or SIGTERM closes the session and still writes --record and --json.
+
+    Examples:
+      iiwa-ident emulate --client 127.0.0.1:30200 --duration 10
+      iiwa-ident emulate --duration 5 --loss 0.01 --jitter-ms 0.3 --duplicate 0.01 --reorder 0.01
+      iiwa-ident emulate --mode position --agent hand --record robot.h5 --json report.json
+      iiwa-ident emulate --plant my_plant.toml --bind 127.0.0.1:30201
+    """
+    try:
+        config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
+                         agent, record, max_time, hand_speed)
+        emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
+    except IiwaIdentError as err:
+        raise fail(str(err))
+    host, port = emulator.address
+    typer.echo(f"robot side on {host}:{port}, sending to {config.client[0]}:{config.client[1]} every "
+               f"{config.send_period_ms} ms ({mode} mode); Ctrl-C to stop")
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: emulator.stop())
+    try:
+        report = emulator.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    typer.echo(format_summary(report))
+    if report.dataset is not None:
+        typer.echo(f"wrote {report.dataset}")
+    try:
+        if json_out is not None:
+            write_json(json_out, report.as_dict())
+    except IiwaIdentError as err:
+        raise fail(str(err))
+    except OSError as err:
+        raise fail(f"{json_out}: {err.strerror}")
+    if report.dataset_error:
+        raise fail(report.dataset_error)

@@ -1,0 +1,232 @@
+"""One joint of a real LBR iiwa (or of the emulator) behind FRI, as a :class:`~iiwa_ident.robot.RobotInterface`.
+
+Every program that runs on the simulated joint runs unchanged on
+:class:`FriRobot`: :meth:`~FriRobot.start` follows the session up to
+COMMANDING_ACTIVE and returns the first measurement; each
+:meth:`~FriRobot.step` answers the current monitoring message with the
+command and returns the measurement of the next one. The joint under test
+gets the command; the other six get zero torque and their measured
+positions (so the robot's consistency check always passes).
+"""
+
+from __future__ import annotations
+
+import time
+
+from iiwa_ident.errors import IiwaIdentError, SafetyStop
+from iiwa_ident.fri.connection import COMMANDING_STATES, DEFAULT_PORT, FriConnection
+from iiwa_ident.fri.protocol import (
+    ClientCommandMode,
+    ControlMode,
+    DriveState,
+    MonitoringMessage,
+    SafetyState,
+    SessionState,
+)
+from iiwa_ident.robot import Command, Measurement, RobotInterface, joint_limits
+
+__all__ = ["FriRobot", "required_settings"]
+
+_N_JOINTS = 7
+
+
+def _name(enum, value) -> str:
+    try:
+        return enum(value).name
+    except ValueError:
+        return str(value)
+
+
+def required_settings(mode: str) -> tuple[int, int]:
+    """(control mode, client command mode) the robot must run for ``mode`` ``"torque"`` or ``"position"``."""
+    if mode == "torque":
+        return ControlMode.JOINT_IMPEDANCE, ClientCommandMode.TORQUE
+    if mode == "position":
+        return ControlMode.POSITION, ClientCommandMode.POSITION
+    raise IiwaIdentError(f"FRI mode must be 'torque' or 'position', got {mode!r}")
+
+
+class FriRobot(RobotInterface):
+    """A joint of the LBR iiwa commanded over FRI at the robot's send period.
+
+    Parameters
+    ----------
+    host : str
+        Robot controller address; only its datagrams are accepted.
+    joint : int
+        Joint under test, 1-7.
+    robot_model : str
+        ``"iiwa7"`` or ``"iiwa14"`` (data-sheet limits).
+    port : int
+        Local UDP port (KUKA's default 30200).
+    mode : str
+        ``"torque"`` (JOINT_IMPEDANCE control, TORQUE client command mode) or
+        ``"position"`` (POSITION control and client command mode).
+    connect_timeout_s : float
+        How long :meth:`start` waits for COMMANDING_ACTIVE [s].
+    message_timeout_s : float
+        Silence of the robot after which a running session counts as lost [s].
+    bind_host : str
+        Local address to bind (all interfaces by default).
+    """
+
+    source = "robot"
+    sample_time_s = 1e-3
+
+    def __init__(self, host: str, joint: int, robot_model: str = "iiwa14", port: int = DEFAULT_PORT,
+                 mode: str = "torque", connect_timeout_s: float = 60.0, message_timeout_s: float = 0.1,
+                 bind_host: str = "") -> None:
+        self.limits = joint_limits(robot_model, joint)
+        self.joint, self.robot_model, self.host = int(joint), robot_model, host
+        self.mode = mode
+        self._settings = required_settings(mode)
+        self.port, self.bind_host = int(port), bind_host
+        self.connect_timeout_s, self.message_timeout_s = float(connect_timeout_s), float(message_timeout_s)
+        # Listen from now on: the robot may already be sending, and a closed port makes it judge the link poor.
+        self.connection: FriConnection | None = FriConnection(host, self.port, bind_host, _N_JOINTS)
+        self.stats = self.connection.stats  # the connection's counters, kept after it is closed
+        self._msg: MonitoringMessage | None = None
+        self._t0: tuple[int, int] | None = None
+        self._seq0 = 0
+
+    # ------------------------------------------------------------------ helpers
+    def describe(self) -> dict:
+        out = {"interface": "FRI", "robot_address": self.host, "port": self.port, "robot_model": self.robot_model,
+               "mode": self.mode}
+        if self.stats is not None:
+            out["connection"] = self.stats.as_dict()
+        return out
+
+    def _state(self, msg: MonitoringMessage) -> int:
+        return msg.connection_info.session_state if msg.connection_info is not None else SessionState.IDLE
+
+    def _check_settings(self, msg: MonitoringMessage) -> None:
+        """Refuse a session whose robot-side settings do not fit the program (before the first command)."""
+        want_control, want_client = self._settings
+        info, ipo, conn = msg.robot_info, msg.ipo_data, msg.connection_info
+        problems = []
+        if info is None or info.control_mode != want_control:
+            got = "unknown" if info is None else _name(ControlMode, info.control_mode)
+            problems.append(f"control mode {got} (need {want_control.name})")
+        if ipo is None or ipo.client_command_mode != want_client:
+            got = "unknown" if ipo is None else _name(ClientCommandMode, ipo.client_command_mode)
+            problems.append(f"client command mode {got} (need {want_client.name})")
+        period = conn.send_period_ms if conn is not None else None
+        if period is not None and period != round(self.sample_time_s * 1e3):
+            problems.append(f"send period {period} ms (need {self.sample_time_s * 1e3:g} ms)")
+        if conn is not None and conn.receive_multiplier not in (None, 1):
+            problems.append(f"receive multiplier {conn.receive_multiplier} (need 1)")
+        if problems:
+            raise IiwaIdentError("FRI: the robot runs " + ", ".join(problems) + "; change the robot application")
+        self._check_health(msg)
+
+    def _check_health(self, msg: MonitoringMessage) -> None:
+        info = msg.robot_info
+        if info is None:
+            return
+        if info.safety_state not in (None, SafetyState.NORMAL_OPERATION):
+            raise SafetyStop(f"FRI: robot safety state {_name(SafetyState, info.safety_state)}")
+        if info.drive_state and len(info.drive_state) >= self.joint and \
+                info.drive_state[self.joint - 1] != DriveState.ACTIVE:
+            raise SafetyStop(f"FRI: drive of joint {self.joint} is {_name(DriveState, info.drive_state[self.joint - 1])}")
+
+    def _values(self, msg: MonitoringMessage, name: str) -> tuple[float, ...]:
+        data = msg.monitor_data
+        values = getattr(data, name) if data is not None else None
+        if values is None or len(values) < _N_JOINTS:
+            raise SafetyStop(f"FRI: the robot's message lacks {name} for {_N_JOINTS} joints")
+        return values
+
+    def _measurement(self, msg: MonitoringMessage) -> Measurement:
+        j = self.joint - 1
+        ts = msg.monitor_data.timestamp if msg.monitor_data is not None else None
+        if ts is not None and self._t0 is not None:
+            t = (ts[0] - self._t0[0]) + (ts[1] - self._t0[1]) * 1e-9
+        else:  # no robot clock: count the robot's cycles
+            t = ((msg.header.sequence_counter - self._seq0) % (1 << 32)) * self.sample_time_s
+        ext = msg.monitor_data.external_torque
+        return Measurement(t=t, q_m=self._values(msg, "measured_joint_position")[j],
+                           tau_j=self._values(msg, "measured_torque")[j],
+                           tau_ext_fri=ext[j] if ext is not None and len(ext) > j else float("nan"))
+
+    def _answer(self, msg: MonitoringMessage, command: Command | None) -> None:
+        """Answer ``msg``: header only while monitoring, the command (or a hold) while commanding."""
+        assert self.connection is not None
+        if self._state(msg) not in COMMANDING_STATES:
+            self.connection.answer(msg)
+            return
+        positions = list(self._values(msg, "measured_joint_position"))
+        torques = [0.0] * _N_JOINTS
+        if command is not None and self._state(msg) == SessionState.COMMANDING_ACTIVE:
+            if command.q_cmd is not None:
+                if self.mode != "position":
+                    raise SafetyStop("FRI: a position command in torque mode")
+                positions[self.joint - 1] = command.q_cmd
+            else:
+                if self.mode != "torque":
+                    raise SafetyStop("FRI: a torque command in position mode")
+                torques[self.joint - 1] = command.tau_c
+        self.connection.answer(msg, positions, torques)
+
+    # ------------------------------------------------------------------ RobotInterface
+    def start(self) -> Measurement:
+        """Open the session and wait for COMMANDING_ACTIVE, answering as the states require."""
+        if self.connection is None:
+            raise IiwaIdentError("FRI: the connection was closed; create a new FriRobot")
+        deadline = time.perf_counter() + self.connect_timeout_s
+        while True:
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                raise IiwaIdentError(f"FRI: no session reached COMMANDING_ACTIVE within {self.connect_timeout_s:g} s "
+                                     f"(listening on UDP port {self.port} for {self.host}); start the robot's "
+                                     "FRI application")
+            msg = self.connection.receive(min(remaining, 0.5))
+            if msg is None:
+                continue
+            if self._state(msg) == SessionState.COMMANDING_ACTIVE:
+                self._check_settings(msg)
+                self._msg = msg
+                self._t0 = msg.monitor_data.timestamp if msg.monitor_data is not None else None
+                self._seq0 = msg.header.sequence_counter
+                self.missed_cycles = 0
+                return self._measurement(msg)
+            if self._state(msg) == SessionState.COMMANDING_WAIT:
+                self._check_settings(msg)
+            self._answer(msg, None)
+
+    def step(self, command: Command) -> Measurement:
+        """Answer the current message with ``command`` and return the next measurement.
+
+        Raises
+        ------
+        SafetyStop
+            When the robot leaves COMMANDING_ACTIVE, falls silent for
+            ``message_timeout_s``, or reports a safety stop or an inactive drive.
+        """
+        if self.connection is None:
+            raise IiwaIdentError("FRI: step() before start()")
+        if self._msg is None:
+            raise SafetyStop("FRI: the session has ended")
+        self._answer(self._msg, command)
+        self.last_compute_ns = self.connection.last_compute_ns
+        answered = self._msg.header.sequence_counter
+        msg = self.connection.receive(self.message_timeout_s)
+        if msg is None:
+            self._msg = None
+            raise SafetyStop(f"FRI: no message from the robot for {self.message_timeout_s * 1e3:g} ms")
+        # Robot cycles between the answered message and this one: lost, or skipped because we were late.
+        self.missed_cycles = (msg.header.sequence_counter - answered - 1) % (1 << 32)
+        state = self._state(msg)
+        if state != SessionState.COMMANDING_ACTIVE:
+            self._msg = None
+            raise SafetyStop(f"FRI: the robot left COMMANDING_ACTIVE (now {_name(SessionState, state)})")
+        self._check_health(msg)
+        self._msg = msg
+        return self._measurement(msg)
+
+    def stop(self) -> None:
+        """Close the connection; the robot ends the session when the answers stop."""
+        if self.connection is not None:
+            self.connection.close()
+            self.connection = None
+        self._msg = None

@@ -1,0 +1,399 @@
+"""The FRI runtime: a deployed controller config executed once per 1 kHz cycle.
+
+Per cycle, for the controlled joint (:meth:`ControllerRuntime.cycle`):
+
+1. position correction, eqs (8)-(9): ``theta_j = q_m - f(q_m)``,
+   ``theta_l = theta_j - tau_J / K``;
+2. spatial filter of the joint torque along ``theta_j``, eqs (10)-(12), (15);
+3. improved external-torque observer, eq (13) on the link velocity of
+   eq (9), spatially filtered, eq (14);
+4. the task's reference ``tau_r``, limited in rate and size;
+5. the additive controller, eqs (16)-(18);
+6. the watchdog / shutdown scale, then limits on torque rate and torque,
+   and a last check that the number is finite.
+
+:func:`run_controller` drives the cycle against any
+:class:`~iiwa_ident.robot.RobotInterface` (the robot through
+:class:`~iiwa_ident.fri.robot.FriRobot`, the emulator the same way, or the
+simulated joint directly), logs every cycle through the background
+:class:`~iiwa_ident.fri.logwriter.LogWriter` and stops cleanly on SIGINT
+and SIGTERM.
+
+Choices
+-------
+* Torque offset: the controller's model (eqs (19)-(21)) starts at rest with
+  zero torque, so the runtime regulates ``tau_J`` relative to its value at
+  the first cycle (gravity on a joint whose load does not change during the
+  run, sensor offset). For a joint whose gravity load changes with the
+  motion, command that joint's gravity model on top.
+* Watchdog: when ``watchdog_cycles`` (default 3) or more robot messages in a
+  row were lost, or arrived that late, the additive torque ramps to zero
+  over ``ramp_s`` (default 20 ms) and stays there until the link has been
+  good for ``recover_cycles`` (default 100); the controller then restarts
+  from rest and ramps back in. Each trip and recovery is reported. Silence
+  of the robot for the config's ``watchdog_timeout_s`` ends the run (the
+  robot drops the session itself after 5 ms without answers).
+* Shutdown (end of the duration, SIGINT, SIGTERM, over-speed, a non-finite
+  controller output): the additive torque ramps to zero over ``ramp_s``
+  while the session goes on, then the run ends and the log is closed.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from iiwa_ident._realtime import no_gc_pauses
+from iiwa_ident.deploy.config_file import ControllerConfig, controller_from_config
+from iiwa_ident.design.observer import MomentumObserver
+from iiwa_ident.design.spatial_filter import SpatialFilter
+from iiwa_ident.errors import IiwaIdentError, SafetyStop
+from iiwa_ident.fri.tasks import Task, TaskInput
+from iiwa_ident.robot import Command, Measurement, RobotInterface
+
+__all__ = ["LOG_SIGNALS", "Watchdog", "ControllerRuntime", "RunReport", "run_controller"]
+
+#: Signals of a run log, in column order (dataset format v1 names).
+LOG_SIGNALS = ("t", "q_m", "tau_j", "tau_ext_fri", "tau_c", "tau_r", "tau_j_filt", "tau_ext_est", "watchdog",
+               "cycle_us")
+
+
+class Watchdog:
+    """Scale of the additive torque under lost or late robot messages.
+
+    Parameters
+    ----------
+    dt : float
+        Cycle [s].
+    trip_cycles : int
+        Lost or late cycles in a row that trip it [cycles].
+    ramp_s : float
+        Time to ramp the scale from 1 to 0 (and back) [s].
+    recover_cycles : int
+        Good cycles after which a tripped watchdog ramps back in [cycles].
+    """
+
+    def __init__(self, dt: float = 1e-3, trip_cycles: int = 3, ramp_s: float = 0.02, recover_cycles: int = 100) -> None:
+        if trip_cycles < 1 or ramp_s < 0 or recover_cycles < 1:
+            raise IiwaIdentError("watchdog: trip cycles and recover cycles must be >= 1, the ramp >= 0")
+        self.dt, self.trip_cycles, self.recover_cycles = dt, int(trip_cycles), int(recover_cycles)
+        self.step_per_cycle = 1.0 if ramp_s == 0 else min(1.0, dt / ramp_s)
+        self.scale = 1.0
+        self.tripped = False
+        self._good = 0
+        self.events: list[tuple[float, str]] = []  #: (time [s], what happened)
+
+    def update(self, t: float, gap_cycles: float) -> bool:
+        """Advance one cycle; ``gap_cycles`` = robot cycles since the previous message (1 normally).
+
+        Returns True when the watchdog recovered in this cycle (the controller should restart).
+        """
+        recovered = False
+        if gap_cycles >= self.trip_cycles:
+            self._good = 0
+            if not self.tripped:
+                self.tripped = True
+                self.events.append((t, f"tripped: {gap_cycles:.0f} cycles without a robot message"))
+        elif self.tripped:
+            self._good += 1
+            if self._good >= self.recover_cycles:
+                self.tripped = False
+                recovered = True
+                self.events.append((t, f"recovered after {self.recover_cycles} good cycles"))
+        target = 0.0 if self.tripped else 1.0
+        if self.scale < target:
+            self.scale = min(target, self.scale + self.step_per_cycle)
+        elif self.scale > target:
+            self.scale = max(target, self.scale - self.step_per_cycle)
+        return recovered
+
+
+class ControllerRuntime:
+    """One joint's controller cycle from a deployed config (module docstring).
+
+    Parameters
+    ----------
+    config : ControllerConfig
+        The deployed controller (from :func:`~iiwa_ident.deploy.read_config`).
+    task : Task
+        The reference program.
+    watchdog : Watchdog, optional
+        Default: 3 cycles, 20 ms ramp, 100 cycles to recover.
+    """
+
+    def __init__(self, config: ControllerConfig, task: Task, watchdog: Watchdog | None = None) -> None:
+        self.config, self.task = config, task
+        self.dt = config.sample_time_s
+        self.watchdog = watchdog or Watchdog(self.dt)
+        lim = config.limits
+        self._tau_max, self._ref_max = lim.torque_nm, lim.reference_nm
+        self._dtau_max, self._dref_max = lim.torque_rate_nm_s * self.dt, lim.reference_rate_nm_s * self.dt
+        self._v_max = lim.velocity_rad_s
+        self._ripple = config.ripple
+        self._K = config.K
+        f = config.filter
+        self.torque_filter = SpatialFilter(f.period_rad, beta=f.beta, v_min=f.v_min_rad_s, dt=self.dt)
+        self.observer_filter = SpatialFilter(f.period_rad, beta=f.beta, v_min=f.v_min_rad_s, dt=self.dt)
+        self.observer = MomentumObserver(config.KI, config.Jl, self.dt)
+        self.controller = controller_from_config(config)
+        self.stop_reason = ""  #: why the output is ramping out ("" while running)
+        self._shutdown = 1.0  # scale of the shutdown ramp
+        self._started = False
+        # Last cycle's values, for the log.
+        self.tau_c = self.tau_r = self.tau_j_filt = self.tau_ext = 0.0
+        self._t_last = 0.0
+
+    # ------------------------------------------------------------------
+    def _theta(self, q_m: float, tau_j: float) -> tuple[float, float]:
+        """theta_j of eq (8) and theta_l of eq (9) [rad]."""
+        theta_j = q_m - self._ripple.at(q_m) if self._ripple is not None else q_m
+        return theta_j, theta_j - tau_j / self._K
+
+    def request_stop(self, reason: str) -> None:
+        """Ramp the additive torque out and end the run (the first reason is kept)."""
+        if not self.stop_reason:
+            self.stop_reason = reason
+
+    @property
+    def finished(self) -> bool:
+        """True once a requested stop has ramped the output to zero."""
+        return bool(self.stop_reason) and self._shutdown == 0.0 and self.tau_c == 0.0
+
+    def _restart(self, meas: Measurement) -> None:
+        """Start (or restart after a watchdog trip) from rest at this measurement."""
+        self.tau_offset = meas.tau_j
+        theta_j, theta_l = self._theta(meas.q_m, meas.tau_j)
+        self._theta_l_prev = theta_l
+        self.torque_filter.reset()
+        self.observer_filter.reset()
+        self.observer.reset()
+        self.controller.reset()
+        self._ref_prev = 0.0
+        self.torque_filter.step(0.0, theta_j)
+        self.observer_filter.step(0.0, theta_j)
+        self._started = True
+
+    def cycle(self, meas: Measurement, gap_cycles: float = 1.0) -> float:
+        """One cycle: measurement -> additive torque to send [Nm] (finite, within the limits).
+
+        Parameters
+        ----------
+        meas : Measurement
+            This cycle's measurement of the controlled joint.
+        gap_cycles : float
+            Robot cycles since the previous measurement (1 when none was lost or late).
+        """
+        if not self._started:
+            self._restart(meas)
+            self._t_last = meas.t
+            self.tau_c = 0.0
+            return 0.0
+        dt = self.dt
+        theta_j, theta_l = self._theta(meas.q_m, meas.tau_j)
+        tau = meas.tau_j - self.tau_offset
+        self.tau_j_filt = self.torque_filter.step(tau, theta_j)  # eq (15)
+        v_l = (theta_l - self._theta_l_prev) / (dt * max(gap_cycles, 1.0))
+        self._theta_l_prev = theta_l
+        self.tau_ext = self.observer_filter.step(self.observer.update(v_l, tau), theta_j)  # eqs (13)-(14)
+        if abs(self.torque_filter.speed) > self._v_max:
+            self.request_stop(f"joint speed {self.torque_filter.speed:.3g} rad/s above the limit {self._v_max:.3g}")
+
+        if self.watchdog.update(meas.t, gap_cycles):
+            self._restart(meas)
+        ref = self.task.reference(TaskInput(meas.t, theta_j, self.tau_ext))
+        if not math.isfinite(ref):
+            self.request_stop("the task gave a non-finite reference")
+            ref = 0.0
+        # Reference limits: rate, then size (the deploy check's reference_range assumes both).
+        ref = min(max(ref, self._ref_prev - self._dref_max), self._ref_prev + self._dref_max)
+        ref = min(max(ref, -self._ref_max), self._ref_max)
+        self._ref_prev = self.tau_r = ref
+        out = self.controller.step(ref, self.tau_j_filt)  # eqs (16)-(18)
+        if not math.isfinite(out):
+            self.request_stop("the controller gave a non-finite torque")
+            self.controller.reset()
+            out = 0.0
+        if self.stop_reason:
+            self._shutdown = max(0.0, self._shutdown - self.watchdog.step_per_cycle)
+        out *= self.watchdog.scale * self._shutdown
+        # Command limits: rate against what was sent last, then size.
+        prev = self.tau_c
+        out = min(max(out, prev - self._dtau_max), prev + self._dtau_max)
+        out = min(max(out, -self._tau_max), self._tau_max)
+        if self._shutdown == 0.0 and abs(out) <= self._dtau_max:
+            out = 0.0
+        self.tau_c = out if math.isfinite(out) else 0.0
+        self._t_last = meas.t
+        return self.tau_c
+
+
+@dataclass
+class RunReport:
+    """Outcome of :func:`run_controller`.
+
+    Attributes
+    ----------
+    cycles : int
+        Cycles executed.
+    duration_s : float
+        Time covered [s].
+    stop_reason : str
+        Why the run ended ("duration" when it ran its course).
+    watchdog_events : list of (float, str)
+        Watchdog trips and recoveries (time [s], text).
+    compute_us : dict
+        Per-cycle compute time from receiving a message to sending its answer:
+        median, p99, p99.9 and max [us].
+    logged : int
+        Rows written to the log.
+    lost_log_rows : int
+        Rows the background writer could not take.
+    connection : dict
+        Datagram counters of the FRI connection (empty on a simulated joint).
+    log : str
+        Log file.
+    """
+
+    cycles: int
+    duration_s: float
+    stop_reason: str
+    watchdog_events: list[tuple[float, str]] = field(default_factory=list)
+    compute_us: dict[str, float] = field(default_factory=dict)
+    logged: int = 0
+    lost_log_rows: int = 0
+    connection: dict[str, int] = field(default_factory=dict)
+    log: str = ""
+
+    def as_dict(self) -> dict:
+        """JSON-ready form."""
+        return {"cycles": self.cycles, "duration_s": self.duration_s, "stop_reason": self.stop_reason,
+                "watchdog_events": [[t, e] for t, e in self.watchdog_events], "compute_us": self.compute_us,
+                "logged": self.logged, "lost_log_rows": self.lost_log_rows, "connection": self.connection,
+                "log": self.log}
+
+
+def _percentiles(ns: np.ndarray) -> dict[str, float]:
+    if len(ns) == 0:
+        return {}
+    us = ns / 1e3
+    return {"median": float(np.median(us)), "p99": float(np.percentile(us, 99)),
+            "p99_9": float(np.percentile(us, 99.9)), "max": float(us.max())}
+
+
+class _StopSignals:
+    """SIGINT/SIGTERM set a flag instead of raising, so the loop can ramp out and flush the log."""
+
+    def __init__(self) -> None:
+        self.flag = ""
+        self._old: dict[int, object] = {}
+
+    def __enter__(self) -> "_StopSignals":
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.flag = signal.Signals(signum).name
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
+                   log: str | Path, *, watchdog: Watchdog | None = None,
+                   progress: Callable[[str], None] | None = None) -> RunReport:
+    """Run ``task`` through the deployed controller on ``robot`` for ``duration_s`` [s], logging every cycle.
+
+    Parameters
+    ----------
+    config : ControllerConfig
+        The deployed controller; its joint must be the robot's.
+    robot : RobotInterface
+        :class:`~iiwa_ident.fri.robot.FriRobot` (robot or emulator) or a simulated joint.
+    task : Task
+        The reference program.
+    duration_s : float
+        Run length [s], not counting the final ramp-out.
+    log : path
+        Log file (dataset format v1, experiment ``free``, written in the background).
+    watchdog : Watchdog, optional
+        Default: :class:`Watchdog` with its defaults.
+    progress : callable, optional
+        Called with one-line status messages (start, watchdog events, stop).
+
+    Returns
+    -------
+    RunReport
+    """
+    from iiwa_ident.fri.logwriter import LogWriter  # the writer process is only needed for a run
+
+    if robot.joint != config.joint:
+        raise IiwaIdentError(f"the config controls joint {config.joint}, the robot interface joint {robot.joint}")
+    if abs(robot.sample_time_s - config.sample_time_s) > 1e-12:
+        raise IiwaIdentError(f"the config runs at {config.sample_time_s * 1e3:g} ms, the robot at "
+                             f"{robot.sample_time_s * 1e3:g} ms")
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise IiwaIdentError(f"duration must be positive, got {duration_s!r}")
+    say = progress or (lambda _msg: None)
+    runtime = ControllerRuntime(config, task, watchdog)
+    dt = config.sample_time_s
+    attrs = {"controller_sha256": config.sha256, "duration_s": float(duration_s), **task.attrs()}
+    writer = LogWriter(log, LOG_SIGNALS, experiment="free", source=robot.source, joint=config.joint,
+                       sample_rate_hz=1.0 / dt, experiment_attrs=attrs)
+    n_max = int(round(duration_s / dt))
+    compute = np.zeros(n_max + 1000, dtype=np.int64)  # the final ramp-out adds at most ramp_s
+    k = 0
+    reason = ""
+    events_seen = 0
+    writer.start()
+    try:
+        with _StopSignals() as signals, no_gc_pauses():
+            meas = robot.start()
+            say(f"commanding: {task.name} for {duration_s:g} s")
+            t_prev, last_ns = meas.t, time.perf_counter_ns()
+            while True:
+                # Robot cycles since the previous message: lost ones (sequence gaps) or late ones (clock).
+                gap = max(1.0 + robot.missed_cycles, (meas.t - t_prev) / dt if k else 1.0)
+                t_prev = meas.t
+                if signals.flag:
+                    runtime.request_stop(signals.flag)
+                elif k >= n_max:
+                    runtime.request_stop("duration")
+                tau = runtime.cycle(meas, gap)
+                if len(runtime.watchdog.events) > events_seen:
+                    for t_ev, text in runtime.watchdog.events[events_seen:]:
+                        say(f"watchdog at {t_ev:.3f} s: {text}")
+                    events_seen = len(runtime.watchdog.events)
+                writer.append((meas.t, meas.q_m, meas.tau_j, meas.tau_ext_fri, tau, runtime.tau_r,
+                               runtime.tau_j_filt, runtime.tau_ext, runtime.watchdog.scale,
+                               compute[k - 1] / 1e3 if k else 0.0))
+                if runtime.finished or k >= len(compute):
+                    break
+                own_ns = time.perf_counter_ns() - last_ns
+                try:
+                    meas = robot.step(Command(tau_c=tau))
+                except SafetyStop as err:
+                    reason = str(err)
+                    say(f"stopped: {reason}")
+                    break
+                last_ns = time.perf_counter_ns()
+                # The interface's own receive-to-send time when it measures one (FRI), else the loop's.
+                compute[k] = robot.last_compute_ns or own_ns
+                k += 1
+    finally:
+        robot.stop()
+        stats = writer.close({"stop_reason": reason or runtime.stop_reason,
+                              "watchdog_events": "; ".join(f"{t:.3f} s {e}" for t, e in runtime.watchdog.events)})
+    reason = reason or runtime.stop_reason
+    return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, watchdog_events=list(runtime.watchdog.events),
+                     compute_us=_percentiles(compute[:k]), logged=stats.written, lost_log_rows=stats.lost,
+                     connection=robot.describe().get("connection", {}), log=str(log))

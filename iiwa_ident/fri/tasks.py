@@ -1,0 +1,182 @@
+"""Reference tasks of the FRI runtime: what the deployed controller is asked to track.
+
+A task gives the reference torque ``tau_r`` [Nm] of each cycle from the
+time since the start and what the runtime knows (:class:`TaskInput`). The
+runtime then limits its rate and size (``limits.reference_rate_nm_s``,
+``limits.reference_nm`` of the controller config) before the controller
+sees it. :func:`make_task` builds one from the ``iiwa-ident run`` options.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["TaskInput", "Task", "ZeroTask", "ConstantTask", "StepTask", "SineTask", "ChirpTask", "KappaTask",
+           "TASKS", "make_task"]
+
+
+@dataclass(frozen=True, slots=True)
+class TaskInput:
+    """What a task may use in a cycle.
+
+    Attributes
+    ----------
+    t : float
+        Time since the start of the run [s].
+    theta_j : float
+        Joint position of eq (8) [rad].
+    tau_ext : float
+        The runtime's external-torque estimate, eq (14) (improved observer,
+        spatially filtered) [Nm].
+    """
+
+    t: float
+    theta_j: float
+    tau_ext: float
+
+
+class Task(ABC):
+    """A reference program; subclasses set :attr:`name` and implement :meth:`reference`."""
+
+    #: Name on the command line and in the log.
+    name: str = ""
+
+    @abstractmethod
+    def reference(self, s: TaskInput) -> float:
+        """Reference torque tau_r [Nm] for this cycle."""
+
+    def attrs(self) -> dict[str, float | str]:
+        """Parameters recorded in the log's ``/experiment`` attributes."""
+        return {"task": self.name}
+
+
+class ZeroTask(Task):
+    """tau_r = 0: the additive controller makes the joint transparent (it cancels residual torque)."""
+
+    name = "zero"
+
+    def reference(self, s: TaskInput) -> float:
+        return 0.0
+
+
+@dataclass
+class ConstantTask(Task):
+    """tau_r = amplitude [Nm]."""
+
+    amplitude_nm: float
+    name = "constant"
+
+    def reference(self, s: TaskInput) -> float:
+        return self.amplitude_nm
+
+    def attrs(self) -> dict[str, float | str]:
+        return {"task": self.name, "amplitude_nm": self.amplitude_nm}
+
+
+@dataclass
+class StepTask(Task):
+    """A square wave between -amplitude and +amplitude [Nm], ``period_s`` [s], starting at +amplitude."""
+
+    amplitude_nm: float
+    period_s: float = 2.0
+    name = "step"
+
+    def reference(self, s: TaskInput) -> float:
+        return self.amplitude_nm if (s.t % self.period_s) < 0.5 * self.period_s else -self.amplitude_nm
+
+    def attrs(self) -> dict[str, float | str]:
+        return {"task": self.name, "amplitude_nm": self.amplitude_nm, "period_s": self.period_s}
+
+
+@dataclass
+class SineTask(Task):
+    """tau_r = amplitude sin(2 pi f t) [Nm] (the paper's tests: 5 Nm at 0.25 Hz, 15 Nm at 25 Hz)."""
+
+    amplitude_nm: float
+    frequency_hz: float
+    name = "sine"
+
+    def reference(self, s: TaskInput) -> float:
+        return self.amplitude_nm * math.sin(2.0 * math.pi * self.frequency_hz * s.t)
+
+    def attrs(self) -> dict[str, float | str]:
+        return {"task": self.name, "amplitude_nm": self.amplitude_nm, "frequency_hz": self.frequency_hz}
+
+
+@dataclass
+class ChirpTask(Task):
+    """Exponential sweep of tau_r from f0 to f1 [Hz] over ``sweep_s`` [s], then repeated."""
+
+    amplitude_nm: float
+    f0_hz: float
+    f1_hz: float
+    sweep_s: float
+    name = "chirp"
+
+    def reference(self, s: TaskInput) -> float:
+        t = s.t % self.sweep_s
+        k = math.log(self.f1_hz / self.f0_hz) / self.sweep_s
+        phase = 2.0 * math.pi * self.f0_hz * (math.exp(k * t) - 1.0) / k
+        return self.amplitude_nm * math.sin(phase)
+
+    def attrs(self) -> dict[str, float | str]:
+        return {"task": self.name, "amplitude_nm": self.amplitude_nm, "f0_hz": self.f0_hz, "f1_hz": self.f1_hz,
+                "sweep_s": self.sweep_s}
+
+
+@dataclass
+class KappaTask(Task):
+    """tau_r = kappa tau_ext (section V.C): the joint amplifies the torque a human applies.
+
+    The runtime's own estimate of eq (14) closes the loop (FRI carries no
+    F/T sensor); ``kappa`` = 0 is the transparent joint.
+    """
+
+    kappa: float
+    name = "kappa"
+
+    def reference(self, s: TaskInput) -> float:
+        return self.kappa * s.tau_ext
+
+    def attrs(self) -> dict[str, float | str]:
+        return {"task": self.name, "kappa": self.kappa}
+
+
+#: Task names accepted by :func:`make_task`.
+TASKS = ("zero", "constant", "step", "sine", "chirp", "kappa")
+
+
+def _finite(name: str, value: float, positive: bool = False) -> float:
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise IiwaIdentError(f"task: {name} must be {'positive' if positive else 'finite'}, got {value!r}")
+    return float(value)
+
+
+def make_task(name: str, amplitude_nm: float = 5.0, frequency_hz: float = 0.25, period_s: float = 2.0,
+              f1_hz: float = 50.0, sweep_s: float = 20.0, kappa: float = 1.0) -> Task:
+    """The task called ``name`` with its parameters (units as in the classes); one-line errors."""
+    amplitude_nm = _finite("amplitude", amplitude_nm)
+    if name == "zero":
+        return ZeroTask()
+    if name == "constant":
+        return ConstantTask(amplitude_nm)
+    if name == "step":
+        return StepTask(amplitude_nm, _finite("period", period_s, True))
+    if name == "sine":
+        return SineTask(amplitude_nm, _finite("frequency", frequency_hz, True))
+    if name == "chirp":
+        f0 = _finite("frequency", frequency_hz, True)
+        f1 = _finite("f1", f1_hz, True)
+        if f1 <= f0:
+            raise IiwaIdentError("task: the chirp's end frequency must exceed its start frequency")
+        return ChirpTask(amplitude_nm, f0, f1, _finite("sweep duration", sweep_s, True))
+    if name == "kappa":
+        kappa = _finite("kappa", kappa)
+        if kappa < 0:
+            raise IiwaIdentError("task: kappa must not be negative")
+        return KappaTask(kappa)
+    raise IiwaIdentError(f"unknown task {name!r} (known: {', '.join(TASKS)})")

@@ -1,0 +1,525 @@
+"""The robot-side FRI emulator: session states, drops, commands reaching the simulated joint, faults, CLI.
+
+A small client in this module answers over loopback. Most tests run the
+emulator in this process's main thread and the client in a thread; one test
+runs it through :func:`spawn_emulator`. Timing-dependent outcomes get wide
+margins (a loaded 2-core machine); counts and sequences are asserted.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from iiwa_ident.cli import app
+from iiwa_ident.datasets import read_dataset, read_truth
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.fri.emulator import (
+    DEFAULT_JOINT_POSITIONS,
+    EmulatorConfig,
+    Faults,
+    QualityThresholds,
+    RobotEmulator,
+    check_config,
+    connection_quality,
+    parse_address,
+    spawn_emulator,
+)
+from iiwa_ident.fri.protocol import (
+    COMMAND_MESSAGE_ID,
+    ClientCommandMode,
+    CommandData,
+    CommandMessage,
+    ConnectionQuality,
+    ControlMode,
+    DriveState,
+    FriDecodeError,
+    MessageHeader,
+    SessionState,
+    decode_monitoring,
+    encode_command,
+)
+from iiwa_ident.sim import SimulatedJoint, default_plant
+
+S = SessionState
+COMMANDING = (S.COMMANDING_WAIT, S.COMMANDING_ACTIVE)
+FULL_SEQUENCE = [S.IDLE, S.MONITORING_WAIT, S.MONITORING_READY, S.COMMANDING_WAIT, S.COMMANDING_ACTIVE,
+                 S.MONITORING_READY, S.IDLE]
+# Tests that are not about the robot's patience get a patient robot: a loaded machine can stall
+# a thread for tens of ms, which would otherwise drop sessions at random.
+PATIENT = dict(timeout_s=0.25, max_wall_s=20.0,
+               quality=QualityThresholds(good_loss=0.5, fair_loss=0.9, good_latency_s=0.05, fair_latency_s=0.1))
+# Short phases for tests that are not about the default timing.
+FAST = dict(PATIENT, monitoring_s=0.05, ready_s=0.02, commanding_wait_s=0.02, closing_s=0.02)
+SILENT = object()  # a policy's "do not answer"
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# --------------------------------------------------------------------------- the test client
+
+
+class Client:
+    """A minimal FRI client: decodes each monitoring message and answers it as ``policy`` says.
+
+    ``policy(client, msg)`` returns the ``CommandData`` to send (None: header
+    only) or ``SILENT``. Nothing is sent in IDLE, as the protocol requires.
+    """
+
+    def __init__(self, policy=None) -> None:
+        self.policy = policy or torque_policy(0.0)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.02)
+        self.address = self.sock.getsockname()
+        self.seq = 0
+        self.messages = []  # decoded monitoring messages, in arrival order
+        self.answered = []  # for each message: whether it was answered
+        self.decode_errors = 0
+        self.header_only = 0
+        self.commands = 0
+        self.active_seen = 0
+        self.emulator = None  # set by tests whose policy stops the emulator
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> "Client":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.sock.close()
+
+    def states(self) -> list[SessionState]:
+        """Session states seen, consecutive repeats collapsed."""
+        out = []
+        for m in self.messages:
+            s = m.connection_info.session_state
+            if not out or out[-1] != s:
+                out.append(s)
+        return out
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data, addr = self.sock.recvfrom(4096)
+            except (socket.timeout, OSError):
+                continue
+            try:
+                msg = decode_monitoring(data)
+            except FriDecodeError:
+                self.decode_errors += 1
+                continue
+            self.messages.append(msg)
+            state = msg.connection_info.session_state
+            if state == S.COMMANDING_ACTIVE:
+                self.active_seen += 1
+            reply = SILENT if state == S.IDLE else self.policy(self, msg)
+            self.answered.append(reply is not SILENT)
+            if reply is SILENT:
+                continue
+            header = MessageHeader(COMMAND_MESSAGE_ID, self.seq, msg.header.sequence_counter)
+            self.sock.sendto(encode_command(CommandMessage(header, reply)), addr)
+            self.seq += 1
+            if reply is None:
+                self.header_only += 1
+            else:
+                self.commands += 1
+
+
+def torque_policy(tau: float, joint: int = 1):
+    """Header only while monitoring; measured positions and ``tau`` on ``joint`` while commanding."""
+
+    def policy(client: Client, msg):
+        state = msg.connection_info.session_state
+        if state not in COMMANDING:
+            return None
+        torques = [0.0] * 7
+        if state == S.COMMANDING_ACTIVE:
+            torques[joint - 1] = tau
+        return CommandData(msg.monitor_data.measured_joint_position, tuple(torques))
+
+    return policy
+
+
+def misbehave_at(n_active: int, bad, state=S.COMMANDING_ACTIVE):
+    """Well-behaved, except that the ``n_active``-th message in ``state`` is answered with ``bad(msg)``."""
+    good = torque_policy(0.0)
+    seen = {"n": 0}
+
+    def policy(client: Client, msg):
+        if msg.connection_info.session_state == state:
+            seen["n"] += 1
+            if seen["n"] == n_active:
+                return bad(msg)
+        return good(client, msg)
+
+    return policy
+
+
+def run(client: Client, **kw):
+    """Run an emulator for ``client`` in this thread and return its report."""
+    emu = RobotEmulator(EmulatorConfig(client=client.address, **kw))
+    client.emulator = emu
+    return emu.run()
+
+
+# --------------------------------------------------------------------------- session
+
+
+def test_full_session_with_constant_torque(tmp_path):
+    """IDLE -> ... -> COMMANDING_ACTIVE -> MONITORING_READY -> IDLE; 5 Nm reaches the joint as in simulation."""
+    out = tmp_path / "robot.h5"
+    with Client(torque_policy(5.0)) as client:
+        report = run(client, duration_s=0.1, record=out, seed=3, **PATIENT)
+        time.sleep(0.05)
+    assert report.state_sequence() == FULL_SEQUENCE, report.states
+    assert report.session_drops == []
+    assert report.end_reason == "duration"
+    assert [t for t, _ in report.states] == sorted(t for t, _ in report.states)
+    # The client sees every state but the silent first IDLE; the final IDLE is sent so it sees the end.
+    assert client.states() == FULL_SEQUENCE[1:]
+    # Header-only answers in the monitoring states are accepted.
+    assert client.header_only > 100 and client.commands > 100
+    assert report.answers_invalid == 0 and report.answers_foreign == 0
+    assert report.answers_received == client.seq
+    # Headers: the robot counts from 0 without gaps and reflects the client's latest counter.
+    seqs = [m.header.sequence_counter for m in client.messages]
+    assert seqs == list(range(len(seqs))) and report.monitoring_sent == len(seqs)
+    reflected = [m.header.reflected_sequence_counter for m in client.messages]
+    assert np.all(np.diff(reflected) >= 0) and max(reflected) < client.seq
+    # Message content.
+    active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]
+    m = active[-1]
+    assert m.robot_info.number_of_joints == 7
+    assert m.robot_info.drive_state == (DriveState.ACTIVE,) * 7
+    assert m.robot_info.control_mode == ControlMode.JOINT_IMPEDANCE
+    assert m.ipo_data.client_command_mode == ClientCommandMode.TORQUE
+    assert m.connection_info.send_period_ms == 1 and m.connection_info.receive_multiplier == 1
+    q = m.monitor_data.measured_joint_position
+    assert len(q) == 7 and q[1:] == DEFAULT_JOINT_POSITIONS[1:]
+    assert m.ipo_data.joint_position == q
+    assert m.monitor_data.commanded_torque == (5.0, 0, 0, 0, 0, 0, 0)
+    assert m.monitor_data.timestamp[0] > 1_600_000_000
+    # The robot-side dataset: the joint moved under 5 Nm exactly as the simulated joint does.
+    ds = read_dataset(out)
+    assert ds.experiment == "free" and ds.source == "simulation" and ds.sample_rate_hz == 1000.0
+    for name in ("t", "q_m", "tau_j", "tau_ext_fri", "q_l_ref", "tau_ext_ref", "tau_c"):
+        assert ds.has(name)
+    assert np.all(np.diff(ds["t"]) > 0)
+    assert read_truth(out)["dynamics"]["K"] == default_plant().dynamics["K"]
+    k0 = int(ds.experiment_attrs["commanding_start_index"])
+    assert 100 < k0 < ds.n_samples
+    tau_c = ds["tau_c"][k0:]
+    assert np.all(ds["tau_c"][:k0] == 0.0) and np.count_nonzero(tau_c == 5.0) >= 95
+    sim = SimulatedJoint(default_plant(), seed=3, q0=DEFAULT_JOINT_POSITIONS[0]).run_open_loop(tau_c=tau_c)
+    n = len(tau_c)
+    np.testing.assert_allclose(ds["tau_j"][k0:], sim.measured["tau_j"][:n], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ds["q_m"][k0:], sim.measured["q_m"][:n], rtol=0, atol=1e-12)
+    pushed = np.flatnonzero(ds["tau_c"] == 5.0)
+    assert ds["tau_j"][pushed[30:]].mean() > 3.0  # the commanded torque reached the joint (Td = 5 ms)
+    assert np.all(ds["q_m"][:k0] == ds["q_m"][0])  # at rest before commanding
+
+
+def test_silent_client_drops_the_session():
+    """No answers in COMMANDING_ACTIVE: the robot drops the session after 5 ms (+ one cycle)."""
+
+    def policy(client: Client, msg):
+        state = msg.connection_info.session_state
+        if client.active_seen >= 30:
+            if state == S.MONITORING_WAIT:
+                client.emulator.stop()
+            return SILENT
+        return torque_policy(0.0)(client, msg)
+
+    with Client(policy) as client:
+        report = run(client, **dict(FAST, timeout_s=0.005))
+    # (A stall of the client thread on a loaded machine may cost an earlier session, for the same reason.)
+    assert {r for _, r in report.session_drops} == {"no answer for 5.0 ms"}
+    assert report.state_sequence()[:6] == FULL_SEQUENCE[:5] + [S.MONITORING_WAIT]
+    assert report.end_reason == "stopped"
+    # Messages the client received after its last answer, up to the drop: the unanswered
+    # ones the robot still sent in COMMANDING_ACTIVE. Five cycles of silence, one more if the
+    # last answer came in after the next cycle had started (more if the client thread stalled
+    # before sending it).
+    last = max(i for i, a in enumerate(client.answered) if a)
+    after = [m.connection_info.session_state for m in client.messages[last + 1:]]
+    n_active = after.index(S.MONITORING_WAIT)
+    assert after[:n_active] == [S.COMMANDING_ACTIVE] * n_active
+    assert 5 <= n_active <= 10, n_active
+    drop_t = report.session_drops[0][0]
+    active_t = next(t for t, s in report.states if s == S.COMMANDING_ACTIVE)
+    assert drop_t > active_t
+
+
+def _offset(msg, joint=3, by=0.2):
+    q = list(msg.monitor_data.measured_joint_position)
+    q[joint - 1] += by
+    return CommandData(tuple(q), (0.0,) * 7)
+
+
+def _short(msg):
+    return CommandData(msg.monitor_data.measured_joint_position, (0.0,) * 6)
+
+
+def _nan(msg):
+    return CommandData(msg.monitor_data.measured_joint_position, (math.nan,) + (0.0,) * 6)
+
+
+@pytest.mark.parametrize("bad, reason", [
+    (_offset, "commanded position of joint 3 is 0.200 rad from the measured one (limit 0.1 rad)"),
+    (_short, "jointTorque has 6 values, expected 7"),
+    (_nan, "jointTorque has a non-finite value"),
+    (lambda msg: None, "command without commandData"),
+], ids=["inconsistent-position", "short-torques", "nan-torque", "header-only"])
+def test_bad_command_drops_the_session_and_the_client_can_come_back(bad, reason):
+    with Client(misbehave_at(20, bad)) as client:
+        report = run(client, duration_s=0.05, **FAST)
+    assert [r for _, r in report.session_drops] == [reason]
+    seq = report.state_sequence()
+    assert seq[:6] == FULL_SEQUENCE[:5] + [S.MONITORING_WAIT]
+    assert seq.count(S.COMMANDING_ACTIVE) == 2  # a new session after the drop, to the end
+    assert seq[-2:] == [S.MONITORING_READY, S.IDLE] and report.end_reason == "duration"
+
+
+def test_inconsistent_position_while_waiting_never_activates():
+    with Client(misbehave_at(1, _offset, state=S.COMMANDING_WAIT)) as client:
+        report = run(client, duration_s=0.05, **FAST)
+    assert len(report.session_drops) == 1 and "joint 3" in report.session_drops[0][1]
+    assert report.state_sequence()[:5] == [S.IDLE, S.MONITORING_WAIT, S.MONITORING_READY, S.COMMANDING_WAIT,
+                                           S.MONITORING_WAIT]
+
+
+def test_position_mode_follows_the_commanded_position(tmp_path):
+    target = {}
+
+    def policy(client: Client, msg):
+        state = msg.connection_info.session_state
+        if state not in COMMANDING:
+            return None
+        q = list(msg.monitor_data.measured_joint_position)
+        if state == S.COMMANDING_ACTIVE:
+            target.setdefault("q", q[0] + 0.05)
+            q[0] = target["q"]
+        return CommandData(tuple(q), None)
+
+    out = tmp_path / "pos.h5"
+    with Client(policy) as client:
+        report = run(client, duration_s=0.4, control_mode=ControlMode.POSITION,
+                     client_command_mode=ClientCommandMode.POSITION, record=out, **FAST)
+    assert report.session_drops == [] and report.end_reason == "duration"
+    ds = read_dataset(out)
+    assert ds.has("q_cmd") and not ds.has("tau_c")
+    assert abs(ds["q_m"][-1] - target["q"]) < 0.01
+
+
+def test_hand_moves_the_link(tmp_path):
+    out = tmp_path / "hand.h5"
+    with Client(torque_policy(0.0)) as client:
+        report = run(client, duration_s=0.6, agent="hand", hand_peak_speed_rad_s=1.0, record=out, **FAST)
+    assert report.session_drops == []
+    ds = read_dataset(out)
+    k0 = int(ds.experiment_attrs["commanding_start_index"])
+    q = ds["q_m"]
+    assert np.ptp(q[:k0]) == 0.0  # nobody touches the link before commanding
+    assert np.ptp(q[k0:]) > 2e-3
+    assert np.abs(ds["tau_ext_ref"][k0:]).max() > 0.5
+    # The robot reports its external-torque estimate to the client.
+    ext = [m.monitor_data.external_torque[0] for m in client.messages
+           if m.connection_info.session_state == S.COMMANDING_ACTIVE]
+    assert max(abs(e) for e in ext) > 0.2
+
+
+def test_stop_from_another_thread():
+    def policy(client: Client, msg):
+        if len(client.messages) == 100:  # never answers; stops the robot from its own thread
+            client.stop_at = time.perf_counter()
+            client.emulator.stop()
+        return SILENT
+
+    with Client(policy) as client:
+        emu = RobotEmulator(EmulatorConfig(client=client.address, **PATIENT))
+        client.emulator = emu
+        report = emu.run()
+        elapsed = time.perf_counter() - client.stop_at
+        time.sleep(0.05)
+    assert report.end_reason == "stopped" and elapsed < 2.0
+    assert report.state_sequence() == [S.IDLE, S.MONITORING_WAIT, S.IDLE]
+    assert client.states()[-1] == S.IDLE  # the client is told the session ended
+    assert report.missed_cycles > 20 and report.quality["POOR"] > 20
+    json.dumps(report.as_dict())  # plain JSON types
+    with pytest.raises(IiwaIdentError, match="runs only once"):
+        emu.run()
+
+
+def test_spawned_emulator():
+    """In its own process: the address is known at once, stop() ends the session, join() returns the report."""
+    with Client(torque_policy(0.0)) as client:
+        with spawn_emulator(EmulatorConfig(client=client.address, **FAST)) as emu:
+            host, port = emu.address
+            assert host == "127.0.0.1" and port > 0
+            deadline = time.time() + 30
+            while client.active_seen < 50 and time.time() < deadline:
+                time.sleep(0.01)
+            emu.stop()
+            report = emu.join(30.0)
+    assert client.active_seen >= 50
+    assert report.end_reason == "stopped"
+    assert report.state_sequence() == [S.IDLE, S.MONITORING_WAIT, S.MONITORING_READY, S.COMMANDING_WAIT,
+                                       S.COMMANDING_ACTIVE, S.IDLE]
+    assert report.session_drops == []
+    assert report.answers_received > 100
+
+
+def test_spawned_emulator_reports_a_bind_failure():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        with pytest.raises(IiwaIdentError, match="cannot bind the robot-side socket"):
+            spawn_emulator(EmulatorConfig(bind=s.getsockname()))
+
+
+# --------------------------------------------------------------------------- faults
+
+
+@pytest.mark.parametrize("kind, faults", [
+    ("loss", Faults(loss=0.2, seed=1)),
+    ("jitter", Faults(jitter_s=0.0005, seed=1)),
+    ("duplicate", Faults(duplicate=0.2, seed=1)),
+    ("reorder", Faults(reorder=0.2, seed=1)),
+    ("corrupt", Faults(corrupt=0.3, seed=1)),
+])
+def test_each_fault_is_injected_and_counted(kind, faults):
+    with Client(torque_policy(0.0)) as client:
+        report = run(client, faults=faults, **dict(FAST, max_wall_s=0.4))
+        time.sleep(0.05)
+    counts = report.faults
+    assert counts[kind] > 10, counts
+    assert all(v == 0 for k, v in counts.items() if k != kind and k.split("_")[0] != kind), counts
+    seqs = [m.header.sequence_counter for m in client.messages]
+    steps = np.diff(seqs)
+    if kind == "loss":
+        assert counts["loss_in"] + counts["loss_out"] == counts["loss"]
+        assert counts["loss_out"] > 0 and counts["loss_in"] > 0
+        assert np.any(steps > 1)  # gaps at the client
+        assert report.missed_cycles >= counts["loss"] // 2
+    elif kind == "jitter":
+        # Delayed, all delivered (two cycles closer together than the jitter may swap).
+        assert sorted(seqs) == list(range(report.monitoring_sent))
+    elif kind == "duplicate":
+        assert np.count_nonzero(steps == 0) == counts["duplicate"]
+    elif kind == "reorder":
+        assert np.count_nonzero(steps < 0) >= counts["reorder"] - 1
+    elif kind == "corrupt":
+        assert counts["corrupt_in"] > 0 and counts["corrupt_out"] > 0
+        assert client.decode_errors > 0 and report.answers_invalid > 0
+
+
+# --------------------------------------------------------------------------- settings and helpers
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: Faults(loss=1.5), "faults.loss must be a probability"),
+    (lambda: Faults(jitter_s=-0.001), "faults.jitter_s"),
+    (lambda: check_config(EmulatorConfig(client_command_mode=ClientCommandMode.WRENCH)), "TORQUE or POSITION"),
+    (lambda: check_config(EmulatorConfig(control_mode=ControlMode.POSITION)), "JOINT_IMPEDANCE"),
+    (lambda: check_config(EmulatorConfig(joint_positions=(0.0,) * 6)), "7 finite angles"),
+    (lambda: check_config(EmulatorConfig(joint_positions=(0.0, 3.0, 0, 0, 0, 0, 0))), "joint 2's range"),
+    (lambda: check_config(EmulatorConfig(agent="dog")), "agent"),
+    (lambda: check_config(EmulatorConfig(send_period_ms=2)), "differs from send_period_ms"),
+    (lambda: check_config(EmulatorConfig(timeout_s=0.0)), "timeout_s"),
+    (lambda: check_config(EmulatorConfig(client=("127.0.0.1", 0))), "client"),
+    (lambda: QualityThresholds(good_loss=2.0), "quality.good_loss"),
+])
+def test_bad_settings_are_refused(make, message):
+    with pytest.raises(IiwaIdentError, match=message):
+        make()
+
+
+def test_bind_failure_is_a_user_error():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        with pytest.raises(IiwaIdentError, match="cannot bind"):
+            RobotEmulator(EmulatorConfig(bind=s.getsockname()))
+
+
+def test_connection_quality_thresholds():
+    T = 1e-3
+    assert connection_quality(500, 500, 0.1e-3, T) == ConnectionQuality.EXCELLENT
+    assert connection_quality(497, 500, 0.2e-3, T) == ConnectionQuality.EXCELLENT
+    assert connection_quality(500, 500, 0.5e-3, T) == ConnectionQuality.GOOD
+    assert connection_quality(450, 500, 0.2e-3, T) == ConnectionQuality.GOOD  # 10 % round-trip loss
+    assert connection_quality(400, 500, 0.2e-3, T) == ConnectionQuality.FAIR
+    assert connection_quality(500, 500, 0.9e-3, T) == ConnectionQuality.FAIR
+    assert connection_quality(300, 500, 0.2e-3, T) == ConnectionQuality.POOR
+    assert connection_quality(500, 500, 1.5e-3, T) == ConnectionQuality.POOR
+    assert connection_quality(5, 5, 0.1e-3, T) == ConnectionQuality.POOR  # too few samples
+    strict = QualityThresholds(window=100, good_loss=0.02, fair_loss=0.10)
+    assert connection_quality(95, 100, 0.2e-3, T, strict) == ConnectionQuality.FAIR
+
+
+def test_parse_address():
+    assert parse_address("127.0.0.1:30200") == ("127.0.0.1", 30200)
+    assert parse_address("localhost:0") == ("localhost", 0)
+    for bad in ("30200", "host:", ":1", "h:port", "h:70000"):
+        with pytest.raises(IiwaIdentError, match="HOST:PORT"):
+            parse_address(bad, "--client")
+
+
+# --------------------------------------------------------------------------- CLI
+
+runner = CliRunner()
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_cli_help_has_examples():
+    res = invoke("emulate", "--help")
+    assert res.exit_code == 0
+    assert "Examples" in res.output and "iiwa-ident emulate --client" in res.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--client", "localhost"), "--client 'localhost': expected HOST:PORT"),
+    (("--bind", "1.2.3.4:99999"), "--bind '1.2.3.4:99999': expected HOST:PORT"),
+    (("--loss", "1.5"), "--loss 1.5: must be a probability in [0, 1]"),
+    (("--corrupt", "-0.1"), "--corrupt -0.1: must be a probability"),
+    (("--jitter-ms", "-1"), "--jitter-ms -1"),
+    (("--mode", "fast"), "--mode 'fast'"),
+    (("--agent", "dog"), "--agent 'dog'"),
+    (("--duration", "0"), "--duration 0"),
+    (("--plant", "missing.toml"), "missing.toml: no such file"),
+])
+def test_cli_bad_options_are_one_line_errors(args, message):
+    res = invoke("emulate", *args)
+    assert res.exit_code == 2
+    assert message in res.output
+    assert "Traceback" not in res.output and len(res.output.strip().splitlines()) == 1
+
+
+def test_cli_runs_and_writes_report_and_record(tmp_path):
+    out, rec = tmp_path / "report.json", tmp_path / "robot.h5"
+    res = invoke("emulate", "--client", f"127.0.0.1:{free_port()}", "--max-time", "0.3", "--json", out,
+                 "--record", rec, "--seed", "2")
+    assert res.exit_code == 0, res.output
+    assert "MONITORING_WAIT" in res.output and "session: IDLE -> MONITORING_WAIT -> IDLE" in res.output
+    assert "ended: max_wall" in res.output and "missed cycles" in res.output
+    doc = json.loads(out.read_text())
+    assert doc["end_reason"] == "max_wall" and doc["states"][1]["state"] == "MONITORING_WAIT"
+    assert doc["dataset"] == str(rec)
+    ds = read_dataset(rec)
+    assert ds.experiment_attrs["commanding_start_index"] == -1 and ds.n_samples > 50

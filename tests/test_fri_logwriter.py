@@ -1,0 +1,367 @@
+"""Tests of the background HDF5 log writer: round trip, live reading, overflow, crashes."""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from iiwa_ident.datasets import SIGNAL_UNITS, read_dataset
+from iiwa_ident.errors import DatasetError, IiwaIdentError
+from iiwa_ident.fri.logwriter import LogStats, LogWriter
+
+RATE = 1000.0
+SIGNALS = [
+    "t", "q_m", "tau_j", "tau_c", "tau_r", "tau_j_filt", "tau_ext_est", "tau_add", "watchdog", "cycle_us",
+]
+REPO = Path(__file__).resolve().parents[1]
+
+
+def make_writer(path: Path, signals=SIGNALS, **kwargs) -> LogWriter:
+    kwargs.setdefault("experiment", "free")
+    kwargs.setdefault("source", "robot")
+    kwargs.setdefault("joint", 4)
+    kwargs.setdefault("sample_rate_hz", RATE)
+    return LogWriter(path, signals, **kwargs)
+
+
+def random_rows(n: int, n_signals: int = len(SIGNALS), seed: int = 0) -> np.ndarray:
+    """Rows with an increasing time in column 0 and arbitrary float64 elsewhere."""
+    rows = np.random.default_rng(seed).normal(scale=1e3, size=(n, n_signals))
+    rows[:, 0] = np.arange(n) / RATE
+    return rows
+
+
+class TestRoundTrip:
+    def test_rows_equal_what_was_appended(self, tmp_path):
+        path = tmp_path / "run.h5"
+        rows = random_rows(5000)
+        with make_writer(path, experiment_attrs={"controller": "pd", "gains": [1.0, 2.0]}) as log:
+            for k, row in enumerate(rows):
+                # Both row types the loop may hand over.
+                assert log.append(row if k % 2 else row.tolist())
+            stats = log.close({"duration_s": 5.0})
+        assert stats == LogStats(appended=5000, written=5000, lost=0, path=path)
+        assert log.close() is stats  # idempotent
+
+        ds = read_dataset(path)
+        assert list(ds.signals) == [name for name in SIGNAL_UNITS if name in SIGNALS]
+        for j, name in enumerate(SIGNALS):
+            assert ds[name].dtype == np.float64
+            assert np.array_equal(ds[name], rows[:, j]), name  # exact, no rounding
+        assert (ds.experiment, ds.source, ds.joint, ds.sample_rate_hz) == ("free", "robot", 4, RATE)
+        attrs = ds.experiment_attrs
+        assert attrs["controller"] == "pd" and attrs["duration_s"] == 5.0
+        assert list(attrs["gains"]) == [1.0, 2.0]
+        assert attrs["lost_rows"] == 0
+        assert "incomplete" not in attrs and "interrupted" not in attrs
+
+    def test_complete_file_has_no_progress_markers(self, tmp_path):
+        path = tmp_path / "run.h5"
+        with make_writer(path) as log:
+            for row in random_rows(10):
+                log.append(row)
+        with h5py.File(path, "r") as h5:  # a plain, non-SWMR open works
+            assert "in_progress" not in h5.attrs
+            assert "rows_flushed" not in h5
+            assert h5.attrs["format"] == "iiwa-ident-dataset" and h5.attrs["format_version"] == 1
+            for name in SIGNALS:
+                assert h5["signals"][name].attrs["unit"] == SIGNAL_UNITS[name]
+
+
+class TestReadWhileRunning:
+    def test_flushed_rows_are_readable(self, tmp_path):
+        path = tmp_path / "live.h5"
+        rows = random_rows(1500)
+        log = make_writer(path, flush_interval_s=0.2).start()
+        try:
+            for row in rows[:1000]:
+                log.append(row)
+            time.sleep(0.5)  # > one flush interval plus two polls
+            with pytest.raises(OSError):
+                h5py.File(path, "r")  # the SWMR writer holds the consistency flags
+            live = read_dataset(path)
+            assert live.experiment_attrs["incomplete"] is True
+            assert live.n_samples == 1000
+            for j, name in enumerate(SIGNALS):
+                assert np.array_equal(live[name], rows[:1000, j])
+            for row in rows[1000:]:
+                log.append(row)
+        finally:
+            stats = log.close()
+        assert stats.written == 1500
+        assert "incomplete" not in read_dataset(path).experiment_attrs
+
+    def test_zero_rows_while_starting_is_a_clear_error(self, tmp_path):
+        path = tmp_path / "empty.h5"
+        with make_writer(path):
+            with pytest.raises(DatasetError) as excinfo:
+                read_dataset(path)
+        message = str(excinfo.value)
+        assert message.startswith(f"{path}: dataset is empty: 0 sample(s)")
+        assert "in progress" in message and "\n" not in message
+
+
+class TestRingOverflow:
+    def test_full_ring_refuses_rows_without_blocking(self, tmp_path):
+        path = tmp_path / "overflow.h5"
+        n = 100_000
+        with make_writer(path, signals=["t", "q_m", "tau_j"], capacity_rows=100) as log:
+            t0 = time.perf_counter()
+            accepted = sum(log.append((k / RATE, 0.0, 1.0)) for k in range(n))
+            elapsed = time.perf_counter() - t0
+            stats = log.close()
+        assert elapsed < 5.0  # about 1 us a row; a blocking append would take far longer
+        assert stats.lost > 0 and stats.appended == accepted
+        assert stats.appended + stats.lost == n
+        assert stats.written == stats.appended
+        ds = read_dataset(path)
+        assert ds.n_samples == stats.appended
+        assert ds.experiment_attrs["lost_rows"] == stats.lost
+
+
+# ---------------------------------------------------------------------------
+# crashes: a child Python process runs a 1 kHz "loop" that logs every cycle
+
+LOOP_SCRIPT = textwrap.dedent(
+    """
+    import sys, time
+    from iiwa_ident.fri.logwriter import LogWriter
+
+    log = LogWriter(sys.argv[1], ["t", "q_m", "tau_j"], experiment="free", source="robot",
+                    joint=1, sample_rate_hz=1000.0, flush_interval_s=0.5).start()
+    print("writer", log.writer_pid, flush=True)
+    t0 = time.perf_counter()
+    k = 0
+    announced = False
+    while True:
+        log.append((k / 1000.0, 0.001 * k, float(k % 7)))
+        k += 1
+        if not announced and time.perf_counter() - t0 >= 1.5:
+            print("running", k, flush=True)
+            announced = True
+        if k >= int(sys.argv[2]):
+            break
+        delay = t0 + k / 1000.0 - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+    print("done", k, flush=True)  # leaves without close(): the exit hook must finish the file
+    """
+)
+
+
+class _Loop:
+    """The loop process and its output lines."""
+
+    def __init__(self, path: Path, tmp_path: Path, max_rows: int = 10**9) -> None:
+        self.stderr = open(tmp_path / "loop.stderr", "w+")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", LOOP_SCRIPT, str(path), str(max_rows)],
+            stdout=subprocess.PIPE, stderr=self.stderr, cwd=REPO,
+        )
+        self._buffer = b""
+
+    def expect(self, word: str, timeout_s: float = 15.0) -> int:
+        """Wait for the line ``<word> <int>`` and return the int."""
+        deadline = time.monotonic() + timeout_s
+        fd = self.proc.stdout.fileno()
+        while b"\n" not in self._buffer:
+            left = deadline - time.monotonic()
+            ready, _, _ = select.select([fd], [], [], max(left, 0.0))
+            chunk = os.read(fd, 4096) if ready else b""
+            if not chunk:
+                self.stderr.seek(0)
+                pytest.fail(f"loop process gave no {word!r} line; stderr:\n{self.stderr.read()}")
+            self._buffer += chunk
+        line, self._buffer = self._buffer.split(b"\n", 1)
+        got, value = line.decode().split()
+        assert got == word, line
+        return int(value)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(5)
+        self.proc.stdout.close()
+        self.stderr.close()
+
+
+def wait_for_complete(path: Path, timeout_s: float = 10.0):
+    """Read the file until the writer has finished it (no longer incomplete)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            ds = read_dataset(path)
+            if "incomplete" not in ds.experiment_attrs:
+                return ds
+        except DatasetError:
+            pass
+        if time.monotonic() > deadline:
+            pytest.fail(f"{path} was not finished within {timeout_s} s")
+        time.sleep(0.05)
+
+
+def check_rows(ds, n_min: int) -> None:
+    """At least n_min rows, exactly the values the loop appended, in order."""
+    n = ds.n_samples
+    assert n >= n_min, (n, n_min)
+    k = np.arange(n)
+    assert np.array_equal(ds.t, k / 1000.0)
+    assert np.all(np.diff(ds.t) > 0)
+    assert np.array_equal(ds["q_m"], 0.001 * k)
+    assert np.array_equal(ds["tau_j"], (k % 7).astype(float))
+
+
+class TestParentKilled:
+    def test_writer_finishes_the_file(self, tmp_path):
+        path = tmp_path / "killed.h5"
+        loop = _Loop(path, tmp_path)
+        try:
+            loop.expect("writer")
+            appended = loop.expect("running")
+            os.kill(loop.proc.pid, signal.SIGKILL)  # the loop only, not its writer
+            loop.proc.wait(5)
+            ds = wait_for_complete(path)
+        finally:
+            loop.stop()
+        check_rows(ds, max(1000, appended))  # every row appended before the kill
+        assert ds.experiment_attrs["interrupted"] is True
+        assert ds.experiment_attrs["lost_rows"] == 0
+
+
+class TestBothKilled:
+    def test_last_flush_is_readable(self, tmp_path):
+        path = tmp_path / "both.h5"
+        loop = _Loop(path, tmp_path)
+        try:
+            writer_pid = loop.expect("writer")
+            appended = loop.expect("running")
+            os.kill(writer_pid, signal.SIGKILL)
+            os.kill(loop.proc.pid, signal.SIGKILL)
+            loop.proc.wait(5)
+        finally:
+            loop.stop()
+        with pytest.raises(OSError):
+            h5py.File(path, "r")  # left with the SWMR writer's flags set
+        ds = read_dataset(path)
+        assert ds.experiment_attrs["incomplete"] is True
+        # Rows appended more than 1 s before the kill have been flushed.
+        check_rows(ds, appended - 1000)
+
+
+class TestUnclosedAtExit:
+    def test_exit_hook_finishes_the_file(self, tmp_path):
+        path = tmp_path / "exit.h5"
+        loop = _Loop(path, tmp_path, max_rows=300)
+        try:
+            loop.expect("writer")
+            assert loop.expect("done") == 300
+            assert loop.proc.wait(15) == 0
+        finally:
+            loop.stop()
+        ds = read_dataset(path)
+        check_rows(ds, 300)
+        assert ds.n_samples == 300
+        assert "incomplete" not in ds.experiment_attrs and "interrupted" not in ds.experiment_attrs
+
+
+# ---------------------------------------------------------------------------
+
+
+class TestErrors:
+    def test_unwritable_path(self, tmp_path):
+        blocker = tmp_path / "file"
+        blocker.write_text("x")
+        log = make_writer(blocker / "run.h5")  # parent is a file
+        with pytest.raises(IiwaIdentError) as excinfo:
+            log.start()
+        message = str(excinfo.value)
+        assert message.startswith(f"{blocker / 'run.h5'}: cannot write") and "\n" not in message
+        assert log.close() == LogStats(0, 0, 0, blocker / "run.h5")
+
+    def test_close_without_start(self, tmp_path):
+        log = make_writer(tmp_path / "never.h5")
+        assert log.close() == LogStats(0, 0, 0, tmp_path / "never.h5")
+        assert not (tmp_path / "never.h5").exists()
+        with pytest.raises(RuntimeError):
+            log.start()
+
+    @pytest.mark.parametrize(
+        ("signals", "fragment"),
+        [
+            (["t", "q_m", "torque"], "unknown signal 'torque'"),
+            (["t", "q_m"], "missing required signal 'tau_j'"),
+            (["t", "q_m", "tau_j", "q_m"], "repeat"),
+        ],
+    )
+    def test_bad_signals(self, tmp_path, signals, fragment):
+        with pytest.raises(DatasetError, match=fragment):
+            make_writer(tmp_path / "a.h5", signals=signals)
+
+    def test_bad_metadata_and_options(self, tmp_path):
+        with pytest.raises(DatasetError, match="joint 9"):
+            make_writer(tmp_path / "a.h5", joint=9)
+        with pytest.raises(DatasetError, match="experiment attribute 'm'"):
+            make_writer(tmp_path / "a.h5", experiment_attrs={"m": {"x": 1}})
+        with pytest.raises(ValueError, match="flush_interval_s"):
+            make_writer(tmp_path / "a.h5", flush_interval_s=2.0)
+        with pytest.raises(ValueError, match="capacity_rows"):
+            make_writer(tmp_path / "a.h5", capacity_rows=0)
+
+    def test_append_misuse(self, tmp_path):
+        log = make_writer(tmp_path / "a.h5", signals=["t", "q_m", "tau_j"])
+        with pytest.raises(RuntimeError):
+            log.append((0.0, 0.0, 0.0))
+        log.start()
+        try:
+            with pytest.raises(ValueError, match="expected 3"):
+                log.append((0.0,))  # numpy alone would broadcast it
+            with pytest.raises(RuntimeError):
+                log.start()
+            assert log.append((0.0, 0.0, 0.0)) and log.append((0.001, 0.0, 0.0))
+        finally:
+            log.close()
+        with pytest.raises(RuntimeError):
+            log.append((0.002, 0.0, 0.0))
+        assert read_dataset(tmp_path / "a.h5").n_samples == 2
+
+    def test_too_short_run_leaves_no_file(self, tmp_path):
+        path = tmp_path / "short.h5"
+        with make_writer(path) as log:
+            log.append(random_rows(1)[0])
+        assert log.close().written == 1
+        assert not path.exists()
+
+    def test_invalid_data_keeps_recording(self, tmp_path):
+        path = tmp_path / "bad.h5"
+        log = make_writer(path, signals=["t", "q_m", "tau_j"]).start()
+        for t in (0.0, 0.001, 0.001, 0.002):
+            log.append((t, 0.0, 0.0))
+        with pytest.raises(DatasetError, match="t is not strictly increasing at index 2"):
+            log.close()
+        assert log.close().written == 4  # raised once, then the stats
+        with h5py.File(path, "r") as h5:  # the recording stays, closed cleanly
+            assert h5.attrs["in_progress"] == 1
+            assert h5["signals"]["t"].shape == (4,)
+
+    def test_bad_close_attrs_keep_writer_running(self, tmp_path):
+        path = tmp_path / "a.h5"
+        log = make_writer(path, signals=["t", "q_m", "tau_j"]).start()
+        try:
+            log.append((0.0, 0.0, 0.0))
+            with pytest.raises(DatasetError, match="experiment attribute 'bad'"):
+                log.close({"bad": None})
+            assert log.append((0.001, 0.0, 0.0))
+        finally:
+            stats = log.close({"good": 1})
+        assert stats.written == 2
+        assert read_dataset(path).experiment_attrs["good"] == 1

@@ -1,0 +1,328 @@
+"""The runtime's per-cycle controller, its watchdog, tasks and the client end of the FRI connection."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from iiwa_ident.deploy import deploy
+from iiwa_ident.design.analysis import identified_model
+from iiwa_ident.design.controller import JointParameters, design_controller, outer_loop_margins
+from iiwa_ident.design.design_file import make_record
+from iiwa_ident.design.spatial_filter import SpatialFilter
+from iiwa_ident.errors import IiwaIdentError, SafetyStop
+from iiwa_ident.fri.connection import FriConnection, parse_host_port
+from iiwa_ident.fri.protocol import (
+    COMMAND_MESSAGE_ID,
+    MONITORING_MESSAGE_ID,
+    ConnectionInfo,
+    ConnectionQuality,
+    MessageHeader,
+    MonitorData,
+    MonitoringMessage,
+    SessionState,
+    decode_command,
+    encode_monitoring,
+)
+from iiwa_ident.fri.runtime import ControllerRuntime, Watchdog
+from iiwa_ident.fri.tasks import TASKS, KappaTask, TaskInput, make_task
+from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.robot import Command, Measurement
+from iiwa_ident.sim import SimulatedJoint, default_plant
+
+TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"
+DT = 1e-3
+
+
+def _config(model):
+    design = design_controller(JointParameters.from_model(model))
+    return deploy(make_record(design, outer_loop_margins(design), model), "iiwa14", 1)
+
+
+@pytest.fixture(scope="module")
+def config():
+    """Table I, default design and limits (no ripple table)."""
+    return _config(read_model(TABLE1))
+
+
+@pytest.fixture(scope="module")
+def ripple_config():
+    """Table I with the ripple table identified from a simulated constant-velocity run."""
+    return _config(identified_model(seed=1))
+
+
+def _meas(t=0.0, q=0.0, tau=0.0):
+    return Measurement(t=t, q_m=q, tau_j=tau, tau_ext_fri=0.0)
+
+
+def _closed_loop(cfg, task, n, seed=0):
+    """Run the runtime against the simulated joint (ripple on) for n cycles; rows of (t, tau_j, tau_r, tau_j_filt, tau_c)."""
+    rt = ControllerRuntime(cfg, task)
+    robot = SimulatedJoint(default_plant(), seed=seed)
+    m = robot.start()
+    rows = []
+    for _ in range(n):
+        tau = rt.cycle(m)
+        rows.append((m.t, m.tau_j, rt.tau_r, rt.tau_j_filt, tau))
+        m = robot.step(Command(tau_c=tau))
+    return rt, np.array(rows)
+
+
+class TestWatchdog:
+    def test_trips_after_three_lost_cycles_and_ramps_to_zero(self):
+        wd = Watchdog(DT, trip_cycles=3, ramp_s=0.02)
+        assert not wd.update(0.0, 2.0) and wd.scale == 1.0  # two cycles late: tolerated
+        wd.update(0.001, 3.0)
+        assert wd.tripped and wd.scale == pytest.approx(1 - 1 / 20)
+        for _ in range(18):
+            wd.update(0.0, 1.0)
+        assert wd.scale == pytest.approx(1 / 20, abs=1e-12)
+        wd.update(0.0, 1.0)
+        assert wd.scale == 0.0  # 20 ms after the trip
+        assert "tripped: 3 cycles" in wd.events[0][1]
+
+    def test_recovers_after_good_cycles_and_ramps_back(self):
+        wd = Watchdog(DT, trip_cycles=3, ramp_s=0.01, recover_cycles=50)
+        wd.update(0.0, 5.0)
+        recovered = [wd.update(0.0, 1.0) for _ in range(49)]
+        assert not any(recovered) and wd.scale == 0.0
+        assert wd.update(0.05, 1.0) and not wd.tripped
+        for _ in range(9):
+            wd.update(0.0, 1.0)
+        assert wd.scale == pytest.approx(1.0)
+        assert [e[1].split(":")[0].split(" ")[0] for e in wd.events] == ["tripped", "recovered"]
+
+    def test_a_loss_during_recovery_restarts_the_count(self):
+        wd = Watchdog(DT, trip_cycles=3, recover_cycles=10)
+        wd.update(0.0, 3.0)
+        for _ in range(9):
+            wd.update(0.0, 1.0)
+        wd.update(0.0, 4.0)
+        assert not any(wd.update(0.0, 1.0) for _ in range(9)) and wd.tripped
+
+    def test_bad_settings_refused(self):
+        with pytest.raises(IiwaIdentError):
+            Watchdog(DT, trip_cycles=0)
+
+
+class TestTasks:
+    def test_references(self):
+        s = lambda t, ext=0.0: TaskInput(t, 0.0, ext)  # noqa: E731
+        assert make_task("zero").reference(s(1.0)) == 0.0
+        assert make_task("constant", 4.0).reference(s(3.0)) == 4.0
+        step = make_task("step", 10.0, period_s=2.0)
+        assert [step.reference(s(t)) for t in (0.0, 0.99, 1.0, 2.5)] == [10.0, 10.0, -10.0, 10.0]
+        sine = make_task("sine", 5.0, 0.25)
+        assert sine.reference(s(1.0)) == pytest.approx(5.0)
+        assert KappaTask(3.0).reference(s(0.0, ext=2.0)) == 6.0
+
+    def test_chirp_is_the_exponential_sweep(self):
+        from scipy.signal import chirp as scipy_chirp
+
+        task = make_task("chirp", 2.0, 1.0, f1_hz=10.0, sweep_s=10.0)
+        t = np.arange(0, 10, DT)
+        y = np.array([task.reference(TaskInput(x, 0.0, 0.0)) for x in t])
+        expected = 2.0 * scipy_chirp(t, 1.0, 10.0, 10.0, method="logarithmic", phi=-90)
+        np.testing.assert_allclose(y, expected, rtol=0, atol=1e-9)
+
+    @pytest.mark.parametrize("kw, message", [
+        ({"name": "dance"}, "unknown task"),
+        ({"name": "sine", "frequency_hz": 0.0}, "frequency must be positive"),
+        ({"name": "kappa", "kappa": -1.0}, "kappa must not be negative"),
+        ({"name": "chirp", "frequency_hz": 10.0, "f1_hz": 5.0}, "must exceed"),
+        ({"name": "constant", "amplitude_nm": math.nan}, "amplitude must be finite"),
+    ])
+    def test_bad_parameters(self, kw, message):
+        with pytest.raises(IiwaIdentError, match=message):
+            make_task(**kw)
+
+    def test_every_name_builds(self):
+        assert [make_task(n).name for n in TASKS] == list(TASKS)
+
+
+class TestControllerRuntime:
+    def test_first_cycle_sends_nothing_and_takes_the_torque_offset(self, config):
+        rt = ControllerRuntime(config, make_task("zero"))
+        assert rt.cycle(_meas(tau=7.0)) == 0.0
+        # At rest with the start torque and a zero reference, nothing to correct.
+        for k in range(1, 50):
+            assert abs(rt.cycle(_meas(t=k * DT, tau=7.0))) < 1e-9
+
+    def test_reference_limited_in_rate_and_size(self, config):
+        lim = config.limits
+        rt = ControllerRuntime(config, make_task("constant", 10 * lim.torque_nm))
+        rt.cycle(_meas())
+        refs = []
+        for k in range(1, 100):
+            rt.cycle(_meas(t=k * DT))
+            refs.append(rt.tau_r)
+        assert np.diff(refs).max() <= lim.reference_rate_nm_s * DT * (1 + 1e-12)
+        assert refs[-1] == pytest.approx(lim.reference_nm)
+        assert max(abs(r) for r in refs) <= lim.reference_nm
+
+    def test_command_limited_in_rate_and_size(self, config):
+        tight = dataclasses.replace(config, limits=dataclasses.replace(config.limits, torque_nm=20.0,
+                                                                          torque_rate_nm_s=2000.0))
+        rt = ControllerRuntime(tight, make_task("constant", 15.0))
+        out = [rt.cycle(_meas(t=k * DT, tau=-50.0 * (k > 0))) for k in range(300)]  # the joint never follows
+        assert max(abs(o) for o in out) <= 20.0
+        assert np.abs(np.diff(out)).max() <= 2.0 * (1 + 1e-12)
+
+    def test_never_returns_a_non_finite_torque(self, config):
+        rt = ControllerRuntime(config, make_task("sine", 5.0, 1.0))
+        rt.cycle(_meas())
+        out = [rt.cycle(_meas(t=k * DT, tau=math.nan if k == 20 else 0.0)) for k in range(1, 100)]
+        assert all(math.isfinite(o) for o in out)
+        assert "non-finite" in rt.stop_reason
+        assert rt.finished and out[-1] == 0.0
+
+    def test_stop_ramps_out_within_the_ramp_time(self, config):
+        rt = ControllerRuntime(config, make_task("constant", 10.0))
+        for k in range(200):
+            rt.cycle(_meas(t=k * DT, tau=0.0))
+        assert abs(rt.tau_c) > 5.0
+        rt.request_stop("SIGINT")
+        n = 0
+        while not rt.finished:
+            rt.cycle(_meas(t=(200 + n) * DT))
+            n += 1
+        assert n <= 21 and rt.stop_reason == "SIGINT"  # 20 ms ramp at 1 kHz
+
+    def test_over_speed_stops(self, config):
+        rt = ControllerRuntime(config, make_task("zero"))
+        v = 1.2 * config.limits.velocity_rad_s
+        for k in range(200):
+            rt.cycle(_meas(t=k * DT, q=v * k * DT))
+        assert "joint speed" in rt.stop_reason and rt.finished
+
+    def test_watchdog_gap_scales_the_output(self, config):
+        rt = ControllerRuntime(config, make_task("constant", 10.0))
+        for k in range(100):
+            rt.cycle(_meas(t=k * DT))
+        before = rt.tau_c
+        rt.cycle(_meas(t=0.104), gap_cycles=4.0)
+        assert rt.watchdog.tripped and abs(rt.tau_c) < abs(before)
+        for k in range(25):
+            rt.cycle(_meas(t=0.105 + k * DT))
+        assert rt.tau_c == 0.0 and rt.watchdog.scale == 0.0
+
+    def test_tracks_25_hz_on_the_simulated_joint(self, ripple_config):
+        # Section V.C: 15 Nm at 25 Hz; targets < 10 Nm raw and < 5 Nm filtered (errors against the
+        # reference delayed by Td = 5 ms, which no client-side controller can remove).
+        _, a = _closed_loop(ripple_config, make_task("sine", 15.0, 25.0), 3000)
+        ref = np.roll(a[:, 2], 5)
+        steady = slice(1000, None)
+        assert np.abs(a[steady, 1] - ref[steady]).max() < 10.0
+        assert np.abs(a[steady, 3] - ref[steady]).max() < 5.0
+
+    def test_torque_filter_is_the_spatial_filter_of_eq_15(self, ripple_config):
+        rt, a = _closed_loop(ripple_config, make_task("step", 10.0, period_s=1.0), 600)
+        cfg = ripple_config
+        f = SpatialFilter(cfg.filter.period_rad, beta=cfg.filter.beta, v_min=cfg.filter.v_min_rad_s)
+        assert rt.torque_filter.beta == f.beta == cfg.filter.beta
+
+
+def _monitoring(seq, state=SessionState.MONITORING_WAIT, q=0.0):
+    return encode_monitoring(MonitoringMessage(
+        header=MessageHeader(MONITORING_MESSAGE_ID, seq, 0),
+        monitor_data=MonitorData(measured_joint_position=(q,) * 7, measured_torque=(0.0,) * 7,
+                                 timestamp=(100 + seq // 1000, (seq % 1000) * 1_000_000)),
+        connection_info=ConnectionInfo(state, ConnectionQuality.EXCELLENT, 1, 1)))
+
+
+@pytest.fixture
+def link():
+    """A client listening on a free port and a 'robot' socket on 127.0.0.1."""
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    robot.settimeout(1.0)
+    client = FriConnection("127.0.0.1", 0, "127.0.0.1")
+    yield client, robot
+    client.close()
+    robot.close()
+
+
+class TestFriConnection:
+    def test_answers_header_only_while_monitoring(self, link):
+        client, robot = link
+        robot.sendto(_monitoring(7), client.address)
+        msg = client.receive(1.0)
+        assert msg.header.sequence_counter == 7
+        assert client.answer(msg)
+        answer = decode_command(robot.recv(2000))
+        assert answer.header.message_identifier == COMMAND_MESSAGE_ID
+        assert (answer.header.sequence_counter, answer.header.reflected_sequence_counter) == (0, 7)
+        assert answer.command_data is None
+
+    def test_commanding_answers_carry_all_joints(self, link):
+        client, robot = link
+        robot.sendto(_monitoring(1, SessionState.COMMANDING_ACTIVE), client.address)
+        msg = client.receive(1.0)
+        client.answer(msg, [0.1] * 7, [0, 0, 0, 0, 0, 0, 2.5])
+        answer = decode_command(robot.recv(2000))
+        assert answer.command_data.joint_torque == (0, 0, 0, 0, 0, 0, 2.5)
+        assert answer.command_data.joint_position == (0.1,) * 7
+        with pytest.raises(SafetyStop, match="non-finite"):
+            client.answer(msg, [0.1] * 7, [math.inf] + [0.0] * 6)
+        with pytest.raises(SafetyStop, match="7 joint"):
+            client.answer(msg, [0.1] * 6, [0.0] * 6)
+        with pytest.raises(SafetyStop, match="needs joint positions"):
+            client.answer(msg)
+
+    def test_nothing_sent_in_idle(self, link):
+        client, robot = link
+        robot.sendto(_monitoring(1, SessionState.IDLE), client.address)
+        assert not client.answer(client.receive(1.0))
+
+    def test_stale_invalid_and_foreign_datagrams_dropped(self, link):
+        client, robot = link
+        robot.sendto(_monitoring(5), client.address)
+        assert client.receive(1.0).header.sequence_counter == 5
+        robot.sendto(_monitoring(5), client.address)  # duplicate
+        robot.sendto(_monitoring(4), client.address)  # reordered
+        robot.sendto(b"\x0a\x02\x08", client.address)  # truncated
+        stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        stranger.bind(("127.0.0.2", 0))
+        stranger.sendto(_monitoring(9), client.address)
+        stranger.close()
+        robot.sendto(_monitoring(8), client.address)  # 6 and 7 lost
+        msg = client.receive(1.0)
+        assert msg.header.sequence_counter == 8
+        s = client.stats
+        assert (s.stale, s.invalid, s.foreign, s.lost, s.received) == (2, 1, 1, 2, 2)
+
+    def test_only_the_newest_queued_message_is_answered(self, link):
+        client, robot = link
+        for seq in (1, 2, 3):
+            robot.sendto(_monitoring(seq), client.address)
+        import time
+        time.sleep(0.05)
+        assert client.receive(1.0).header.sequence_counter == 3
+        assert client.stats.skipped == 2
+
+    def test_sequence_counter_wraps(self, link):
+        client, robot = link
+        robot.sendto(_monitoring(2**32 - 1), client.address)
+        client.receive(1.0)
+        robot.sendto(_monitoring(0), client.address)
+        assert client.receive(1.0).header.sequence_counter == 0 and client.stats.stale == 0
+
+    def test_timeout_returns_none(self, link):
+        client, _ = link
+        assert client.receive(0.01) is None
+
+
+class TestParseHostPort:
+    def test_forms(self):
+        assert parse_host_port("10.0.0.2") == ("10.0.0.2", 30200)
+        assert parse_host_port("robot:30201") == ("robot", 30201)
+
+    @pytest.mark.parametrize("text", ["host:", "host:x", ":30200", "host:70000"])
+    def test_bad(self, text):
+        with pytest.raises(IiwaIdentError, match="bad address"):
+            parse_host_port(text)
