@@ -34,6 +34,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/bench_sim.py
+	$(BIN)/python bench/bench_fri_codec.py
+	$(BIN)/python bench/bench_logwriter.py
+	$(BIN)/python bench/bench_fri_runtime.py 60
+	$(BIN)/python bench/bench_diagnose.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

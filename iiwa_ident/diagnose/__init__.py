@@ -1,0 +1,18 @@
+"""Discrepancy diagnosis: what the model gets wrong, which effect causes it, and the gain of adding it.
+
+Public API
+----------
+diagnose, Diagnosis, EffectReport, ChannelReport
+    Run the diagnosis on datasets with a model; the result, per effect and per channel.
+CandidateEffect, CANDIDATES, register_candidate, EvidenceChannel
+    The pluggable library of candidate effects (one subclass per effect), and an effect's own evidence.
+build_context, Context
+    The model's prediction of a dataset and its residual channels.
+"""
+
+from iiwa_ident.diagnose.candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
+from iiwa_ident.diagnose.diagnosis import ChannelReport, Diagnosis, EffectReport, diagnose
+from iiwa_ident.diagnose.predict import Context, build_context
+
+__all__ = ["diagnose", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
+           "EvidenceChannel", "register_candidate", "build_context", "Context"]

@@ -1,0 +1,758 @@
+"""The library of candidate effects that may explain what the model gets wrong.
+
+Each candidate is a :class:`CandidateEffect` subclass (in the spirit of a
+feature library of sparse regression): it knows
+
+* its *columns*: signals it injects at a physical point of the joint
+  (:data:`iiwa_ident.diagnose.predict.INJECTIONS`), each scaled by one
+  unknown coefficient; :func:`~iiwa_ident.diagnose.predict.channel_columns`
+  turns them into regressors of the residual channels, so the residual is
+  linear in the coefficients;
+* how to find its few *nonlinear* parameters (period, frequency, delay) by a
+  search on the current residual (:meth:`CandidateEffect.prepare`);
+* how coefficients become the reported parameters and how they extend a
+  :class:`~iiwa_ident.ident.model_file.JointModel`;
+* optionally, an *evidence channel* of its own (:meth:`CandidateEffect.evidence`):
+  a residual outside the torque channels where the effect shows more
+  plainly, with the effect's regressors there (the transmission ripple's
+  deflection in the motor position of a position-controlled arm, where its
+  torque signature is hundredths of a Nm). The selection judges it by the
+  same held-out tests as the residual channels (:mod:`~iiwa_ident.diagnose.select`).
+
+A new effect is one subclass decorated with :func:`register_candidate`;
+selection, diagnosis, report and CLI pick it up unchanged.
+
+Conventions of the reported parameters (JSON ``parameters``):
+
+transmission_ripple
+    ``period_rad`` rho [rad] and ``amplitude_rad``, the half peak-to-peak of
+    the fitted deflection f(theta_m mod rho) [rad] (as ``iiwa-ident ripple``).
+link_friction
+    ``tau = -coulomb_nm sign(omega_l) - viscous_nms omega_l`` [Nm, Nm s/rad].
+position_dependent_load
+    ``tau = amplitude_nm sin(theta_l + phase_rad)`` acting on the link, with
+    amplitude >= 0 and the phase in (-pi, pi].
+torque_sensor_offset, torque_sensor_scale
+    ``reading = scale * tau_J + offset_nm``.
+periodic_disturbance
+    ``amplitude_nm sin(2 pi frequency_hz t + phase)`` on the torque reading
+    (the amplitude is the median over datasets; the phase is per dataset).
+input_delay
+    ``delay_s``, the corrected total input delay T_d of eq (4) [s].
+link_inertia
+    ``Jl_kgm2``, the corrected link inertia J_l of eq (2) [kg m^2] (a model
+    parameter error rather than an extra effect, e.g. Table I used on
+    another joint).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, ClassVar, Sequence
+
+import numpy as np
+from scipy import optimize, signal
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.diagnose.predict import Context, channel_columns, command_prediction
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.model_file import JointModel, RippleTable
+
+__all__ = [
+    "Block",
+    "Column",
+    "EvidenceChannel",
+    "CandidateEffect",
+    "CANDIDATES",
+    "register_candidate",
+    "make_candidate",
+    "block_sse",
+    "TransmissionRippleCandidate",
+    "LinkFrictionCandidate",
+    "PositionDependentLoadCandidate",
+    "TorqueSensorOffsetCandidate",
+    "TorqueSensorScaleCandidate",
+    "PeriodicDisturbanceCandidate",
+    "InputDelayCandidate",
+    "LinkInertiaCandidate",
+]
+
+#: One column: ``(injection point, signal)`` pairs, all scaled by the same coefficient.
+Column = list[tuple[str, np.ndarray]]
+
+
+class Block:
+    """One residual channel of one dataset, as the selection sees it.
+
+    Attributes
+    ----------
+    ctx : Context
+    channel : str
+    mask : numpy.ndarray of bool
+        Samples used (decimated where the channel is low-passed).
+    weight : float
+        1 / (baseline residual RMS) [1/Nm]: every block counts alike.
+    """
+
+    def __init__(self, ctx: Context, channel: str, mask: np.ndarray, weight: float) -> None:
+        self.ctx, self.channel, self.mask, self.weight = ctx, channel, mask, weight
+
+
+class EvidenceChannel:
+    """An effect's own evidence: a residual of its own and the effect's regressors in it.
+
+    Attributes
+    ----------
+    name : str
+        What the residual is (reported as the band the effect was judged in).
+    X : list of numpy.ndarray
+        Per block (samples x columns), the effect's regressors, weighted like ``y``.
+    y : list of numpy.ndarray
+        Per block, the residual without the effect, weighted so blocks count alike.
+    false_alarm : float or None
+        Calibrated probability that noise alone gives evidence this strong (from a
+        detection test of the effect's own), or None; the effect's confidence in this
+        channel is at most ``1 - false_alarm``.
+    """
+
+    def __init__(self, name: str, X: list[np.ndarray], y: list[np.ndarray],
+                 false_alarm: float | None = None) -> None:
+        self.name, self.X, self.y, self.false_alarm = name, X, y, false_alarm
+
+
+def block_columns(blocks: Sequence[Block], columns: Callable[[Context], list[Column]], n: int) -> list[np.ndarray]:
+    """Weighted regressor matrix (samples x n) of each block for a candidate's columns."""
+    cache: dict[int, list[dict[str, np.ndarray]]] = {}
+    out = []
+    for b in blocks:
+        if b.ctx.index not in cache:
+            per_col = []
+            for col in columns(b.ctx):
+                acc: dict[str, np.ndarray] = {}
+                for injection, phi in col:
+                    for ch, v in channel_columns(b.ctx, injection, phi).items():
+                        acc[ch] = acc.get(ch, 0.0) + v
+                per_col.append(acc)
+            if len(per_col) != n:
+                raise ValueError("a candidate returned the wrong number of columns")
+            cache[b.ctx.index] = per_col
+        m = np.count_nonzero(b.mask)
+        X = np.zeros((m, n))
+        for j, acc in enumerate(cache[b.ctx.index]):
+            if b.channel in acc:
+                X[:, j] = acc[b.channel][b.mask] * b.weight
+        out.append(X)
+    return out
+
+
+def block_sse(Xs: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> tuple[float, np.ndarray]:
+    """SSE of the joint least-squares fit of stacked blocks, and the coefficients."""
+    X, y = np.vstack(Xs), np.concatenate(ys)
+    coef = np.linalg.lstsq(X, y, rcond=None)[0]
+    return float(np.sum((y - X @ coef) ** 2)), coef
+
+
+class CandidateEffect:
+    """Base class of candidate effects (see the module docstring).
+
+    Subclasses set :attr:`name`, implement :meth:`columns`, :meth:`parameters`
+    and :meth:`extend`, and may override :meth:`prepare`, :meth:`from_values`,
+    :meth:`evidence` and :meth:`evidence_axis`.
+
+    Evidence: every effect is judged on the residual channels (its columns).
+    An effect whose signature there may be too small to judge, while another
+    measured quantity shows it plainly, can bring that quantity as its own
+    evidence channel (:meth:`evidence`). The selection then scores that
+    channel with the same held-out gain, BIC and confidence tests, and names
+    the effect on it only when it passes none of the residual-channel bands
+    and they do not contradict it (a positive held-out gain there in at
+    least one band);
+    the fitted coefficients, the reported parameters and the per-channel
+    gains still come from the residual channels.
+    """
+
+    #: Name, as in the JSON output and the plant-effect vocabulary.
+    name: ClassVar[str] = ""
+    #: One line of meaning.
+    summary: ClassVar[str] = ""
+    #: Parameters found by search rather than least squares (counted by the information criterion).
+    n_nonlinear: ClassVar[int] = 0
+
+    def __init__(self) -> None:
+        self.n_datasets = 0
+        self.detail: dict[str, Any] = {}
+
+    # -- structure ---------------------------------------------------------
+    def n_columns(self) -> int:
+        """Number of linear coefficients (after :meth:`prepare`)."""
+        raise NotImplementedError
+
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
+        """Find nonlinear parameters on the current (weighted, masked) residuals.
+
+        Returns False when the data cannot show this effect (it is then not tested).
+        """
+        self.n_datasets = 1 + max(b.ctx.index for b in blocks)
+        return True
+
+    def columns(self, ctx: Context) -> list[Column]:
+        """The effect's columns for one dataset (exactly :meth:`n_columns` of them)."""
+        raise NotImplementedError
+
+    # -- results -------------------------------------------------------------
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
+        """The reported parameters (module docstring) from fitted coefficients."""
+        raise NotImplementedError
+
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
+        """Add the effect with these coefficients to ``model`` (in place)."""
+        raise NotImplementedError
+
+    def plausible(self, coef: np.ndarray) -> bool:
+        """Whether fitted coefficients describe a physically possible effect (default: always)."""
+        return True
+
+    def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
+        """Coefficients of an effect the model already has (plant-effect values), or None."""
+        return None
+
+    def evidence(self, blocks: Sequence[Block]) -> EvidenceChannel | None:
+        """The effect's own evidence channel at its current nonlinear parameters (after :meth:`prepare`).
+
+        Default: none (the effect is judged on the residual channels only). The
+        channel must not depend on the residual channels, so the other selected
+        effects do not act on it.
+        """
+        return None
+
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
+        """The variable the effect's partial residual is plotted against, and its label."""
+        return ctx.t, "time [s]"
+
+    # -- helpers -------------------------------------------------------------
+    def _replace_effect(self, model: JointModel, values: dict[str, Any]) -> None:
+        model.effects = [e for e in model.effects if e.get("name") != self.name] + [{"name": self.name, **values}]
+
+
+#: Registry of candidate classes by name, in the order they are tried.
+CANDIDATES: dict[str, type[CandidateEffect]] = {}
+
+
+def register_candidate(cls: type[CandidateEffect]) -> type[CandidateEffect]:
+    """Class decorator adding a :class:`CandidateEffect` subclass to :data:`CANDIDATES`."""
+    if not cls.name:
+        raise ValueError("a candidate effect needs a name")
+    CANDIDATES[cls.name] = cls
+    return cls
+
+
+def make_candidate(name: str) -> CandidateEffect:
+    """A fresh candidate ``name``."""
+    if name not in CANDIDATES:
+        raise IiwaIdentError(f"diagnose: unknown effect {name!r} (known: {', '.join(CANDIDATES)})")
+    return CANDIDATES[name]()
+
+
+def _search_1d(fn: Callable[[float], float], grid: np.ndarray) -> float:
+    """Minimise ``fn`` on a grid, then refine between the neighbours of the best point."""
+    values = [fn(x) for x in grid]
+    i = int(np.argmin(values))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    if hi <= lo:
+        return float(grid[i])
+    res = optimize.minimize_scalar(fn, bounds=(lo, hi), method="bounded", options={"xatol": (hi - lo) * 1e-3})
+    return float(res.x) if res.fun <= values[i] else float(grid[i])
+
+
+def _sse_of(blocks: Sequence[Block], residuals: Sequence[np.ndarray], columns, n: int) -> float:
+    Xs = block_columns(blocks, columns, n)
+    return block_sse(Xs, residuals)[0]
+
+
+# ----------------------------------------------------------------------------- ripple
+
+@register_candidate
+class TransmissionRippleCandidate(CandidateEffect):
+    """Position-periodic transmission deflection f(theta_m mod rho), eq (5).
+
+    The period comes from :func:`iiwa_ident.ident.ripple.identify_ripple`
+    (section III.B; on the motor position corrected by the model's own table,
+    so only what the table misses is looked for) and is refined by the
+    residual fit; the deflection is a Fourier series of :attr:`harmonics`
+    harmonics injected at the ``deflection`` point.
+
+    Evidence channel ``deflection`` (:meth:`evidence`): the deflection
+    estimate of the identification, ``q_m - tau_J / K - theta_l`` with the
+    slow part of each constant-speed pass projected out (its passes, its
+    noise weights), band-passed around the fundamental line ``|v| / rho``
+    (:attr:`evidence_band`), against the fundamental of the series in
+    ``q_m``. Only the fundamental: the harmonics of the dynamic estimate pass
+    through the speed- and direction-dependent link response of eq (7),
+    which one set of coefficients cannot follow. Its confidence is capped by
+    the identification's calibrated false-alarm probability. On a
+    position-controlled arm the torque signature of the ripple is
+    hundredths of a Nm while its deflection is plain in q_m; the period is
+    refined on both (the sum of the relative residual sums of squares).
+    """
+
+    name = "transmission_ripple"
+    summary = "position-periodic transmission deflection, eq (5)"
+    n_nonlinear = 1
+    harmonics = 3
+    #: Band of the evidence channel, in units of the fundamental's frequency |v| / rho.
+    evidence_band = (0.7, 1.3)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.period = 0.0
+        self.base_table: RippleTable | None = None
+        self._found: float | None = None
+        self._passes: list = []
+        self._false_alarm: float | None = None
+
+    def n_columns(self) -> int:
+        return 2 * self.harmonics
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        if self._found is None:
+            self._found = self._identify(blocks)
+        if not self._found:
+            return False
+        rho0 = self._found
+        sse0 = max(sum(float(np.sum(r ** 2)) for r in residuals), 1e-300)
+        ev0 = self._evidence_at(rho0)
+        own0 = sum(float(np.sum(y ** 2)) for y in ev0.y) if ev0 is not None else 0.0
+
+        def sse(rho: float) -> float:
+            self.period = rho
+            total = _sse_of(blocks, residuals, self.columns, self.n_columns()) / sse0
+            if own0 > 0:
+                ev = self._evidence_at(rho)
+                total += block_sse(ev.X, ev.y)[0] / own0
+            return total
+
+        self.period = _search_1d(sse, rho0 * (1 + np.linspace(-3e-3, 3e-3, 13)))
+        return True
+
+    def evidence(self, blocks):
+        return self._evidence_at(self.period) if self.period > 0 else None
+
+    def _evidence_at(self, period: float) -> EvidenceChannel | None:
+        """The ``deflection`` channel (class docstring) with the fundamental at ``period``; one block per dataset.
+
+        None when no pass resolves the line (too short, or the line above the band a pass can show).
+        """
+        lo, hi = self.evidence_band
+        per_ds: dict[int, tuple[list, list]] = {}
+        for ps in self._passes:
+            dt = float(np.median(np.diff(ps.t)))
+            f_line = abs(ps.speed) / self._found
+            if len(ps.f) < 32 or hi * f_line >= 0.45 / dt:
+                continue
+            sos = signal.butter(2, [lo * f_line, hi * f_line], btype="bandpass", fs=1.0 / dt, output="sos")
+            x = 2 * np.pi * ps.theta / period
+            A = np.column_stack([np.cos(x), np.sin(x)])
+            A = A - ps.nuisance @ (ps.nuisance.T @ A)
+            Xs, ys = per_ds.setdefault(ps.dataset, ([], []))
+            Xs.append(signal.sosfiltfilt(sos, A, axis=0) * ps.weight)
+            ys.append(signal.sosfiltfilt(sos, ps.f) * ps.weight)
+        X = [np.vstack(Xs) for Xs, _ in per_ds.values()]
+        y = [np.concatenate(ys) for _, ys in per_ds.values()]
+        if not X:
+            return None
+        return EvidenceChannel("deflection", X, y, self._false_alarm)
+
+    def _identify(self, blocks) -> float:
+        """The period by section III.B's identification (0.0: none found); it does not depend on the residual."""
+        from iiwa_ident.ident.ripple import identify_ripple
+
+        ctxs = {b.ctx.index: b.ctx for b in blocks}.values()
+        p = next(iter(ctxs)).params
+        data = []
+        for c in ctxs:
+            q = c.q_m - (self.base_table(c.q_m) if self.base_table is not None else 0.0)
+            data.append(Dataset(signals={"t": c.t, "q_m": q, "tau_j": c.tau}, experiment=c.experiment,
+                                source="import", joint=1, sample_rate_hz=1.0 / c.dt))
+        try:
+            r = identify_ripple(data, K=p["K"], Jl=p["Jl"])
+        except IiwaIdentError:
+            return 0.0  # no constant-speed motion: a deflection cannot be told from other effects
+        if not r.detected:
+            return 0.0
+        self.detail = {"false_alarm_probability": r.false_alarm, "period_from_identification_rad": r.period_rad}
+        self._passes, self._false_alarm = list(r.passes), float(r.false_alarm)
+        return float(r.period_rad)
+
+    def columns(self, ctx):
+        x = 2 * np.pi * ctx.q_m / self.period
+        return [[("deflection", fn(k * x))] for k in range(1, self.harmonics + 1) for fn in (np.cos, np.sin)]
+
+    def _series(self, coef: np.ndarray, bins: int = 256) -> np.ndarray:
+        x = 2 * np.pi * np.arange(bins) / bins
+        lut = np.zeros(bins)
+        for k in range(self.harmonics):
+            lut += coef[2 * k] * np.cos((k + 1) * x) + coef[2 * k + 1] * np.sin((k + 1) * x)
+        return lut
+
+    def parameters(self, coef):
+        lut = self._series(coef)
+        return {"period_rad": float(self.period), "amplitude_rad": float(np.ptp(lut) / 2)}
+
+    def extend(self, model, coef):
+        lut = self._series(coef)
+        old = model.ripple
+        if old is not None and abs(old.period_rad / self.period - 1) < 2e-3:
+            # Same period: the correction adds to the existing table (resampled onto its bins).
+            x = np.arange(len(old.lut)) * self.period / len(old.lut)
+            base = old.lut.copy()
+            lut = base + np.interp(x, np.arange(256) * self.period / 256, lut, period=self.period)
+        lut = lut - lut.mean()
+        model.ripple = RippleTable(float(self.period), lut, {
+            "amplitude_rad": float(np.ptp(lut) / 2), "method": "diagnose",
+            **{k: float(v) for k, v in self.detail.items() if v is not None}})
+
+    def evidence_axis(self, ctx):
+        return np.mod(ctx.q_m, self.period), f"q_m mod {self.period:.5f} rad [rad]"
+
+
+# ----------------------------------------------------------------------------- link torques
+
+@register_candidate
+class LinkFrictionCandidate(CandidateEffect):
+    """Coulomb and viscous friction on the link: ``-F_c tanh(omega_l / v_s) - F_v omega_l``."""
+
+    name = "link_friction"
+    summary = "link Coulomb + viscous friction"
+    smoothing_rad_s = 0.005
+
+    def n_columns(self):
+        return 2
+
+    def columns(self, ctx):
+        w = ctx.omega_fast
+        return [[("link", -np.tanh(w / self.smoothing_rad_s))], [("link", -w)]]
+
+    def parameters(self, coef):
+        return {"coulomb_nm": float(coef[0]), "viscous_nms": float(coef[1])}
+
+    def plausible(self, coef):
+        # Friction dissipates: a clearly negative level is some other misfit.
+        return coef[0] > -0.05 and coef[1] > -0.05
+
+    def from_values(self, values):
+        self.smoothing_rad_s = float(values.get("smoothing_rad_s", self.smoothing_rad_s))
+        return np.array([values.get("coulomb_nm", 2.0), values.get("viscous_nms_rad", 1.0)], float)
+
+    def extend(self, model, coef):
+        # The plant effect accepts non-negative levels only; a negative fit is clipped (and reported as fitted).
+        self._replace_effect(model, {"coulomb_nm": float(np.clip(coef[0], 0, 200)),
+                                     "viscous_nms_rad": float(np.clip(coef[1], 0, 500)),
+                                     "smoothing_rad_s": self.smoothing_rad_s})
+
+    def evidence_axis(self, ctx):
+        return ctx.omega_l, "link velocity [rad/s]"
+
+
+@register_candidate
+class PositionDependentLoadCandidate(CandidateEffect):
+    """Gravity-like load ``A sin(theta_l + phi)`` on the link.
+
+    Two columns act on the link (``A cos phi``, ``A sin phi``); two more are
+    the robot's own compensation ``-c A sin(theta_m + phi)`` added to the
+    loop's target, from which the compensated fraction ``c`` follows (1 when
+    no torque-commanded data shows it).
+    """
+
+    name = "position_dependent_load"
+    summary = "gravity-like load A sin(theta_l + phi)"
+
+    def n_columns(self):
+        return 4
+
+    def columns(self, ctx):
+        th, tm = ctx.theta_l, ctx.q_m
+        return [[("link", np.sin(th))], [("link", np.cos(th))], [("command", np.sin(tm))], [("command", np.cos(tm))]]
+
+    def _values(self, coef) -> dict[str, float]:
+        a, b = float(coef[0]), float(coef[1])
+        amp = math.hypot(a, b)
+        phase = math.atan2(b, a)
+        norm = a * a + b * b
+        comp = 1.0 if norm == 0 or (coef[2] == 0 and coef[3] == 0) else -(a * coef[2] + b * coef[3]) / norm
+        return {"amplitude_nm": amp, "phase_rad": phase, "compensated": float(np.clip(comp, 0.0, 1.0))}
+
+    def parameters(self, coef):
+        v = self._values(coef)
+        return {"amplitude_nm": v["amplitude_nm"], "phase_rad": v["phase_rad"]}
+
+    def from_values(self, values):
+        A, ph, c = values.get("amplitude_nm", 10.0), values.get("phase_rad", 0.0), values.get("compensated", 1.0)
+        a, b = A * math.cos(ph), A * math.sin(ph)
+        return np.array([a, b, -c * a, -c * b])
+
+    def extend(self, model, coef):
+        v = self._values(coef)
+        v["amplitude_nm"] = min(v["amplitude_nm"], 1000.0)
+        self._replace_effect(model, v)
+        self.detail["compensated"] = v["compensated"]
+
+    def evidence_axis(self, ctx):
+        return ctx.theta_l, "link position [rad]"
+
+
+# ----------------------------------------------------------------------------- sensor
+
+@register_candidate
+class TorqueSensorOffsetCandidate(CandidateEffect):
+    """Constant offset of the torque reading [Nm]."""
+
+    name = "torque_sensor_offset"
+    summary = "torque-sensor offset"
+
+    def n_columns(self):
+        return 1
+
+    def columns(self, ctx):
+        return [[("sensor", np.ones_like(ctx.t))]]
+
+    def parameters(self, coef):
+        return {"offset_nm": float(coef[0])}
+
+    def from_values(self, values):
+        return np.array([values.get("offset_nm", 0.5)], float)
+
+    def extend(self, model, coef):
+        self._replace_effect(model, {"offset_nm": float(np.clip(coef[0], -50, 50))})
+
+
+@register_candidate
+class TorqueSensorScaleCandidate(CandidateEffect):
+    """Scale error of the torque reading, ``reading = s tau_J``.
+
+    The column is the reading at the ``reading_scale`` point, with
+    coefficient ``(s - 1) / s`` (the reading exceeds the true torque by that
+    fraction of itself; on the link channel the model's torque prediction
+    stands in for the true torque, which makes the coefficient ``s - 1``
+    there, the same to first order).
+    """
+
+    name = "torque_sensor_scale"
+    summary = "torque-sensor scale error"
+
+    def n_columns(self):
+        return 1
+
+    def columns(self, ctx):
+        return [[("reading_scale", ctx.tau)]]
+
+    def _scale(self, coef) -> float:
+        return 1.0 / (1.0 - float(coef[0]))
+
+    def parameters(self, coef):
+        return {"scale": self._scale(coef)}
+
+    def plausible(self, coef):
+        # A torque sensor off by more than a factor 1.5 is not a calibration error.
+        return coef[0] < 1 and 0.67 <= self._scale(coef) <= 1.5
+
+    def from_values(self, values):
+        s = float(values.get("scale", 1.02))
+        return np.array([(s - 1) / s])
+
+    def extend(self, model, coef):
+        self._replace_effect(model, {"scale": float(np.clip(self._scale(coef), 0.5, 2.0))})
+
+    def evidence_axis(self, ctx):
+        return ctx.tau, "measured joint torque [Nm]"
+
+
+@register_candidate
+class PeriodicDisturbanceCandidate(CandidateEffect):
+    """Time-periodic disturbance of the torque reading at one frequency (mains hum).
+
+    The frequency is the strongest spectral line common to all datasets
+    (geometric mean over datasets of the residual periodogram relative to
+    its running median), refined by the residual fit; amplitude and phase
+    are fitted per dataset (recordings do not share a time origin).
+    """
+
+    name = "periodic_disturbance"
+    summary = "time-periodic torque-reading disturbance"
+    n_nonlinear = 1
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.frequency = 0.0
+
+    def n_columns(self):
+        return 2 * self.n_datasets
+
+    def prepare(self, blocks, residuals) -> bool:
+        from scipy.ndimage import median_filter
+
+        super().prepare(blocks, residuals)
+        # Per dataset, the fullest-band channel: the command channel when there is one.
+        best: dict[int, tuple[Block, np.ndarray]] = {}
+        for b, r in zip(blocks, residuals):
+            if b.ctx.index not in best or b.channel == "command":
+                best[b.ctx.index] = (b, r)
+        grid_hi = min(0.45 / b.ctx.dt if b.channel == "command" else 1.5 * b.ctx.cutoff_hz for b, _ in best.values())
+        grid = np.arange(1.0, grid_hi, 0.02)
+        if len(grid) < 10:
+            return False
+        score = np.zeros_like(grid)
+        for b, r in best.values():
+            dt = b.ctx.dt * (np.median(np.diff(np.nonzero(b.mask)[0])) if np.count_nonzero(b.mask) > 1 else 1)
+            x = (r - r.mean()) * np.hanning(len(r))
+            spec = np.abs(np.fft.rfft(x)) ** 2
+            freqs = np.fft.rfftfreq(len(x), dt)
+            background = median_filter(spec, size=41, mode="nearest") + 1e-30
+            score += np.log(np.interp(grid, freqs, spec / background))
+        f0 = grid[int(np.argmax(score))]
+
+        def sse(f: float) -> float:
+            self.frequency = f
+            return _sse_of(blocks, residuals, self.columns, self.n_columns())
+
+        span = 0.3
+        self.frequency = _search_1d(sse, f0 + np.linspace(-span, span, 13))
+        return True
+
+    def columns(self, ctx):
+        cols: list[Column] = []
+        w = 2 * np.pi * self.frequency * (ctx.t - ctx.t[0])
+        zero = np.zeros_like(ctx.t)
+        for i in range(self.n_datasets):
+            own = i == ctx.index
+            cols += [[("sensor", np.sin(w) if own else zero)], [("sensor", np.cos(w) if own else zero)]]
+        return cols
+
+    def _amp_phase(self, coef) -> tuple[np.ndarray, np.ndarray]:
+        c = np.asarray(coef).reshape(-1, 2)
+        return np.hypot(c[:, 0], c[:, 1]), np.arctan2(c[:, 1], c[:, 0])
+
+    def parameters(self, coef):
+        amp, _ = self._amp_phase(coef)
+        amp = amp[amp > 0]
+        return {"frequency_hz": float(self.frequency), "amplitude_nm": float(np.median(amp)) if len(amp) else 0.0}
+
+    def from_values(self, values):
+        self.frequency = float(values.get("frequency_hz", 50.0))
+        A, ph = float(values.get("amplitude_nm", 0.2)), float(values.get("phase_rad", 0.0))
+        return np.tile([A * math.cos(ph), A * math.sin(ph)], self.n_datasets)
+
+    def extend(self, model, coef):
+        amp, phase = self._amp_phase(coef)
+        self._replace_effect(model, {"amplitude_nm": float(np.clip(self.parameters(coef)["amplitude_nm"], 0, 50)),
+                                     "frequency_hz": float(self.frequency), "phase_rad": float(phase[0])})
+
+    def evidence_axis(self, ctx):
+        period = 1.0 / self.frequency
+        return np.mod(ctx.t - ctx.t[0], period), f"time mod {period * 1e3:.2f} ms [s]"
+
+
+@register_candidate
+class InputDelayCandidate(CandidateEffect):
+    """A wrong input delay T_d of eq (4).
+
+    The delay change is searched on the command channel (exact re-prediction
+    with the new delay, not a linearisation); its one column is the change of
+    the command channel's prediction, with a coefficient close to 1.
+    """
+
+    name = "input_delay"
+    summary = "wrong input delay T_d"
+    n_nonlinear = 1
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.change = 0.0
+        self._cache: dict[int, np.ndarray] = {}
+
+    def n_columns(self):
+        return 1
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        cmd = [(b, r) for b, r in zip(blocks, residuals) if b.channel == "command"]
+        if not cmd:
+            return False
+        sub_b = [b for b, _ in cmd]
+        sub_r = [r for _, r in cmd]
+        Td = cmd[0][0].ctx.params["Td"]
+        self.detail["model_delay_s"] = Td
+        self._cache = {}
+
+        def sse(change: float) -> float:
+            # Coefficient fixed at 1: a free scale would trade against the delay change.
+            self.change = change
+            self._cache = {}
+            Xs = block_columns(sub_b, self.columns, 1)
+            return float(sum(np.sum((r - X[:, 0]) ** 2) for r, X in zip(sub_r, Xs)))
+
+        dt = min(b.ctx.dt for b in sub_b)
+        grid = np.arange(-min(Td, 0.01), 0.0101, max(dt / 2, 2.5e-4))
+        self.change = _search_1d(sse, grid)
+        self._cache = {}
+        return True
+
+    def columns(self, ctx):
+        if ctx.tau_c is None:
+            return [[("command_raw", np.zeros_like(ctx.t))]]
+        if ctx.index not in self._cache:
+            Td = ctx.params["Td"]
+            self._cache[ctx.index] = command_prediction(ctx, Td + self.change) - command_prediction(ctx, Td)
+        return [[("command_raw", self._cache[ctx.index])]]
+
+    def parameters(self, coef):
+        return {"delay_s": float(self._td + self.change)}
+
+    @property
+    def _td(self) -> float:
+        return self.detail.get("model_delay_s", 0.0)
+
+    def extend(self, model, coef):
+        # The model's own T_d is corrected (it may shrink, which an extra-delay effect could not express).
+        model.parameters["Td"].value = float(max(self._td + self.change, 0.0))
+        model.parameters["Td"].std = None
+        model.effects = [e for e in model.effects if e.get("name") != self.name]
+
+    def evidence_axis(self, ctx):
+        return ctx.t, "time [s]"
+
+
+@register_candidate
+class LinkInertiaCandidate(CandidateEffect):
+    """A wrong link inertia J_l: the missing inertia acts on the link as ``-dJ theta_l''``."""
+
+    name = "link_inertia"
+    summary = "wrong link inertia J_l"
+
+    def n_columns(self):
+        return 1
+
+    def columns(self, ctx):
+        # The low-passed acceleration: eq (9) without a ripple table puts the deflection into the fast part.
+        return [[("link", -ctx.ddt(ctx.omega_l))]]
+
+    def _jl(self, coef) -> float:
+        return self.detail.get("model_Jl", 0.0) + float(coef[0])
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        self.detail["model_Jl"] = blocks[0].ctx.params["Jl"]
+        return True
+
+    def plausible(self, coef):
+        return self._jl(coef) > 0
+
+    def parameters(self, coef):
+        return {"Jl_kgm2": self._jl(coef)}
+
+    def extend(self, model, coef):
+        model.parameters["Jl"].value = max(self._jl(coef), 1e-4)
+        model.parameters["Jl"].std = None
+
+    def evidence_axis(self, ctx):
+        return ctx.ddt(ctx.omega_l), "link acceleration [rad/s^2]"

@@ -1,0 +1,288 @@
+"""``diagnose``: what the model gets wrong, which effects explain it, and what they gain.
+
+1. Every dataset is predicted with the model (:mod:`~iiwa_ident.diagnose.predict`);
+   the effects the model file already lists are part of the prediction (an
+   ``input_delay`` as a longer ``Td``; the ripple through the ``[ripple]``
+   table only, not as an ``[[effects]]`` entry).
+2. The candidate library (:mod:`~iiwa_ident.diagnose.candidates`) is tested
+   by blocked cross-validation and greedy selection (:mod:`~iiwa_ident.diagnose.select`).
+3. The named effects are refitted on all data and added to a copy of the
+   model: the ripple as a :class:`~iiwa_ident.ident.model_file.RippleTable`,
+   a delay as a corrected ``Td``, the others as ``[[effects]]`` tables the
+   simulator runs (:meth:`JointModel.to_plant`).
+4. The gain is measured on held-out data: residual RMS [Nm] before and after
+   per dataset and channel, and per effect (with and without it, on the
+   blocks it acts on). The link channel's RMS is the error of a model-based
+   external-torque estimate; the command channel's is the part of the joint
+   torque the model cannot predict from the command.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
+from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
+from iiwa_ident.diagnose.select import Selection, cv_residuals, select_effects
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.model_file import JointModel
+
+__all__ = ["EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
+
+_LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
+
+
+@dataclass
+class EffectReport:
+    """One named effect.
+
+    Attributes
+    ----------
+    name : str
+    confidence : float
+        Probability (one-sided t-test over held-out block-folds) that the effect reduces the residual.
+    parameters : dict of str to float
+        Reported parameters (units in :mod:`iiwa_ident.diagnose.candidates`).
+    rms_before, rms_after : float
+        Held-out residual RMS [Nm] without and with the effect (all other named
+        effects included), on the channels it acts on.
+    gain_pct : float
+        ``100 (1 - rms_after / rms_before)``.
+    detail : dict
+        Extra figures of the effect (compensated fraction, false-alarm probability, ...) and
+        ``selected_in``, the band or evidence channel it passed the selection's tests in.
+    """
+
+    name: str
+    confidence: float
+    parameters: dict[str, float]
+    rms_before: float
+    rms_after: float
+    gain_pct: float
+    detail: dict[str, Any] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, Any]:
+        return {"name": self.name, "confidence": self.confidence, "parameters": self.parameters,
+                "rms_before": self.rms_before, "rms_after": self.rms_after, "gain_pct": self.gain_pct,
+                "detail": self.detail}
+
+
+@dataclass
+class ChannelReport:
+    """Held-out residual RMS of one channel of one dataset [Nm]."""
+
+    dataset: str
+    experiment: str
+    channel: str
+    rms_before: float
+    rms_after: float
+
+    @property
+    def gain_pct(self) -> float:
+        return 100.0 * (1 - self.rms_after / self.rms_before) if self.rms_before > 0 else 0.0
+
+
+@dataclass
+class Diagnosis:
+    """Outcome of :func:`diagnose` (see the module docstring)."""
+
+    explained: bool
+    effects: list[EffectReport]
+    channels: list[ChannelReport]
+    model: JointModel
+    extended: JointModel
+    contexts: list[Context]
+    blocks: list[Block]
+    selection: Selection
+    heldout_before: list[np.ndarray]
+    heldout_after: list[np.ndarray]
+    model_out: str | None = None
+
+    def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
+        """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
+        total = np.zeros_like(ctx.t)
+        for cand, sl in zip(self.selection.selected, self.selection.slices):
+            if only is not None and cand.name != only:
+                continue
+            for col, c in zip(cand.columns(ctx), self.selection.coef[sl]):
+                for injection, phi in col:
+                    v = channel_columns(ctx, injection, phi).get(channel)
+                    if v is not None:
+                        total += c * v
+        return total
+
+    def residual_after(self, ctx: Context, channel: str) -> np.ndarray:
+        """The channel's residual with the named effects added to the model (in-sample) [Nm]."""
+        return ctx.residual[channel] - self.contribution(ctx, channel)
+
+    def effect(self, name: str) -> EffectReport | None:
+        """The named effect ``name``, or None."""
+        return next((e for e in self.effects if e.name == name), None)
+
+    def as_json(self) -> dict[str, Any]:
+        """The ``--json`` document."""
+        datasets: dict[str, dict[str, Any]] = {}
+        for c in self.channels:
+            d = datasets.setdefault(c.dataset, {"file": c.dataset, "experiment": c.experiment})
+            key = {"link": "ext_torque_error", "command": "command_error"}[c.channel]
+            d[f"{key}_rms_before"] = c.rms_before
+            d[f"{key}_rms_after"] = c.rms_after
+            d[f"{key}_gain_pct"] = c.gain_pct
+        return {
+            "explained": self.explained,
+            "effects": [e.as_json() for e in self.effects],
+            "model_out": self.model_out,
+            "datasets": list(datasets.values()),
+            "tried": [{"step": s.step, "name": s.name, "gain": s.gain, "delta_bic": s.delta_bic,
+                       "confidence": s.confidence, "accepted": s.accepted} for s in self.selection.steps],
+        }
+
+    def summary(self) -> str:
+        """Readable summary for the terminal."""
+        lines = []
+        if self.explained:
+            lines.append("the model explains the data: no candidate effect reduces the held-out residual enough")
+        else:
+            lines.append(f"named {len(self.effects)} effect(s):")
+            for e in self.effects:
+                pars = ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
+                lines.append(f"  {e.name:<24} confidence {e.confidence:.4f}  {pars}")
+                lines.append(f"  {'':<24} held-out RMS {e.rms_before:.4f} -> {e.rms_after:.4f} Nm "
+                             f"({e.gain_pct:.1f}% lower)")
+        lines.append("")
+        lines.append(f"  {'dataset':<28}{'channel':<10}{'RMS before [Nm]':>16}{'after [Nm]':>12}{'gain':>8}")
+        for c in self.channels:
+            lines.append(f"  {c.dataset[:27]:<28}{c.channel:<10}{c.rms_before:>16.4f}{c.rms_after:>12.4f}"
+                         f"{c.gain_pct:>7.1f}%")
+        lines.append("  (link: error of a model-based external-torque estimate; command: joint-torque response "
+                     "the model cannot predict from the command)")
+        return "\n".join(lines)
+
+
+def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tuple[CandidateEffect, np.ndarray]]:
+    """Subtract the model's own extra effects from the residuals; return them by name with coefficients."""
+    known = {}
+    for entry in model.effects:
+        name = entry["name"]
+        if name not in CANDIDATES or name == "input_delay":
+            continue
+        cand = make_candidate(name)
+        cand.n_datasets = len(contexts)
+        coef = cand.from_values({k: v for k, v in entry.items() if k != "name"})
+        if coef is None:
+            continue
+        for ctx in contexts:
+            for col, c in zip(cand.columns(ctx), coef):
+                for injection, phi in col:
+                    for ch, v in channel_columns(ctx, injection, phi).items():
+                        ctx.residual[ch] = ctx.residual[ch] - c * v
+        known[name] = (cand, coef)
+    return known
+
+
+def _blocks(contexts: list[Context]) -> list[Block]:
+    blocks = []
+    for ctx in contexts:
+        for ch in ctx.channels:
+            mask = ctx.masks[ch].copy()
+            if ch == "link":
+                step = max(1, int(1.0 / (ctx.dt * _LINK_POINTS_PER_CUTOFF * ctx.cutoff_hz)))
+                keep = np.zeros_like(mask)
+                keep[::step] = True
+                mask &= keep
+            r = ctx.residual[ch][mask]
+            rms = float(np.sqrt(np.mean(r ** 2))) if len(r) else 0.0
+            if len(r) < 10 * 5 or rms <= 0:
+                continue
+            blocks.append(Block(ctx, ch, mask, 1.0 / rms))
+    return blocks
+
+
+def _rms(parts: list[np.ndarray]) -> float:
+    x = np.concatenate(parts) if parts else np.zeros(1)
+    return float(np.sqrt(np.mean(x ** 2)))
+
+
+def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequence[str] | None = None,
+             **selection_options: Any) -> Diagnosis:
+    """Diagnose what ``model`` gets wrong on ``datasets`` and extend it.
+
+    Parameters
+    ----------
+    datasets : list of Dataset
+        Measured runs of one joint (any experiment of format v1).
+    model : JointModel
+        The model to check (e.g. from ``fit``, or Table I).
+    candidates : list of str, optional
+        Names of the effects to test (default: the whole library, :data:`CANDIDATES`).
+    **selection_options
+        ``min_gain``, ``min_confidence``, ``max_effects`` of
+        :func:`~iiwa_ident.diagnose.select.select_effects`.
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    IiwaIdentError
+        No dataset, datasets of different joints, or nothing usable to compare.
+    """
+    if not datasets:
+        raise IiwaIdentError("diagnose: no dataset given")
+    joints = {ds.joint for ds in datasets}
+    if len(joints) > 1:
+        raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
+    work = copy.deepcopy(model)
+    # A model with an extra-delay effect predicts with the total delay.
+    extra = sum(float(e.get("extra_s", 0.0)) for e in work.effects if e.get("name") == "input_delay")
+    work.parameters["Td"].value += extra
+    contexts = [build_context(ds, work, i) for i, ds in enumerate(datasets)]
+    known = _known_effects(work, contexts)
+    blocks = _blocks(contexts)
+    if not blocks:
+        names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
+        raise IiwaIdentError(f"{names}: nothing to compare (too short, or contact without a measured external torque)")
+    ys = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
+    names = list(candidates) if candidates is not None else list(CANDIDATES)
+    cands = [make_candidate(n) for n in names]
+    for c in cands:
+        if hasattr(c, "base_table"):
+            c.base_table = work.ripple
+    sel = select_effects(blocks, ys, cands, **selection_options)
+
+    before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
+    after = cv_residuals(sel.columns(blocks), ys) if sel.selected else list(before)
+    channels = []
+    for b, rb, ra in zip(blocks, before, after):
+        channels.append(ChannelReport(b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]),
+                                      _rms([ra / b.weight])))
+
+    extended = copy.deepcopy(model)
+    extended.parameters["Td"].value = work.parameters["Td"].value
+    extended.effects = [e for e in extended.effects if e.get("name") != "input_delay"]
+    effects = []
+    for cand, sl in zip(sel.selected, sel.slices):
+        coef = sel.coef[sl]
+        without = cv_residuals(sel.columns(blocks, skip=cand.name), ys)
+        own = block_columns(blocks, cand.columns, cand.n_columns())
+        acts = [i for i, X in enumerate(own) if np.any(X)]
+        rb = _rms([without[i] / blocks[i].weight for i in acts])
+        ra = _rms([after[i] / blocks[i].weight for i in acts])
+        total = coef + known[cand.name][1] if cand.name in known and len(known[cand.name][1]) == len(coef) else coef
+        cand.extend(extended, total)
+        params = cand.parameters(total)
+        effects.append(EffectReport(cand.name, sel.confidence[cand.name], params, rb, ra,
+                                    100.0 * (1 - ra / rb) if rb > 0 else 0.0,
+                                    {**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
+                                     "selected_in": sel.band[cand.name]}))
+    if effects:
+        extended.description = (extended.description + " | " if extended.description else "") + \
+            "extended by diagnose: " + ", ".join(e.name for e in effects)
+    return Diagnosis(explained=not effects, effects=effects, channels=channels, model=model, extended=extended,
+                     contexts=contexts, blocks=blocks, selection=sel, heldout_before=before, heldout_after=after)

@@ -1,0 +1,298 @@
+"""What the joint model predicts for a measured dataset, and the residual channels.
+
+Two predictions of the measured joint torque ``tau_J`` are formed, each
+giving one *residual channel* (measured minus predicted, [Nm]):
+
+``link`` (every dataset)
+    The link-side equation (2)-(3), ``tau_J = J_l theta_l'' - tau_ext``,
+    with ``theta_l`` the external link reference ``q_l_ref`` when measured,
+    else eq (9) ``theta_l = q_m - f(q_m mod rho) - tau_J / K`` with the
+    model's ripple table, and ``tau_ext`` the F/T reference (zero when not
+    measured and the experiment has no contact). Differentiating a quantised
+    position twice needs a low-pass: ``tau_J``, ``theta_l`` and ``tau_ext``
+    all pass the same zero-phase Butterworth filter (cut-off :data:`LINK_CUTOFF_HZ`,
+    at most 0.2 of the sample rate), so the equation holds filtered as it
+    holds raw. This channel is the error of a model-based external-torque
+    estimate: it sees friction, gravity-like loads, a sensor offset or
+    scale, slow time-periodic disturbances and (through eq (9)) a wrong
+    deflection at low speed.
+``command`` (torque-commanded datasets)
+    Eqs (1)-(4) driven by the measured command: with the loop input
+    ``u = tau_c(t - T_d) - tau_s`` and link-side torques ``d`` (external and
+    effects), ``tau_J = G_c tau_c(t - T_d) - G_d d + S delta_J`` and the
+    sensor reading adds ``(1 - G_c) delta_s``, where ``G_c`` is eq (4)
+    without its delay, ``G_d = J_c K / den``, ``S = J_c J_l s^2 / den`` and
+    ``den = J_c J_l s^2 + J_l b_c s + (J_c + J_l) K``. The transfer
+    functions are discretised exactly (zero-order hold) at the dataset's
+    rate; the delay is realised with linear interpolation between samples.
+    This channel sees delay errors, sensor scale, the transmission ripple
+    at any speed and fast disturbances.
+
+A candidate effect injects signals at one of the physical points below;
+:func:`channel_columns` maps an injection onto both channels, so an effect
+never needs to know the channels' equations:
+
+``link``        a torque acting on the link [Nm] (friction, loads)
+``sensor``      an additive error of the torque reading [Nm]
+``deflection``  an added transmission deflection f(theta_m) [rad], eq (5)
+``command``     a torque added to the internal loop's target [Nm] (the robot's own compensation)
+``command_raw`` a change of the command channel's prediction itself [Nm] (a delay change)
+``reading_scale`` the torque reading ``phi`` (a relative reading error): the command channel
+                sees ``(1 - G_c) phi``, the link channel the model's own link-side torque
+                prediction instead of ``phi`` (the measured torque holds whatever the model
+                misses, gravity included, which a scale must not claim)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.ident.model_file import JointModel
+
+__all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",
+           "command_prediction"]
+
+#: Cut-off of the zero-phase low-pass of the link channel [Hz].
+LINK_CUTOFF_HZ = 20.0
+#: Residual channels, in report order.
+CHANNELS = ("link", "command")
+#: Injection points an effect may use.
+INJECTIONS = ("link", "sensor", "deflection", "command", "command_raw", "reading_scale")
+
+_EDGE_S = 0.15  # filter and derivative edge effects of the link channel [s]
+_SETTLE_S = 0.3  # start-up transient of the command channel (robot released from standstill) [s]
+_CONTACT = ("hand_guided", "quasi_static")  # experiments where someone pushes the link
+
+
+@dataclass
+class Context:
+    """One dataset seen through the model (all arrays per sample, SI units).
+
+    Attributes
+    ----------
+    index : int
+        Position of the dataset in the diagnosed list.
+    name : str
+        File name (or ``dataset <index>``).
+    experiment : str
+        The dataset's experiment.
+    dt : float
+        Sample period [s].
+    t, q_m, tau : numpy.ndarray
+        Time [s], motor position [rad], measured joint torque [Nm].
+    theta_l, omega_l : numpy.ndarray
+        Low-passed link position [rad] and velocity [rad/s].
+    omega_fast : numpy.ndarray
+        Link velocity with a wide-band low-pass (0.3 of the sample rate) [rad/s],
+        for effects that are nonlinear in the velocity (friction switches with
+        the fast oscillations the link channel's filter removes).
+    tau_ext : numpy.ndarray
+        External torque used [Nm] (measured, or zero).
+    link_from_eq9 : bool
+        Whether theta_l comes from eq (9) (no external link reference).
+    tau_c : numpy.ndarray or None
+        Torque command [Nm] (torque-commanded datasets).
+    params : dict
+        Model parameters Jc, bc, K, Jl, Td used.
+    masks : dict of str to numpy.ndarray
+        Samples of each available channel.
+    measured, predicted, residual : dict of str to numpy.ndarray
+        Per channel: what is compared, the model's prediction, their difference [Nm].
+    """
+
+    index: int
+    name: str
+    experiment: str
+    dt: float
+    t: np.ndarray
+    q_m: np.ndarray
+    tau: np.ndarray
+    theta_l: np.ndarray
+    omega_l: np.ndarray
+    omega_fast: np.ndarray
+    tau_ext: np.ndarray
+    link_from_eq9: bool
+    tau_c: np.ndarray | None
+    params: dict[str, float]
+    cutoff_hz: float
+    masks: dict[str, np.ndarray] = field(default_factory=dict)
+    measured: dict[str, np.ndarray] = field(default_factory=dict)
+    predicted: dict[str, np.ndarray] = field(default_factory=dict)
+    residual: dict[str, np.ndarray] = field(default_factory=dict)
+    _sos: np.ndarray | None = None
+    _tf: dict = field(default_factory=dict)
+
+    @property
+    def channels(self) -> list[str]:
+        """Channels available for this dataset."""
+        return [c for c in CHANNELS if c in self.masks]
+
+    def lowpass(self, x: np.ndarray) -> np.ndarray:
+        """The link channel's zero-phase low-pass of ``x``."""
+        return signal.sosfiltfilt(self._sos, x)
+
+    def ddt(self, x: np.ndarray) -> np.ndarray:
+        """Time derivative by central differences [unit/s]."""
+        return np.gradient(x, self.dt)
+
+    def tf(self, name: str, x: np.ndarray, steady: bool = True) -> np.ndarray:
+        """Apply the discretised transfer function ``name`` (Gc, Gd, S, 1-Gc) to ``x``.
+
+        ``steady`` starts the filter in the steady state of ``x[0]`` (signals
+        that existed before the recording); otherwise it starts at rest.
+        """
+        b, a = self._tf[name]
+        zi = signal.lfilter_zi(b, a) * x[0] if steady else np.zeros(max(len(a), len(b)) - 1)
+        return signal.lfilter(b, a, x, zi=zi)[0]
+
+
+def _discrete(num: list[float], den: list[float], dt: float) -> tuple[np.ndarray, np.ndarray]:
+    b, a, _ = signal.cont2discrete((num, den), dt, method="zoh")
+    b = np.atleast_1d(np.squeeze(b))
+    return b / a[0], a / a[0]
+
+
+def _transfer_functions(p: dict[str, float], dt: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    Jc, bc, K, Jl = p["Jc"], p["bc"], p["K"], p["Jl"]
+    den = [Jc * Jl, Jl * bc, (Jc + Jl) * K]
+    return {
+        "Gc": _discrete([Jl * bc, Jl * K], den, dt),
+        "Gd": _discrete([Jc * K], den, dt),
+        "S": _discrete([Jc * Jl, 0.0, 0.0], den, dt),
+        "1-Gc": _discrete([Jc * Jl, 0.0, Jc * K], den, dt),
+    }
+
+
+def command_prediction(ctx: Context, Td: float) -> np.ndarray:
+    """``G_c tau_c(t - T_d)`` [Nm]: eq (4) driven by the measured command, from rest.
+
+    The delay is ``Td`` [s], realised as whole samples plus a linear
+    interpolation for the fraction.
+    """
+    n = max(Td, 0.0) / ctx.dt
+    k = int(math.floor(n))
+    frac = n - k
+    padded = np.concatenate([np.zeros(k + 1), ctx.tau_c])
+    m = len(ctx.tau_c)
+    u = (1 - frac) * padded[1:m + 1] + frac * padded[0:m]
+    return ctx.tf("Gc", u, steady=False)
+
+
+def build_context(dataset: Dataset, model: JointModel, index: int = 0,
+                  cutoff_hz: float = LINK_CUTOFF_HZ) -> Context:
+    """Predict ``dataset`` with ``model`` and form the baseline residual channels.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Any experiment of format v1 (torque-commanded or position-controlled, 200 Hz to 1 kHz).
+    model : JointModel
+        The model; its ripple table and extra effects are part of the prediction
+        only through :mod:`iiwa_ident.diagnose.candidates` (known effects are
+        added by :func:`iiwa_ident.diagnose.diagnosis.diagnose`).
+    index : int
+        Position in the diagnosed list.
+    cutoff_hz : float
+        Link-channel low-pass cut-off [Hz] (limited to 0.2 of the sample rate).
+
+    Returns
+    -------
+    Context
+    """
+    t = np.asarray(dataset["t"], float)
+    dt = float(np.median(np.diff(t)))
+    p = {k: model.value(k) for k in ("Jc", "bc", "K", "Jl", "Td")}
+    fc = min(cutoff_hz, 0.2 / dt)
+    sos = signal.butter(2, fc, fs=1.0 / dt, output="sos")
+    q_m = np.asarray(dataset["q_m"], float)
+    tau = np.asarray(dataset["tau_j"], float)
+    has_ext = dataset.has("tau_ext_ref")
+    contact = dataset.experiment in _CONTACT
+    tau_ext = np.asarray(dataset["tau_ext_ref"], float) if has_ext else np.zeros_like(t)
+    f0 = model.ripple(q_m) if model.ripple is not None else np.zeros_like(q_m)
+    from_eq9 = not dataset.has("q_l_ref")
+    theta_raw = q_m - f0 - tau / p["K"] if from_eq9 else np.asarray(dataset["q_l_ref"], float)
+    tau_c = np.asarray(dataset["tau_c"], float) if dataset.has("tau_c") else None
+    ctx = Context(index=index, name=str(dataset.path.name) if dataset.path else f"dataset {index}",
+                  experiment=dataset.experiment, dt=dt, t=t, q_m=q_m, tau=tau, theta_l=np.zeros_like(t),
+                  omega_l=np.zeros_like(t), omega_fast=np.zeros_like(t), tau_ext=tau_ext, link_from_eq9=from_eq9, tau_c=tau_c, params=p,
+                  cutoff_hz=fc, _sos=sos, _tf=_transfer_functions(p, dt))
+    ctx.theta_l = ctx.lowpass(theta_raw)
+    ctx.omega_l = ctx.ddt(ctx.theta_l)
+    wide = signal.butter(2, 0.3 / dt, fs=1.0 / dt, output="sos")
+    ctx.omega_fast = ctx.ddt(signal.sosfiltfilt(wide, theta_raw))
+    alpha = ctx.ddt(ctx.omega_l)
+    usable = not contact or has_ext  # an unmeasured push makes both equations unusable
+    n = len(t)
+    if usable and n * dt > 4 * _EDGE_S:
+        mask = (t - t[0] > _EDGE_S) & (t[-1] - t > _EDGE_S)
+        ctx.masks["link"] = mask
+        ctx.measured["link"] = ctx.lowpass(tau)
+        ctx.predicted["link"] = p["Jl"] * alpha - ctx.lowpass(tau_ext)
+    if usable and tau_c is not None and n * dt > 2 * _SETTLE_S:
+        ctx.masks["command"] = t - t[0] > _SETTLE_S
+        ctx.measured["command"] = tau
+        pred = command_prediction(ctx, p["Td"]) - ctx.tf("Gd", tau_ext)
+        if model.ripple is not None:
+            pred = pred - p["K"] * ctx.tf("S", f0)
+        ctx.predicted["command"] = pred
+    for c in ctx.masks:
+        ctx.residual[c] = ctx.measured[c] - ctx.predicted[c]
+    return ctx
+
+
+def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, np.ndarray]:
+    """What an injected signal ``phi`` adds to each residual channel of ``ctx``.
+
+    Parameters
+    ----------
+    ctx : Context
+    injection : str
+        One of :data:`INJECTIONS` (see the module docstring).
+    phi : numpy.ndarray
+        The injected signal per sample (unit of the injection point).
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        Residual change per available channel [Nm] (absent: no change).
+    """
+    if injection not in INJECTIONS:
+        raise ValueError(f"unknown injection point {injection!r}")
+    p = ctx.params
+    out: dict[str, np.ndarray] = {}
+    if "link" in ctx.masks:
+        if injection == "link":
+            # tau_J = Jl theta_l'' - tau_ext - d: an unmodelled link torque d appears as -d.
+            out["link"] = -ctx.lowpass(phi)
+        elif injection == "sensor":
+            lp = ctx.lowpass(phi)
+            col = lp
+            if ctx.link_from_eq9:  # eq (9) uses the reading: theta_l errs by -phi/K
+                col = lp + p["Jl"] / p["K"] * ctx.ddt(ctx.ddt(lp))
+            out["link"] = col
+        elif injection == "reading_scale":
+            col = ctx.predicted["link"]
+            if ctx.link_from_eq9:
+                col = col + p["Jl"] / p["K"] * ctx.ddt(ctx.ddt(ctx.lowpass(phi)))
+            out["link"] = col
+        elif injection == "deflection" and ctx.link_from_eq9:
+            # eq (9) without the deflection places the link at theta_l + f: Jl f'' too much predicted.
+            out["link"] = -p["Jl"] * ctx.ddt(ctx.ddt(ctx.lowpass(phi)))
+    if "command" in ctx.masks:
+        if injection == "link":
+            out["command"] = -ctx.tf("Gd", phi)
+        elif injection in ("sensor", "reading_scale"):
+            out["command"] = ctx.tf("1-Gc", phi)
+        elif injection == "deflection":
+            out["command"] = -p["K"] * ctx.tf("S", phi)
+        elif injection == "command":
+            out["command"] = ctx.tf("Gc", phi)
+        elif injection == "command_raw":
+            out["command"] = phi
+    return out

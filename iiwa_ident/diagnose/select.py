@@ -1,0 +1,342 @@
+"""Choosing effects by held-out evidence: blocked cross-validation and greedy forward selection.
+
+Every residual channel of every dataset is one *block*, weighted by the
+inverse of its baseline residual RMS so every block counts alike. Each block
+is cut into :data:`FOLDS` contiguous stretches in time; fold k holds the
+k-th stretch of every block (blocked k-fold: neighbouring samples are
+correlated, so random folds would leak). All coefficients are fitted jointly
+on the other folds and the held-out residual is kept.
+
+Greedy forward selection tries every remaining candidate (its nonlinear
+parameters searched again on the current in-sample residual) together with
+the already selected ones and keeps the best if all of these hold:
+
+``gain``        held-out SSE falls by at least :data:`MIN_GAIN` (relative);
+``BIC``         ``n_eff ln(SSE_new / SSE_old) + p ln(n_eff) < 0`` on the held-out
+                SSE, with ``p`` the effect's linear and searched parameters and
+                ``n_eff`` the sample count discounted by the lag-one correlation
+                of the held-out residual with the effect, ``(1 - r1) / (1 + r1)``
+                per block;
+``plausible``   the effect's own fitted parameters are physically possible
+                (:meth:`CandidateEffect.plausible`);
+``confidence``  a one-sided t-test on the relative held-out SSE reductions
+                per (block, segment) (:data:`SEGMENTS` contiguous held-out
+                segments per block), over the blocks the effect acts on, gives
+                at least :data:`MIN_CONFIDENCE`; this probability is the
+                effect's reported confidence.
+
+Each test is made twice: on the whole band and on the fast band (residual
+and regressors high-passed at :data:`FAST_BAND_HZ`, zero phase). A large
+slow misfit nothing in the library explains (an unmodelled trajectory
+dependence on a real arm) would otherwise hide a small fast effect such
+as the ripple.
+
+A candidate may bring an evidence channel of its own
+(:meth:`CandidateEffect.evidence`, e.g. the ripple's deflection in the
+motor position): a residual with its own blocks and the effect's regressors
+there, scored by the very same tests (held-out gain, BIC, t-test; its
+blocks are already weighted and the other effects do not act on it). When
+the channel carries a calibrated detection probability, the confidence is
+at most one minus its false-alarm probability. It is reported as the band
+named after the channel. Own evidence counts only when the residual
+channels do not contradict it: in at least one band the effect must lower
+the held-out SSE there (gain > 0) with a t-test probability above one half.
+An effect already in the model and corrected only slightly (a table a few
+per cent off) can be plain in a noise-free own channel and yet make the
+torque prediction no better.
+
+At each step the candidates passing on the whole band compete first
+(largest gain wins); only when none passes do those passing on the fast
+band, and only when none passes there do those passing on their own
+evidence channel. Selection stops at the first step where no candidate
+passes; on data the model explains, the first step already fails and
+nothing is named.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy import signal, stats
+
+from iiwa_ident.diagnose.candidates import Block, CandidateEffect, EvidenceChannel, block_columns
+
+__all__ = ["FOLDS", "MIN_GAIN", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS", "Step", "Selection", "cv_residuals",
+           "select_effects"]
+
+#: Number of contiguous folds per block.
+FOLDS = 5
+#: Held-out segments per block for the confidence test (a multiple of FOLDS).
+SEGMENTS = 4 * FOLDS
+#: Least relative reduction of the held-out SSE for an effect to be named.
+MIN_GAIN = 0.03
+#: Least confidence (one-sided t-test over block-folds) for an effect to be named.
+MIN_CONFIDENCE = 0.999
+#: Most effects named.
+MAX_EFFECTS = 4
+#: Lower edge of the fast band [Hz].
+FAST_BAND_HZ = 3.0
+#: Bands an effect is judged in, in order of precedence.
+BANDS = ("full", "fast")
+
+
+def _fold_ids(m: int) -> np.ndarray:
+    return np.minimum((np.arange(m) * FOLDS) // max(m, 1), FOLDS - 1)
+
+
+def cv_residuals(Xs: Sequence[np.ndarray], ys: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Held-out residual of each block under blocked k-fold least squares.
+
+    Parameters
+    ----------
+    Xs : list of numpy.ndarray
+        Weighted regressors per block (samples x p); p may be 0.
+    ys : list of numpy.ndarray
+        Weighted residual per block.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        ``y - X coef_(-k)`` with the coefficients fitted without the sample's fold.
+    """
+    out = [y.copy() for y in ys]
+    p = Xs[0].shape[1] if Xs else 0
+    if p == 0:
+        return out
+    folds = [_fold_ids(len(y)) for y in ys]
+    X, y = np.vstack(Xs), np.concatenate(ys)
+    f = np.concatenate(folds)
+    for k in range(FOLDS):
+        train = f != k
+        coef = np.linalg.lstsq(X[train], y[train], rcond=None)[0]
+        for i, (Xb, fb) in enumerate(zip(Xs, folds)):
+            test = fb == k
+            out[i][test] = ys[i][test] - Xb[test] @ coef
+    return out
+
+
+def _fold_sse(res: Sequence[np.ndarray]) -> np.ndarray:
+    """SSE per (block, segment): :data:`SEGMENTS` contiguous segments, each inside one fold."""
+    out = np.zeros((len(res), SEGMENTS))
+    for i, r in enumerate(res):
+        seg = np.minimum((np.arange(len(r)) * SEGMENTS) // max(len(r), 1), SEGMENTS - 1)
+        out[i] = np.bincount(seg, weights=r ** 2, minlength=SEGMENTS)
+    return out
+
+
+def _n_eff(res: Sequence[np.ndarray]) -> float:
+    total = 0.0
+    for r in res:
+        r = r - r.mean()
+        denom = float(np.dot(r, r))
+        r1 = float(np.dot(r[1:], r[:-1]) / denom) if denom > 0 and len(r) > 2 else 0.0
+        r1 = min(max(r1, 0.0), 0.98)
+        total += len(r) * (1 - r1) / (1 + r1)
+    return max(total, 10.0)
+
+
+@dataclass
+class Step:
+    """One candidate tried at one greedy step, in one band (``full``, ``fast``, or its own evidence channel's name)."""
+
+    step: int
+    name: str
+    gain: float
+    delta_bic: float
+    confidence: float
+    accepted: bool = False
+    band: str = "full"
+    implausible: bool = False
+
+
+@dataclass
+class Selection:
+    """Outcome of :func:`select_effects`.
+
+    Attributes
+    ----------
+    selected : list of CandidateEffect
+        Named effects, in order of selection.
+    slices : list of slice
+        Each selected effect's columns in the joint coefficient vector.
+    coef : numpy.ndarray
+        Joint least-squares coefficients on all data.
+    confidence, gain : dict of str to float
+        Per named effect, at the step it was selected.
+    steps : list of Step
+        Every candidate tried, for the report.
+    """
+
+    selected: list[CandidateEffect] = field(default_factory=list)
+    slices: list[slice] = field(default_factory=list)
+    coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    confidence: dict[str, float] = field(default_factory=dict)
+    gain: dict[str, float] = field(default_factory=dict)
+    band: dict[str, str] = field(default_factory=dict)
+    steps: list[Step] = field(default_factory=list)
+
+    def columns(self, blocks: Sequence[Block], skip: str | None = None) -> list[np.ndarray]:
+        """Weighted regressors of the selected effects (optionally without one)."""
+        mats = [[np.zeros((np.count_nonzero(b.mask), 0))] for b in blocks]
+        for cand in self.selected:
+            if cand.name == skip:
+                continue
+            for i, X in enumerate(block_columns(blocks, cand.columns, cand.n_columns())):
+                mats[i].append(X)
+        return [np.hstack(m) for m in mats]
+
+
+def _band_filters(blocks: Sequence[Block]) -> list:
+    """Per block, the zero-phase high-pass of the fast band (on the block's own sample spacing)."""
+    out = []
+    for b in blocks:
+        idx = np.nonzero(b.mask)[0]
+        dt = b.ctx.dt * (float(np.median(np.diff(idx))) if len(idx) > 1 else 1.0)
+        out.append(signal.butter(2, FAST_BAND_HZ, btype="highpass", fs=1.0 / dt, output="sos"))
+    return out
+
+
+def _in_band(band: str, filters: list, arrays: Sequence[np.ndarray]) -> list[np.ndarray]:
+    if band == "full":
+        return list(arrays)
+    return [signal.sosfiltfilt(f, a, axis=0) if a.size else a for f, a in zip(filters, arrays)]
+
+
+def _score(step: int, name: str, band: str, Xs: list[np.ndarray], Xc: list[np.ndarray], ys: list[np.ndarray],
+           cur_res: list[np.ndarray], n_nonlinear: int) -> tuple[Step, list[np.ndarray]] | None:
+    """Held-out gain, BIC change and confidence of adding columns ``Xc`` (all in one band)."""
+    sse_old = sum(float(np.sum(r ** 2)) for r in cur_res)
+    res = cv_residuals(Xs, ys)
+    sse = sum(float(np.sum(r ** 2)) for r in res)
+    gain = 1 - sse / sse_old if sse_old > 0 else 0.0
+    p = sum(1 for j in range(Xc[0].shape[1]) if any(np.any(X[:, j]) for X in Xc)) + n_nonlinear
+    n_eff = _n_eff(res)
+    dbic = n_eff * math.log(max(sse, 1e-300) / max(sse_old, 1e-300)) + p * math.log(n_eff)
+    # Relative reduction per (block, fold), on the blocks the effect acts on.
+    acts = [i for i, X in enumerate(Xc) if np.any(X)]
+    old = _fold_sse(cur_res)[acts]
+    diff = ((old - _fold_sse(res)[acts]) / np.maximum(old, 1e-300)).ravel()
+    if len(diff) < 2:
+        return None
+    sd = diff.std(ddof=1)
+    t = diff.mean() / (sd / math.sqrt(len(diff))) if sd > 0 else (math.inf if diff.mean() > 0 else 0.0)
+    conf = float(stats.t.cdf(t, len(diff) - 1)) if math.isfinite(t) else 1.0
+    return Step(step, name, gain, dbic, conf, band=band), res
+
+
+_OWN = "own evidence channel"
+
+
+def _score_own(step: int, cand: CandidateEffect, ev: EvidenceChannel) -> Step | None:
+    """:func:`_score` on a candidate's own evidence channel (nothing else acts on it), confidence capped."""
+    if not ev.X or any(len(y) < 2 * SEGMENTS for y in ev.y):
+        return None
+    scored = _score(step, cand.name, ev.name, ev.X, ev.X, ev.y, list(ev.y), cand.n_nonlinear)
+    if scored is None:
+        return None
+    record = scored[0]
+    if ev.false_alarm is not None:
+        record.confidence = min(record.confidence, 1.0 - float(ev.false_alarm))
+    return record
+
+
+def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates: Sequence[CandidateEffect],
+                   min_gain: float = MIN_GAIN, min_confidence: float = MIN_CONFIDENCE,
+                   max_effects: int = MAX_EFFECTS) -> Selection:
+    """Greedy forward selection of candidate effects (see the module docstring).
+
+    Parameters
+    ----------
+    blocks : list of Block
+    ys : list of numpy.ndarray
+        Weighted baseline residual per block.
+    candidates : list of CandidateEffect
+    min_gain, min_confidence : float
+        Acceptance thresholds.
+    max_effects : int
+        Most effects named.
+
+    Returns
+    -------
+    Selection
+    """
+    sel = Selection()
+    remaining = list(candidates)
+    filters = _band_filters(blocks)
+    ys = list(ys)
+    ys_band = {band: _in_band(band, filters, ys) for band in BANDS}
+    cur_X = [np.zeros((len(y), 0)) for y in ys]
+    in_sample = list(ys)
+    step = 0
+    while remaining and len(sel.selected) < max_effects:
+        step += 1
+        cur_band = {band: _in_band(band, filters, cur_X) for band in BANDS}
+        cur_res = {band: cv_residuals(cur_band[band], ys_band[band]) for band in BANDS}
+        passed: dict[str, list] = {band: [] for band in BANDS + (_OWN,)}
+        for cand in remaining:
+            if not cand.prepare(blocks, in_sample):
+                continue
+            Xc = block_columns(blocks, cand.columns, cand.n_columns())
+            full_norm = np.sqrt(sum(np.sum(X ** 2, axis=0) for X in Xc))
+            records: list[tuple[str, Step]] = []
+            fit = None
+            for band in BANDS:
+                Xc_b = _in_band(band, filters, Xc)
+                # A column with (almost) nothing in the band says nothing there; left in, it only adds rounding noise.
+                band_norm = np.sqrt(sum(np.sum(X ** 2, axis=0) for X in Xc_b))
+                dead = band_norm <= 1e-3 * np.maximum(full_norm, 1e-300)
+                if dead.all():
+                    continue
+                Xc_b = [np.where(dead, 0.0, X) for X in Xc_b]
+                Xs_b = [np.hstack([a, b]) for a, b in zip(cur_band[band], Xc_b)]
+                scored = _score(step, cand.name, band, Xs_b, Xc_b, ys_band[band], cur_res[band], cand.n_nonlinear)
+                if scored is None:
+                    continue
+                records.append((band, scored[0]))
+            ev = cand.evidence(blocks)
+            own = _score_own(step, cand, ev) if ev is not None else None
+            # Own evidence counts only where the residual channels do not contradict it.
+            agrees = any(r.gain > 0 and r.confidence > 0.5 for _, r in records)
+            if own is not None:
+                records.append((_OWN, own))
+            for band, record in records:
+                sel.steps.append(record)
+                if band == _OWN and not agrees:
+                    continue
+                if record.gain >= min_gain and record.delta_bic < 0 and record.confidence >= min_confidence:
+                    # The effect's own fit (on the residual channels) must be physically possible (a negative
+                    # friction is a symptom of something else).
+                    if fit is None:
+                        fit = np.linalg.lstsq(np.vstack([np.hstack([a, b]) for a, b in zip(cur_X, Xc)]),
+                                              np.concatenate(ys), rcond=None)[0][-cand.n_columns():]
+                    if cand.plausible(fit):
+                        passed[band].append((cand, Xc, record))
+                    else:
+                        record.implausible = True
+        # The whole band first (it judges the effect everywhere); the fast band only when nothing passes there;
+        # an effect's own evidence channel last.
+        choice = next((passed[band] for band in BANDS + (_OWN,) if passed[band]), None)
+        if not choice:
+            break
+        cand, Xc, record = max(choice, key=lambda x: x[2].gain)
+        record.accepted = True
+        start = cur_X[0].shape[1]
+        sel.selected.append(cand)
+        sel.slices.append(slice(start, start + cand.n_columns()))
+        sel.confidence[cand.name] = record.confidence
+        sel.gain[cand.name] = record.gain
+        sel.band[cand.name] = record.band
+        remaining.remove(cand)
+        cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
+        X, y = np.vstack(cur_X), np.concatenate(ys)
+        coef = np.linalg.lstsq(X, y, rcond=None)[0]
+        in_sample = [yb - Xb @ coef for yb, Xb in zip(ys, cur_X)]
+    if sel.selected:
+        # Searched parameters may have moved after later selections: rebuild the columns once more.
+        cur_X = sel.columns(blocks)
+        X, y = np.vstack(cur_X), np.concatenate(ys)
+        sel.coef = np.linalg.lstsq(X, y, rcond=None)[0]
+    return sel

@@ -1,0 +1,270 @@
+"""Discrepancy diagnosis: hidden effects found, clean data left alone, real logs, model file, CLI, batch."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from conftest import REAL_LOGS
+from iiwa_ident.cli import app
+from iiwa_ident.datasets import import_columns, write_dataset
+from iiwa_ident.diagnose import CANDIDATES, CandidateEffect, build_context, diagnose
+from iiwa_ident.diagnose.benchmark import TOLERANCES, Case, draw_case, run_case, score_case, simulate_case
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.excite import ConstantVelocity, record
+from iiwa_ident.ident import ModelError, model_from_dict, read_model, table1_model, write_model
+from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.sim.effects import make_effect
+
+PAPER_RHO = 0.01963
+
+# One hidden effect each: (plant table, expected JSON parameters).
+SINGLE = {
+    "transmission_ripple": ({"period_rad": 0.02, "harmonics": [[5e-5, 0.4]]},
+                            {"period_rad": 0.02, "amplitude_rad": 5e-5}),
+    "link_friction": ({"coulomb_nm": 1.5, "viscous_nms_rad": 2.0}, {"coulomb_nm": 1.5, "viscous_nms": 2.0}),
+    "position_dependent_load": ({"amplitude_nm": 6.0, "phase_rad": 0.7, "compensated": 1.0},
+                                {"amplitude_nm": 6.0, "phase_rad": 0.7}),
+    "torque_sensor_offset": ({"offset_nm": -0.8}, {"offset_nm": -0.8}),
+    "torque_sensor_scale": ({"scale": 1.06}, {"scale": 1.06}),
+    "periodic_disturbance": ({"amplitude_nm": 0.25, "frequency_hz": 50.0, "phase_rad": 0.3},
+                             {"amplitude_nm": 0.25, "frequency_hz": 50.0}),
+    "input_delay": ({"extra_s": 0.002}, {"delay_s": 0.007}),
+}
+
+
+def _case(seed: int, **effects: str) -> Case:
+    case = Case(seed)
+    for name in effects.values():
+        case.hidden[name], case.expected[name] = SINGLE[name]
+    return case
+
+
+def _named(d) -> dict:
+    return {e.name: e.parameters for e in d.effects}
+
+
+def _real(joint: int):
+    d = REAL_LOGS / f"joint{joint}" / "vel_p3"
+    if not d.exists():
+        pytest.skip(f"real iiwa 14 logs not found at {d}")
+    return import_columns({"t": d / "cur_traj_time_s.txt", "q_m": d / "joint_position_measured.txt",
+                           "tau_j": d / "joint_torque_measured.txt"}, joint=joint, experiment="constant_velocity")
+
+
+class TestPrediction:
+    def test_clean_residuals_are_noise(self):
+        # Table I plant without effects: both channels are at the sensor noise (0.02 Nm), whatever the experiment.
+        for ds in simulate_case(Case(5)):
+            ctx = build_context(ds, table1_model())
+            assert set(ctx.channels) == {"link", "command"}
+            for ch in ctx.channels:
+                r = ctx.residual[ch][ctx.masks[ch]]
+                assert np.sqrt(np.mean(r ** 2)) < 0.08, (ds.experiment, ch)
+
+    def test_position_mode_has_link_channel_only(self):
+        ds = record(SimulatedJoint(table1_model().to_plant().without_effects(), seed=1),
+                    ConstantVelocity([0.5], range_rad=0.4, mode="position"), record_every=5)
+        ctx = build_context(ds, table1_model())
+        assert ctx.channels == ["link"] and ctx.dt == pytest.approx(0.005)
+
+
+class TestSingleEffects:
+    @pytest.mark.parametrize("name", list(SINGLE))
+    def test_found_alone_with_parameters(self, name):
+        case = _case(7, a=name)
+        d = diagnose(simulate_case(case), table1_model())
+        score = score_case(case, _named(d))
+        assert score["hit"], (score, _named(d))
+        e = d.effects[0]
+        assert e.confidence >= 0.999
+        assert e.rms_after < e.rms_before and e.gain_pct > 0
+
+    def test_clean_data_names_nothing(self):
+        d = diagnose(simulate_case(Case(11)), table1_model())
+        assert d.explained and d.effects == []
+        doc = d.as_json()
+        assert doc["explained"] is True and doc["effects"] == []
+        # The extended model is the model itself.
+        assert d.extended.effects == [] and d.extended.ripple is None
+
+    def test_two_effects_at_once(self):
+        case = _case(12, a="link_friction", b="periodic_disturbance")
+        d = diagnose(simulate_case(case), table1_model())
+        assert score_case(case, _named(d))["hit"], _named(d)
+
+    def test_position_controlled_200hz(self):
+        # A position-mode run at 200 Hz (no command channel) with an unknown payload.
+        plant = table1_model().to_plant().without_effects().with_effects(
+            make_effect("position_dependent_load", {"amplitude_nm": 5.0, "phase_rad": -0.5, "compensated": 0.0}))
+        ds = record(SimulatedJoint(plant, seed=3), ConstantVelocity([0.3, 0.8], range_rad=1.0, mode="position"),
+                    record_every=5)
+        d = diagnose([ds], table1_model())
+        assert [e.name for e in d.effects] == ["position_dependent_load"]
+        p = d.effects[0].parameters
+        assert p["amplitude_nm"] == pytest.approx(5.0, rel=0.1)
+        assert abs(p["phase_rad"] + 0.5) < 0.1
+
+
+class TestExtendedModel:
+    def test_extension_removes_the_discrepancy(self):
+        # Diagnosing again with the extended model finds nothing more.
+        case = _case(13, a="link_friction", b="transmission_ripple")
+        data = simulate_case(case)
+        d = diagnose(data, table1_model())
+        assert {e.name for e in d.effects} == {"link_friction", "transmission_ripple"}
+        ext = d.extended
+        assert ext.ripple is not None and abs(ext.ripple.period_rad / 0.02 - 1) < 2e-3
+        assert [e["name"] for e in ext.effects] == ["link_friction"]
+        again = diagnose(data, ext)
+        assert again.explained, [e.name for e in again.effects]
+
+    def test_delay_corrects_td(self):
+        case = _case(14, a="input_delay")
+        d = diagnose(simulate_case(case), table1_model())
+        assert d.extended.value("Td") == pytest.approx(0.007, abs=3e-4)
+
+    def test_model_file_effects_round_trip(self, tmp_path):
+        m = table1_model()
+        m.effects = [{"name": "link_friction", "coulomb_nm": 1.0, "viscous_nms_rad": 0.5},
+                     {"name": "torque_sensor_offset", "offset_nm": 0.3}]
+        write_model(tmp_path / "m.toml", m)
+        back = read_model(tmp_path / "m.toml")
+        assert back.effects == m.effects
+        plant = back.to_plant()
+        assert plant.effect("link_friction").values["coulomb_nm"] == 1.0
+        trace = SimulatedJoint(plant, seed=1).run_open_loop(tau_c=np.full(500, 3.0))
+        assert np.all(np.isfinite(trace.measured["tau_j"]))
+
+    def test_old_model_files_still_read_and_write_unchanged(self, tmp_path):
+        m = table1_model()
+        assert "effects" not in m.to_dict()
+        write_model(tmp_path / "m.toml", m)
+        assert "effects" not in (tmp_path / "m.toml").read_text()
+        assert read_model(tmp_path / "m.toml").effects == []
+
+    @pytest.mark.parametrize("effects, match", [
+        ([{"name": "no_such_effect"}], "unknown effect"),
+        ([{"name": "link_friction", "coulomb_nm": -1.0}], "coulomb_nm"),
+        ([{"coulomb_nm": 1.0}], "name"),
+        ("friction", "list"),
+    ])
+    def test_invalid_effects_rejected(self, effects, match):
+        doc = table1_model().to_dict()
+        doc["effects"] = effects
+        with pytest.raises(ModelError, match=match):
+            model_from_dict(doc, where="m.toml: ")
+
+
+class TestRealLogs:
+    def test_joint2_ripple_named_with_the_papers_period(self):
+        # 200 Hz, position-controlled, gravity and friction present, a Table I model (of another joint).
+        d = diagnose([_real(2)], table1_model())
+        ripple = d.effect("transmission_ripple")
+        assert ripple is not None
+        assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3
+        assert ripple.rms_after < ripple.rms_before
+        # Gravity of the arm is the largest discrepancy of a Table I model on joint 2.
+        assert d.effects[0].name == "position_dependent_load"
+
+    def test_joint4_ripple_named_on_its_deflection_evidence(self):
+        # Position-controlled: the ripple's torque signature is hundredths of a Nm (too small for the torque
+        # channels to name it), its deflection in q_m is plain; the candidate's own evidence channel names it.
+        d = diagnose([_real(4)], table1_model())
+        ripple = d.effect("transmission_ripple")
+        assert ripple is not None
+        assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3
+        assert ripple.detail["selected_in"] == "deflection"
+        assert ripple.confidence >= 0.999
+        assert d.effects[0].name == "position_dependent_load"
+        own = [s for s in d.selection.steps if s.accepted and s.name == "transmission_ripple"][0]
+        assert own.gain > 0.3 and own.delta_bic < 0
+
+
+class TestLibrary:
+    def test_registry_has_the_required_effects(self):
+        for name in ("transmission_ripple", "link_friction", "position_dependent_load", "torque_sensor_offset",
+                     "torque_sensor_scale", "periodic_disturbance", "input_delay"):
+            assert name in CANDIDATES and issubclass(CANDIDATES[name], CandidateEffect)
+
+    def test_subset_of_candidates(self):
+        case = _case(15, a="torque_sensor_offset")
+        d = diagnose(simulate_case(case), table1_model(), candidates=["link_friction"])
+        assert d.explained or d.effects[0].name == "link_friction"
+
+    def test_errors(self):
+        with pytest.raises(IiwaIdentError, match="no dataset"):
+            diagnose([], table1_model())
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """Three simulated runs with a hidden sensor offset and a Table I model file."""
+    tmp = tmp_path_factory.mktemp("diag")
+    case = _case(16, a="torque_sensor_offset")
+    paths = []
+    for i, ds in enumerate(simulate_case(case)):
+        paths.append(str(write_dataset(tmp / f"d{i}.h5", ds)))
+    write_model(tmp / "model.toml", table1_model())
+    return tmp, paths
+
+
+class TestCli:
+    def test_json_and_extended_model(self, files):
+        tmp, paths = files
+        res = CliRunner().invoke(app, ["diagnose", "--model", str(tmp / "model.toml"), "--json", str(tmp / "d.json"),
+                                       "--out", str(tmp / "ext.toml"), "--figures", str(tmp / "fig"), *paths])
+        assert res.exit_code == 0, res.output
+        doc = json.loads((tmp / "d.json").read_text())
+        assert set(doc) >= {"explained", "effects", "model_out"}
+        assert doc["explained"] is False and doc["model_out"] == str(tmp / "ext.toml")
+        e = doc["effects"][0]
+        assert set(e) >= {"name", "confidence", "parameters", "rms_before", "rms_after", "gain_pct"}
+        assert e["name"] == "torque_sensor_offset" and abs(e["parameters"]["offset_nm"] + 0.8) < 0.05
+        ext = read_model(tmp / "ext.toml")
+        assert ext.effects == [{"name": "torque_sensor_offset", "offset_nm": pytest.approx(-0.8, abs=0.05)}]
+        trace = SimulatedJoint(ext.to_plant(), seed=1).run_open_loop(tau_c=np.full(300, 2.0))
+        assert np.all(np.isfinite(trace.measured["tau_j"]))
+        figs = {p.name for p in (tmp / "fig").iterdir()}
+        assert {"diagnose_gain_table.png", "diagnose_evidence_torque_sensor_offset.png"} <= figs
+
+    @pytest.mark.parametrize("kind", ["missing_data", "missing_model", "bad_model"])
+    def test_one_line_errors(self, files, kind):
+        tmp, paths = files
+        (tmp / "bad.toml").write_text("format = 'iiwa-ident-model'\nformat_version = 1\n[parameters]\n")
+        model = {"missing_model": tmp / "nope.toml", "bad_model": tmp / "bad.toml"}.get(kind, tmp / "model.toml")
+        data = [str(tmp / "nope.h5")] if kind == "missing_data" else paths[:1]
+        res = CliRunner().invoke(app, ["diagnose", "--model", str(model), *data])
+        assert res.exit_code == 2
+        lines = [ln for ln in res.output.strip().splitlines() if ln]
+        assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in res.output
+        assert ("nope" in lines[0]) or ("bad.toml" in lines[0])
+
+
+# Fast subset of the randomised batch (the whole batch: bench/bench_diagnose.py).
+BATCH_SEEDS = range(101, 109)
+
+
+class TestRandomBatch:
+    def test_draws_are_seeded_and_varied(self):
+        cases = [draw_case(s) for s in range(1, 31)]
+        assert draw_case(3).expected == draw_case(3).expected
+        counts = [len(c.expected) for c in cases]
+        assert {0, 1, 2} <= set(counts)
+        assert len({n for c in cases for n in c.expected}) == 7
+        for c in cases:
+            for name, pars in c.expected.items():
+                assert set(pars) == set(TOLERANCES[name])
+
+    def test_fast_subset(self):
+        rows = [run_case(seed) for seed in BATCH_SEEDS]
+        hits = sum(r["hit"] for r in rows) / len(rows)
+        false = sum(len(r["false"]) for r in rows)
+        summary = [(r["seed"], r["hidden"], sorted(r["named"]), r["bad_parameters"]) for r in rows]
+        assert hits >= 0.75, summary
+        assert false <= 1, summary
+        assert all(math.isfinite(r["diagnose_s"]) and r["diagnose_s"] < 20 for r in rows)
