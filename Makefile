@@ -16,18 +16,12 @@ $(STAMP): pyproject.toml
 DEMO := reports/demo
 CLI := $(BIN)/iiwa-ident
 
-# The main job on the default simulated joint: chirp -> fit -> constant velocity -> ripple -> design -> deploy.
+# The whole pipeline on the default simulated joint: experiments, fit, ripple, design, deploy, the closed loop
+# through the FRI runtime against the emulator, diagnosis, and the PDF report (about a minute after the install).
 demo: $(STAMP)
-	@mkdir -p $(DEMO)
-	$(CLI) chirp --target sim --duration 30 --seed 1 --out $(DEMO)/chirp.h5
-	$(CLI) fit $(DEMO)/chirp.h5 --out $(DEMO)/model.toml --json $(DEMO)/fit.json --figures $(DEMO)/figures
-	$(CLI) simulate constant_velocity --velocity 0.3,0.6,1.2 --seed 2 --out $(DEMO)/constant_velocity.h5
-	$(CLI) ripple $(DEMO)/constant_velocity.h5 --model $(DEMO)/model.toml --out $(DEMO)/model_ripple.toml \
-		--json $(DEMO)/ripple.json --figures $(DEMO)/figures
-	$(CLI) design --model $(DEMO)/model_ripple.toml --out $(DEMO)/design.toml --json $(DEMO)/design.json
-	$(CLI) deploy --design $(DEMO)/design.toml --out $(DEMO)/controller.toml --json $(DEMO)/controller.json
-	@echo "outputs in $(DEMO): chirp.h5, model.toml, constant_velocity.h5, model_ripple.toml, design.toml,"
-	@echo "  controller.toml, *.json and figures/*.png (inspect a dataset with: $(CLI) info $(DEMO)/chirp.h5)"
+	@mkdir -p reports
+	$(CLI) pipeline --target sim --workdir $(DEMO); status=$$?; cp $(DEMO)/report.pdf reports/demo.pdf; exit $$status
+	@echo "report: reports/demo.pdf; every intermediate file in $(DEMO)/ (pipeline.json lists them)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -38,6 +32,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/bench_logwriter.py
 	$(BIN)/python bench/bench_fri_runtime.py 60
 	$(BIN)/python bench/bench_diagnose.py
+	$(BIN)/python bench/bench_pipeline.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -312,6 +312,35 @@ class TestRefusals:
             fit_transfer_function([Dataset(signals, "chirp", "simulation", 1, 1000.0)])
 
 
+class TestLostCycles:
+    """Over FRI a lost message leaves a gap in the log while the robot holds its command."""
+
+    @staticmethod
+    def _fri_like(lost: np.ndarray, seed: int = 3) -> Dataset:
+        chirp = simulate_chirp(TABLE1, seed, ripple=False, duration_s=8.0, f0_hz=1.0, f1_hz=100.0)
+        u = chirp["tau_c"].copy()
+        for k in lost:  # the robot repeats the previous command in a cycle it got no answer for
+            u[k] = u[k - 1]
+        plant = default_plant().without_effects()
+        trace = SimulatedJoint(plant, seed=seed).run_open_loop(tau_c=u)
+        keep = np.setdiff1d(np.arange(len(u)), lost)
+        signals = {"t": chirp["t"][keep], "q_m": trace.measured["q_m"][keep], "tau_j": trace.measured["tau_j"][keep],
+                   "tau_c": u[keep]}
+        return Dataset(signals, "chirp", "robot", 1, 1000.0, dict(chirp.experiment_attrs))
+
+    def test_few_lost_cycles_are_filled_and_reported(self):
+        rng = np.random.default_rng(0)
+        lost = np.sort(rng.choice(np.arange(100, 7900), 40, replace=False))  # 0.5 %, single cycles
+        result = fit_transfer_function([self._fri_like(lost)])
+        assert_accurate(result.parameters, TABLE1)
+        assert any("40 lost robot cycles filled" in w for w in result.warnings)
+
+    def test_too_many_lost_cycles_refused(self):
+        lost = np.arange(1000, 1200, 2)[:100]  # 1.25 % of the cycles
+        with pytest.raises(IiwaIdentError, match="100 robot cycles lost"):
+            fit_transfer_function([self._fri_like(lost)])
+
+
 class TestFitModel:
     def test_model_file_round_trip(self, ripple_files, tmp_path):
         path, _ = ripple_files[0]

@@ -13,6 +13,8 @@ from iiwa_ident.cli import deploy_cmd as _deploy_cmd  # noqa: F401
 from iiwa_ident.cli import run_cmd as _run_cmd  # noqa: F401
 from iiwa_ident.cli import diagnose_cmd as _diagnose_cmd  # noqa: F401
 from iiwa_ident.cli import emulate_cmd as _emulate_cmd  # noqa: F401
+from iiwa_ident.cli import pipeline_cmd as _pipeline_cmd  # noqa: F401
+from iiwa_ident.cli import report_cmd as _report_cmd  # noqa: F401
 
 __all__ = ["app", "fail", "main"]
 

@@ -86,7 +86,6 @@ class FriRobot(RobotInterface):
         self.connection: FriConnection | None = FriConnection(host, self.port, bind_host, _N_JOINTS)
         self.stats = self.connection.stats  # the connection's counters, kept after it is closed
         self._msg: MonitoringMessage | None = None
-        self._t0: tuple[int, int] | None = None
         self._seq0 = 0
 
     # ------------------------------------------------------------------ helpers
@@ -139,11 +138,10 @@ class FriRobot(RobotInterface):
 
     def _measurement(self, msg: MonitoringMessage) -> Measurement:
         j = self.joint - 1
-        ts = msg.monitor_data.timestamp if msg.monitor_data is not None else None
-        if ts is not None and self._t0 is not None:
-            t = (ts[0] - self._t0[0]) + (ts[1] - self._t0[1]) * 1e-9
-        else:  # no robot clock: count the robot's cycles
-            t = ((msg.header.sequence_counter - self._seq0) % (1 << 32)) * self.sample_time_s
+        # Time counts the robot's cycles (its sequence counter), not its timestamp: the controller runs
+        # one cycle per send period, so the log is on a uniform grid, with a lost message a gap of whole
+        # cycles, which is what identification needs; the timestamp carries the sender's jitter.
+        t = ((msg.header.sequence_counter - self._seq0) % (1 << 32)) * self.sample_time_s
         ext = msg.monitor_data.external_torque
         return Measurement(t=t, q_m=self._values(msg, "measured_joint_position")[j],
                            tau_j=self._values(msg, "measured_torque")[j],
@@ -186,7 +184,6 @@ class FriRobot(RobotInterface):
             if self._state(msg) == SessionState.COMMANDING_ACTIVE:
                 self._check_settings(msg)
                 self._msg = msg
-                self._t0 = msg.monitor_data.timestamp if msg.monitor_data is not None else None
                 self._seq0 = msg.header.sequence_counter
                 self.missed_cycles = 0
                 return self._measurement(msg)

@@ -355,6 +355,7 @@ class _Record:
     n_blocks: int
     joint: int
     spectra: list[_frf.CrossSpectra] | None = None
+    filled_cycles: int = 0
 
     @property
     def n(self) -> int:
@@ -385,9 +386,11 @@ def _prepare(ds: Dataset, index: int) -> _Record:
                              f"{MIN_DURATION_S:g} s)")
     dt = np.diff(t)
     T = float(np.median(dt))
-    if T <= 0 or np.max(np.abs(dt - T)) > 1e-3 * T:
-        raise IiwaIdentError(f"{label}: sample times are not uniform; fit needs one command per sample")
     u = np.asarray(ds["tau_c"], float)
+    tau_j, q = np.asarray(ds["tau_j"], float), np.asarray(ds["q_m"], float)
+    filled = 0
+    if T <= 0 or np.max(np.abs(dt - T)) > 1e-3 * T:
+        u, tau_j, q, filled = _fill_lost_cycles(t, T, u, tau_j, q, label)
     spread = float(np.std(u))
     if spread < MIN_COMMAND_STD_NM:
         raise IiwaIdentError(f"{label}: too little excitation: the torque command varies by only {spread:.3g} Nm "
@@ -408,13 +411,43 @@ def _prepare(ds: Dataset, index: int) -> _Record:
     if not 0 < f_lo < f_hi:
         raise IiwaIdentError(f"{label}: the excitation band {f_lo:g}-{f_hi:g} Hz is empty at {fs:g} Hz sampling")
     knot = min(max(0.25 / f_lo, 0.1), 2.0)  # drift slower than a quarter of the lowest excitation
-    q = np.asarray(ds["q_m"], float)
     n = u.shape[0]
     per_block = max(1, int(round(_BLOCK_S / T)))
     block = np.minimum(np.arange(n) // per_block, max(n // per_block - 1, 0))
-    return _Record(label=label, T=T, u=u, tau=np.asarray(ds["tau_j"], float), q=q - q[0], f_lo=f_lo, f_hi=f_hi,
+    return _Record(label=label, T=T, u=u, tau=tau_j, q=q - q[0], f_lo=f_lo, f_hi=f_hi,
                    sweep=sweep, drift_basis=_spline_basis(n, T, knot), block=block, n_blocks=int(block.max()) + 1,
-                   joint=int(ds.joint))
+                   joint=int(ds.joint), filled_cycles=filled)
+
+
+#: Largest share of robot cycles a record may have lost and still be fitted [-].
+MAX_LOST_SHARE = 0.01
+#: Longest run of lost cycles that is filled [cycles].
+MAX_LOST_RUN = 5
+
+
+def _fill_lost_cycles(t: np.ndarray, T: float, u: np.ndarray, tau_j: np.ndarray, q: np.ndarray,
+                      label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Put a record with a few lost robot cycles (FRI) back on the uniform grid.
+
+    Over FRI a lost or late message leaves a gap of whole cycles in the log while the robot goes on
+    with the command it holds. The command is therefore known in the gap (the previous one) and the
+    measurements are interpolated linearly; at most :data:`MAX_LOST_SHARE` of the cycles and runs of
+    at most :data:`MAX_LOST_RUN` are accepted, so the interpolation stays far below the band fitted.
+    """
+    steps = np.diff(t) / T
+    whole = np.round(steps)
+    if T <= 0 or np.any(whole < 1) or np.max(np.abs(steps - whole)) > 0.05:
+        raise IiwaIdentError(f"{label}: sample times are not uniform; fit needs one command per sample")
+    lost = int(np.sum(whole - 1))
+    n = len(t) + lost
+    if whole.max() - 1 > MAX_LOST_RUN or lost > MAX_LOST_SHARE * n:
+        raise IiwaIdentError(f"{label}: {lost} robot cycles lost ({100 * lost / n:.2g} %, longest run "
+                             f"{int(whole.max()) - 1}); fit accepts at most {100 * MAX_LOST_SHARE:g} % in runs of "
+                             f"at most {MAX_LOST_RUN}: record again")
+    k = np.concatenate([[0], np.cumsum(whole)]).astype(int)
+    grid = np.arange(n)
+    held = np.searchsorted(k, grid, side="right") - 1  # the last recorded cycle at or before each cycle
+    return (u[held], np.interp(grid, k, tau_j), np.interp(grid, k, q), lost)
 
 
 def _check_joints(records: list[_Record]) -> None:
@@ -999,6 +1032,10 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         warnings.append(f"the residuals are far from white noise (a block sandwich estimate gives {widening:.0f} "
                         "times the std): unmodelled effects such as the transmission ripple or the feasibility "
                         "filter; the std does not cover their systematic errors")
+    for r in records:
+        if r.filled_cycles:
+            warnings.append(f"{r.label}: {r.filled_cycles} lost robot cycles filled (command held, measurements "
+                            "interpolated)")
     if any(r.sweep is None for r in records):
         warnings.append("no exponential sweep in " + ", ".join(r.label for r in records if r.sweep is None)
                         + ": harmonic distortion not analysed")

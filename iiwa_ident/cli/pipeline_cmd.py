@@ -1,0 +1,63 @@
+"""Subcommand ``pipeline``: every stage from the first chirp to the report, into one work folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from iiwa_ident.cli._app import app, fail
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["pipeline_cmd"]
+
+
+@app.command("pipeline")
+def pipeline_cmd(
+    workdir: Annotated[Path, typer.Option("--workdir", help="Folder for every intermediate file and report.pdf.")],
+    target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint, validation against the FRI "
+                                        "emulator) or 'robot' (FRI).")] = "sim",
+    plant: Annotated[Optional[Path], typer.Option("--plant", help="Plant TOML file (--target sim; default: the "
+                                                  "shipped default plant).")] = None,
+    robot: Annotated[Optional[str], typer.Option("--robot", help="--target robot: robot controller HOST[:PORT].")]
+    = None,
+    port: Annotated[int, typer.Option("--port", help="--target robot: local FRI UDP port.")] = 30200,
+    robot_model: Annotated[str, typer.Option("--robot-model", help="--target robot: iiwa7 | iiwa14.")] = "iiwa14",
+    joint: Annotated[int, typer.Option("--joint", help="--target robot: joint under test, 1-7.")] = 1,
+    short: Annotated[bool, typer.Option("--short", help="Short experiments (a quick check, not for the "
+                                        "figures).")] = False,
+    skip: Annotated[Optional[str], typer.Option("--skip", help="Comma-separated stages not to run, e.g. "
+                                                "'validation' (the stages that need them are skipped too).")] = None,
+    no_report: Annotated[bool, typer.Option("--no-report", help="Skip report.pdf.")] = False,
+) -> None:
+    """Run chirp, fit, experiments, ripple, design, deploy, FRI validation, diagnose and the report.
+
+    Prints one line per stage, writes every file into the work folder
+    (chirp.h5, model.toml, fit.json, constant_velocity.h5, hand_guided.h5,
+    model_ripple.toml, ripple.json, design.toml, design.json, controller.toml,
+    controller.json, validation/*.h5, validation.json, diagnose.json,
+    model_ext.toml, pipeline.json, report.pdf) and ends with the headline
+    figures. A failed stage is reported and skips the stages that need it;
+    the exit code is then 1.
+
+    Examples:
+      iiwa-ident pipeline --target sim --workdir run1
+      iiwa-ident pipeline --target sim --plant my_plant.toml --workdir run2
+      iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
+    """
+    from iiwa_ident.pipeline import format_summary, run_pipeline
+
+    try:
+        result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,
+                              progress=lambda m: typer.echo(m), port=port, robot_model=robot_model, joint=joint,
+                              report=not no_report,
+                              skip=tuple(x.strip() for x in (skip or "").split(",") if x.strip()))
+    except IiwaIdentError as err:
+        raise fail(str(err))
+    typer.echo(format_summary(result))
+    typer.echo(f"wrote {workdir / 'pipeline.json'}")
+    if not result.ok:
+        failed = [s.name for s in result.stages if s.status == "failed"]
+        typer.echo(f"error: stages failed: {', '.join(failed)} (see above and pipeline.json)", err=True)
+        raise typer.Exit(1)

@@ -1,0 +1,27 @@
+"""The whole pipeline from the first chirp to the report (``iiwa-ident pipeline``).
+
+Public API
+----------
+run_pipeline, PipelineResult, PipelineSettings
+    Run every stage into a work folder; the outcome; the experiment lengths.
+Stage, StageRecord, STAGES, FILES
+    The stage abstraction, its outcome, the stages in order, the file names.
+format_summary, read_pipeline_json
+    The closing summary; ``pipeline.json`` of a work folder.
+"""
+
+from iiwa_ident.pipeline.core import (
+    FILES,
+    STAGES,
+    PipelineContext,
+    PipelineResult,
+    PipelineSettings,
+    Stage,
+    StageRecord,
+    format_summary,
+    read_pipeline_json,
+    run_pipeline,
+)
+
+__all__ = ["FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
+           "format_summary", "read_pipeline_json", "run_pipeline"]

@@ -1,0 +1,494 @@
+"""The PDF report of a pipeline run or of one of its stages (``iiwa-ident report``).
+
+Each page is one figure with a caption block below it that says what to
+look at. The report is built from the pipeline's in-memory results, or
+re-computed from the files of a work folder (the analyses are re-run on the
+stored datasets; no experiment is repeated). A stage that failed or was
+skipped gets a page saying so, with the message from ``pipeline.json``,
+instead of empty axes; a page whose drawing fails says that too.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import textwrap
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.backends.backend_pdf import PdfPages  # noqa: E402
+
+from iiwa_ident.errors import IiwaIdentError  # noqa: E402
+
+__all__ = ["REPORT_STAGES", "Page", "build_report", "load_results", "report_pages"]
+
+#: Stages that have pages, in report order.
+REPORT_STAGES = ("fit", "ripple", "design", "validation", "diagnose")
+
+# Which in-memory results each stage's pages need, and the stage that made them.
+_NEEDS = {"fit": ("chirp",), "ripple": ("constant_velocity", "fit"), "design": ("design",),
+          "validation": ("validation",), "diagnose": ("diagnose",)}
+
+
+@dataclass
+class Page:
+    """One report page: its stage, title, caption [text] and a function drawing the figure."""
+
+    stage: str
+    title: str
+    caption: str
+    draw: Callable[[], plt.Figure | None]
+    captioned: bool = True
+
+
+# --------------------------------------------------------------------------- layout helpers
+def _captioned(fig: plt.Figure, title: str, caption: str) -> plt.Figure:
+    """Add a caption band below the figure's axes (the axes keep their layout, shifted up)."""
+    w, h = fig.get_size_inches()
+    # About 12 characters of 8.5 pt text per inch of page width.
+    lines = textwrap.wrap(f"{title}. {caption}", width=int(w * 12))
+    band = 0.35 + 0.17 * len(lines)
+    frac = band / (h + band)
+    fig.set_layout_engine("none")
+    fig.set_size_inches(w, h + band)
+    for ax in fig.axes:
+        p = ax.get_position()
+        ax.set_position([p.x0, frac + p.y0 * (1 - frac), p.width, p.height * (1 - frac)])
+    for txt in fig.texts:
+        x, y = txt.get_position()
+        txt.set_position((x, frac + y * (1 - frac)))
+    fig.text(0.03, frac - 0.08 / (h + band), "\n".join(lines), fontsize=8.5, va="top", ha="left",
+             family="sans-serif")
+    return fig
+
+
+def _rasterize_dense(fig: plt.Figure, points: int = 4000) -> None:
+    """Draw long traces as images inside the PDF: the page looks the same and writes many times faster."""
+    for ax in fig.axes:
+        for artist in (*ax.lines, *ax.collections):
+            n = len(artist.get_xdata()) if hasattr(artist, "get_xdata") else len(getattr(artist, "get_offsets",
+                                                                                          lambda: [])())
+            if n > points:
+                artist.set_rasterized(True)
+
+
+def _text_page(title: str, body: str, mono: bool = False, size: tuple[float, float] = (11.0, 8.5),
+               colour: str = "black") -> plt.Figure:
+    """A page of text only (title page, tables, failure notices): no axes at all."""
+    fig = plt.figure(figsize=size)
+    fig.text(0.05, 0.95, title, fontsize=15, va="top", weight="bold", color=colour)
+    fig.text(0.05, 0.89, body, fontsize=7.5 if mono else 10, va="top", ha="left",
+             family="monospace" if mono else "sans-serif")
+    return fig
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- results from files
+def _stage_status(doc: dict[str, Any] | None, name: str) -> tuple[str, str]:
+    """(status, message) of a stage from ``pipeline.json`` (``unknown`` without one)."""
+    if doc is None:
+        return "unknown", ""
+    for s in doc.get("stages", []):
+        if s["name"] == name:
+            return s["status"], s.get("error", "")
+    return "missing", "not in pipeline.json"
+
+
+def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, ...] = REPORT_STAGES,
+                 ) -> dict[str, Any]:
+    """Re-compute what the report pages need from the files of a work folder.
+
+    Parameters
+    ----------
+    workdir : Path
+        A pipeline work folder.
+    doc : dict or None
+        Its ``pipeline.json``; stages it marks as failed or skipped are not loaded.
+    stages : tuple of str
+        Stages whose pages are wanted.
+
+    Returns
+    -------
+    dict
+        The same keys the pipeline keeps in memory (``chirp``, ``fit``,
+        ``model``, ``cv``, ``qs``, ``hand``, ``ripple``, ``model_ripple``,
+        ``design``, ``validation``, ``diagnosis``) for what could be loaded,
+        and ``load_errors`` by stage for what could not.
+    """
+    from iiwa_ident.datasets import read_dataset
+    from iiwa_ident.ident import read_model
+    from iiwa_ident.pipeline.core import FILES
+
+    out: dict[str, Any] = {"load_errors": {}}
+    p = {k: workdir / v for k, v in FILES.items()}
+
+    def usable(stage: str) -> bool:
+        return _stage_status(doc, stage)[0] in ("ok", "unknown")
+
+    def attempt(stage: str, fn: Callable[[], None]) -> None:
+        try:
+            fn()
+        except IiwaIdentError as err:
+            out["load_errors"][stage] = str(err)
+        except (OSError, KeyError, ValueError) as err:
+            out["load_errors"][stage] = f"{type(err).__name__}: {err}"
+
+    want = set(stages)
+    for key, stage in (("chirp", "chirp"), ("cv", "constant_velocity"), ("qs", "constant_velocity"),
+                       ("hand", "hand_guided")):
+        if p[key].is_file() and usable(stage):
+            attempt(stage, lambda key=key: out.__setitem__(key, read_dataset(p[key])))
+    if want & {"fit"} and "chirp" in out and usable("fit"):
+        def fit() -> None:
+            from iiwa_ident.ident.tf_fit import fit_model
+
+            model, result = fit_model([p["chirp"]])
+            out.update(model=model, fit=result)
+        attempt("fit", fit)
+    if p["model_ripple"].is_file() and usable("ripple"):
+        attempt("ripple", lambda: out.__setitem__("model_ripple", read_model(p["model_ripple"])))
+    if want & {"ripple"} and "cv" in out and "model_ripple" in out:
+        def ripple() -> None:
+            from iiwa_ident.ident.ripple import identify_ripple
+
+            m = out["model_ripple"]
+            data = [out["cv"]] + ([out["qs"]] if "qs" in out else [])
+            out["ripple"] = identify_ripple(data, K=m.value("K"), Jl=m.value("Jl"))
+        attempt("ripple", ripple)
+    if want & {"design", "validation"} and p["design"].is_file() and usable("design"):
+        def design() -> None:
+            from iiwa_ident.design.design_file import read_design
+
+            out["design"] = read_design(p["design"])
+        attempt("design", design)
+    if want & {"validation"} and p["validation_json"].is_file() and usable("validation"):
+        attempt("validation", lambda: out.__setitem__("validation", json.loads(p["validation_json"].read_text())))
+    if want & {"diagnose"} and "model_ripple" in out and usable("diagnose"):
+        def diag() -> None:
+            from iiwa_ident.diagnose import diagnose
+
+            keys = [k for k in ("chirp", "cv", "hand") if k in out]
+            out["diagnosis"] = diagnose([out[k] for k in keys], out["model_ripple"])
+        attempt("diagnose", diag)
+    return out
+
+
+# --------------------------------------------------------------------------- pages
+def _title_page(workdir: Path, doc: dict[str, Any] | None, stage: str | None) -> Page:
+    def draw() -> plt.Figure:
+        from iiwa_ident.pipeline.core import FILES, format_summary, PipelineResult, StageRecord
+
+        lines = []
+        if doc is not None:
+            inputs = doc.get("inputs", {})
+            lines.append("Inputs")
+            for k, v in inputs.items():
+                lines.append(f"  {k}: {v}")
+            lines.append("")
+            recs = [StageRecord(s["name"], s.get("title", ""), s["status"], s.get("duration_s", 0.0),
+                                s.get("error", ""), s.get("outputs", []), s.get("headline", {}))
+                    for s in doc.get("stages", [])]
+            res = PipelineResult(workdir, recs, doc.get("headline", {}), None, doc.get("wall_s", 0.0))
+            summary = format_summary(res).strip("\n")
+            lines.extend(textwrap.fill(x, 150, subsequent_indent="    ") for x in summary.splitlines())
+        else:
+            lines.append("no pipeline.json in this folder: pages are built from the files present")
+        lines.append("")
+        lines.append("Files (sha256)")
+        names = sorted(set(FILES.values()) - {FILES["report"], FILES["validation_dir"]})
+        vdir = workdir / FILES["validation_dir"]
+        files = [workdir / n for n in names if (workdir / n).is_file()]
+        if vdir.is_dir():
+            files += sorted(vdir.glob("*.h5"))
+        for f in files:
+            lines.append(f"  {str(f.relative_to(workdir)):<34} {_sha256(f)}")
+        what = "the whole pipeline" if stage is None else f"stage '{stage}'"
+        return _text_page(f"iiwa-ident report: {what}", "\n".join(lines), mono=True)
+
+    return Page("title", "Title page", "Inputs with their sha256, the stages with status and duration, the "
+                "headline figures and every file of the work folder with its sha256. Check the stage table first: "
+                "a failed stage has its own page saying why.", draw, captioned=False)
+
+
+def _failure_page(stage: str, status: str, message: str) -> Page:
+    def draw() -> plt.Figure:
+        body = textwrap.fill(message or "no message", 110)
+        head = {"failed": f"Stage '{stage}' failed", "skipped": f"Stage '{stage}' was skipped"}.get(
+            status, f"Stage '{stage}': no results ({status})")
+        return _text_page(head, body + "\n\nNothing is drawn for this stage: its results do not exist.",
+                          colour="C3")
+
+    return Page(stage, f"{stage}: {status}", "This stage produced no results, so its figures are left out. "
+                "Fix the cause named above and run the pipeline again.", draw, captioned=False)
+
+
+def _fit_pages(r: dict[str, Any], doc: dict[str, Any] | None) -> list[Page]:
+    from iiwa_ident.report.fit_figures import bode_figure, harmonics_figure
+    from iiwa_ident.report.validation_figures import parameter_table_figure
+
+    fit = r["fit"]
+
+    def table() -> plt.Figure:
+        headline = None
+        if doc is not None:
+            headline = next((s["headline"] for s in doc.get("stages", []) if s["name"] == "fit"), None)
+        if not headline:
+            headline = {"parameters": {k: {"value": fit.parameters[k], "std": fit.std[k],
+                                           "rel_std_pct": 100 * fit.std[k] / abs(fit.parameters[k])}
+                                       for k in fit.parameters}}
+        corr = {"names": list(fit.parameters), "matrix": fit.correlation} if fit.correlation is not None else None
+        return parameter_table_figure(headline, corr)
+
+    return [
+        Page("fit", "Bode plot of tau_c -> tau_J", "Measured frequency response (H1, with its 2-sigma band) against "
+             "the fitted eq (4) with delay, and the coherence. Look for the fit inside the band up to the "
+             "resonance and beyond, and for the coherence near 1 wherever the fit is judged.",
+             lambda: bode_figure(fit)),
+        Page("fit", "Harmonic distortion", "Harmonic impulse responses of the exponential sweep and the share of "
+             "output power in harmonics per octave band. Look for small shares: the transmission ripple is the "
+             "only nonlinearity and it adds little to a 10 Nm chirp.", lambda: harmonics_figure(fit)),
+        Page("fit", "Parameter table", "The five parameters with their standard deviations (and, on the "
+             "simulated joint, the error against the plant that was simulated), with the correlation of the "
+             "estimates. Look for errors within a few standard deviations; the ripple biases K by about -2 %.",
+             table),
+    ]
+
+
+def _ripple_pages(r: dict[str, Any]) -> list[Page]:
+    from iiwa_ident.report.ripple_figures import (
+        lookup_table_figure,
+        spatial_spectrum_figure,
+        velocity_frequency_figure,
+    )
+
+    res = r["ripple"]
+    methods = " and ".join(sorted(res.methods)) if res.detected else "none"
+    return [
+        Page("ripple", "Spatial spectrum", f"Consistency of the deflection's Fourier coefficients across passes "
+             f"against the period. Look for one line at rho = {res.period_rad:.5f} rad (paper 0.01963 rad) "
+             "standing far above a flat floor.", lambda: spatial_spectrum_figure(res)),
+        Page("ripple", "Lookup tables (like Fig. 6)", f"The deflection folded modulo rho with the table of each "
+             f"method ({methods}). Look for the methods agreeing: the table is what the position correction of "
+             "eqs (8)-(9) subtracts.", lambda: lookup_table_figure(res)),
+        Page("ripple", "Ripple frequency against speed, eq (6)", "Predicted |v|/rho against the measured peak of "
+             "the torque spectrum per speed. Look for the points on the line: the ripple is periodic in "
+             "position, not in time.", lambda: velocity_frequency_figure(res)),
+    ]
+
+
+def _design_pages(r: dict[str, Any]) -> list[Page]:
+    import numpy as np
+
+    from iiwa_ident.design.controller import builtin_poles
+    from iiwa_ident.design.paper import format_reproduction, paper_reproduction, table1_parameters
+    from iiwa_ident.report.control_figures import pole_figure
+    from iiwa_ident.report.design_figures import observer_figure, spatial_filter_figure
+
+    rec = r["design"]
+    pages = []
+    cv, model = r.get("cv"), r.get("model_ripple")
+    if cv is not None:
+        speeds = tuple(sorted({round(abs(float(v)), 3) for v in
+                               np.atleast_1d(cv.experiment_attrs.get("velocity_rad_s", (0.3, 0.6, 1.2)))}))
+        pages.append(Page("design", "Spatial filter at several speeds (like Fig. 4)", f"Joint torque before and "
+                          f"after the spatial filter (beta = {rec.filter.beta:g}) at each speed, the spectra and the "
+                          "filter's response. Look for the ripple line cut by tens of dB while slower torque "
+                          "passes unchanged.",
+                          lambda: spatial_filter_figure(cv, rec.filter.period_rad, beta=rec.filter.beta,
+                                                        speeds=speeds or (0.3, 0.6, 1.2))))
+    hand = r.get("hand")
+    if hand is not None and model is not None and hand.has("tau_ext_ref"):
+        pages.append(Page("design", "External-torque observers (like Fig. 7)", "The built-in observer of eq (13), "
+                          "the improved one on the link velocity of eq (9) and the spatially filtered one, against "
+                          "the F/T reference during hand guiding. Look at the zoom on fast motion: the built-in "
+                          "estimate carries the ripple, the improved ones do not.",
+                          lambda: observer_figure(hand, model)))
+    d = rec.design
+    poles = {"poles": {"builtin": builtin_poles(d.params), "additive": np.asarray(d.poles),
+                       "observer": np.asarray(d.observer_poles)}}
+    pages.append(Page("design", "Pole map", "Continuous closed-loop poles of the built-in loop (eq (4)), the "
+                      "additive feedback and its observer. Look for the lightly damped built-in pair near 23 Hz "
+                      "moved to well-damped poles.", lambda: pole_figure(poles)))
+
+    def reproduction() -> plt.Figure:
+        t1, source = table1_parameters()
+        text = format_reproduction(paper_reproduction(t1), source, width=55)
+        return _text_page("Paper reproduction (section V)", text, mono=True, size=(11.0, 8.5))
+
+    pages.append(Page("design", "Paper reproduction table", "The paper's printed gains and matrices beside the "
+                      "ones computed on Table I with the paper's poles, and with bc/Jc = 55 1/s. Look at the diff "
+                      "columns: the explanations name every difference above rounding.", reproduction))
+    return pages
+
+
+def _validation_pages(r: dict[str, Any], workdir: Path) -> list[Page]:
+    from iiwa_ident.pipeline.core import FILES
+    from iiwa_ident.report.validation_figures import kappa_margin_figure, tracking_run_figure
+
+    v = r["validation"]
+    folder = workdir / FILES["validation_dir"]
+    return [
+        Page("validation", "Step responses through FRI (like Fig. 8)", "Square-wave reference with the robot's "
+             "own loop (left) and the deployed additive controller (right), run through the FRI runtime. Look "
+             "at the overshoot after each edge: the built-in loop rings at its 23 Hz resonance.",
+             lambda: tracking_run_figure(v, folder, "step")),
+        Page("validation", "Sine responses through FRI (like Fig. 9)", "The fast sine with both controllers. "
+             "Look at the zoom: the built-in loop amplifies near its resonance, the additive loop follows the "
+             "reference delayed by Td.", lambda: tracking_run_figure(v, folder, "sine")),
+        Page("validation", "kappa margin", "Left: the largest stable kappa of tau_r = kappa tau_ext for each "
+             "controller on the design model (the F/T torque closes the loop). Right: the live run through FRI "
+             "with the emulated human arm, closed on the runtime's own estimate (40 ms observer lag), at 60 % of "
+             "the built-in margin. Look for an oscillation that does not grow.",
+             lambda: kappa_margin_figure(v, folder)),
+    ]
+
+
+def _diagnose_pages(r: dict[str, Any]) -> list[Page]:
+    from iiwa_ident.report import diagnose_figures as df
+
+    d = r["diagnosis"]
+    pages = [Page("diagnose", "Named effects and gains", "Held-out residual RMS before and after each named "
+                  "effect, per effect and per dataset channel. Look at the gain column: an effect is named only "
+                  "when it lowers the held-out residual by at least 3 % with 0.999 confidence.",
+                  lambda: df.gain_table_figure(d))]
+    for ctx in d.contexts:
+        for ch in ctx.channels:
+            what = "link-side external-torque error" if ch == "link" else "joint-torque response to the command"
+            pages.append(Page("diagnose", f"Residuals before and after: {ctx.name}"
+                              f" / {ch}", f"Residual of the {what} with the model before and after the named effects. "
+                              "Look for structure that disappears after: what is left should look like noise.",
+                              lambda ctx=ctx, ch=ch: df.residuals_figure(d, ctx.index, ch)))
+    for e in d.effects:
+        pages.append(Page("diagnose", f"Evidence for {e.name}", "Partial residual against the effect's variable "
+                          "with the fitted effect. Look for the curve following the binned points.",
+                          lambda e=e: df.evidence_figure(d, e.name)))
+    return pages
+
+
+def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, Any],
+                 stage: str | None = None) -> list[Page]:
+    """The pages of the report, in order: title, then per stage its figures or a failure notice.
+
+    Parameters
+    ----------
+    workdir : Path
+        The work folder (run logs, files for the title page).
+    doc : dict or None
+        ``pipeline.json`` content (stage status and messages).
+    results : dict
+        In-memory results (from the pipeline or :func:`load_results`).
+    stage : str, optional
+        Only this stage's pages (after the title page).
+    """
+    if stage is not None and stage not in REPORT_STAGES:
+        raise IiwaIdentError(f"--stage {stage}: expected one of {', '.join(REPORT_STAGES)}")
+    pages = [_title_page(workdir, doc, stage)]
+    makers = {"fit": (("fit",), lambda: _fit_pages(results, doc)),
+              "ripple": (("ripple",), lambda: _ripple_pages(results)),
+              "design": (("design",), lambda: _design_pages(results)),
+              "validation": (("validation",), lambda: _validation_pages(results, workdir)),
+              "diagnose": (("diagnosis",), lambda: _diagnose_pages(results))}
+    for name in REPORT_STAGES if stage is None else (stage,):
+        keys, make = makers[name]
+        status, message = _stage_status(doc, name)
+        if status in ("failed", "skipped"):
+            pages.append(_failure_page(name, status, message))
+            continue
+        missing = [k for k in keys if k not in results]
+        if missing:
+            why = results.get("load_errors", {}).get(name) or message or (
+                f"its results ({', '.join(missing)}) are not in the work folder")
+            pages.append(_failure_page(name, status if status not in ("ok", "unknown") else "missing", why))
+            continue
+        pages.extend(make())
+    return pages
+
+
+def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | None = None,
+                 results: dict[str, Any] | None = None, stage: str | None = None, dpi: int = 100,
+                 png_dir: str | Path | None = None, png_dpi: int = 40) -> list[str]:
+    """Write the PDF report; return the page titles.
+
+    Parameters
+    ----------
+    out : path
+        PDF file to write (atomically: a temporary file, then a rename).
+    workdir : path
+        The pipeline's work folder.
+    doc : dict, optional
+        ``pipeline.json`` content (read from ``workdir`` when None).
+    results : dict, optional
+        In-memory results; re-computed from the files (:func:`load_results`) when None.
+    stage : str, optional
+        Only this stage (see :data:`REPORT_STAGES`).
+    dpi : int
+        Resolution of raster elements in the PDF [dots per inch].
+    png_dir : path, optional
+        Also save every page as ``page_NN.png`` here (for checking the pages).
+    png_dpi : int
+        Resolution of those PNGs [dots per inch].
+
+    Raises
+    ------
+    IiwaIdentError
+        If the folder does not exist or the PDF cannot be written.
+    """
+    from iiwa_ident.pipeline.core import read_pipeline_json
+
+    workdir = Path(workdir)
+    out = Path(out)
+    if not workdir.is_dir():
+        raise IiwaIdentError(f"{workdir}: no such folder")
+    if doc is None:
+        doc = read_pipeline_json(workdir)
+    if results is None:
+        from iiwa_ident.pipeline._blas import single_threaded_blas
+
+        with single_threaded_blas():
+            results = load_results(workdir, doc, REPORT_STAGES if stage is None else (stage,))
+    pages = report_pages(workdir, doc, results, stage)
+    if png_dir is not None:
+        Path(png_dir).mkdir(parents=True, exist_ok=True)
+    titles: list[str] = []
+    tmp = out.with_name(f".{out.name}.tmp")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with PdfPages(tmp) as pdf:
+            for i, page in enumerate(pages, 1):
+                try:
+                    fig = page.draw()
+                    if fig is None:
+                        raise IiwaIdentError("nothing to draw for this page")
+                    if page.captioned:
+                        fig = _captioned(fig, page.title, page.caption)
+                    title = page.title
+                    _rasterize_dense(fig)
+                except Exception as err:  # noqa: BLE001  (one bad page must not cost the others)
+                    plt.close("all")
+                    fig = _text_page(f"{page.title}: this page could not be drawn",
+                                     textwrap.fill(f"{type(err).__name__}: {err}", 110), colour="C3")
+                    title = f"{page.title} (not drawn: {err})"
+                pdf.savefig(fig, dpi=dpi)
+                if png_dir is not None:
+                    fig.savefig(Path(png_dir) / f"page_{i:02d}.png", dpi=png_dpi)
+                plt.close(fig)
+                titles.append(title)
+            info = pdf.infodict()
+            info["Title"] = "iiwa-ident report"
+        tmp.replace(out)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise IiwaIdentError(f"{out}: cannot write ({err.strerror or err})") from None
+    return titles

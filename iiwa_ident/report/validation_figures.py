@@ -1,0 +1,223 @@
+"""Figures of the closed-loop validation through FRI: step and sine (Figs. 8-9), kappa margin, parameter table.
+
+The tracking figures read the run logs of
+:func:`iiwa_ident.pipeline.validation.run_validation`; every function returns
+a matplotlib Figure (Agg backend) and leaves saving to the caller.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from iiwa_ident.datasets import read_dataset  # noqa: E402
+from iiwa_ident.pipeline.validation import oscillation_windows, reference_of  # noqa: E402
+
+__all__ = ["tracking_run_figure", "kappa_margin_figure", "parameter_table_figure"]
+
+_TITLES = {"builtin": "built-in (tau_c = tau_r)", "additive": "additive, eqs (16)-(18)"}
+_COLOURS = {"builtin": "C3", "additive": "C0"}
+
+
+def _load(folder: Path, row: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Time from 0 [s], tau_J [Nm], the reference [Nm] and, for the additive runs, tau_J,filt [Nm]."""
+    ds = read_dataset(folder / row["file"])
+    t = np.asarray(ds["t"], float)
+    t = t - t[0]
+    out = {"t": t, "tau_j": np.asarray(ds["tau_j"], float)}
+    if ds.has("tau_r"):
+        out["tau_r"] = np.asarray(ds["tau_r"], float)
+    else:  # the built-in runs command the reference itself (plus a weak hold): rebuild it from the task
+        out["tau_r"] = reference_of(row["task"], t, row["amplitude_nm"], row.get("period_s", 1.0),
+                                    row.get("frequency_hz", 1.0))
+    if ds.has("tau_j_filt"):
+        out["tau_j_filt"] = np.asarray(ds["tau_j_filt"], float)
+    return out
+
+
+def tracking_run_figure(validation: dict[str, Any], folder: Path, task: str) -> plt.Figure:
+    """Built-in against additive for one task through FRI: the whole run and a zoom (Fig. 8 or 9).
+
+    Parameters
+    ----------
+    validation : dict
+        ``validation.json`` content.
+    folder : Path
+        Folder of the run logs.
+    task : str
+        ``"step"`` or ``"sine"``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Columns: built-in, additive; rows: the whole run, a zoom on one edge
+        (step) or on the last periods (sine). The reference is drawn shifted
+        by the FRI delay Td, which no client-side controller removes.
+    """
+    delay = float(validation.get("delay_s", 0.005))
+    rows = {r["name"]: r for r in validation["runs"]}
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7), squeeze=False)
+    for c, kind in enumerate(("builtin", "additive")):
+        row = rows.get(f"{kind}_{task}")
+        if row is None:
+            for ax in axes[:, c]:
+                ax.text(0.5, 0.5, f"no {kind} {task} run", ha="center", va="center", transform=ax.transAxes)
+                ax.set_axis_off()
+            continue
+        d = _load(folder, row)
+        t = d["t"]
+        if task == "step":
+            half = 0.5 * row.get("period_s", 1.0)
+            zoom = (half - 0.05, min(t[-1], half + 0.3))
+        else:
+            span = min(4.0 / row.get("frequency_hz", 1.0), 0.5 * t[-1])
+            zoom = (t[-1] - span, t[-1])
+        for r, (t0, t1) in enumerate(((0.0, t[-1]), zoom)):
+            ax = axes[r, c]
+            sel = (t >= t0) & (t <= t1)
+            ax.plot(t[sel] + delay, d["tau_r"][sel], "k--", lw=1.1, label=f"tau_r shifted by Td = {delay * 1e3:.2f} ms")
+            ax.plot(t[sel], d["tau_j"][sel], color=_COLOURS[kind], lw=0.9, label="tau_J measured")
+            if "tau_j_filt" in d:
+                ax.plot(t[sel], d["tau_j_filt"][sel], color="C2", lw=1.0, label="tau_J,filt, eq (15)")
+            ax.set_xlim(t0, t1)
+            ax.set_ylabel("joint torque [Nm]")
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=7, loc="upper right")
+            if r == 1:
+                ax.set_xlabel("time since the start of the run [s]")
+        text = f"peak error {row['peak_error_nm']:.1f} Nm, RMS {row['rms_error_nm']:.2f} Nm"
+        if task == "step" and row.get("overshoot_pct") is not None and math.isfinite(row["overshoot_pct"]):
+            text += f", overshoot {row['overshoot_pct']:.0f} %"
+        axes[0, c].set_title(f"{_TITLES[kind]}: {text}", fontsize=9)
+        axes[1, c].set_title("zoom on the first falling edge" if task == "step" else "zoom on the last periods",
+                             fontsize=9)
+    what = (f"{rows.get('builtin_step', {}).get('amplitude_nm', '')} Nm square wave" if task == "step" else
+            f"{rows.get('builtin_sine', {}).get('amplitude_nm', '')} Nm sine at "
+            f"{rows.get('builtin_sine', {}).get('frequency_hz', '')} Hz")
+    fig.suptitle(f"Torque tracking through FRI ({validation.get('target', 'sim')} target): {what}", fontsize=11)
+    fig.tight_layout()
+    return fig
+
+
+def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
+    """Outer loop ``tau_r = kappa tau_ext``: linear margins of both controllers and the live run through FRI.
+
+    Left: the largest stable kappa of each controller on the design model
+    (exact delay) with the live run's kappa. Right: the live run's joint torque
+    and reference, and the RMS of the oscillatory torque per window.
+    """
+    k = validation["kappa"]
+    live = k.get("live")
+    fig = plt.figure(figsize=(12, 5.5))
+    grid = fig.add_gridspec(2, 2, width_ratios=(0.8, 1.4))
+    ax_b = fig.add_subplot(grid[:, 0])
+    values = [k.get("linear_builtin") or 0.0, k.get("linear_additive") or 0.0]
+    bars = ax_b.bar(["built-in", "additive"], values, color=[_COLOURS["builtin"], _COLOURS["additive"]],
+                    label="kappa_max, linear, exact delay")
+    for b, v in zip(bars, values):
+        ax_b.text(b.get_x() + b.get_width() / 2, v, f"{v:.1f}", ha="center", va="bottom", fontsize=9)
+    if live is not None:
+        ax_b.axhline(live["kappa"], color="k", ls="--",
+                     label=f"live run kappa = {live['kappa']:.1f}: {live.get('verdict', live['stable'])}")
+    ax_b.axhline(15.0, color="0.5", ls=":", label="paper: additive still stable at 15")
+    ax_b.set_ylabel("outer-loop gain kappa [-]")
+    ratio = k.get("linear_ratio")
+    ax_b.set_title(f"kappa margins (ratio {ratio:.2f})" if ratio else "kappa margins", fontsize=10)
+    ax_b.legend(fontsize=7, loc="upper left")
+    ax_b.grid(True, axis="y", alpha=0.3)
+    ax_t = fig.add_subplot(grid[0, 1])
+    ax_r = fig.add_subplot(grid[1, 1])
+    if live is None:
+        note = k.get("live_skipped", "no live kappa run")
+        for ax in (ax_t, ax_r):
+            ax.text(0.5, 0.5, note, ha="center", va="center", wrap=True, transform=ax.transAxes, fontsize=9)
+            ax.set_axis_off()
+    else:
+        ds = read_dataset(folder / live["file"])
+        t = np.asarray(ds["t"], float)
+        t = t - t[0]
+        tau_j = np.asarray(ds["tau_j"], float)
+        ax_t.plot(t, tau_j, color=_COLOURS["additive"], lw=0.8, label="tau_J measured")
+        ax_t.plot(t, np.asarray(ds["tau_r"], float), "k", lw=0.8, label="tau_r = kappa tau_ext,est")
+        ax_t.set_ylabel("torque [Nm]")
+        ax_t.set_title(f"live run through FRI with a human arm: additive, kappa = {live['kappa']:.1f}: "
+                       f"{live.get('verdict', live['stable'])}", fontsize=9)
+        ax_t.text(0.01, 0.03, f"run ended: {live['stop_reason']}"[:110], transform=ax_t.transAxes, fontsize=7,
+                  bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+        ax_t.legend(fontsize=7, loc="upper right")
+        ax_t.grid(True, alpha=0.3)
+        rms = oscillation_windows(t, tau_j, live["window_s"])
+        if not rms:
+            ax_r.text(0.5, 0.5, f"the run ended after {t[-1]:.2f} s, before the first {live['window_s']:g} s window "
+                      "after the 0.5 s start: no oscillation level to judge", ha="center", va="center",
+                      transform=ax_r.transAxes, fontsize=8, wrap=True)
+        else:
+            edges = 0.5 + live["window_s"] * np.arange(len(rms) + 1)
+            ax_r.stairs(rms, edges, color=_COLOURS["additive"], label="oscillatory tau_J (> 3 Hz), RMS per window")
+        ax_r.axhline(5.0, color="0.5", ls=":", label="growth is ignored below 5 Nm")
+        ax_r.axhline(25.0, color="C3", ls=":", label="limit cycle: unstable above 25 Nm")
+        ax_r.set_xlim(0, t[-1])
+        ax_r.set_xlabel("time since the start of the run [s]")
+        ax_r.set_ylabel("RMS [Nm]")
+        ax_r.legend(fontsize=7, loc="upper right")
+        ax_r.grid(True, alpha=0.3)
+    fig.suptitle("Gain margin of tau_r = kappa tau_ext: built-in against additive", fontsize=11)
+    fig.tight_layout()
+    return fig
+
+
+def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any] | None = None) -> plt.Figure:
+    """The fitted parameters of eq (4) with standard deviations (and errors against a simulated truth).
+
+    Parameters
+    ----------
+    headline : dict
+        ``parameters`` of the fit stage's headline: per name ``value``, ``std``,
+        ``rel_std_pct`` and optionally ``simulated`` (the simulated plant's value) and ``error_pct``.
+    correlation : dict, optional
+        ``names`` and ``matrix`` of the fit's correlation, drawn beside the table.
+    """
+    units = {"Jc": "kg m^2", "bc": "Nm s/rad", "K": "Nm/rad", "Jl": "kg m^2", "Td": "s"}
+    params = headline["parameters"]
+    has_truth = any("simulated" in v for v in params.values())
+    cols = ["parameter", "unit", "value", "std", "rel. std [%]"] + (["simulated", "error [%]"] if has_truth else [])
+    rows = []
+    for name, v in params.items():
+        row = [name, units.get(name, ""), f"{v['value']:.6g}", f"{v['std']:.3g}",
+               "-" if v.get("rel_std_pct") is None else f"{v['rel_std_pct']:.3f}"]
+        if has_truth:
+            row += [f"{v['simulated']:.6g}" if "simulated" in v else "-",
+                    f"{v['error_pct']:+.3f}" if "error_pct" in v else "-"]
+        rows.append(row)
+    fig = plt.figure(figsize=(12, 4.5))
+    grid = fig.add_gridspec(1, 2, width_ratios=(1.6, 1.0))
+    ax = fig.add_subplot(grid[0, 0])
+    ax.set_axis_off()
+    table = ax.table(cellText=rows, colLabels=cols, loc="center", cellLoc="right")
+    table.auto_set_font_size(False)
+    table.set_fontsize(9)
+    table.scale(1.0, 1.5)
+    ax.set_title("Parameters of eq (4) from the chirp (std from the Fisher information)", fontsize=10)
+    if correlation:
+        axc = fig.add_subplot(grid[0, 1])
+        m = np.asarray(correlation["matrix"], float)
+        im = axc.imshow(m, vmin=-1, vmax=1, cmap="RdBu_r")
+        names = correlation["names"]
+        axc.set_xticks(range(len(names)), names)
+        axc.set_yticks(range(len(names)), names)
+        for i in range(len(names)):
+            for j in range(len(names)):
+                axc.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=7)
+        fig.colorbar(im, ax=axc, label="correlation coefficient [-]")
+        axc.set_xlabel("parameter")
+        axc.set_ylabel("parameter")
+        axc.set_title("correlation of the estimates", fontsize=10)
+    fig.tight_layout()
+    return fig

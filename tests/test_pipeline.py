@@ -1,0 +1,137 @@
+"""The whole pipeline end to end on a short configuration, and its failure handling.
+
+The 60 s budget of the full run on the default plant is measured by
+``bench/bench_pipeline.py``, not asserted here: this machine is shared.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.pipeline import FILES, STAGES, run_pipeline
+
+CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
+
+
+def assert_not_blank(png: Path) -> None:
+    """A rendered page shows something: enough pixels that differ from the background."""
+    import matplotlib.image as mpimg
+    import numpy as np
+
+    img = mpimg.imread(png)[..., :3]
+    dark = np.mean(img.mean(axis=2) < 0.8)
+    assert dark > 0.005, f"{png.name}: blank page ({100 * dark:.2f} % non-white pixels)"
+
+
+def _pdf_pages(path: Path) -> int:
+    """Page count of a PDF as matplotlib writes it (one ``/Type /Page`` object per page)."""
+    return len(re.findall(rb"/Type\s*/Page\b(?!s)", path.read_bytes()))
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("pipeline")
+    lines: list[str] = []
+    result = run_pipeline(workdir, target="sim", short=True, progress=lines.append)
+    return workdir, result, lines
+
+
+class TestShortPipeline:
+    def test_every_stage_ran(self, short_run):
+        _, result, lines = short_run
+        assert [s.name for s in result.stages] == [s.name for s in STAGES] + ["report"]
+        failed = {s.name: s.error for s in result.stages if s.status != "ok"}
+        assert not failed, failed
+        assert result.ok
+        # One progress line when a stage starts and one when it ends.
+        for stage in STAGES:
+            assert any(line.startswith("[") and f"] {stage.name}: ok in" in line for line in lines), stage.name
+
+    def test_every_intermediate_file_is_in_the_folder(self, short_run):
+        workdir, _, _ = short_run
+        for key in ("chirp", "model", "fit_json", "cv", "hand", "model_ripple", "ripple_json", "design",
+                    "design_json", "observers_json", "controller", "controller_json", "validation_json",
+                    "diagnose_json", "model_ext", "pipeline_json", "report"):
+            assert (workdir / FILES[key]).is_file(), FILES[key]
+        logs = sorted(p.name for p in (workdir / "validation").glob("*.h5"))
+        assert logs == ["additive_kappa.h5", "additive_sine.h5", "additive_step.h5", "builtin_sine.h5",
+                        "builtin_step.h5"]
+
+    def test_pipeline_json_has_the_stages_and_headline(self, short_run):
+        workdir, result, _ = short_run
+        doc = json.loads((workdir / "pipeline.json").read_text())
+        assert doc["format"] == "iiwa-ident-pipeline" and doc["ok"]
+        assert {s["name"]: s["status"] for s in doc["stages"]} == {s.name: "ok" for s in result.stages}
+        assert all(s["duration_s"] > 0 for s in doc["stages"])
+        h = doc["headline"]
+        for key in ("fit", "rho_rad", "kappa_linear", "observer_improvement", "tracking", "kappa_live",
+                    "named_effects"):
+            assert key in h, key
+        # Short experiments still identify the default plant closely.
+        assert abs(h["rho_rad"] - 0.01963) < 1e-4
+        assert all(abs(v["error_pct"]) < 5 for v in h["fit"].values()), h["fit"]
+        assert h["kappa_linear"]["ratio"] > 2
+        assert h["observer_improvement"] > 1.5
+        assert set(h["tracking"]) == {"step", "sine"}
+
+    def test_report_has_every_page(self, short_run):
+        workdir, result, _ = short_run
+        pages = next(s for s in result.stages if s.name == "report").headline["pages"]
+        assert pages >= 15
+        assert _pdf_pages(workdir / "report.pdf") == pages
+
+    def test_validation_pages_render(self, short_run, tmp_path):
+        from iiwa_ident.report.pdf import build_report
+
+        workdir, _, _ = short_run
+        titles = build_report(tmp_path / "v.pdf", workdir, stage="validation", png_dir=tmp_path / "png")
+        assert len(titles) == 4 and not any("not drawn" in t for t in titles), titles
+        for png in sorted((tmp_path / "png").glob("*.png")):
+            assert_not_blank(png)
+
+
+class TestFailures:
+    def test_a_failed_stage_skips_its_dependents_and_the_report_says_so(self, tmp_path, monkeypatch):
+        ripple = next(s for s in STAGES if s.name == "ripple")
+
+        def broken(ctx):
+            raise IiwaIdentError("no periodic nonlinearity found in constant_velocity.h5")
+
+        monkeypatch.setattr(ripple, "run", broken)
+        # Skip what would run long anyway; the point is the bookkeeping.
+        result = run_pipeline(tmp_path, short=True, progress=lambda _m: None, skip=("hand_guided",))
+        status = {s.name: s.status for s in result.stages}
+        assert status["ripple"] == "failed" and status["hand_guided"] == "skipped"
+        assert status["chirp"] == status["fit"] == status["constant_velocity"] == "ok"
+        for name in ("design", "deploy", "validation", "diagnose"):
+            assert status[name] == "skipped", name
+        assert "ripple" in next(s for s in result.stages if s.name == "design").error
+        assert status["report"] == "ok" and (tmp_path / "report.pdf").is_file()
+        doc = json.loads((tmp_path / "pipeline.json").read_text())
+        assert not doc["ok"]
+        assert next(s for s in doc["stages"] if s["name"] == "ripple")["error"].startswith("no periodic")
+
+    def test_arguments_are_checked_before_anything_runs(self, tmp_path):
+        with pytest.raises(IiwaIdentError, match="--target"):
+            run_pipeline(tmp_path / "a", target="moon")
+        with pytest.raises(IiwaIdentError, match="--robot"):
+            run_pipeline(tmp_path / "b", target="robot")
+        with pytest.raises(IiwaIdentError, match="unknown stage"):
+            run_pipeline(tmp_path / "c", skip=("nothing",))
+        assert not (tmp_path / "a").exists()
+
+    def test_cli_errors_are_one_line(self, tmp_path):
+        bad = tmp_path / "plant.toml"
+        bad.write_text("[dynamics]\nJc = -1\n")
+        proc = subprocess.run(CLI + ["pipeline", "--workdir", str(tmp_path / "w"), "--plant", str(bad)],
+                              capture_output=True, text=True)
+        assert proc.returncode == 2
+        assert proc.stderr.startswith("error: ") and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+        assert "Traceback" not in proc.stderr

@@ -1,0 +1,133 @@
+"""The PDF report: every page renders, failed stages get a page saying what failed, the CLI.
+
+The work folder comes from a short pipeline run without the closed-loop
+validation (``tests/test_pipeline.py`` renders those pages); the report is
+then rebuilt from the files alone, as ``iiwa-ident report`` does.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.pipeline import run_pipeline
+from iiwa_ident.report.pdf import REPORT_STAGES, build_report, load_results, report_pages
+
+CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
+
+
+def assert_not_blank(png: Path) -> None:
+    """A rendered page shows something: enough pixels that differ from the background."""
+    img = mpimg.imread(png)[..., :3]
+    dark = np.mean(img.mean(axis=2) < 0.8)
+    assert dark > 0.005, f"{png.name}: blank page ({100 * dark:.2f} % non-white pixels)"
+
+
+def _pdf_pages(path: Path) -> int:
+    return len(re.findall(rb"/Type\s*/Page\b(?!s)", path.read_bytes()))
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("report")
+    result = run_pipeline(folder, short=True, progress=lambda _m: None, skip=("validation",), report=False)
+    assert result.ok, [(s.name, s.error) for s in result.stages if s.status == "failed"]
+    return folder
+
+
+class TestEveryPageRenders:
+    def test_from_the_files_of_a_work_folder(self, workdir, tmp_path):
+        out = tmp_path / "report.pdf"
+        titles = build_report(out, workdir, png_dir=tmp_path / "png", png_dpi=30)
+        assert not any("not drawn" in t for t in titles), titles
+        assert _pdf_pages(out) == len(titles)
+        pngs = sorted((tmp_path / "png").glob("page_*.png"))
+        assert len(pngs) == len(titles)
+        for png in pngs:
+            assert_not_blank(png)
+        expected = ["Title page", "Bode plot of tau_c -> tau_J", "Harmonic distortion", "Parameter table",
+                    "Spatial spectrum", "Lookup tables (like Fig. 6)", "Spatial filter at several speeds (like Fig. 4)",
+                    "External-torque observers (like Fig. 7)", "Pole map", "Paper reproduction table",
+                    "validation: skipped", "Named effects and gains"]
+        for title in expected:
+            assert title in titles, title
+        assert any(t.startswith("Residuals before and after") for t in titles)
+
+    def test_every_figure_has_a_caption_and_labelled_axes(self, workdir):
+        doc = json.loads((workdir / "pipeline.json").read_text())
+        results = load_results(workdir, doc, ("fit", "ripple"))
+        import matplotlib.pyplot as plt
+
+        for page in report_pages(workdir, doc, results):
+            if page.stage not in ("fit", "ripple") or not page.captioned:
+                continue
+            assert len(page.caption) > 60 and "Look" in page.caption, page.title
+            fig = page.draw()
+            plotted = [ax for ax in fig.axes if ax.has_data() and ax.axison and ax.get_label() != "<colorbar>"]
+            for ax in plotted:
+                assert ax.get_xlabel() or ax.get_ylabel(), (page.title, ax.get_title())
+            plt.close(fig)
+
+    def test_one_stage(self, workdir, tmp_path):
+        titles = build_report(tmp_path / "ripple.pdf", workdir, stage="ripple")
+        assert titles[0] == "Title page" and len(titles) == 4
+        assert all(("ripple" in t.lower() or "spectrum" in t.lower() or "lookup" in t.lower() or "eq (6)" in t)
+                   for t in titles[1:]), titles
+
+
+class TestFailedStages:
+    def test_a_failed_stage_page_says_what_failed(self, workdir, tmp_path):
+        broken = tmp_path / "broken"
+        shutil.copytree(workdir, broken)
+        doc = json.loads((broken / "pipeline.json").read_text())
+        message = "no periodic nonlinearity: the strongest line has false-alarm probability 0.31"
+        for s in doc["stages"]:
+            if s["name"] == "ripple":
+                s["status"], s["error"] = "failed", message
+            elif s["name"] in ("design", "deploy", "diagnose"):
+                s["status"], s["error"] = "skipped", "skipped: needs ripple, which did not succeed"
+        (broken / "pipeline.json").write_text(json.dumps(doc))
+        pages = report_pages(broken, doc, load_results(broken, doc))
+        by_stage = {p.stage: p for p in pages if p.title.endswith(("failed", "skipped"))}
+        assert set(by_stage) == {"ripple", "design", "validation", "diagnose"}
+        fig = by_stage["ripple"].draw()
+        texts = " ".join(t.get_text() for t in fig.texts)
+        assert "Stage 'ripple' failed" in texts and "false-alarm probability 0.31" in texts
+        assert fig.axes == [], "a failed stage must not draw empty axes"
+        titles = build_report(broken / "report.pdf", broken, png_dir=tmp_path / "png", png_dpi=30)
+        assert "ripple: failed" in titles and "design: skipped" in titles
+        for png in sorted((tmp_path / "png").glob("*.png")):
+            assert_not_blank(png)
+
+    def test_missing_files_are_named(self, tmp_path):
+        (tmp_path / "empty").mkdir()
+        titles = build_report(tmp_path / "r.pdf", tmp_path / "empty")
+        assert titles[0] == "Title page"
+        assert len(titles) == 1 + len(REPORT_STAGES)
+        assert all(t.endswith("missing") for t in titles[1:]), titles
+
+
+class TestCli:
+    def test_report_command(self, workdir, tmp_path):
+        out = tmp_path / "fit.pdf"
+        proc = subprocess.run(CLI + ["report", "--workdir", str(workdir), "--stage", "fit", "--out", str(out)],
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        assert "page  1: Title page" in proc.stdout and f"wrote {out}" in proc.stdout
+        assert _pdf_pages(out) == 4
+
+    def test_errors_are_one_line(self, tmp_path):
+        proc = subprocess.run(CLI + ["report", "--workdir", str(tmp_path / "nowhere")], capture_output=True, text=True)
+        assert proc.returncode == 2
+        assert proc.stderr == f"error: {tmp_path / 'nowhere'}: no such folder\n", proc.stderr
+        with pytest.raises(IiwaIdentError, match="--stage nope: expected one of fit, ripple"):
+            build_report(tmp_path / "r.pdf", tmp_path, stage="nope")
