@@ -35,3 +35,19 @@ def smooth_command(n: int, dt: float = 1e-3, bias: float = 8.0, amp: float = 5.0
     """A command that starts above the standstill threshold and within the slew-rate limit."""
     t = np.arange(n) * dt
     return 1.5 + bias * np.sin(np.pi * np.minimum(t, 0.5)) ** 2 + amp * np.sin(2 * np.pi * f * t) * np.minimum(t / 0.3, 1)
+
+
+def assert_not_blank(png) -> None:
+    """A rendered page shows something: enough pixels that differ from the background."""
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(png)[..., :3]
+    dark = np.mean(img.mean(axis=2) < 0.8)
+    assert dark > 0.005, f"{png.name}: blank page ({100 * dark:.2f} % non-white pixels)"
+
+
+def pdf_pages(path) -> int:
+    """Page count of a PDF as matplotlib writes it (one ``/Type /Page`` object per page)."""
+    import re
+
+    return len(re.findall(rb"/Type\s*/Page\b(?!s)", path.read_bytes()))

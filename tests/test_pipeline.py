@@ -7,7 +7,6 @@ The 60 s budget of the full run on the default plant is measured by
 from __future__ import annotations
 
 import json
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -17,22 +16,9 @@ import pytest
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import FILES, STAGES, run_pipeline
 
+from conftest import assert_not_blank, pdf_pages
+
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
-
-
-def assert_not_blank(png: Path) -> None:
-    """A rendered page shows something: enough pixels that differ from the background."""
-    import matplotlib.image as mpimg
-    import numpy as np
-
-    img = mpimg.imread(png)[..., :3]
-    dark = np.mean(img.mean(axis=2) < 0.8)
-    assert dark > 0.005, f"{png.name}: blank page ({100 * dark:.2f} % non-white pixels)"
-
-
-def _pdf_pages(path: Path) -> int:
-    """Page count of a PDF as matplotlib writes it (one ``/Type /Page`` object per page)."""
-    return len(re.findall(rb"/Type\s*/Page\b(?!s)", path.read_bytes()))
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +71,7 @@ class TestShortPipeline:
         workdir, result, _ = short_run
         pages = next(s for s in result.stages if s.name == "report").headline["pages"]
         assert pages >= 15
-        assert _pdf_pages(workdir / "report.pdf") == pages
+        assert pdf_pages(workdir / "report.pdf") == pages
 
     def test_validation_pages_render(self, short_run, tmp_path):
         from iiwa_ident.report.pdf import build_report

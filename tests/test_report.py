@@ -8,32 +8,20 @@ then rebuilt from the files alone, as ``iiwa-ident report`` does.
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-import matplotlib.image as mpimg
-import numpy as np
 import pytest
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import run_pipeline
 from iiwa_ident.report.pdf import REPORT_STAGES, build_report, load_results, report_pages
 
+from conftest import assert_not_blank, pdf_pages
+
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
-
-
-def assert_not_blank(png: Path) -> None:
-    """A rendered page shows something: enough pixels that differ from the background."""
-    img = mpimg.imread(png)[..., :3]
-    dark = np.mean(img.mean(axis=2) < 0.8)
-    assert dark > 0.005, f"{png.name}: blank page ({100 * dark:.2f} % non-white pixels)"
-
-
-def _pdf_pages(path: Path) -> int:
-    return len(re.findall(rb"/Type\s*/Page\b(?!s)", path.read_bytes()))
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +37,7 @@ class TestEveryPageRenders:
         out = tmp_path / "report.pdf"
         titles = build_report(out, workdir, png_dir=tmp_path / "png", png_dpi=30)
         assert not any("not drawn" in t for t in titles), titles
-        assert _pdf_pages(out) == len(titles)
+        assert pdf_pages(out) == len(titles)
         pngs = sorted((tmp_path / "png").glob("page_*.png"))
         assert len(pngs) == len(titles)
         for png in pngs:
@@ -123,7 +111,7 @@ class TestCli:
                               capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
         assert "page  1: Title page" in proc.stdout and f"wrote {out}" in proc.stdout
-        assert _pdf_pages(out) == 4
+        assert pdf_pages(out) == 4
 
     def test_errors_are_one_line(self, tmp_path):
         proc = subprocess.run(CLI + ["report", "--workdir", str(tmp_path / "nowhere")], capture_output=True, text=True)
