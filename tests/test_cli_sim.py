@@ -34,7 +34,7 @@ class TestChirpCommand:
 
     @pytest.mark.parametrize("args, message", [
         (("--target", "robot"), "needs --robot HOST"),
-        (("--target", "robot", "--robot", "host:notaport"), "port must be an integer"),
+        (("--target", "robot", "--robot", "host:notaport"), "expected HOST or HOST:PORT"),
         (("--target", "moon"), "expected 'sim' or 'robot'"),
         (("--f0", "0"), "0 < f0 < f1"),
         (("--rate", "300"), "--rate"),

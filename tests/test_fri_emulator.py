@@ -29,7 +29,6 @@ from iiwa_ident.fri.emulator import (
     RobotEmulator,
     check_config,
     connection_quality,
-    parse_address,
     spawn_emulator,
 )
 from iiwa_ident.fri.protocol import (
@@ -468,14 +467,6 @@ def test_connection_quality_thresholds():
     assert connection_quality(5, 5, 0.1e-3, T) == ConnectionQuality.POOR  # too few samples
     strict = QualityThresholds(window=100, good_loss=0.02, fair_loss=0.10)
     assert connection_quality(95, 100, 0.2e-3, T, strict) == ConnectionQuality.FAIR
-
-
-def test_parse_address():
-    assert parse_address("127.0.0.1:30200") == ("127.0.0.1", 30200)
-    assert parse_address("localhost:0") == ("localhost", 0)
-    for bad in ("30200", "host:", ":1", "h:port", "h:70000"):
-        with pytest.raises(IiwaIdentError, match="HOST:PORT"):
-            parse_address(bad, "--client")
 
 
 # --------------------------------------------------------------------------- CLI

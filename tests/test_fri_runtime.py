@@ -220,11 +220,24 @@ class TestControllerRuntime:
         assert np.abs(a[steady, 1] - ref[steady]).max() < 10.0
         assert np.abs(a[steady, 3] - ref[steady]).max() < 5.0
 
-    def test_torque_filter_is_the_spatial_filter_of_eq_15(self, ripple_config):
-        rt, a = _closed_loop(ripple_config, make_task("step", 10.0, period_s=1.0), 600)
+    def test_feedback_is_the_spatial_filter_of_eq_15_along_theta_j(self, ripple_config):
+        # Offline: the same filter over the same run, along eq (8)'s theta_j, on tau_J minus its start value.
         cfg = ripple_config
+        rt = ControllerRuntime(cfg, make_task("sine", 5.0, 0.5))
+        robot = SimulatedJoint(default_plant(), seed=2)
+        m = robot.start()
+        q, tau, filt = [], [], []
+        for _ in range(1500):
+            rt.cycle(m)
+            q.append(m.q_m), tau.append(m.tau_j), filt.append(rt.tau_j_filt)
+            m = robot.step(Command(tau_c=rt.tau_c))
+        q, tau = np.array(q), np.array(tau)
+        theta = q - cfg.ripple(q)
         f = SpatialFilter(cfg.filter.period_rad, beta=cfg.filter.beta, v_min=cfg.filter.v_min_rad_s)
-        assert rt.torque_filter.beta == f.beta == cfg.filter.beta
+        f.step(0.0, theta[0])  # the runtime starts the filter at rest with the offset removed
+        expected = [f.step(x, th) for x, th in zip(tau[1:] - tau[0], theta[1:])]
+        np.testing.assert_allclose(filt[1:], expected, rtol=0, atol=1e-12)
+        assert np.ptp(theta) > 0.05  # the joint moved, so the filter was active
 
 
 def _monitoring(seq, state=SessionState.MONITORING_WAIT, q=0.0):
@@ -321,8 +334,13 @@ class TestParseHostPort:
     def test_forms(self):
         assert parse_host_port("10.0.0.2") == ("10.0.0.2", 30200)
         assert parse_host_port("robot:30201") == ("robot", 30201)
+        assert parse_host_port("localhost:0", None, "--bind", allow_any_port=True) == ("localhost", 0)
 
-    @pytest.mark.parametrize("text", ["host:", "host:x", ":30200", "host:70000"])
+    @pytest.mark.parametrize("text", ["host:", "host:x", ":30200", "host:70000", "host:0"])
     def test_bad(self, text):
-        with pytest.raises(IiwaIdentError, match="bad address"):
+        with pytest.raises(IiwaIdentError, match="address .*: expected HOST or HOST:PORT with a port 1-65535"):
             parse_host_port(text)
+
+    def test_port_required(self):
+        with pytest.raises(IiwaIdentError, match="--client '30200': expected HOST:PORT"):
+            parse_host_port("30200", None, "--client")

@@ -18,8 +18,8 @@ from iiwa_ident.fri.emulator import (
     EmulatorReport,
     Faults,
     RobotEmulator,
-    parse_address,
 )
+from iiwa_ident.fri.connection import parse_host_port
 from iiwa_ident.fri.protocol import ClientCommandMode, ControlMode
 from iiwa_ident.sim import load_plant
 
@@ -85,8 +85,8 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         corrupt=_check_probability("--corrupt", corrupt), seed=seed)
     torque = mode == "torque"
     return EmulatorConfig(
-        client=parse_address(client, "--client"),
-        bind=parse_address(bind, "--bind"),
+        client=parse_host_port(client, None, "--client"),
+        bind=parse_host_port(bind, None, "--bind", allow_any_port=True),
         plant=load_plant(plant) if plant else None,
         seed=seed,
         control_mode=ControlMode.JOINT_IMPEDANCE if torque else ControlMode.POSITION,

@@ -87,7 +87,7 @@ def run_cmd(
         if target == "robot":
             if not robot:
                 raise IiwaIdentError("--robot HOST is required with --target robot")
-            host, the_port = parse_host_port(robot, port)
+            host, the_port = parse_host_port(robot, port, "--robot")
             the_robot = FriRobot(host, cfg.joint, cfg.robot_model, port=the_port, mode="torque",
                                  connect_timeout_s=connect_timeout, message_timeout_s=cfg.robot.watchdog_timeout_s)
             typer.echo(f"listening on UDP port {the_port} for {host}; waiting for the robot to start commanding")

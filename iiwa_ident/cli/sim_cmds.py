@@ -64,7 +64,7 @@ def _robot_target(experiment: Experiment, robot: Optional[str], port: int, robot
     """The FRI robot the experiment runs on (``--target robot``)."""
     if not robot:
         raise IiwaIdentError("--target robot needs --robot HOST (the robot controller's address)")
-    host, port = parse_host_port(robot, port)
+    host, port = parse_host_port(robot, port, "--robot")
     return FriRobot(host, joint, robot_model, port=port, mode=experiment.mode)
 
 

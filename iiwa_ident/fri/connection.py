@@ -53,18 +53,30 @@ COMMANDING_STATES = frozenset({SessionState.COMMANDING_WAIT, SessionState.COMMAN
 _UINT32 = 1 << 32
 
 
-def parse_host_port(text: str, default_port: int = DEFAULT_PORT) -> tuple[str, int]:
-    """``"HOST"`` or ``"HOST:PORT"`` -> (host, port); raises IiwaIdentError with a one-line message."""
-    host, sep, port_text = text.rpartition(":") if ":" in text else (text, "", "")
+def parse_host_port(text: str, default_port: int | None = DEFAULT_PORT, what: str = "address",
+                    allow_any_port: bool = False) -> tuple[str, int]:
+    """``"HOST"`` or ``"HOST:PORT"`` -> (host, port); raises IiwaIdentError with a one-line message.
+
+    Parameters
+    ----------
+    text : str
+        The address as typed.
+    default_port : int or None
+        Port when ``text`` has none; None: the port is required.
+    what : str
+        Name of the address in the error message (e.g. ``"--client"``).
+    allow_any_port : bool
+        Accept port 0 (bind to any free port).
+    """
+    host, sep, port_text = text.rpartition(":")
     if not sep:
         host, port = text, default_port
     else:
-        try:
-            port = int(port_text)
-        except ValueError:
-            raise IiwaIdentError(f"bad address {text!r}: the port must be an integer") from None
-    if not host or not 0 < port < 65536:
-        raise IiwaIdentError(f"bad address {text!r}: expected HOST or HOST:PORT with a port in 1..65535")
+        port = int(port_text) if port_text.isdigit() else None
+    low = 0 if allow_any_port else 1
+    if not host or port is None or not low <= port <= 65535:
+        form = "HOST:PORT" if default_port is None else "HOST or HOST:PORT"
+        raise IiwaIdentError(f"{what} {text!r}: expected {form} with a port {low}-65535")
     return host, port
 
 

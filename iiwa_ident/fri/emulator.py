@@ -171,7 +171,6 @@ __all__ = [
     "EmulatorProcess",
     "spawn_emulator",
     "check_config",
-    "parse_address",
     "connection_quality",
 ]
 
@@ -440,32 +439,6 @@ def check_config(config: EmulatorConfig) -> None:
             raise IiwaIdentError(f"joint_positions[{i}] = {q:g} rad is outside joint {i + 1}'s range +-{limit:.3f} rad")
     _resolve(config.client, "client", allow_any_port=False)
     _resolve(config.bind, "bind", allow_any_port=True)
-
-
-def parse_address(text: str, option: str = "address") -> tuple[str, int]:
-    """Parse ``HOST:PORT`` (IPv4 address or host name, port 0-65535).
-
-    Parameters
-    ----------
-    text : str
-        E.g. ``"127.0.0.1:30200"``.
-    option : str
-        Name used in the error message.
-
-    Returns
-    -------
-    (str, int)
-        Host and port.
-
-    Raises
-    ------
-    IiwaIdentError
-        If ``text`` is not of that form.
-    """
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or int(port) > 65535:
-        raise IiwaIdentError(f"{option} {text!r}: expected HOST:PORT with a port 0-65535")
-    return host, int(port)
 
 
 def _resolve(address: Any, name: str, allow_any_port: bool) -> tuple[str, int]:

@@ -148,7 +148,6 @@ class ControllerRuntime:
         self._started = False
         # Last cycle's values, for the log.
         self.tau_c = self.tau_r = self.tau_j_filt = self.tau_ext = 0.0
-        self._t_last = 0.0
 
     # ------------------------------------------------------------------
     def _theta(self, q_m: float, tau_j: float) -> tuple[float, float]:
@@ -192,7 +191,6 @@ class ControllerRuntime:
         """
         if not self._started:
             self._restart(meas)
-            self._t_last = meas.t
             self.tau_c = 0.0
             return 0.0
         dt = self.dt
@@ -230,7 +228,6 @@ class ControllerRuntime:
         if self._shutdown == 0.0 and abs(out) <= self._dtau_max:
             out = 0.0
         self.tau_c = out if math.isfinite(out) else 0.0
-        self._t_last = meas.t
         return self.tau_c
 
 
@@ -359,11 +356,10 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
         with _StopSignals() as signals, no_gc_pauses():
             meas = robot.start()
             say(f"commanding: {task.name} for {duration_s:g} s")
-            t_prev, last_ns = meas.t, time.perf_counter_ns()
+            last_ns = time.perf_counter_ns()
             while True:
-                # Robot cycles since the previous message: lost ones (sequence gaps) or late ones (clock).
-                gap = max(1.0 + robot.missed_cycles, (meas.t - t_prev) / dt if k else 1.0)
-                t_prev = meas.t
+                # Robot cycles since the previous message: lost, or skipped because they came late.
+                gap = 1.0 + robot.missed_cycles
                 if signals.flag:
                     runtime.request_stop(signals.flag)
                 elif k >= n_max:
