@@ -51,3 +51,24 @@ def pdf_pages(path) -> int:
     import re
 
     return len(re.findall(rb"/Type\s*/Page\b(?!s)", path.read_bytes()))
+
+
+def wait_for(predicate, timeout_s: float = 60.0, what: str = "the condition"):
+    """Poll ``predicate()`` until it returns a true value and return that value.
+
+    For outcomes of other processes (a file finished by a writer process, a
+    message from a child): the test waits for the event itself, and the
+    generous ``timeout_s`` only ends a test whose event never comes.
+    """
+    import threading
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    pause = threading.Event()
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"{what} did not happen within {timeout_s:g} s")
+        pause.wait(0.02)

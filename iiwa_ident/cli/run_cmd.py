@@ -61,6 +61,9 @@ def run_cmd(
                                            "stop [ms].")] = 20.0,
     connect_timeout: Annotated[float, typer.Option("--connect-timeout", help="Wait this long for the robot "
                                                    "to start commanding [s].")] = 60.0,
+    silence: Annotated[float, typer.Option("--silence", help="End the run when the robot has sent nothing for "
+                                           "this long [s]; shorter gaps trip the watchdog and the run goes "
+                                           "on.")] = 1.0,
     seed: Annotated[int, typer.Option("--seed", help="--target sim: seed of the sensor noise.")] = 0,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the run report as JSON.")] = None,
 ) -> None:
@@ -82,6 +85,8 @@ def run_cmd(
         the_task = make_task(task, amplitude, frequency, period, f1, sweep, kappa)
         if not ramp_ms >= 0:
             raise IiwaIdentError("--ramp-ms must not be negative")
+        if not 0 < silence < float("inf"):
+            raise IiwaIdentError(f"--silence must be a positive number of seconds, got {silence!r}")
         watchdog = Watchdog(cfg.sample_time_s, watchdog_cycles, ramp_ms * 1e-3)
         the_robot: RobotInterface
         if target == "robot":
@@ -89,7 +94,7 @@ def run_cmd(
                 raise IiwaIdentError("--robot HOST is required with --target robot")
             host, the_port = parse_host_port(robot, port, "--robot")
             the_robot = FriRobot(host, cfg.joint, cfg.robot_model, port=the_port, mode="torque",
-                                 connect_timeout_s=connect_timeout, message_timeout_s=cfg.robot.watchdog_timeout_s)
+                                 connect_timeout_s=connect_timeout, message_timeout_s=silence)
             typer.echo(f"listening on UDP port {the_port} for {host}; waiting for the robot to start commanding")
         elif target == "sim":
             if robot:

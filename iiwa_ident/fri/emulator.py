@@ -23,6 +23,27 @@ would stall the loop for tens of milliseconds. Run the emulator in its own
 process (:func:`spawn_emulator`) when the client under test is Python, so
 the two do not share the interpreter lock.
 
+Lockstep
+--------
+With :attr:`EmulatorConfig.lockstep` the emulator runs on a clock of its
+own instead of the wall clock: cycle ``k`` is at virtual time ``k * period``
+and before each cycle the robot side waits until the client has answered
+every monitoring message it was sent (a datagram lost, corrupted or still
+delayed by the injected faults is not waited for). Each answer is taken to
+arrive :attr:`~EmulatorConfig.lockstep_latency_s` after its message was
+delivered; injected jitter delays datagrams in virtual time. A client that
+answers within :attr:`~EmulatorConfig.lockstep_guard_s` of wall time sees
+every cycle in order and never a late, missed or skipped one, however
+loaded the machine is, so runs are exactly repeatable. A client that does
+not answer within the guard is taken for gone: the cycles run on without
+waiting (a commanding session drops after ``timeout_s`` of virtual
+silence, as on the robot) and in a monitoring state the emulator stops the
+clock and sends the current message again every :data:`RESEND_S` until a
+client answers. The first monitoring message is sent that way too, so a
+client may start after the emulator. Use it for tests, and for runs whose
+figures must not depend on the machine's load; the real-time mode is what a
+client meets on the robot.
+
 Reproducibility
 ---------------
 Until commanding first becomes active the joint stands still (zero torque
@@ -162,6 +183,7 @@ from iiwa_ident.sim.plant import Plant, default_plant
 __all__ = [
     "DEFAULT_JOINT_POSITIONS",
     "OVERRUN_S",
+    "RESEND_S",
     "AGENTS",
     "Faults",
     "QualityThresholds",
@@ -180,6 +202,8 @@ DEFAULT_JOINT_POSITIONS: tuple[float, ...] = tuple(
 )
 #: A cycle that starts later than this after its deadline is an overrun [s].
 OVERRUN_S = 0.5e-3
+#: Lockstep: a monitoring message nobody answered is sent again after this wall time [s].
+RESEND_S = 0.05
 #: Values of :attr:`EmulatorConfig.agent`.
 AGENTS = ("hand",)
 
@@ -347,6 +371,15 @@ class EmulatorConfig:
         End the run after this wall time whatever the state [s].
     spin_s : float
         Busy-wait this long before each deadline instead of sleeping [s].
+    lockstep : bool
+        Run on a virtual clock, waiting for each answer (module docstring,
+        "Lockstep") instead of in real time.
+    lockstep_latency_s : float
+        Lockstep: time from a monitoring message's delivery to its answer's
+        arrival [s], below one send period.
+    lockstep_guard_s : float
+        Lockstep: wall time after which a client that has not answered is
+        taken for gone [s].
     """
 
     client: tuple[str, int] = ("127.0.0.1", 30200)
@@ -376,6 +409,9 @@ class EmulatorConfig:
     joint_positions: tuple[float, ...] = DEFAULT_JOINT_POSITIONS
     max_wall_s: float | None = None
     spin_s: float = 0.3e-3
+    lockstep: bool = False
+    lockstep_latency_s: float = 0.2e-3
+    lockstep_guard_s: float = 1.0
 
 
 def _finite(name: str, value: Any, low: float = 0.0, allow_none: bool = False, strict: bool = False) -> None:
@@ -410,6 +446,10 @@ def check_config(config: EmulatorConfig) -> None:
     _finite("duration_s", config.duration_s, allow_none=True, strict=True)
     _finite("max_wall_s", config.max_wall_s, allow_none=True, strict=True)
     _finite("timeout_s", config.timeout_s, strict=True)
+    _finite("lockstep_guard_s", config.lockstep_guard_s, strict=True)
+    _finite("lockstep_latency_s", config.lockstep_latency_s)
+    if config.lockstep_latency_s >= config.send_period_ms * 1e-3:
+        raise IiwaIdentError(f"lockstep_latency_s must be below the send period, got {config.lockstep_latency_s!r}")
     _finite("max_position_error_rad", config.max_position_error_rad, strict=True)
     for name in ("hand_peak_speed_rad_s", "hand_range_rad"):
         _finite(name, getattr(config, name), strict=True)
@@ -573,6 +613,13 @@ class EmulatorReport:
         How late cycles started after their deadline [s].
     overruns : int
         Cycles that started more than :data:`OVERRUN_S` late.
+    resent : int
+        Lockstep: monitoring messages sent again to a client that was not
+        (yet) answering.
+    resent_answers : int
+        Lockstep: answers to a message sent again beyond the first (ignored).
+    client_gone : int
+        Lockstep: times the client did not answer within the guard time.
     faults : dict of str to int
         Injected faults, named as the :class:`Faults` fields: ``loss``,
         ``jitter`` (datagrams delayed), ``duplicate``, ``reorder``,
@@ -584,6 +631,8 @@ class EmulatorReport:
         Wall time of the run [s].
     end_reason : str
         ``"duration"``, ``"stopped"`` or ``"max_wall"``.
+    lockstep : bool
+        Whether the run was in lockstep (times are then virtual).
     dataset : Path or None
         The robot-side dataset written, if any.
     dataset_error : str or None
@@ -611,12 +660,16 @@ class EmulatorReport:
     cycle_delay_p99_s: float | None = None
     cycle_delay_max_s: float | None = None
     overruns: int = 0
+    resent: int = 0
+    resent_answers: int = 0
+    client_gone: int = 0
     faults: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_FAULT_KINDS, 0))
     commanding_s: float = 0.0
     wall_s: float = 0.0
     end_reason: str = ""
     dataset: Path | None = None
     dataset_error: str | None = None
+    lockstep: bool = False
 
     def state_sequence(self) -> list[SessionState]:
         """The session states in the order they were entered."""
@@ -752,7 +805,10 @@ class RobotEmulator:
             gc.freeze()
         try:
             self._setup_run()
-            self._loop()
+            if self.config.lockstep:
+                self._loop_lockstep()
+            else:
+                self._loop()
             self._finish()
         finally:
             self._sock.close()
@@ -763,12 +819,28 @@ class RobotEmulator:
     def _setup_run(self) -> None:
         cfg = self.config
         T = self._period
-        self._report = EmulatorReport()
+        self._report = EmulatorReport(lockstep=cfg.lockstep)
+        # Separate generators for each direction: which cycle an answer falls into must not change the
+        # faults injected into the messages (it can vary in real time).
         self._rng = random.Random(cfg.faults.seed)
+        self._rng_in = random.Random(f"{cfg.faults.seed}:answers")
         self._inbox: list[tuple[float, bytes, Any, int]] = []
-        self._pending: list[tuple[float, int, bytes]] = []  # heap of (due, order, datagram)
+        # Datagrams to the client: (bytes, sequence counter, whether an answer is expected).
+        self._pending: list[tuple[float, int, tuple[bytes, int, bool]]] = []  # heap of (due, order, datagram)
         self._order = 0
-        self._held: list[bytes] | None = None
+        self._held: list[tuple[bytes, int, bool]] | None = None
+        # Lockstep bookkeeping (see the module docstring).
+        self._lockstep = cfg.lockstep
+        self._vt = 0.0  # virtual time of the current cycle [s]
+        self._epoch_ns = time.time_ns()  # wall-clock stamp of virtual time 0 for the messages' timestamps
+        self._await_seq = -1  # newest delivered message that expects an answer
+        self._await_data = b""
+        self._heard_seq = -1  # newest message an answer reflected
+        self._heard_any = False
+        self._gone = False
+        self._resent_seq = -1
+        self._resent_heard = False
+        self._ring_delay = [0.0] * _RING  # injected delivery delay of each message [s]
         self._seq = 0  # next own sequence counter
         self._client_seq: int | None = None  # newest accepted client sequence counter
         self._ring_seq = [-1] * _RING
@@ -849,6 +921,99 @@ class RobotEmulator:
                 return
             k += 1
 
+    def _loop_lockstep(self) -> None:
+        cfg = self.config
+        T = self._period
+        perf = time.perf_counter
+        self._t0 = t0 = perf()
+        max_wall = cfg.max_wall_s
+        k = 0
+        while True:
+            self._vt = k * T
+            self._wait_answers(k)
+            if not self._ending or self._state != SessionState.IDLE:
+                if self._stop_requested:
+                    self._end("stopped", k)
+                elif max_wall is not None and perf() - t0 >= max_wall:
+                    self._end("max_wall", k)
+            self._cycle(k)
+            if self._finished:
+                return
+            k += 1
+
+    def _wait_answers(self, k: int) -> None:
+        """Lockstep: deliver what the faults delayed until now, then wait for the outstanding answers."""
+        cfg = self.config
+        pending = self._pending
+        limit = self._vt - cfg.lockstep_latency_s + 1e-12  # answers to these can still arrive by this cycle
+        while pending and pending[0][0] <= limit:
+            due, _, item = heapq.heappop(pending)
+            self._deliver(item, due)
+        self._drain()
+        if self._await_seq <= self._heard_seq:
+            return
+        if self._gone and (self._state in _COMMANDING or self._ending):
+            return  # silence runs its course: the session drops after timeout_s, or the run closes
+        resend = self._gone or not self._heard_any  # no client (yet): stop the clock until one answers
+        perf = time.perf_counter
+        t0 = self._t0
+        max_wall = cfg.max_wall_s
+        now = perf()
+        deadline = now + cfg.lockstep_guard_s
+        next_resend = now + RESEND_S
+        while True:
+            if self._stop_requested and not self._ending:
+                return
+            if max_wall is not None and now - t0 >= max_wall:
+                return
+            if resend:
+                if now >= next_resend:
+                    self._resend()
+                    next_resend = now + RESEND_S
+                wake = next_resend
+            elif now >= deadline:
+                self._gone = True
+                self._report.client_gone += 1
+                if self._on_event is not None:
+                    self._on_event(self._vt, f"no answer within {cfg.lockstep_guard_s:g} s: client taken for gone")
+                return
+            else:
+                wake = deadline
+            # Short sleeps keep stop requests from other threads and signal handlers prompt.
+            select.select((self._sock,), (), (), min(max(wake - now, 0.0), 0.05))
+            self._drain()
+            if self._await_seq <= self._heard_seq:
+                return
+            now = perf()
+
+    def _resend(self) -> None:
+        """Lockstep: send the newest awaited message again (a client that starts late, or came back)."""
+        self._report.resent += 1
+        if self._resent_seq != self._await_seq:
+            self._resent_seq, self._resent_heard = self._await_seq, False
+        self._sendto(self._await_data)
+
+    def _lockstep_arrival(self, data: bytes) -> float | None:
+        """Lockstep: virtual arrival time of an answer from the client, or None to ignore it (a resend's)."""
+        try:
+            reflected = decode_command(data).header.reflected_sequence_counter
+        except FriDecodeError:
+            return self._vt  # the cycle logic counts it as invalid
+        if reflected == self._resent_seq:
+            if self._resent_heard:
+                self._report.resent_answers += 1
+                return None
+            self._resent_heard = True
+        self._heard_any = True
+        self._gone = False
+        slot = reflected & (_RING - 1)
+        if self._ring_seq[slot] != reflected:
+            # Not a recent message of ours (a corrupted counter the client reflected): it answers nothing awaited.
+            return self._vt
+        if reflected > self._heard_seq:
+            self._heard_seq = reflected
+        return self._ring_t[slot] + self._ring_delay[slot] + self.config.lockstep_latency_s
+
     def _wait_until(self, deadline: float) -> None:
         """Collect answers and send delayed datagrams until ``deadline``."""
         perf = time.perf_counter
@@ -859,7 +1024,7 @@ class RobotEmulator:
             self._drain()
             now = perf()
             while pending and pending[0][0] <= now:
-                self._sendto(heapq.heappop(pending)[2])
+                self._deliver(heapq.heappop(pending)[2])
             remaining = deadline - now
             if remaining <= 0.0 or (self._stop_requested and not self._ending):
                 return
@@ -881,7 +1046,16 @@ class RobotEmulator:
             except OSError:
                 # ICMP errors reported on the socket (some platforms): nothing was received.
                 continue
-            inbox.append((time.perf_counter(), data, addr, latest))
+            if self._lockstep:
+                if addr[:2] != self._client:
+                    t = self._vt
+                else:
+                    t = self._lockstep_arrival(data)
+                    if t is None:
+                        continue
+            else:
+                t = time.perf_counter()
+            inbox.append((t, data, addr, latest))
 
     # -- one cycle ----------------------------------------------------------
     def _cycle(self, k: int) -> None:
@@ -937,7 +1111,7 @@ class RobotEmulator:
         """This cycle's newest answer ``(message, latency, state it answers)`` and the first command problem."""
         rep = self._report
         faults = self.config.faults
-        rng = self._rng
+        rng = self._rng_in
         answer = None
         error = None
         commanding = self._state in _COMMANDING
@@ -1146,7 +1320,8 @@ class RobotEmulator:
         tau[j] = meas.tau_j
         ext = [0.0] * _N_JOINTS
         ext[j] = meas.tau_ext_fri
-        sec, nsec = divmod(time.time_ns(), 1_000_000_000)
+        now_ns = self._epoch_ns + int(round(self._vt * 1e9)) if self._lockstep else time.time_ns()
+        sec, nsec = divmod(now_ns, 1_000_000_000)
         msg = MonitoringMessage(
             header=MessageHeader(MONITORING_MESSAGE_ID, seq, self._client_seq or 0),
             robot_info=self._robot_info,
@@ -1164,17 +1339,18 @@ class RobotEmulator:
         data = encode_monitoring(msg)
         slot = seq & (_RING - 1)
         self._ring_seq[slot] = seq
-        self._ring_t[slot] = time.perf_counter()
+        self._ring_t[slot] = self._vt if self._lockstep else time.perf_counter()
+        self._ring_delay[slot] = 0.0
         self._ring_state[slot] = state
         self._seq = seq + 1
         self._report.monitoring_sent += 1
-        self._emit(data)
+        self._emit(data, seq, state != SessionState.IDLE)
 
-    def _emit(self, data: bytes) -> None:
+    def _emit(self, data: bytes, seq: int, expects_answer: bool) -> None:
         """Send one robot-to-client datagram through the fault injection."""
         faults = self.config.faults
         if not faults.any:
-            self._sendto(data)
+            self._deliver((data, seq, expects_answer))
             return
         rng = self._rng
         counts = self._report.faults
@@ -1184,10 +1360,12 @@ class RobotEmulator:
         if faults.corrupt and rng.random() < faults.corrupt:
             self._count_fault("corrupt", "corrupt_out")
             data = self._corrupt(data)
-        group = [data]
+            expects_answer = False  # the client cannot decode it
+        item = (data, seq, expects_answer)
+        group = [item]
         if faults.duplicate and rng.random() < faults.duplicate:
             counts["duplicate"] += 1
-            group.append(data)
+            group.append(item)
         if self._held is not None:
             group += self._held
             self._held = None
@@ -1197,13 +1375,24 @@ class RobotEmulator:
             return
         if faults.jitter_s:
             counts["jitter"] += 1
-            due = time.perf_counter() + rng.uniform(0.0, faults.jitter_s)
+            due = (self._vt if self._lockstep else time.perf_counter()) + rng.uniform(0.0, faults.jitter_s)
             for d in group:
                 self._order += 1
                 heapq.heappush(self._pending, (due, self._order, d))
         else:
             for d in group:
-                self._sendto(d)
+                self._deliver(d)
+
+    def _deliver(self, item: tuple[bytes, int, bool], due: float | None = None) -> None:
+        """Hand a datagram to the socket; in lockstep its answer is now awaited (``due``: virtual delivery time)."""
+        data, seq, expects_answer = item
+        self._sendto(data)
+        if self._lockstep and expects_answer:
+            slot = seq & (_RING - 1)
+            if self._ring_seq[slot] == seq:
+                self._ring_delay[slot] = (self._vt if due is None else due) - self._ring_t[slot]
+            if seq > self._await_seq:
+                self._await_seq, self._await_data = seq, data
 
     def _count_fault(self, kind: str, direction: str) -> None:
         counts = self._report.faults
@@ -1228,10 +1417,10 @@ class RobotEmulator:
     def _finish(self) -> None:
         rep = self._report
         for d in self._held or ():
-            self._sendto(d)
+            self._sendto(d[0])
         self._held = None
         while self._pending:
-            self._sendto(heapq.heappop(self._pending)[2])
+            self._sendto(heapq.heappop(self._pending)[2][0])
         if not rep.end_reason:
             rep.end_reason = "duration"
         rep.wall_s = time.perf_counter() - self._t0

@@ -30,9 +30,10 @@ Choices
   row were lost, or arrived that late, the additive torque ramps to zero
   over ``ramp_s`` (default 20 ms) and stays there until the link has been
   good for ``recover_cycles`` (default 100); the controller then restarts
-  from rest and ramps back in. Each trip and recovery is reported. Silence
-  of the robot for the config's ``watchdog_timeout_s`` ends the run (the
-  robot drops the session itself after 5 ms without answers).
+  from rest and ramps back in. Each trip and recovery is reported. The run
+  ends when the robot interface reports a longer silence (FRI: its
+  ``message_timeout_s``, ``iiwa-ident run --silence``, default 1 s) or the
+  robot leaves the commanding state.
 * Shutdown (end of the duration, SIGINT, SIGTERM, over-speed, a non-finite
   controller output): the additive torque ramps to zero over ``ramp_s``
   while the session goes on, then the run ends and the log is closed.
