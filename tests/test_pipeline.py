@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.pipeline import FILES, STAGES, run_pipeline
+from iiwa_ident.deploy import read_config
+from iiwa_ident.pipeline import FILES, STAGES, ValidationSettings, run_pipeline, run_validation
 
 from conftest import assert_not_blank, pdf_pages
 
@@ -67,6 +68,18 @@ class TestShortPipeline:
         assert h["observer_improvement"] > 1.5
         assert set(h["tracking"]) == {"step", "sine"}
 
+    def test_validation_figures_repeat_exactly(self, short_run, tmp_path):
+        """In lockstep the closed-loop figures do not depend on the machine: a second run gives the same."""
+        workdir, _, _ = short_run
+        first = json.loads((workdir / "validation.json").read_text())
+        assert first["clock"] == "lockstep"
+        again = run_validation(read_config(workdir / "controller.toml"), tmp_path,
+                               kappa_margins=(first["kappa"]["linear_builtin"], first["kappa"]["linear_additive"]),
+                               delay_s=first["delay_s"], settings=ValidationSettings(**first["settings"]))
+        again = json.loads(json.dumps(again))  # as written: tuples become lists
+        for key in ("runs", "tracking", "kappa", "emulator"):
+            assert again[key] == first[key], key
+
     def test_report_has_every_page(self, short_run):
         workdir, result, _ = short_run
         pages = next(s for s in result.stages if s.name == "report").headline["pages"]
@@ -111,6 +124,8 @@ class TestFailures:
             run_pipeline(tmp_path / "b", target="robot")
         with pytest.raises(IiwaIdentError, match="unknown stage"):
             run_pipeline(tmp_path / "c", skip=("nothing",))
+        with pytest.raises(IiwaIdentError, match="--realtime only applies to --target sim"):
+            run_pipeline(tmp_path / "d", target="robot", robot="192.170.10.2", realtime=True)
         assert not (tmp_path / "a").exists()
 
     def test_cli_errors_are_one_line(self, tmp_path):

@@ -30,6 +30,9 @@ def pipeline_cmd(
     skip: Annotated[Optional[str], typer.Option("--skip", help="Comma-separated stages not to run, e.g. "
                                                 "'validation' (the stages that need them are skipped too).")] = None,
     no_report: Annotated[bool, typer.Option("--no-report", help="Skip report.pdf.")] = False,
+    realtime: Annotated[bool, typer.Option("--realtime", help="--target sim: run the validation's robot emulator "
+                                           "in real time instead of in lockstep (figures then depend on the "
+                                           "machine's load).")] = False,
 ) -> None:
     """Run chirp, fit, experiments, ripple, design, deploy, FRI validation, diagnose and the report.
 
@@ -41,9 +44,17 @@ def pipeline_cmd(
     figures. A failed stage is reported and skips the stages that need it;
     the exit code is then 1.
 
+    With --target sim the validation runs the deployed config through the
+    FRI runtime and the protocol against the robot emulator in lockstep: the
+    robot side waits for each answer, so the figures are exactly repeatable
+    on a loaded machine; it does not measure answer latency
+    (bench/bench_fri_runtime.py does). --realtime runs the emulator on the
+    wall clock instead.
+
     Examples:
       iiwa-ident pipeline --target sim --workdir run1
       iiwa-ident pipeline --target sim --plant my_plant.toml --workdir run2
+      iiwa-ident pipeline --target sim --realtime --workdir run3
       iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
     """
     from iiwa_ident.pipeline import format_summary, run_pipeline
@@ -51,7 +62,7 @@ def pipeline_cmd(
     try:
         result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,
                               progress=lambda m: typer.echo(m), port=port, robot_model=robot_model, joint=joint,
-                              report=not no_report,
+                              report=not no_report, realtime=realtime,
                               skip=tuple(x.strip() for x in (skip or "").split(",") if x.strip()))
     except IiwaIdentError as err:
         raise fail(str(err))

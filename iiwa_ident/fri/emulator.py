@@ -37,7 +37,9 @@ every cycle in order and never a late, missed or skipped one, however
 loaded the machine is, so runs are exactly repeatable. A client that does
 not answer within the guard is taken for gone: the cycles run on without
 waiting (a commanding session drops after ``timeout_s`` of virtual
-silence, as on the robot) and in a monitoring state the emulator stops the
+silence, as on the robot; its messages in that time are not sent, so that
+a client started meanwhile meets the dropped session, as it would on the
+robot, whatever the machine's load) and in a monitoring state the emulator stops the
 clock and sends the current message again every :data:`RESEND_S` until a
 client answers. The first monitoring message is sent that way too, so a
 client may start after the emulator. Use it for tests, and for runs whose
@@ -620,6 +622,9 @@ class EmulatorReport:
         Lockstep: answers to a message sent again beyond the first (ignored).
     client_gone : int
         Lockstep: times the client did not answer within the guard time.
+    unsent : int
+        Lockstep: commanding messages not sent while the session of a client
+        taken for gone ran out its timeout.
     faults : dict of str to int
         Injected faults, named as the :class:`Faults` fields: ``loss``,
         ``jitter`` (datagrams delayed), ``duplicate``, ``reorder``,
@@ -663,6 +668,7 @@ class EmulatorReport:
     resent: int = 0
     resent_answers: int = 0
     client_gone: int = 0
+    unsent: int = 0
     faults: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_FAULT_KINDS, 0))
     commanding_s: float = 0.0
     wall_s: float = 0.0
@@ -1343,6 +1349,12 @@ class RobotEmulator:
         self._ring_delay[slot] = 0.0
         self._ring_state[slot] = state
         self._seq = seq + 1
+        if self._lockstep and self._gone and state in _COMMANDING:
+            # The session of a client taken for gone runs out its timeout unheard: a client started since
+            # (while the robot side waited out the guard time) must meet the dropped session, as it would
+            # on the robot seconds later, and not pick up the old one at a machine-dependent cycle.
+            self._report.unsent += 1
+            return
         self._report.monitoring_sent += 1
         self._emit(data, seq, state != SessionState.IDLE)
 

@@ -8,6 +8,8 @@ Stage, StageRecord, STAGES, FILES
     The stage abstraction, its outcome, the stages in order, the file names.
 format_summary, read_pipeline_json
     The closing summary; ``pipeline.json`` of a work folder.
+run_validation, ValidationSettings
+    The closed-loop validation stage on its own: both controllers through FRI.
 """
 
 from iiwa_ident.pipeline.core import (
@@ -22,6 +24,7 @@ from iiwa_ident.pipeline.core import (
     read_pipeline_json,
     run_pipeline,
 )
+from iiwa_ident.pipeline.validation import ValidationSettings, run_validation
 
 __all__ = ["FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
-           "format_summary", "read_pipeline_json", "run_pipeline"]
+           "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation"]

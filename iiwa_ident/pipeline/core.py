@@ -139,6 +139,7 @@ class PipelineContext:
     port: int = 30200
     robot_model: str = "iiwa14"
     joint: int = 1
+    realtime: bool = False
     settings: PipelineSettings = field(default_factory=PipelineSettings.full)
     progress: Callable[[str], None] = print
     results: dict[str, Any] = field(default_factory=dict)
@@ -375,7 +376,7 @@ def _stage_validation(ctx: PipelineContext) -> dict[str, Any]:
     doc = run_validation(ctx.results["config"], ctx.path("validation_dir"),
                          kappa_margins=(record.margins.builtin, record.margins.additive), delay_s=model.value("Td"),
                          target=ctx.target, plant=ctx.plant if ctx.target == "sim" else None, robot=robot,
-                         settings=ctx.settings.validation, say=ctx.progress)
+                         settings=ctx.settings.validation, say=ctx.progress, lockstep=not ctx.realtime)
     write_atomic(ctx.path("validation_json"), json.dumps(_jsonable(doc), indent=2) + "\n")
     ctx.results["validation"] = doc
     live = doc["kappa"].get("live")
@@ -537,7 +538,7 @@ def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | N
                  robot: str | None = None, short: bool = False, progress: Callable[[str], None] = print, *,
                  port: int = 30200, robot_model: str = "iiwa14", joint: int = 1,
                  settings: PipelineSettings | None = None, report: bool = True,
-                 skip: tuple[str, ...] = ()) -> PipelineResult:
+                 skip: tuple[str, ...] = (), realtime: bool = False) -> PipelineResult:
     """Run every stage in order, write ``pipeline.json`` and ``report.pdf`` into ``workdir``.
 
     Parameters
@@ -564,6 +565,11 @@ def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | N
         Also build ``report.pdf``.
     skip : tuple of str
         Stages not to run (recorded as skipped, as are the stages that need them).
+    realtime : bool
+        Sim target: run the validation's robot emulator in real time instead
+        of in lockstep (:mod:`iiwa_ident.fri.emulator`, "Lockstep"). Lockstep
+        figures are exactly repeatable and independent of the machine's load;
+        real time adds what a loaded machine does to the loop.
 
     Returns
     -------
@@ -579,11 +585,11 @@ def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | N
 
     with single_threaded_blas():
         return _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_model, joint, settings,
-                             report, skip)
+                             report, skip, realtime)
 
 
 def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_model, joint, settings, report,
-                  skip) -> PipelineResult:
+                  skip, realtime) -> PipelineResult:
     t_start = time.perf_counter()
     if target not in ("sim", "robot"):
         raise IiwaIdentError(f"--target {target}: expected 'sim' or 'robot'")
@@ -591,6 +597,8 @@ def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_mo
         raise IiwaIdentError("--target robot needs --robot HOST (the robot controller's address)")
     if target == "robot" and plant is not None:
         raise IiwaIdentError("--plant only applies to --target sim")
+    if target == "robot" and realtime:
+        raise IiwaIdentError("--realtime only applies to --target sim (the robot is always real time)")
     unknown = [name for name in skip if name not in {st.name for st in STAGES}]
     if unknown:
         raise IiwaIdentError(f"--skip {unknown[0]}: unknown stage (known: {', '.join(st.name for st in STAGES)})")
@@ -600,7 +608,8 @@ def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_mo
     workdir.mkdir(parents=True, exist_ok=True)
     settings = settings or (PipelineSettings.short() if short else PipelineSettings.full())
     ctx = PipelineContext(workdir=workdir, target=target, plant_file=Path(plant) if plant else None, robot=robot,
-                          port=port, robot_model=robot_model, joint=joint, settings=settings, progress=progress)
+                          port=port, robot_model=robot_model, joint=joint, realtime=realtime, settings=settings,
+                          progress=progress)
     if target == "sim":
         ctx.plant  # noqa: B018  (a bad plant file is an argument error, reported before anything runs)
     inputs = _inputs(ctx)

@@ -151,13 +151,20 @@ def oscillation_windows(t: np.ndarray, tau_j: np.ndarray, window_s: float, highp
     return [float(np.sqrt(np.mean(osc[i:i + n] ** 2))) for i in range(i0, len(osc) - n + 1, n)]
 
 
-def _robot(host: str, port: int, joint: int, robot_model: str) -> FriRobot:
-    return FriRobot(host, joint, robot_model, port=port, connect_timeout_s=30.0)
+#: Lockstep: the emulator takes a client that has not answered for this long [s] for gone; between two runs
+#: on one emulator it waits this long once, so the next run starts from the same virtual state on any machine.
+LOCKSTEP_GUARD_S = 2.0
 
 
-def _builtin_run(host: str, port: int, config: ControllerConfig, experiment, path: Path) -> Dataset:
+def _robot(host: str, port: int, joint: int, robot_model: str, lockstep: bool) -> FriRobot:
+    # In lockstep the robot is never silent during a session: only a stalled machine delays a message.
+    return FriRobot(host, joint, robot_model, port=port, connect_timeout_s=30.0,
+                    message_timeout_s=4 * LOCKSTEP_GUARD_S if lockstep else 0.1)
+
+
+def _builtin_run(host: str, port: int, config: ControllerConfig, experiment, path: Path, lockstep: bool) -> Dataset:
     """The robot's own loop: the reference goes out as the torque command (with the weak position hold)."""
-    ds = record(_robot(host, port, config.joint, config.robot_model), experiment)
+    ds = record(_robot(host, port, config.joint, config.robot_model, lockstep), experiment)
     write_dataset(path, ds)
     return ds
 
@@ -173,8 +180,8 @@ class _LateFriRobot:
     source = "robot"
     sample_time_s = 1e-3
 
-    def __init__(self, host: str, port: int, joint: int, robot_model: str) -> None:
-        self._args = (host, port, joint, robot_model)
+    def __init__(self, host: str, port: int, joint: int, robot_model: str, lockstep: bool) -> None:
+        self._args = (host, port, joint, robot_model, lockstep)
         self.joint = joint
         self._robot: FriRobot | None = None
 
@@ -196,8 +203,8 @@ class _LateFriRobot:
 
 
 def _additive_run(host: str, port: int, config: ControllerConfig, task, duration_s: float, path: Path,
-                  trip_cycles: int):
-    robot = _LateFriRobot(host, port, config.joint, config.robot_model)
+                  trip_cycles: int, lockstep: bool):
+    robot = _LateFriRobot(host, port, config.joint, config.robot_model, lockstep)
     return run_controller(config, robot, task, duration_s, path,  # type: ignore[arg-type]
                           watchdog=Watchdog(config.sample_time_s, trip_cycles=trip_cycles))
 
@@ -205,7 +212,7 @@ def _additive_run(host: str, port: int, config: ControllerConfig, task, duration
 def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tuple[float, float],
                    delay_s: float, target: str = "sim", plant: Plant | None = None,
                    robot: tuple[str, int] | None = None, settings: ValidationSettings = ValidationSettings(),
-                   say: Callable[[str], None] = lambda _m: None) -> dict[str, Any]:
+                   say: Callable[[str], None] = lambda _m: None, lockstep: bool = True) -> dict[str, Any]:
     """Run the validation: step and fast sine with both controllers, then the live kappa check.
 
     Parameters
@@ -228,20 +235,31 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         Run lengths and amplitudes.
     say : callable
         Progress messages.
+    lockstep : bool
+        Sim target: the emulator runs in lockstep (it waits for each answer,
+        on a virtual clock; :mod:`iiwa_ident.fri.emulator`), so the figures
+        are exactly repeatable and do not depend on the machine's load. False:
+        in real time, as the robot would; a loaded machine then shows up as
+        late answers, watchdog trips and lost sessions.
 
     Returns
     -------
     dict
-        JSON-ready: ``runs`` (per run: ``name``, ``controller``, ``task``,
-        ``file``, parameters and metrics), ``tracking`` (per task: built-in and
-        additive peak errors), ``kappa`` (linear margins, their ratio, and the
-        live run: ``kappa``, ``stable``, oscillation RMS per window).
+        JSON-ready: ``clock`` (``"lockstep"`` or ``"realtime"``), ``runs`` (per
+        run: ``name``, ``controller``, ``task``, ``file``, parameters and
+        metrics), ``tracking`` (per task: built-in and additive peak errors),
+        ``kappa`` (linear margins, their ratio, and the live run: ``kappa``,
+        ``stable``, oscillation RMS per window), ``compute_us_median`` (per
+        additive run: the runtime's median compute time per cycle [us], the
+        one figure that depends on the machine).
     """
     from iiwa_ident.fri.emulator import EmulatorConfig, spawn_emulator
 
     outdir.mkdir(parents=True, exist_ok=True)
     s = settings
+    lockstep = lockstep and target == "sim"
     runs: list[dict[str, Any]] = []
+    compute_us: dict[str, float] = {}
 
     def tracking(host: str, port: int) -> None:
         plan = [
@@ -260,17 +278,17 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
                 # A session the loaded machine lost (late messages) says nothing about the controller: retry once.
                 for attempt in (1, 2):
                     if kind == "builtin":
-                        ds = _builtin_run(host, port, config, experiment, path)
+                        ds = _builtin_run(host, port, config, experiment, path, lockstep)
                         row["stop_reason"] = ds.experiment_attrs.get("stopped_reason", "duration")
                         t = np.asarray(ds["t"], float)
                         t = t - t[0]
                         ref = reference_of(task, t, params["amplitude_nm"], params.get("period_s", 1.0),
                                            params.get("frequency_hz", 1.0))
                     else:
-                        rep = _additive_run(host, port, config, rt_task, duration, path, trip_cycles)
+                        rep = _additive_run(host, port, config, rt_task, duration, path, trip_cycles, lockstep)
                         row["stop_reason"] = rep.stop_reason
                         row["watchdog_events"] = len(rep.watchdog_events)
-                        row["compute_us_median"] = rep.compute_us.get("median", math.nan)
+                        compute_us[row["name"]] = rep.compute_us.get("median", math.nan)
                         ds = read_dataset(path)
                         t = np.asarray(ds["t"], float)
                         t = t - t[0]
@@ -284,9 +302,10 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
                 say(f"  {kind} {task}: {duration:g} s through FRI, {row['stop_reason']}, peak error "
                     f"{row['peak_error_nm']:.1f} Nm ({time.perf_counter() - t_run:.1f} s)")
 
-    # The emulator shares this machine with the client: on a loaded VM it is late now and then, which the
-    # default watchdog (3 cycles) reads as a lost link. The robot itself drops a session after 5 silent ms.
-    trip_cycles = 5 if target == "sim" else 3
+    # In real time the emulator shares this machine with the client: on a loaded VM it is late now and then,
+    # which the default watchdog (3 cycles) reads as a lost link. In lockstep no cycle is late.
+    trip_cycles = 5 if target == "sim" and not lockstep else 3
+    emulator = dict(lockstep=lockstep, lockstep_guard_s=LOCKSTEP_GUARD_S)
     kb, ka = kappa_margins
     kappa_live = _live_kappa(kb, ka)
     kappa_row: dict[str, Any] = {"linear_builtin": _num(kb), "linear_additive": _num(ka),
@@ -294,7 +313,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     emulator_reports: list[dict[str, Any]] = []
     if target == "sim":
         port = free_udp_port()
-        with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=11)) as emu:
+        with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=11, **emulator)) as emu:
             tracking("127.0.0.1", port)
             emu.stop()
             emulator_reports.append(_emulator_summary("tracking", emu.join(30.0)))
@@ -304,9 +323,9 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
             for attempt in (1, 2):  # as above: a session lost to the machine's load is run again once
                 port = free_udp_port()
                 with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=12,
-                                                   agent="hand")) as emu:
+                                                   agent="hand", **emulator)) as emu:
                     rep = _additive_run("127.0.0.1", port, config, make_task("kappa", kappa=kappa_live), s.kappa_s,
-                                        path, trip_cycles)
+                                        path, trip_cycles, lockstep)
                     emu.stop()
                     emulator_reports.append(_emulator_summary("kappa", emu.join(30.0)))
                 if not _lost_session(rep.stop_reason):
@@ -333,8 +352,8 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
             if task == "step":
                 summary[task]["builtin_overshoot_pct"] = b["overshoot_pct"]
                 summary[task]["additive_overshoot_pct"] = a["overshoot_pct"]
-    return {"target": target, "delay_s": delay_s, "runs": runs, "tracking": summary, "kappa": kappa_row,
-            "watchdog_trip_cycles": trip_cycles, "emulator": emulator_reports,
+    return {"target": target, "clock": "lockstep" if lockstep else "realtime", "delay_s": delay_s, "runs": runs, "tracking": summary, "kappa": kappa_row,
+            "watchdog_trip_cycles": trip_cycles, "emulator": emulator_reports, "compute_us_median": compute_us,
             "settings": {k: getattr(s, k) for k in s.__dataclass_fields__}}
 
 
