@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test test-realtime bench clean
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH"; exit 1; }
@@ -23,10 +23,15 @@ demo: $(STAMP)
 	$(CLI) pipeline --target sim --workdir $(DEMO); status=$$?; cp $(DEMO)/report.pdf reports/demo.pdf; exit $$status
 	@echo "report: reports/demo.pdf; every intermediate file in $(DEMO)/ (pipeline.json lists them)"
 
+# Two workers, one test file each at a time (module fixtures are built once); nothing in it depends on
+# wall-clock timing. The few tests that must run in real time are marked `realtime` and run apart.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not realtime"
 
-bench: $(STAMP)
+test-realtime: $(STAMP)
+	$(BIN)/python -m pytest -q -m realtime
+
+bench: $(STAMP) test-realtime
 	$(BIN)/python bench/bench_sim.py
 	$(BIN)/python bench/bench_fri_codec.py
 	$(BIN)/python bench/bench_logwriter.py

@@ -5,7 +5,7 @@ emulator in this process's main thread and the client in a thread; one test
 runs it through :func:`spawn_emulator`. The emulator runs in lockstep (it
 waits for each answer, on a virtual clock), so counts, sequences and the
 simulated joint are exact whatever the machine's load; the one test of the
-real-time loop asserts nothing that depends on timing.
+real-time loop is marked ``realtime`` (``make test-realtime``).
 """
 
 from __future__ import annotations
@@ -371,6 +371,7 @@ def test_hand_moves_the_link(tmp_path):
     assert max(abs(e) for e in ext) > 0.2
 
 
+@pytest.mark.realtime
 def test_stop_from_another_thread_in_real_time():
     def policy(client: Client, msg):
         if len(client.messages) == 100:  # never answers; stops the robot from its own thread
@@ -540,3 +541,15 @@ def test_cli_runs_and_writes_report_and_record(tmp_path):
     assert doc["dataset"] == str(rec)
     ds = read_dataset(rec)
     assert ds.experiment_attrs["commanding_start_index"] == -1 and ds.n_samples > 50
+
+
+def test_cli_lockstep_serves_a_client_exactly():
+    with Client(torque_policy(2.0)) as client:
+        res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep",
+                     "--duration", "0.2", "--seed", "3")
+        client.settle()
+    assert res.exit_code == 0, res.output
+    assert "lockstep (times are virtual)" in res.output and "ended: duration" in res.output
+    assert "session drops: 0" in res.output and "late" in res.output
+    assert client.states() == FULL_SEQUENCE[1:]
+    assert [m.connection_info.session_state for m in client.messages].count(S.COMMANDING_ACTIVE) == 200

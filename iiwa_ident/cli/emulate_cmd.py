@@ -51,6 +51,9 @@ def format_summary(report: EmulatorReport) -> str:
         lines.append("faults injected: " + ", ".join(f"{k} {v}" for k, v in injected.items()))
     if r.send_errors:
         lines.append(f"send errors: {r.send_errors}")
+    if r.lockstep:
+        lines.append(f"lockstep (times are virtual): messages resent to a silent client {r.resent}, client taken "
+                     f"for gone {r.client_gone} times, commanding messages left unsent after that {r.unsent}")
     lines.append(f"commanding active: {r.commanding_s:.3f} s; wall time {r.wall_s:.3f} s; ended: {r.end_reason}")
     return "\n".join(lines)
 
@@ -67,7 +70,7 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 
 
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
-            record, max_time, hand_speed) -> EmulatorConfig:
+            record, max_time, hand_speed, lockstep=False) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
     if mode not in ("torque", "position"):
         raise IiwaIdentError(f"--mode {mode!r}: must be 'torque' or 'position'")
@@ -97,6 +100,7 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         hand_peak_speed_rad_s=hand_speed,
         record=record,
         max_wall_s=max_time,
+        lockstep=lockstep,
     )
 
 
@@ -130,6 +134,9 @@ def emulate_cmd(
     max_time: Annotated[Optional[float], typer.Option("--max-time", help="Stop after this many seconds of wall "
                                                       "time, whatever the session state.")] = None,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the run report as JSON.")] = None,
+    lockstep: Annotated[bool, typer.Option("--lockstep", help="Wait for each answer, on a virtual clock: "
+                                           "repeatable runs whatever the machine's load (no latency is "
+                                           "measured).")] = False,
 ) -> None:
     """Emulate the robot controller's side of FRI at 1 kHz over UDP, with the simulated joint behind it.
 
@@ -138,16 +145,19 @@ def emulate_cmd(
     client's command to the simulated joint and drops the session after 5 ms without answers or on
     a malformed or inconsistent command, as the robot does. Prints the state transitions and a
     summary; Ctrl-C (SIGINT) or SIGTERM closes the session and still writes --record and --json.
+    With --lockstep the robot side waits for each answer before its next cycle (times in the
+    output are then virtual): for testing a client, not for measuring it.
 
     Examples:
       iiwa-ident emulate --client 127.0.0.1:30200 --duration 10
       iiwa-ident emulate --duration 5 --loss 0.01 --jitter-ms 0.3 --duplicate 0.01 --reorder 0.01
       iiwa-ident emulate --mode position --agent hand --record robot.h5 --json report.json
       iiwa-ident emulate --plant my_plant.toml --bind 127.0.0.1:30201
+      iiwa-ident emulate --lockstep --duration 5 --record robot.h5
     """
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
-                         agent, record, max_time, hand_speed)
+                         agent, record, max_time, hand_speed, lockstep)
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
         raise fail(str(err))
