@@ -39,12 +39,15 @@ not answer within the guard is taken for gone: the cycles run on without
 waiting (a commanding session drops after ``timeout_s`` of virtual
 silence, as on the robot; its messages in that time are not sent, so that
 a client started meanwhile meets the dropped session, as it would on the
-robot, whatever the machine's load) and in a monitoring state the emulator stops the
-clock and sends the current message again every :data:`RESEND_S` until a
+robot, whatever the machine's load) and in a monitoring state the emulator
+stops the clock and sends the current message again every :data:`RESEND_S` until a
 client answers. The first monitoring message is sent that way too, so a
 client may start after the emulator. Use it for tests, and for runs whose
 figures must not depend on the machine's load; the real-time mode is what a
-client meets on the robot.
+client meets on the robot. Both modes run the same loop, sockets, protocol
+and session logic; only the clock object differs (when a cycle runs, what
+its time stamps say, which answers are awaited), so lockstep does not show
+answer latency (``bench/bench_fri_runtime.py`` measures it).
 
 Reproducibility
 ---------------
@@ -719,6 +722,206 @@ class _ShiftedAgent:
         return out
 
 
+class _RealTimeClock:
+    """The robot side on the wall clock: cycle ``k`` at ``t0 + k * period``.
+
+    Between deadlines it collects answers and sends the datagrams the faults
+    delayed; a cycle more than a period late skips the lost deadlines.
+    """
+
+    def __init__(self, emu: "RobotEmulator") -> None:
+        self.emu = emu
+        self.t0 = 0.0
+
+    def start(self) -> None:
+        self.t0 = time.perf_counter() + 1e-3
+
+    def wait(self, k: int) -> int:
+        """Wait for cycle ``k``'s deadline; the cycle to run (later than ``k`` after a stall)."""
+        emu = self.emu
+        period = emu._period
+        deadline = self.t0 + k * period
+        self._wait_until(deadline)
+        late = time.perf_counter() - deadline
+        rep = emu._report
+        if late > OVERRUN_S:
+            rep.overruns += 1
+        emu._delay.add(late)
+        if late >= period:
+            # Fell a whole period behind: skip the lost deadlines rather than burst.
+            skip = int(late / period)
+            rep.skipped_cycles += skip
+            k += skip
+        return k
+
+    def _wait_until(self, deadline: float) -> None:
+        emu = self.emu
+        perf = time.perf_counter
+        spin = emu.config.spin_s
+        sock = emu._sock
+        pending = emu._pending
+        while True:
+            emu._drain()
+            now = perf()
+            while pending and pending[0][0] <= now:
+                emu._deliver(heapq.heappop(pending)[2])
+            remaining = deadline - now
+            if remaining <= 0.0 or (emu._stop_requested and not emu._ending):
+                return
+            wake = deadline - spin
+            if pending and pending[0][0] < wake:
+                wake = pending[0][0]
+            if wake - now > 20e-6:
+                select.select((sock,), (), (), wake - now)
+
+    def now(self) -> float:
+        """The robot side's time now [s] (send times, fault delays)."""
+        return time.perf_counter()
+
+    def wall(self) -> float:
+        """Wall time since the start [s]."""
+        return time.perf_counter() - self.t0
+
+    def stamp_ns(self) -> int:
+        """The monitoring message's timestamp [ns since the epoch]."""
+        return time.time_ns()
+
+    def arrival(self, data: bytes, addr: Any) -> float | None:
+        """Arrival time of a received datagram [s]; None: ignore it."""
+        return time.perf_counter()
+
+    def sends(self, slot: int, state: SessionState) -> bool:
+        """Whether the message just built (ring ``slot``, in ``state``) goes out."""
+        return True
+
+    def delivered(self, data: bytes, seq: int, due: float | None) -> None:
+        """A message that expects an answer went to the socket (``due``: when the faults let it)."""
+
+
+class _LockstepClock(_RealTimeClock):
+    """The robot side on a virtual clock that waits for the answers (module docstring, "Lockstep").
+
+    Cycle ``k`` is at ``k * period``; an answer arrives ``lockstep_latency_s``
+    after its message was delivered. The bookkeeping: the newest delivered
+    message that expects an answer, the newest one answered, and whether the
+    client has answered at all or was taken for gone.
+    """
+
+    def __init__(self, emu: "RobotEmulator") -> None:
+        super().__init__(emu)
+        self.vt = 0.0  # virtual time of the current cycle [s]
+        self.epoch_ns = time.time_ns()  # wall-clock stamp of virtual time 0 for the messages' timestamps
+        self.await_seq = -1  # newest delivered message that expects an answer
+        self.await_data = b""
+        self.heard_seq = -1  # newest message an answer reflected
+        self.heard_any = False
+        self.gone = False
+        self.resent_seq = -1
+        self.resent_heard = False
+        self.ring_delay = [0.0] * _RING  # injected delivery delay of each message [s]
+
+    def start(self) -> None:
+        self.t0 = time.perf_counter()
+
+    def wait(self, k: int) -> int:
+        """Deliver what the faults delayed until cycle ``k``, then wait for the outstanding answers."""
+        emu = self.emu
+        cfg = emu.config
+        self.vt = k * emu._period
+        pending = emu._pending
+        limit = self.vt - cfg.lockstep_latency_s + 1e-12  # answers to these can still arrive by this cycle
+        while pending and pending[0][0] <= limit:
+            due, _, item = heapq.heappop(pending)
+            emu._deliver(item, due)
+        emu._drain()
+        if self.await_seq <= self.heard_seq:
+            return k
+        if self.gone and (emu._state in _COMMANDING or emu._ending):
+            return k  # silence runs its course: the session drops after timeout_s, or the run closes
+        resend = self.gone or not self.heard_any  # no client (yet): stop the clock until one answers
+        perf = time.perf_counter
+        max_wall = cfg.max_wall_s
+        now = perf()
+        deadline = now + cfg.lockstep_guard_s
+        next_resend = now + RESEND_S
+        while True:
+            if emu._stop_requested and not emu._ending:
+                return k
+            if max_wall is not None and now - self.t0 >= max_wall:
+                return k
+            if resend:
+                if now >= next_resend:
+                    self._resend()
+                    next_resend = now + RESEND_S
+                wake = next_resend
+            elif now >= deadline:
+                self.gone = True
+                emu._report.client_gone += 1
+                if emu._on_event is not None:
+                    emu._on_event(self.vt, f"no answer within {cfg.lockstep_guard_s:g} s: client taken for gone")
+                return k
+            else:
+                wake = deadline
+            # Short sleeps keep stop requests from other threads and signal handlers prompt.
+            select.select((emu._sock,), (), (), min(max(wake - now, 0.0), 0.05))
+            emu._drain()
+            if self.await_seq <= self.heard_seq:
+                return k
+            now = perf()
+
+    def _resend(self) -> None:
+        """Send the newest awaited message again (a client that starts late, or came back)."""
+        self.emu._report.resent += 1
+        if self.resent_seq != self.await_seq:
+            self.resent_seq, self.resent_heard = self.await_seq, False
+        self.emu._sendto(self.await_data)
+
+    def now(self) -> float:
+        return self.vt
+
+    def stamp_ns(self) -> int:
+        return self.epoch_ns + int(round(self.vt * 1e9))
+
+    def arrival(self, data: bytes, addr: Any) -> float | None:
+        """Virtual arrival time of an answer; None for a second answer to a message sent again."""
+        emu = self.emu
+        if addr[:2] != emu._client:
+            return self.vt
+        try:
+            reflected = decode_command(data).header.reflected_sequence_counter
+        except FriDecodeError:
+            return self.vt  # the cycle logic counts it as invalid
+        if reflected == self.resent_seq:
+            if self.resent_heard:
+                emu._report.resent_answers += 1
+                return None
+            self.resent_heard = True
+        self.heard_any = True
+        self.gone = False
+        slot = reflected & (_RING - 1)
+        if emu._ring_seq[slot] != reflected:
+            # Not a recent message of ours (a corrupted counter the client reflected): it answers nothing awaited.
+            return self.vt
+        if reflected > self.heard_seq:
+            self.heard_seq = reflected
+        return emu._ring_t[slot] + self.ring_delay[slot] + emu.config.lockstep_latency_s
+
+    def sends(self, slot: int, state: SessionState) -> bool:
+        self.ring_delay[slot] = 0.0
+        # The session of a client taken for gone runs out its timeout unheard: a client started since
+        # (while the robot side waited out the guard time) must meet the dropped session, as it would
+        # on the robot seconds later, and not pick up the old one at a machine-dependent cycle.
+        return not (self.gone and state in _COMMANDING)
+
+    def delivered(self, data: bytes, seq: int, due: float | None) -> None:
+        emu = self.emu
+        slot = seq & (_RING - 1)
+        if emu._ring_seq[slot] == seq:
+            self.ring_delay[slot] = (self.vt if due is None else due) - emu._ring_t[slot]
+        if seq > self.await_seq:
+            self.await_seq, self.await_data = seq, data
+
+
 class RobotEmulator:
     """The robot controller's side of an FRI session, in real time, with a simulated joint.
 
@@ -811,10 +1014,7 @@ class RobotEmulator:
             gc.freeze()
         try:
             self._setup_run()
-            if self.config.lockstep:
-                self._loop_lockstep()
-            else:
-                self._loop()
+            self._loop()
             self._finish()
         finally:
             self._sock.close()
@@ -835,18 +1035,7 @@ class RobotEmulator:
         self._pending: list[tuple[float, int, tuple[bytes, int, bool]]] = []  # heap of (due, order, datagram)
         self._order = 0
         self._held: list[tuple[bytes, int, bool]] | None = None
-        # Lockstep bookkeeping (see the module docstring).
-        self._lockstep = cfg.lockstep
-        self._vt = 0.0  # virtual time of the current cycle [s]
-        self._epoch_ns = time.time_ns()  # wall-clock stamp of virtual time 0 for the messages' timestamps
-        self._await_seq = -1  # newest delivered message that expects an answer
-        self._await_data = b""
-        self._heard_seq = -1  # newest message an answer reflected
-        self._heard_any = False
-        self._gone = False
-        self._resent_seq = -1
-        self._resent_heard = False
-        self._ring_delay = [0.0] * _RING  # injected delivery delay of each message [s]
+        self._clock: _RealTimeClock | _LockstepClock = (_LockstepClock if cfg.lockstep else _RealTimeClock)(self)
         self._seq = 0  # next own sequence counter
         self._client_seq: int | None = None  # newest accepted client sequence counter
         self._ring_seq = [-1] * _RING
@@ -899,146 +1088,21 @@ class RobotEmulator:
 
     def _loop(self) -> None:
         cfg = self.config
-        T = self._period
-        perf = time.perf_counter
-        self._t0 = t0 = perf() + 1e-3
+        clock = self._clock
+        clock.start()
         max_wall = cfg.max_wall_s
         k = 0
         while True:
-            deadline = t0 + k * T
-            self._wait_until(deadline)
-            now = perf()
-            late = now - deadline
-            if late > OVERRUN_S:
-                self._report.overruns += 1
-            self._delay.add(late)
-            if late >= T:
-                # Fell a whole period behind: skip the lost deadlines rather than burst.
-                skip = int(late / T)
-                self._report.skipped_cycles += skip
-                k += skip
+            k = clock.wait(k)
             if not self._ending or self._state != SessionState.IDLE:
                 if self._stop_requested:
                     self._end("stopped", k)
-                elif max_wall is not None and now - t0 >= max_wall:
+                elif max_wall is not None and clock.wall() >= max_wall:
                     self._end("max_wall", k)
             self._cycle(k)
             if self._finished:
                 return
             k += 1
-
-    def _loop_lockstep(self) -> None:
-        cfg = self.config
-        T = self._period
-        perf = time.perf_counter
-        self._t0 = t0 = perf()
-        max_wall = cfg.max_wall_s
-        k = 0
-        while True:
-            self._vt = k * T
-            self._wait_answers(k)
-            if not self._ending or self._state != SessionState.IDLE:
-                if self._stop_requested:
-                    self._end("stopped", k)
-                elif max_wall is not None and perf() - t0 >= max_wall:
-                    self._end("max_wall", k)
-            self._cycle(k)
-            if self._finished:
-                return
-            k += 1
-
-    def _wait_answers(self, k: int) -> None:
-        """Lockstep: deliver what the faults delayed until now, then wait for the outstanding answers."""
-        cfg = self.config
-        pending = self._pending
-        limit = self._vt - cfg.lockstep_latency_s + 1e-12  # answers to these can still arrive by this cycle
-        while pending and pending[0][0] <= limit:
-            due, _, item = heapq.heappop(pending)
-            self._deliver(item, due)
-        self._drain()
-        if self._await_seq <= self._heard_seq:
-            return
-        if self._gone and (self._state in _COMMANDING or self._ending):
-            return  # silence runs its course: the session drops after timeout_s, or the run closes
-        resend = self._gone or not self._heard_any  # no client (yet): stop the clock until one answers
-        perf = time.perf_counter
-        t0 = self._t0
-        max_wall = cfg.max_wall_s
-        now = perf()
-        deadline = now + cfg.lockstep_guard_s
-        next_resend = now + RESEND_S
-        while True:
-            if self._stop_requested and not self._ending:
-                return
-            if max_wall is not None and now - t0 >= max_wall:
-                return
-            if resend:
-                if now >= next_resend:
-                    self._resend()
-                    next_resend = now + RESEND_S
-                wake = next_resend
-            elif now >= deadline:
-                self._gone = True
-                self._report.client_gone += 1
-                if self._on_event is not None:
-                    self._on_event(self._vt, f"no answer within {cfg.lockstep_guard_s:g} s: client taken for gone")
-                return
-            else:
-                wake = deadline
-            # Short sleeps keep stop requests from other threads and signal handlers prompt.
-            select.select((self._sock,), (), (), min(max(wake - now, 0.0), 0.05))
-            self._drain()
-            if self._await_seq <= self._heard_seq:
-                return
-            now = perf()
-
-    def _resend(self) -> None:
-        """Lockstep: send the newest awaited message again (a client that starts late, or came back)."""
-        self._report.resent += 1
-        if self._resent_seq != self._await_seq:
-            self._resent_seq, self._resent_heard = self._await_seq, False
-        self._sendto(self._await_data)
-
-    def _lockstep_arrival(self, data: bytes) -> float | None:
-        """Lockstep: virtual arrival time of an answer from the client, or None to ignore it (a resend's)."""
-        try:
-            reflected = decode_command(data).header.reflected_sequence_counter
-        except FriDecodeError:
-            return self._vt  # the cycle logic counts it as invalid
-        if reflected == self._resent_seq:
-            if self._resent_heard:
-                self._report.resent_answers += 1
-                return None
-            self._resent_heard = True
-        self._heard_any = True
-        self._gone = False
-        slot = reflected & (_RING - 1)
-        if self._ring_seq[slot] != reflected:
-            # Not a recent message of ours (a corrupted counter the client reflected): it answers nothing awaited.
-            return self._vt
-        if reflected > self._heard_seq:
-            self._heard_seq = reflected
-        return self._ring_t[slot] + self._ring_delay[slot] + self.config.lockstep_latency_s
-
-    def _wait_until(self, deadline: float) -> None:
-        """Collect answers and send delayed datagrams until ``deadline``."""
-        perf = time.perf_counter
-        spin = self.config.spin_s
-        sock = self._sock
-        pending = self._pending
-        while True:
-            self._drain()
-            now = perf()
-            while pending and pending[0][0] <= now:
-                self._deliver(heapq.heappop(pending)[2])
-            remaining = deadline - now
-            if remaining <= 0.0 or (self._stop_requested and not self._ending):
-                return
-            wake = deadline - spin
-            if pending and pending[0][0] < wake:
-                wake = pending[0][0]
-            if wake - now > 20e-6:
-                select.select((sock,), (), (), wake - now)
 
     def _drain(self) -> None:
         sock = self._sock
@@ -1052,16 +1116,9 @@ class RobotEmulator:
             except OSError:
                 # ICMP errors reported on the socket (some platforms): nothing was received.
                 continue
-            if self._lockstep:
-                if addr[:2] != self._client:
-                    t = self._vt
-                else:
-                    t = self._lockstep_arrival(data)
-                    if t is None:
-                        continue
-            else:
-                t = time.perf_counter()
-            inbox.append((t, data, addr, latest))
+            t = self._clock.arrival(data, addr)
+            if t is not None:
+                inbox.append((t, data, addr, latest))
 
     # -- one cycle ----------------------------------------------------------
     def _cycle(self, k: int) -> None:
@@ -1326,8 +1383,7 @@ class RobotEmulator:
         tau[j] = meas.tau_j
         ext = [0.0] * _N_JOINTS
         ext[j] = meas.tau_ext_fri
-        now_ns = self._epoch_ns + int(round(self._vt * 1e9)) if self._lockstep else time.time_ns()
-        sec, nsec = divmod(now_ns, 1_000_000_000)
+        sec, nsec = divmod(self._clock.stamp_ns(), 1_000_000_000)
         msg = MonitoringMessage(
             header=MessageHeader(MONITORING_MESSAGE_ID, seq, self._client_seq or 0),
             robot_info=self._robot_info,
@@ -1345,14 +1401,10 @@ class RobotEmulator:
         data = encode_monitoring(msg)
         slot = seq & (_RING - 1)
         self._ring_seq[slot] = seq
-        self._ring_t[slot] = self._vt if self._lockstep else time.perf_counter()
-        self._ring_delay[slot] = 0.0
+        self._ring_t[slot] = self._clock.now()
         self._ring_state[slot] = state
         self._seq = seq + 1
-        if self._lockstep and self._gone and state in _COMMANDING:
-            # The session of a client taken for gone runs out its timeout unheard: a client started since
-            # (while the robot side waited out the guard time) must meet the dropped session, as it would
-            # on the robot seconds later, and not pick up the old one at a machine-dependent cycle.
+        if not self._clock.sends(slot, state):
             self._report.unsent += 1
             return
         self._report.monitoring_sent += 1
@@ -1387,7 +1439,7 @@ class RobotEmulator:
             return
         if faults.jitter_s:
             counts["jitter"] += 1
-            due = (self._vt if self._lockstep else time.perf_counter()) + rng.uniform(0.0, faults.jitter_s)
+            due = self._clock.now() + rng.uniform(0.0, faults.jitter_s)
             for d in group:
                 self._order += 1
                 heapq.heappush(self._pending, (due, self._order, d))
@@ -1399,12 +1451,8 @@ class RobotEmulator:
         """Hand a datagram to the socket; in lockstep its answer is now awaited (``due``: virtual delivery time)."""
         data, seq, expects_answer = item
         self._sendto(data)
-        if self._lockstep and expects_answer:
-            slot = seq & (_RING - 1)
-            if self._ring_seq[slot] == seq:
-                self._ring_delay[slot] = (self._vt if due is None else due) - self._ring_t[slot]
-            if seq > self._await_seq:
-                self._await_seq, self._await_data = seq, data
+        if expects_answer:
+            self._clock.delivered(data, seq, due)
 
     def _count_fault(self, kind: str, direction: str) -> None:
         counts = self._report.faults
@@ -1435,7 +1483,7 @@ class RobotEmulator:
             self._sendto(heapq.heappop(self._pending)[2][0])
         if not rep.end_reason:
             rep.end_reason = "duration"
-        rep.wall_s = time.perf_counter() - self._t0
+        rep.wall_s = self._clock.wall()
         rep.latency_median_s = self._latency.quantile(0.5)
         rep.latency_p99_s = self._latency.quantile(0.99)
         rep.latency_max_s = self._latency.max if self._latency.n else None
