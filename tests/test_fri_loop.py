@@ -61,8 +61,13 @@ def config_file(config, tmp_path_factory):
 
 
 def _emulator(port, **kw):
-    """The robot side in lockstep, with the robot's own 5 ms answer timeout (of virtual time)."""
-    return spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), lockstep=True, **kw))
+    """The robot side in lockstep, with the robot's own 5 ms answer timeout (of virtual time).
+
+    The long guard time: a client that has finished is not taken for gone (and its session not dropped)
+    before the test stops the emulator, however long the client takes to close its log.
+    """
+    return spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), **{"lockstep": True, "lockstep_guard_s": 60.0,
+                                                                         **kw}))
 
 
 def _client(port) -> FriRobot:
@@ -264,6 +269,7 @@ def test_session_states_seen_by_the_client(tmp_path):
                 robot.step(Command(tau_c=0.0))
                 n += 1
         robot.stop()
+        emu.stop()
         report = emu.join(60.0)
     # 300 messages in COMMANDING_ACTIVE: start() returns the first, each step answers one and gets the next, and
     # the step that answers the last gets MONITORING_READY.

@@ -845,7 +845,7 @@ class _LockstepClock(_RealTimeClock):
         deadline = now + cfg.lockstep_guard_s
         next_resend = now + RESEND_S
         while True:
-            if emu._stop_requested and not emu._ending:
+            if emu._stop_requested:  # the session closes without waiting for a client that has finished
                 return k
             if max_wall is not None and now - self.t0 >= max_wall:
                 return k

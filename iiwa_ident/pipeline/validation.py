@@ -18,9 +18,10 @@ from __future__ import annotations
 import math
 import socket
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
@@ -151,15 +152,15 @@ def oscillation_windows(t: np.ndarray, tau_j: np.ndarray, window_s: float, highp
     return [float(np.sqrt(np.mean(osc[i:i + n] ** 2))) for i in range(i0, len(osc) - n + 1, n)]
 
 
-#: Lockstep: the emulator takes a client that has not answered for this long [s] for gone; between two runs
-#: on one emulator it waits this long once, so the next run starts from the same virtual state on any machine.
-LOCKSTEP_GUARD_S = 2.0
+#: Lockstep: the emulator takes a client that has not answered for this long [s] for gone. Each run has
+#: its own emulator, stopped when the run has ended, so this only ends a run whose client hangs.
+LOCKSTEP_GUARD_S = 30.0
 
 
 def _robot(host: str, port: int, joint: int, robot_model: str, lockstep: bool) -> FriRobot:
     # In lockstep the robot is never silent during a session: only a stalled machine delays a message.
     return FriRobot(host, joint, robot_model, port=port, connect_timeout_s=30.0,
-                    message_timeout_s=4 * LOCKSTEP_GUARD_S if lockstep else 0.1)
+                    message_timeout_s=LOCKSTEP_GUARD_S if lockstep else 0.1)
 
 
 def _builtin_run(host: str, port: int, config: ControllerConfig, experiment, path: Path, lockstep: bool) -> Dataset:
@@ -200,6 +201,15 @@ class _LateFriRobot:
         if self._robot is None:
             raise AttributeError(name)
         return getattr(self._robot, name)
+
+
+def _tracking_run(kind: str, host: str, port: int, config: ControllerConfig, experiment, task, duration_s: float,
+                  path: Path, trip_cycles: int, lockstep: bool):
+    """One tracking run: the built-in loop (its dataset, None) or the additive runtime (its log, its report)."""
+    if kind == "builtin":
+        return _builtin_run(host, port, config, experiment, path, lockstep), None
+    rep = _additive_run(host, port, config, task, duration_s, path, trip_cycles, lockstep)
+    return read_dataset(path), rep
 
 
 def _additive_run(host: str, port: int, config: ControllerConfig, task, duration_s: float, path: Path,
@@ -249,7 +259,8 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         run: ``name``, ``controller``, ``task``, ``file``, parameters and
         metrics), ``tracking`` (per task: built-in and additive peak errors),
         ``kappa`` (linear margins, their ratio, and the live run: ``kappa``,
-        ``stable``, oscillation RMS per window), ``compute_us_median`` (per
+        ``stable``, oscillation RMS per window), ``emulator`` (sim target: per
+        run, what the robot side saw), ``compute_us_median`` (per
         additive run: the runtime's median compute time per cycle [us], the
         one figure that depends on the machine).
     """
@@ -261,7 +272,22 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     runs: list[dict[str, Any]] = []
     compute_us: dict[str, float] = {}
 
-    def tracking(host: str, port: int) -> None:
+    @contextmanager
+    def robot_side(what: str, seed: int, **kw: Any) -> Iterator[tuple[str, int]]:
+        """The address of the robot side for one run: the robot, or an emulator of its own."""
+        if target != "sim":
+            yield robot  # type: ignore[misc]
+            return
+        port = free_udp_port()
+        with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=seed, lockstep=lockstep,
+                                           lockstep_guard_s=LOCKSTEP_GUARD_S, **kw)) as emu:
+            try:
+                yield "127.0.0.1", port
+            finally:
+                emu.stop()
+                emulator_reports.append(_emulator_summary(what, emu.join(30.0)))
+
+    def tracking() -> None:
         plan = [
             ("step", {"amplitude_nm": s.step_nm, "period_s": s.step_period_s},
              StepTorque(s.step_nm, s.step_period_s, s.step_cycles),
@@ -277,19 +303,19 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
                                        "file": str(path.name), "duration_s": duration, **params}
                 # A session the loaded machine lost (late messages) says nothing about the controller: retry once.
                 for attempt in (1, 2):
+                    with robot_side(row["name"], 11) as (host, port):
+                        ds, rep = _tracking_run(kind, host, port, config, experiment, rt_task, duration, path,
+                                                trip_cycles, lockstep)
                     if kind == "builtin":
-                        ds = _builtin_run(host, port, config, experiment, path, lockstep)
                         row["stop_reason"] = ds.experiment_attrs.get("stopped_reason", "duration")
                         t = np.asarray(ds["t"], float)
                         t = t - t[0]
                         ref = reference_of(task, t, params["amplitude_nm"], params.get("period_s", 1.0),
                                            params.get("frequency_hz", 1.0))
                     else:
-                        rep = _additive_run(host, port, config, rt_task, duration, path, trip_cycles, lockstep)
                         row["stop_reason"] = rep.stop_reason
                         row["watchdog_events"] = len(rep.watchdog_events)
                         compute_us[row["name"]] = rep.compute_us.get("median", math.nan)
-                        ds = read_dataset(path)
                         t = np.asarray(ds["t"], float)
                         t = t - t[0]
                         ref = np.asarray(ds["tau_r"], float)
@@ -305,29 +331,22 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     # In real time the emulator shares this machine with the client: on a loaded VM it is late now and then,
     # which the default watchdog (3 cycles) reads as a lost link. In lockstep no cycle is late.
     trip_cycles = 5 if target == "sim" and not lockstep else 3
-    emulator = dict(lockstep=lockstep, lockstep_guard_s=LOCKSTEP_GUARD_S)
     kb, ka = kappa_margins
     kappa_live = _live_kappa(kb, ka)
     kappa_row: dict[str, Any] = {"linear_builtin": _num(kb), "linear_additive": _num(ka),
                                  "linear_ratio": _num(ka / kb) if kb > 0 else None, "live": None}
     emulator_reports: list[dict[str, Any]] = []
+    if target != "sim" and robot is None:
+        raise IiwaIdentError("validation on the robot needs the robot's address")
+    tracking()
     if target == "sim":
-        port = free_udp_port()
-        with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=11, **emulator)) as emu:
-            tracking("127.0.0.1", port)
-            emu.stop()
-            emulator_reports.append(_emulator_summary("tracking", emu.join(30.0)))
         if s.kappa_s > 0:
             t_run = time.perf_counter()
             path = outdir / "additive_kappa.h5"
             for attempt in (1, 2):  # as above: a session lost to the machine's load is run again once
-                port = free_udp_port()
-                with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=12,
-                                                   agent="hand", **emulator)) as emu:
-                    rep = _additive_run("127.0.0.1", port, config, make_task("kappa", kappa=kappa_live), s.kappa_s,
+                with robot_side("additive_kappa", 12, agent="hand") as (host, port):
+                    rep = _additive_run(host, port, config, make_task("kappa", kappa=kappa_live), s.kappa_s,
                                         path, trip_cycles, lockstep)
-                    emu.stop()
-                    emulator_reports.append(_emulator_summary("kappa", emu.join(30.0)))
                 if not _lost_session(rep.stop_reason):
                     break
             kappa_row["live"] = live = _judge_kappa(path, rep.stop_reason, kappa_live, s.kappa_window_s)
@@ -337,9 +356,6 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
                 f"{live['verdict']}, {rep.stop_reason} "
                 f"({time.perf_counter() - t_run:.1f} s)")
     else:
-        if robot is None:
-            raise IiwaIdentError("validation on the robot needs the robot's address")
-        tracking(*robot)
         kappa_row["live_skipped"] = ("needs a person holding the joint: run 'iiwa-ident run --task kappa' "
                                      f"with kappa below {ka:.1f}")
     by = {r["name"]: r for r in runs}
