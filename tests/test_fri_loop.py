@@ -173,7 +173,7 @@ class TestRunAgainstTheEmulator:
 def _start_run(config_file, port, log, duration, *extra):
     """``iiwa-ident run`` against the emulator; returns once it prints that it is commanding."""
     proc = subprocess.Popen(CLI + ["run", "--config", str(config_file), "--robot", "127.0.0.1", "--port", str(port),
-                                   "--duration", str(duration), "--log", str(log), "--silence", "30", *extra],
+                                   "--duration", str(duration), "--log", str(log), "--silence-limit", "30", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     for line in proc.stdout:  # blocks until the command prints, or ends

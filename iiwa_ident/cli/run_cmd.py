@@ -61,7 +61,7 @@ def run_cmd(
                                            "stop [ms].")] = 20.0,
     connect_timeout: Annotated[float, typer.Option("--connect-timeout", help="Wait this long for the robot "
                                                    "to start commanding [s].")] = 60.0,
-    silence: Annotated[float, typer.Option("--silence", help="End the run when the robot has sent nothing for "
+    silence: Annotated[float, typer.Option("--silence-limit", help="End the run when the robot has sent nothing for "
                                            "this long [s]; shorter gaps trip the watchdog and the run goes "
                                            "on.")] = 1.0,
     seed: Annotated[int, typer.Option("--seed", help="--target sim: seed of the sensor noise.")] = 0,
@@ -86,7 +86,7 @@ def run_cmd(
         if not ramp_ms >= 0:
             raise IiwaIdentError("--ramp-ms must not be negative")
         if not 0 < silence < float("inf"):
-            raise IiwaIdentError(f"--silence must be a positive number of seconds, got {silence!r}")
+            raise IiwaIdentError(f"--silence-limit must be a positive number of seconds, got {silence!r}")
         watchdog = Watchdog(cfg.sample_time_s, watchdog_cycles, ramp_ms * 1e-3)
         the_robot: RobotInterface
         if target == "robot":

@@ -32,7 +32,7 @@ Choices
   good for ``recover_cycles`` (default 100); the controller then restarts
   from rest and ramps back in. Each trip and recovery is reported. The run
   ends when the robot interface reports a longer silence (FRI: its
-  ``message_timeout_s``, ``iiwa-ident run --silence``, default 1 s) or the
+  ``message_timeout_s``, ``iiwa-ident run --silence-limit``, default 1 s) or the
   robot leaves the commanding state.
 * Shutdown (end of the duration, SIGINT, SIGTERM, over-speed, a non-finite
   controller output): the additive torque ramps to zero over ``ramp_s``
