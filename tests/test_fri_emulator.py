@@ -198,8 +198,10 @@ def stop_after(n: int, policy):
 
 def run(client: Client, **kw):
     """Run an emulator in lockstep for ``client`` in this thread; the report once the client has seen it all."""
-    # max_wall_s: a client thread that died fails the test instead of hanging it.
-    emu = RobotEmulator(EmulatorConfig(client=client.address, **{"lockstep": True, "max_wall_s": 60.0, **kw}))
+    # max_wall_s: a client thread that died fails the test instead of hanging it. The guard: a client the
+    # loaded machine stalls for seconds is still waited for (a test about silence sets a short one).
+    defaults = {"lockstep": True, "max_wall_s": 60.0, "lockstep_guard_s": 5.0}
+    emu = RobotEmulator(EmulatorConfig(client=client.address, **{**defaults, **kw}))
     client.emulator = emu
     report = emu.run()
     client.settle()
@@ -275,7 +277,7 @@ def test_silent_client_drops_the_session():
         return torque_policy(0.0)(client, msg)
 
     with Client(policy) as client:
-        report = run(client, **dict(FAST, timeout_s=0.005))
+        report = run(client, **dict(FAST, timeout_s=0.005, lockstep_guard_s=0.5))
     assert [r for _, r in report.session_drops] == ["no answer for 5.0 ms"]
     assert report.client_gone == 1
     assert report.state_sequence()[:6] == FULL_SEQUENCE[:5] + [S.MONITORING_WAIT]

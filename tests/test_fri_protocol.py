@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import struct
-import time
 
 import numpy as np
 import pytest
@@ -640,7 +639,6 @@ class TestFuzz:
         for data, decode in bases:  # every base is valid
             decode(data)
 
-        t0 = time.perf_counter()
         runs = 0
         random_ok = random_err = mutated_ok = mutated_err = 0
         half = self.TOTAL // 2
@@ -671,12 +669,11 @@ class TestFuzz:
             except FriDecodeError:
                 pass
             runs += 1
-        elapsed = time.perf_counter() - t0
 
         assert runs == self.TOTAL
         assert random_ok + random_err == 2 * half
         assert mutated_ok + mutated_err == half
         assert mutated_ok > 0 and mutated_err > 0
         assert random_err > 0
-        print(f"fuzz: {runs} datagrams in {elapsed:.1f} s; random ok/err {random_ok}/{random_err}, "
+        print(f"fuzz: {runs} datagrams; random ok/err {random_ok}/{random_err}, "
               f"mutated ok/err {mutated_ok}/{mutated_err}")

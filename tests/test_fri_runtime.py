@@ -248,12 +248,17 @@ def _monitoring(seq, state=SessionState.MONITORING_WAIT, q=0.0):
         connection_info=ConnectionInfo(state, ConnectionQuality.EXCELLENT, 1, 1)))
 
 
+#: How long a test waits for a datagram on loopback: it returns as soon as one arrives; the length only
+#: ends a test whose datagram never comes (a loaded machine may delay one for a while).
+WAIT_S = 30.0
+
+
 @pytest.fixture
 def link():
     """A client listening on a free port and a 'robot' socket on 127.0.0.1."""
     robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     robot.bind(("127.0.0.1", 0))
-    robot.settimeout(1.0)
+    robot.settimeout(WAIT_S)
     client = FriConnection("127.0.0.1", 0, "127.0.0.1")
     yield client, robot
     client.close()
@@ -264,7 +269,7 @@ class TestFriConnection:
     def test_answers_header_only_while_monitoring(self, link):
         client, robot = link
         robot.sendto(_monitoring(7), client.address)
-        msg = client.receive(1.0)
+        msg = client.receive(WAIT_S)
         assert msg.header.sequence_counter == 7
         assert client.answer(msg)
         answer = decode_command(robot.recv(2000))
@@ -275,7 +280,7 @@ class TestFriConnection:
     def test_commanding_answers_carry_all_joints(self, link):
         client, robot = link
         robot.sendto(_monitoring(1, SessionState.COMMANDING_ACTIVE), client.address)
-        msg = client.receive(1.0)
+        msg = client.receive(WAIT_S)
         client.answer(msg, [0.1] * 7, [0, 0, 0, 0, 0, 0, 2.5])
         answer = decode_command(robot.recv(2000))
         assert answer.command_data.joint_torque == (0, 0, 0, 0, 0, 0, 2.5)
@@ -290,12 +295,12 @@ class TestFriConnection:
     def test_nothing_sent_in_idle(self, link):
         client, robot = link
         robot.sendto(_monitoring(1, SessionState.IDLE), client.address)
-        assert not client.answer(client.receive(1.0))
+        assert not client.answer(client.receive(WAIT_S))
 
     def test_stale_invalid_and_foreign_datagrams_dropped(self, link):
         client, robot = link
         robot.sendto(_monitoring(5), client.address)
-        assert client.receive(1.0).header.sequence_counter == 5
+        assert client.receive(WAIT_S).header.sequence_counter == 5
         robot.sendto(_monitoring(5), client.address)  # duplicate
         robot.sendto(_monitoring(4), client.address)  # reordered
         robot.sendto(b"\x0a\x02\x08", client.address)  # truncated
@@ -304,7 +309,7 @@ class TestFriConnection:
         stranger.sendto(_monitoring(9), client.address)
         stranger.close()
         robot.sendto(_monitoring(8), client.address)  # 6 and 7 lost
-        msg = client.receive(1.0)
+        msg = client.receive(WAIT_S)
         assert msg.header.sequence_counter == 8
         s = client.stats
         assert (s.stale, s.invalid, s.foreign, s.lost, s.received) == (2, 1, 1, 2, 2)
@@ -313,17 +318,16 @@ class TestFriConnection:
         client, robot = link
         for seq in (1, 2, 3):
             robot.sendto(_monitoring(seq), client.address)
-        import time
-        time.sleep(0.05)
-        assert client.receive(1.0).header.sequence_counter == 3
+        # Loopback delivery is done inside sendto (Linux), so all three are queued now, as in the tests above.
+        assert client.receive(WAIT_S).header.sequence_counter == 3
         assert client.stats.skipped == 2
 
     def test_sequence_counter_wraps(self, link):
         client, robot = link
         robot.sendto(_monitoring(2**32 - 1), client.address)
-        client.receive(1.0)
+        client.receive(WAIT_S)
         robot.sendto(_monitoring(0), client.address)
-        assert client.receive(1.0).header.sequence_counter == 0 and client.stats.stale == 0
+        assert client.receive(WAIT_S).header.sequence_counter == 0 and client.stats.stale == 0
 
     def test_timeout_returns_none(self, link):
         client, _ = link
