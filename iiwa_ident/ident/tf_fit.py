@@ -356,6 +356,7 @@ class _Record:
     joint: int
     spectra: list[_frf.CrossSpectra] | None = None
     filled_cycles: int = 0
+    q0: float = 0.0  # the motor position at the first sample [rad] (``q`` starts at 0)
 
     @property
     def n(self) -> int:
@@ -416,7 +417,7 @@ def _prepare(ds: Dataset, index: int) -> _Record:
     block = np.minimum(np.arange(n) // per_block, max(n // per_block - 1, 0))
     return _Record(label=label, T=T, u=u, tau=tau_j, q=q - q[0], f_lo=f_lo, f_hi=f_hi,
                    sweep=sweep, drift_basis=_spline_basis(n, T, knot), block=block, n_blocks=int(block.max()) + 1,
-                   joint=int(ds.joint), filled_cycles=filled)
+                   joint=int(ds.joint), filled_cycles=filled, q0=float(q[0]))
 
 
 #: Largest share of robot cycles a record may have lost and still be fitted [-].

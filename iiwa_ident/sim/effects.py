@@ -278,10 +278,14 @@ def lut_to_fourier(table: np.ndarray, max_harmonics: int) -> tuple[np.ndarray, n
 
 @register_effect
 class LinkFriction(Effect):
-    """Coulomb and viscous friction on the link [Nm].
+    """Coulomb, Stribeck and viscous friction on the link [Nm].
 
-    ``tau = -F_c tanh(omega_l / v_s) - F_v omega_l``; the tanh with a small
-    ``v_s`` keeps the integrator smooth where sign(omega_l) would jump.
+    ``tau = -(F_c + F_s exp(-(omega_l / v_st)^2)) tanh(omega_l / v_s) - F_v omega_l``;
+    the tanh with a small ``v_s`` keeps the integrator smooth where
+    sign(omega_l) would jump. The Stribeck term (``F_s``, default 0) is the
+    extra breakaway friction near standstill; the identification models
+    ``F_c`` and ``F_v`` only, so a Stribeck term tests it on a shape it
+    does not assume.
     """
 
     name = "link_friction"
@@ -290,46 +294,64 @@ class LinkFriction(Effect):
         Param("coulomb_nm", 2.0, "Nm", 0.0, 200.0, "Coulomb friction level"),
         Param("viscous_nms_rad", 1.0, "Nm s/rad", 0.0, 500.0, "viscous coefficient"),
         Param("smoothing_rad_s", 0.005, "rad/s", 1e-5, 1.0, "velocity scale of the Coulomb tanh"),
+        Param("stribeck_nm", 0.0, "Nm", 0.0, 200.0, "extra breakaway friction at standstill F_s"),
+        Param("stribeck_velocity_rad_s", 0.05, "rad/s", 1e-4, 10.0, "velocity scale v_st of the Stribeck term"),
     )
 
     def link_torque(self, theta_l, omega_l, P):
-        return -P["coulomb_nm"] * ca.tanh(omega_l / P["smoothing_rad_s"]) - P["viscous_nms_rad"] * omega_l
+        level = P["coulomb_nm"] + P["stribeck_nm"] * ca.exp(-(omega_l / P["stribeck_velocity_rad_s"]) ** 2)
+        return -level * ca.tanh(omega_l / P["smoothing_rad_s"]) - P["viscous_nms_rad"] * omega_l
 
 
 @register_effect
 class PositionDependentLoad(Effect):
-    """Position-dependent load ``A sin(theta_l + phi)`` on the link (gravity on joints 2, 4, 6).
+    """Position-dependent load ``A sin(theta_l + phi) + c`` on the link (gravity on joints 2, 4, 6).
 
     ``compensated`` is the fraction the robot's own model knows (1: gravity
     of a correctly configured robot, which the robot compensates and its
-    observer removes; 0: an unknown payload).
+    observer removes; 0: an unknown payload). A second harmonic
+    ``A2 sin(2 theta_l + phi2)`` (default 0) stands for a load that is not
+    exactly a sinusoid (an offset centre of mass on a tilted axis, a cable);
+    the robot's model does not know it and the identification does not fit
+    it.
     """
 
     name = "position_dependent_load"
-    summary = "gravity-like load A sin(theta_l + phi)"
+    summary = "gravity-like load A sin(theta_l + phi) + c"
     params = (
         Param("amplitude_nm", 10.0, "Nm", -1000.0, 1000.0, "load amplitude A"),
         Param("phase_rad", 0.0, "rad", -10.0, 10.0, "phase phi"),
+        Param("constant_nm", 0.0, "Nm", -1000.0, 1000.0, "constant load c"),
         Param("compensated", 1.0, "1", 0.0, 1.0, "fraction known to the robot's model"),
+        Param("harmonic2_nm", 0.0, "Nm", -1000.0, 1000.0, "amplitude A2 of the second harmonic"),
+        Param("harmonic2_phase_rad", 0.0, "rad", -10.0, 10.0, "phase phi2 of the second harmonic"),
     )
 
     def link_torque(self, theta_l, omega_l, P):
-        return P["amplitude_nm"] * ca.sin(theta_l + P["phase_rad"])
+        return (P["amplitude_nm"] * ca.sin(theta_l + P["phase_rad"]) + P["constant_nm"]
+                + P["harmonic2_nm"] * ca.sin(2 * theta_l + P["harmonic2_phase_rad"]))
 
     def robot_model_torque(self, theta_m, P):
-        return P["compensated"] * P["amplitude_nm"] * ca.sin(theta_m + P["phase_rad"])
+        return P["compensated"] * (P["amplitude_nm"] * ca.sin(theta_m + P["phase_rad"]) + P["constant_nm"])
 
 
 @register_effect
 class TorqueSensorOffset(Effect):
-    """Constant offset of the joint torque sensor [Nm]."""
+    """Offset of the joint torque sensor [Nm]: ``offset + drift t``.
+
+    The drift (default 0; thermal, over minutes) is a shape the
+    identification does not fit: it assumes a constant offset.
+    """
 
     name = "torque_sensor_offset"
     summary = "torque-sensor offset"
-    params = (Param("offset_nm", 0.5, "Nm", -50.0, 50.0, "added to the reading"),)
+    params = (
+        Param("offset_nm", 0.5, "Nm", -50.0, 50.0, "added to the reading"),
+        Param("drift_nm_s", 0.0, "Nm/s", -1.0, 1.0, "slow drift of the offset"),
+    )
 
     def sensor(self, tau, t, P):
-        return tau + P["offset_nm"]
+        return tau + P["offset_nm"] + P["drift_nm_s"] * t
 
 
 @register_effect
