@@ -2,7 +2,7 @@
 
 ``fit``: draws ``--draws`` scenarios (:mod:`iiwa_ident.excite.scenarios`: random truths from wrist to base joints,
 chirp protocols at 200-1000 Hz, held or free links, and 0-3 nuisance effects, some of shapes the fit does not
-assume), simulates each, runs the fit on it and prints:
+assume), simulates each, runs :func:`iiwa_ident.ident.joint_fit.fit_joint` on it (``--method``) and prints:
 
 - the share of draws where ``Jc, bc, K, Jl`` are all within 3 % and ``Td`` within 0.5 ms (target: 95 %),
 - the same per nuisance (a draw counts under each nuisance it has; ``none`` has none),
@@ -33,16 +33,16 @@ _REL_TOL = 0.03
 _TD_TOL_S = 0.5e-3
 
 
-def run_draw(seed: int) -> dict:
-    """Simulate and fit the scenario of ``seed``; return its outcome."""
-    from iiwa_ident.ident.tf_fit import fit_transfer_function as fit_joint
+def run_draw(seed: int, method: str = "auto") -> dict:
+    """Simulate and fit the scenario of ``seed`` with ``method``; return its outcome."""
+    from iiwa_ident.ident.joint_fit import fit_joint
 
     sc = draw_scenario(seed)
     out = {"seed": seed, "describe": sc.describe(), "nuisances": sc.nuisances}
     ds = simulate_scenario(sc)
     t0 = time.perf_counter()
     try:
-        res = fit_joint([ds])
+        res = fit_joint([ds], method=method)
     except IiwaIdentError as err:
         out.update(status="refused", message=str(err))
         return out
@@ -57,7 +57,7 @@ def run_draw(seed: int) -> dict:
         err[k] = (v - sc.truth[k]) if k == "Td" else v / sc.truth[k] - 1.0
         z[k] = abs(v - sc.truth[k]) / s if s > 0 else math.inf
     ok = all(abs(err[k]) <= _REL_TOL for k in _NAMES[:4]) and abs(err["Td"]) <= _TD_TOL_S
-    out.update(status="pass" if ok else "miss", error=err, z=z, method=getattr(res, "method", ""))
+    out.update(status="pass" if ok else "miss", error=err, z=z, method=res.method)
     return out
 
 
@@ -66,13 +66,13 @@ def _fit(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:
-            rows = list(pool.map(run_draw, seeds))
+            rows = list(pool.map(run_draw, seeds, [args.method] * len(seeds)))
     else:
-        rows = [run_draw(s) for s in seeds]
+        rows = [run_draw(s, args.method) for s in seeds]
     wall = time.perf_counter() - t0
     n = len(rows)
     count = {s: sum(r["status"] == s for r in rows) for s in ("pass", "miss", "refused", "traceback")}
-    print(f"fit robustness: {n} draws (seeds {seeds[0]}-{seeds[-1]}), {wall:.0f} s")
+    print(f"fit robustness, method {args.method}: {n} draws (seeds {seeds[0]}-{seeds[-1]}), {wall:.0f} s")
     print(f"  pass (Jc, bc, K, Jl within {100 * _REL_TOL:g} %, Td within {_TD_TOL_S * 1e3:g} ms): "
           f"{count['pass']}/{n} = {100 * count['pass'] / n:.1f} %  (target 95 %)")
     print(f"  miss {count['miss']}, refused {count['refused']}, traceback {count['traceback']} (target 0)")
@@ -111,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--first", type=int, default=0, help="first seed")
     f.add_argument("--jobs", type=int, default=2)
     f.add_argument("--verbose", action="store_true", help="list every miss")
+    f.add_argument("--method", default="auto", help="auto (default), joint, idim or eq4")
     args = parser.parse_args(argv)
     return _fit(args)
 

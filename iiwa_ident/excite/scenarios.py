@@ -176,7 +176,8 @@ def draw_scenario(seed: int, *, nuisances: Sequence[str] | None = None, duration
     f1 = min(rng.uniform(2.0, 4.0) * f_res, 0.4 * fs)
     if f1 < 2.0 * f0:
         f1 = min(0.45 * fs, 2.0 * f0)
-    held = bool(rng.uniform() < 0.5) or ("gravity" in on or "load_harmonic" in on)
+    # A free link under a load or a sensor offset (a constant torque to the robot) would run away.
+    held = bool(rng.uniform() < 0.5) or bool({"gravity", "load_harmonic", "offset", "offset_drift"} & set(on))
     bias = 0.0 if rng.uniform() < 0.3 else rng.uniform(1.0, 5.0)
     if not held:
         bias = 0.0  # a free link under a bias would run into its limits

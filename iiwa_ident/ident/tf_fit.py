@@ -114,6 +114,7 @@ __all__ = [
     "BandQuality",
     "FitResult",
     "eq4_frequency_response",
+    "INPUTS",
     "discretize",
     "simulate_outputs",
     "initial_estimate",
@@ -139,6 +140,10 @@ _REL_STD_WARN = 0.05  # warn when a parameter's relative std exceeds this
 _TD_STD_WARN_S = 0.5e-3  # ... or the delay's std exceeds this
 _MAX_TD_S = 0.05  # upper bound of the delay search [s]
 _COLOURED_WARN = 3.0  # warn when the sandwich std exceeds the Fisher std by this factor (median)
+# Physical bounds of Jc, bc, K, Jl [SI] for the search: far outside any joint, but finite, so that
+# the sampled model can neither overflow nor become singular.
+_LOWER = (1e-4, 1e-3, 1.0, 1e-4)
+_UPPER = (1e4, 1e6, 1e8, 1e5)
 
 
 # --------------------------------------------------------------------------
@@ -265,7 +270,12 @@ def _state_space(Jc: float, bc: float, K: float, Jl: float) -> tuple[np.ndarray,
     return A, B, C
 
 
-def discretize(params: Any, sample_time_s: float) -> DiscreteModel:
+#: Inputs of the sampled model: the FRI command (delayed by ``Td``), a torque added to the motor side's
+#: command inside the robot (its gravity model; not delayed) and a torque on the link (friction, loads).
+INPUTS: tuple[str, ...] = ("command", "motor", "link")
+
+
+def discretize(params: Any, sample_time_s: float, input: str = "command") -> DiscreteModel:
     """Exact ZOH discretisation of eqs (1)-(3) with the fractional delay ``Td``.
 
     Parameters
@@ -273,7 +283,11 @@ def discretize(params: Any, sample_time_s: float) -> DiscreteModel:
     params : mapping, JointModel or sequence
         ``Jc, bc, K, Jl`` [SI] and ``Td`` [s], ``Td >= 0``.
     sample_time_s : float
-        Sample time T [s] (the command is held over each sample).
+        Sample time T [s] (the input is held over each sample).
+    input : {"command", "motor", "link"}
+        Which input (:data:`INPUTS`): the command ``tau_c`` (delayed by
+        ``Td``), a torque added to it inside the robot, or a torque on the
+        link [Nm] (both without delay).
 
     Returns
     -------
@@ -282,8 +296,14 @@ def discretize(params: Any, sample_time_s: float) -> DiscreteModel:
     Jc, bc, K, Jl, Td = _as_values(params)
     if min(Jc, K, Jl) <= 0 or bc < 0 or Td < 0:
         raise ValueError("need Jc, K, Jl > 0 and bc, Td >= 0")
+    if input not in INPUTS:
+        raise ValueError(f"input must be one of {INPUTS}")
     T = float(sample_time_s)
     A, B, C = _state_space(Jc, bc, K, Jl)
+    if input == "link":
+        B = np.array([0.0, 0.0, 0.0, 1.0 / Jl])
+    if input != "command":
+        Td = 0.0
     # Modal split: range(A^2) is the resonant pair, null(A^2) the rigid-body Jordan chain
     # v1 (displacement, A v1 = 0) and v2 (velocity, A v2 = v1).
     left, _, _ = np.linalg.svd(A @ A)
@@ -334,6 +354,18 @@ def simulate_outputs(params: Any, tau_c: np.ndarray, sample_time_s: float) -> np
     return discretize(params, sample_time_s).simulate(tau_c)
 
 
+def _simulate_record(params: Any, rec: "_Record") -> np.ndarray:
+    """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN."""
+    try:
+        with np.errstate(all="ignore"):
+            y = simulate_outputs(params, rec.u, rec.T)
+            for kind, signal in rec.known:
+                y = y + discretize(params, rec.T, kind).simulate(signal)
+    except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+        return np.full((2, rec.n), np.nan)
+    return y
+
+
 # --------------------------------------------------------------------------
 # data preparation
 
@@ -357,6 +389,9 @@ class _Record:
     spectra: list[_frf.CrossSpectra] | None = None
     filled_cycles: int = 0
     q0: float = 0.0  # the motor position at the first sample [rad] (``q`` starts at 0)
+    #: Known torques besides the command, as ``(input, signal [Nm])`` (see :data:`INPUTS`): the link-side
+    #: effects and the robot's gravity model, estimated beforehand from the measured motion.
+    known: list[tuple[str, np.ndarray]] = field(default_factory=list)
 
     @property
     def n(self) -> int:
@@ -651,7 +686,9 @@ class _Problem:
         parts = []
         p = self.x_to_params(x)
         for r, weights in zip(self.records, self._weights):
-            y = simulate_outputs(p, r.u, r.T)
+            y = _simulate_record(p, r)
+            if not np.all(np.isfinite(y)):  # no model there: a cost no step can accept
+                return np.full(2 * sum(rec.n for rec in self.records), 1e150)
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
@@ -724,8 +761,8 @@ def _solve(problem: _Problem, x0: np.ndarray, max_iterations: int = 40) -> _Solu
     Written out (rather than scipy's solvers) because it needs only the 5x5
     normal equations: no factorisation of the tall Jacobian per step.
     """
-    lower = np.array([-np.inf] * 4 + [0.0])
-    upper = np.array([np.inf] * 4 + [_MAX_TD_S * 1e3])
+    lower = np.array([*np.log(_LOWER), 0.0])
+    upper = np.array([*np.log(_UPPER), _MAX_TD_S * 1e3])
     x = np.clip(np.asarray(x0, float), lower, upper)
     r = problem.residual(x)
     cost = 0.5 * float(np.sum(r * r))
@@ -850,6 +887,10 @@ class FitResult:
     cost: float
     n_evaluations: int
     sample_times_s: list[float] = field(default_factory=list)
+    #: Which estimator (:data:`iiwa_ident.ident.joint_fit.METHODS`).
+    method: str = "eq4"
+    #: Fitted link-side effects (:class:`iiwa_ident.ident.idim.LinkEffectEstimate`), if any.
+    effects: list[Any] = field(default_factory=list)
 
     @property
     def relative_std(self) -> dict[str, float]:
@@ -877,6 +918,8 @@ class FitResult:
                        "z_rms": num(b.z_rms), "coherence": num(b.coherence)} for b in self.bands],
             "nonlinear_share": nonlinear,
             "warnings": list(self.warnings),
+            "method": self.method,
+            "effects": {e.name: e.to_json() for e in self.effects},
         }
 
 
@@ -927,7 +970,8 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
 
 
 def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, float] | None = None,
-                          max_starts: int = 3, outer_iterations: int = 4) -> FitResult:
+                          max_starts: int = 3, outer_iterations: int = 4,
+                          known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None) -> FitResult:
     """Fit eq (4) with delay to one or more torque-commanded chirps of one joint.
 
     Parameters
@@ -941,6 +985,11 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         How many delay candidates to refine before keeping the best.
     outer_iterations : int
         Re-estimations of the noise levels (heteroscedastic ML).
+    known : sequence, optional
+        Per dataset, known torques besides the command as ``(input, signal
+        [Nm])`` pairs (:data:`INPUTS`), one value per sample: the link-side
+        effects and the robot's gravity model estimated beforehand
+        (:func:`iiwa_ident.ident.joint_fit.fit_joint`).
 
     Returns
     -------
@@ -957,6 +1006,12 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         raise IiwaIdentError("fit needs at least one dataset")
     records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
     _check_joints(records)
+    if known is not None:
+        for rec, inputs in zip(records, known):
+            for kind, signal in inputs:
+                if kind not in INPUTS or np.shape(signal) != (rec.n,):
+                    raise ValueError(f"{rec.label}: known input {kind!r} needs one value per sample")
+            rec.known = [(kind, np.asarray(signal, float)) for kind, signal in inputs]
     for rec in records:  # every file must carry information, not just the first
         est_t, _ = _analyse(rec)
         if int(np.sum(_coherent(est_t))) < 4:

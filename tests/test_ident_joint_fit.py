@@ -1,0 +1,93 @@
+"""The joint fit (IDIM-IV, then the sampled-data output-error fit) on drawn scenarios.
+
+Each test draws a truth and a protocol from the shared scenario generator, simulates it, fits the data
+without looking at the truth, and compares. Tolerances are the issue's targets (3 % on Jc, bc, K, Jl,
+0.5 ms on Td) except where stated.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
+from iiwa_ident.ident.idim import fit_idim
+from iiwa_ident.ident.joint_fit import fit_joint
+
+_REL = 0.03
+_TD_S = 0.5e-3
+
+
+def _errors(result, truth):
+    return {k: (result.parameters[k] - truth[k]) if k == "Td" else result.parameters[k] / truth[k] - 1.0
+            for k in truth}
+
+
+def _accurate(err):
+    return all(abs(err[k]) <= _REL for k in ("Jc", "bc", "K", "Jl")) and abs(err["Td"]) <= _TD_S
+
+
+# A seeded subset of the benchmark's draws, shortened to 12 s so that make test stays fast.
+_SUBSET = list(range(1000, 1024))
+
+
+@pytest.fixture(scope="module")
+def subset_outcomes():
+    out = []
+    for seed in _SUBSET:
+        sc = draw_scenario(seed, duration_s=12.0)
+        ds = simulate_scenario(sc)
+        try:
+            res = fit_joint([ds])
+        except IiwaIdentError as err:
+            out.append((sc, "refused", str(err)))
+            continue
+        out.append((sc, "fitted", _errors(res, sc.truth)))
+    return out
+
+
+def test_subset_never_a_traceback_and_mostly_accurate(subset_outcomes):
+    fitted = [o for o in subset_outcomes if o[1] == "fitted"]
+    passed = [o for o in fitted if _accurate(o[2])]
+    # The target is 95 % (bench/bench_robustness.py fit, 10-60 s records); today 18 of these 24 short
+    # records pass. This guards what is reached; raise it as the estimator improves.
+    assert len(passed) >= 0.7 * len(subset_outcomes), "\n".join(
+        f"{sc.describe()}: {res}" for sc, kind, res in subset_outcomes if kind != "fitted" or not _accurate(res))
+
+
+def test_subset_no_silent_nonsense(subset_outcomes):
+    # A miss may be a few percent; an estimate off by a quarter or more must be a refusal instead.
+    for sc, kind, err in subset_outcomes:
+        if kind == "fitted":
+            assert all(abs(err[k]) < 0.25 for k in ("Jc", "bc", "K", "Jl")), f"{sc.describe()}: {err}"
+            assert abs(err["Td"]) < 2e-3, f"{sc.describe()}: {err}"
+
+
+def test_subset_refusals_name_a_parameter(subset_outcomes):
+    for sc, kind, msg in subset_outcomes:
+        if kind == "refused":
+            assert msg.split(":")[0] in ("Jc", "bc", "K", "Jl", "Td") or "dataset" in msg, msg
+
+
+def test_link_effects_recovered_in_the_simulator_s_names():
+    sc = draw_scenario(7, nuisances=["coulomb", "viscous", "offset"], duration_s=20.0, rate_hz=1000.0)
+    ds = simulate_scenario(sc)
+    res = fit_idim([ds])
+    fr = res.effect("link_friction")
+    truth = sc.effects["link_friction"]
+    assert fr.values["coulomb_nm"] == pytest.approx(truth["coulomb_nm"], rel=0.1, abs=0.05)
+    assert fr.values["viscous_nms_rad"] == pytest.approx(truth["viscous_nms_rad"], rel=0.2, abs=0.1)
+    off = res.effect("torque_sensor_offset")
+    assert off.values["offset_nm"] == pytest.approx(sc.effects["torque_sensor_offset"]["offset_nm"], abs=0.05)
+    assert off.significant and fr.significant
+    for e in res.effects:  # each reported with a std, in the effect's own parameter names
+        assert set(e.values) == set(e.std)
+
+
+def test_no_effect_is_called_significant_on_a_clean_joint():
+    sc = draw_scenario(8, nuisances=[], duration_s=15.0, rate_hz=1000.0)
+    res = fit_idim([simulate_scenario(sc)])
+    fr = res.effect("link_friction")
+    assert abs(fr.values["coulomb_nm"]) < 0.1 and abs(fr.values["viscous_nms_rad"]) < 0.3
+    assert abs(res.effect("torque_sensor_offset").values["offset_nm"]) < 0.05
