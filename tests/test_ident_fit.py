@@ -21,12 +21,12 @@ from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_datase
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, table1_model, write_model
+from iiwa_ident.ident.joint_fit import fit_joint, fit_model
 from iiwa_ident.ident.tf_fit import (
     PARAMETER_NAMES,
     cramer_rao_std,
     discretize,
     eq4_frequency_response,
-    fit_model,
     fit_transfer_function,
     initial_estimate,
     simulate_outputs,
@@ -213,10 +213,12 @@ class TestFitTransferFunction:
             doc = json.loads(js.read_text())
             cli_values = {k: doc["parameters"][k]["value"] for k in PARAMETER_NAMES}
             assert_accurate(cli_values, truth)
+            joint = fit_joint([read_dataset(path)])  # what the command runs
+            assert doc["method"] == joint.method
             for k in PARAMETER_NAMES:
-                assert cli_values[k] == pytest.approx(result.parameters[k], rel=1e-9, abs=0)
+                assert cli_values[k] == pytest.approx(joint.parameters[k], rel=1e-9, abs=0)
             model = read_model(out)
-            assert model.value("K") == pytest.approx(result.parameters["K"], rel=1e-12, abs=0)
+            assert model.value("K") == pytest.approx(joint.parameters["K"], rel=1e-12, abs=0)
 
     def test_result_contents(self, ripple_files):
         result = fit_transfer_function([read_dataset(ripple_files[1][0])])

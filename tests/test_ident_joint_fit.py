@@ -91,3 +91,54 @@ def test_no_effect_is_called_significant_on_a_clean_joint():
     fr = res.effect("link_friction")
     assert abs(fr.values["coulomb_nm"]) < 0.1 and abs(fr.values["viscous_nms_rad"]) < 0.3
     assert abs(res.effect("torque_sensor_offset").values["offset_nm"]) < 0.05
+
+
+def test_cli_reports_effects_and_the_model_file_keeps_them(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+    from iiwa_ident.datasets import write_dataset
+    from iiwa_ident.ident import read_model
+
+    sc = draw_scenario(21, nuisances=["offset", "viscous"], duration_s=12.0, rate_hz=1000.0)
+    path = tmp_path / "chirp.h5"
+    write_dataset(path, simulate_scenario(sc))
+    out, js = tmp_path / "m.toml", tmp_path / "m.json"
+    res = CliRunner().invoke(app, ["fit", str(path), "--out", str(out), "--json", str(js)])
+    assert res.exit_code == 0, res.output
+    assert "link-side effects" in res.output
+    doc = json.loads(js.read_text())
+    off = doc["effects"]["torque_sensor_offset"]["offset_nm"]
+    assert off["value"] == pytest.approx(sc.effects["torque_sensor_offset"]["offset_nm"], abs=0.05)
+    assert off["std"] > 0
+    model = read_model(out)
+    kept = {e["name"]: e for e in model.effects}
+    assert kept["torque_sensor_offset"]["offset_nm"] == pytest.approx(off["value"])
+    # The fitted model file simulates with its effects, in the simulator's own vocabulary.
+    plant = model.to_plant()
+    assert plant.effect("torque_sensor_offset").values["offset_nm"] == pytest.approx(off["value"])
+    names = model.fit["effect_std_names"]
+    assert "torque_sensor_offset.offset_nm" in names
+    assert model.fit["effect_std"][names.index("torque_sensor_offset.offset_nm")] == pytest.approx(off["std"])
+
+
+def test_cli_refuses_an_unknown_method_in_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+
+    res = CliRunner().invoke(app, ["fit", str(tmp_path / "x.h5"), "--out", str(tmp_path / "m.toml"),
+                                   "--method", "magic"])
+    assert res.exit_code != 0
+    assert "--method" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "m.toml").exists()
+
+
+@pytest.mark.parametrize("method", ["joint", "idim", "eq4"])
+def test_every_method_fits_a_clean_joint(method):
+    sc = draw_scenario(31, nuisances=[], duration_s=12.0, rate_hz=1000.0)
+    res = fit_joint([simulate_scenario(sc)], method=method)
+    assert res.method == method
+    assert _accurate(_errors(res, sc.truth)), (sc.describe(), _errors(res, sc.truth))

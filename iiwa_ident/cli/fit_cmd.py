@@ -1,4 +1,4 @@
-"""Subcommand ``fit``: eq (4) with delay and uncertainties from torque-commanded chirps."""
+"""Subcommand ``fit``: eqs (1)-(4) with delay, link-side effects and uncertainties from torque-commanded chirps."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.joint_fit import METHODS, fit_model
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, write_model
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_model
+from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult
 
 __all__ = ["fit_cmd", "format_fit"]
 
@@ -50,6 +51,17 @@ def format_fit(result: FitResult) -> str:
         v, s, r = _value_text(name, result.parameters[name], result.std[name])
         lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
     lines.append(f"delay Td = {result.parameters['Td'] * 1e3:.3f} +- {result.std['Td'] * 1e3:.3f} ms")
+    lines.append(f"method: {result.method}")
+    if result.effects:
+        lines.append("")
+        lines.append("link-side effects (simulator names; * = above 3 std)")
+        for e in result.effects:
+            vals = ", ".join(f"{k} = {v:.4g} +- {e.std[k]:.2g}" for k, v in e.values.items()
+                             if not (math.isfinite(e.std[k]) and e.std[k] == 0.0))
+            lines.append(f"  {'*' if e.significant else ' '} {e.name}: {vals}")
+            if e.note:
+                lines.append(f"      ({e.note})")
+        lines.append("")
     for label, noise in zip(result.labels, result.noise):
         lines.append(f"residual noise ({Path(label).name}): tau_j {noise['tau_j_nm']:.3g} Nm RMS, "
                      f"q_m {noise['q_m_rad']:.3g} rad RMS")
@@ -86,24 +98,38 @@ def fit_cmd(
                                                                   "kept (default: K_I = 25 rad/s, Table I).")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for the Bode and harmonic "
                                                                       "distortion plots (PNG).")] = None,
+    method: Annotated[str, typer.Option("--method", help="Estimator: auto (idim when the link shows Coulomb "
+                                                         "friction, else joint), joint (inverse dynamics, then "
+                                                         "output error with the effects), idim (inverse "
+                                                         "dynamics only) or eq4 (output error of eq (4) without "
+                                                         "link-side effects).")] = "auto",
 ) -> None:
-    """Fit eq (4) with its delay to torque-commanded chirps, with uncertainties.
+    """Fit eqs (1)-(4) with the delay and the link-side effects to torque-commanded chirps.
 
-    Both the joint torque and the motor position are fitted from the torque
-    command (time-domain maximum likelihood), so all four parameters and the
-    delay are identified, not only their ratios. Prints the parameters with
-    their standard deviations, the fit quality and the nonlinear share per
-    octave band, and warnings.
+    Every channel is used (commanded torque, joint torque, motor position,
+    link angle from eq (9)): the inverse dynamics give link friction, a
+    position-dependent load and the torque-sensor offset with the joint's
+    parameters; the sampled-data output-error fit then refines the joint's
+    parameters with those effects as known torques. Prints the parameters
+    with their standard deviations, the effects, the fit quality and the
+    nonlinear share per octave band, and warnings. A parameter the data
+    cannot identify is refused with the reason.
 
-    Example: iiwa-ident fit chirp.h5 --out joint1.toml --json joint1.json --figures figs/
+    Examples:
+
+      iiwa-ident fit chirp.h5 --out joint1.toml --json joint1.json --figures figs/
+
+      iiwa-ident fit chirp_a.h5 chirp_b.h5 --method idim --out joint2.toml
     """
     try:
+        if method not in METHODS:
+            raise IiwaIdentError(f"--method: unknown estimator {method!r} (known: {', '.join(METHODS)})")
         for target in (out, json_out):
             if target is not None and target.is_dir():
                 raise IiwaIdentError(f"{target}: is a directory, not a file")
         if figures is not None and figures.exists() and not figures.is_dir():
             raise IiwaIdentError(f"{figures}: exists and is not a folder")
-        joint_model, result = fit_model(chirps, base_model=model)
+        joint_model, result = fit_model(chirps, base_model=model, method=method)
         # Prepare every output before writing any, so a failure leaves no partial results.
         json_doc = json_text(result.to_json()) if json_out else None
         pngs: dict[str, bytes] = {}

@@ -17,31 +17,46 @@ each step gives is measured by ``bench/bench_robustness.py fit``.
 
 from __future__ import annotations
 
-from typing import Sequence
+import math
+import os
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset
+from iiwa_ident.datasets import Dataset, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.idim import STICK_COULOMB_NM, IdimResult, fit_idim
+from iiwa_ident.ident.idim import STICK_COULOMB_NM, IdimResult, LinkEffectEstimate, fit_idim
+from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, Parameter, Source, read_model, table1_model
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_transfer_function
 
-__all__ = ["METHODS", "fit_joint"]
+__all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
 
 #: ``auto``: ``idim`` when the link shows Coulomb friction, else ``joint``; ``joint``: IDIM-IV, then the
 #: output-error fit with its effects as known inputs; ``idim``: IDIM-IV alone; ``eq4``: the output-error
 #: fit of eq (4) alone (no link-side effects).
 METHODS: tuple[str, ...] = ("auto", "joint", "idim", "eq4")
+_METHOD_TEXT = {
+    "joint": "inverse dynamics (IDIM-IV) for the link-side effects, then time-domain output-error maximum "
+             "likelihood; ZOH-sampled eqs (1)-(4) with fractional delay and the effects' torques as known inputs; "
+             "outputs tau_j and q_m; per-block noise levels",
+    "idim": "inverse dynamics (IDIM-IV): eqs (1)-(3) with link friction, load and sensor offset, exact spectral "
+            "derivatives, predicted-torque instruments, block sandwich std",
+    "eq4": "time-domain output-error maximum likelihood; ZOH-sampled eqs (1)-(4) with fractional delay; "
+           "outputs tau_j and q_m; per-block noise levels",
+}
 
 
-def _from_idim(idim: IdimResult) -> FitResult:
-    """An :class:`IdimResult` in the shape of a :class:`FitResult` (no frequency-domain diagnostics)."""
-    n = len(PARAMETER_NAMES)
-    cov = np.diag([idim.std[k] ** 2 for k in PARAMETER_NAMES])
-    return FitResult(parameters=dict(idim.parameters), std=dict(idim.std), std_sandwich=dict(idim.std),
-                     correlation=np.eye(n), covariance=cov, noise=[], frf=[], model_frf=[], bands=[], harmonics=[],
-                     nonlinear=[], warnings=list(idim.warnings), initial=[dict(idim.parameters)],
-                     labels=list(idim.labels), cost=float("nan"), n_evaluations=0, sample_times_s=[])
+def _from_idim(idim: IdimResult, datasets: Sequence[Dataset]) -> FitResult:
+    """The IDIM-IV estimate with the output-error fit's diagnostics at its values (no search)."""
+    result = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs, refine=False)
+    result.std = dict(idim.std)
+    result.std_sandwich = dict(idim.std)
+    result.covariance = np.diag([idim.std[k] ** 2 for k in PARAMETER_NAMES])
+    result.correlation = np.eye(len(PARAMETER_NAMES))
+    # The output-error std is of no use here; its warnings about it are replaced by IDIM's own.
+    result.warnings = [w for w in result.warnings if "std" not in w] + list(idim.warnings)
+    return result
 
 
 #: Largest factor by which the output-error fit may move Jc, bc, K or Jl away from IDIM-IV's values.
@@ -95,7 +110,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto") -> FitResult
         friction = idim.effect("link_friction")
         method = "idim" if friction is not None and friction.values["coulomb_nm"] > STICK_COULOMB_NM else "joint"
     if method == "idim":
-        result = _from_idim(idim)
+        result = _from_idim(idim, datasets)
     else:
         start = dict(idim.parameters)
         result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs)
@@ -103,10 +118,124 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto") -> FitResult
         if moved:
             # Both estimate the same parameters; a large disagreement means the output-error search
             # went astray (it is local and simulates through the effects), not that IDIM is wrong.
-            fallback = _from_idim(idim)
+            fallback = _from_idim(idim, datasets)
             fallback.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
                                      "the inverse-dynamics values are kept")
             result, method = fallback, "idim"
     result.method = method
     result.effects = idim.effects
     return result
+
+
+def model_effects(effects: Sequence[LinkEffectEstimate]) -> list[dict[str, Any]]:
+    """The significant fitted effects as model-file ``[[effects]]`` tables (the simulator's parameters).
+
+    Values are clipped into the simulator's ranges (a friction is not negative, a compensated
+    fraction lies in [0, 1]); a load whose amplitude could not be fitted (its local gradient only)
+    has no simulator form and stays in the fit's JSON.
+    """
+    out = []
+    for e in effects:
+        if not e.significant or not all(math.isfinite(v) for v in e.values.values()):
+            continue
+        if e.name == "link_friction":
+            out.append({"name": e.name, "coulomb_nm": max(e.values["coulomb_nm"], 0.0),
+                        "viscous_nms_rad": max(e.values["viscous_nms_rad"], 0.0),
+                        "smoothing_rad_s": e.values["smoothing_rad_s"]})
+        elif e.name == "position_dependent_load" and "amplitude_nm" in e.values:
+            out.append({"name": e.name, "amplitude_nm": e.values["amplitude_nm"], "phase_rad": e.values["phase_rad"],
+                        "compensated": min(max(e.values["compensated"], 0.0), 1.0)})
+        elif e.name == "torque_sensor_offset":
+            out.append({"name": e.name, "offset_nm": e.values["offset_nm"]})
+    return out
+
+
+def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | JointModel | None = None,
+              *, method: str = "auto") -> tuple[JointModel, FitResult]:
+    """Fit dataset files and build the joint model file content.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        Chirp dataset files (HDF5) of one joint.
+    base_model : path or JointModel, optional
+        Model whose other parts are kept: ``KI`` (default 25 rad/s, Table I,
+        without std), the ripple table and the robot model.
+    method : str
+        Estimator (:data:`METHODS`).
+
+    Returns
+    -------
+    (JointModel, FitResult)
+        The model carries ``Jc, bc, K, Jl, Td`` with std, ``KI``, the
+        correlation of the five, the significant link-side effects as
+        ``[[effects]]`` (their std in ``[fit]``), a ``[fit]`` table of
+        diagnostics, and the sha256 of every input file.
+    """
+    if not paths:
+        raise IiwaIdentError("fit needs at least one dataset file")
+    base_path = None
+    if base_model is None:
+        base = table1_model()
+    elif isinstance(base_model, JointModel):
+        base = base_model
+    else:
+        base_path = Path(base_model)
+        base = read_model(base_path)
+    datasets = [read_dataset(p) for p in paths]
+    sources = [Source(str(p), sha256_file(p), "fit") for p in paths]
+    if base_path is not None:
+        sources.append(Source(str(base_path), sha256_file(base_path), "base"))
+    joint = int(datasets[0].joint)
+    if base_model is not None and base.joint is not None and base.joint != joint:
+        raise IiwaIdentError(f"{base_path or 'base model'}: is for joint {base.joint}, the data are joint {joint}")
+    result = fit_joint(datasets, method=method)
+
+    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
+    ki = base.parameters["KI"]
+    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"])
+    fit_table: dict[str, Any] = {
+        "method": _METHOD_TEXT[result.method],
+        "datasets": len(datasets),
+        "cost": result.cost,
+        "evaluations": result.n_evaluations,
+        "std_sandwich": [result.std_sandwich[k] for k in PARAMETER_NAMES],
+        "noise_tau_j_nm": [n["tau_j_nm"] for n in result.noise],
+        "noise_q_m_rad": [n["q_m_rad"] for n in result.noise],
+        "start": [float(result.initial[0][k]) for k in PARAMETER_NAMES],
+        "band_dataset": [result.labels.index(b.dataset) for b in result.bands],
+        "band_lo_hz": [b.lo_hz for b in result.bands],
+        "band_hi_hz": [b.hi_hz for b in result.bands],
+        "band_rel_error": [b.rel_error for b in result.bands],
+        "band_z_rms": [b.z_rms for b in result.bands],
+        "band_coherence": [b.coherence for b in result.bands],
+    }
+    nl = [(i, b) for i, bands in enumerate(result.nonlinear) for b in bands]
+    if nl:
+        fit_table.update({
+            "nonlinear_dataset": [i for i, _ in nl],
+            "nonlinear_lo_hz": [b.lo_hz for _, b in nl],
+            "nonlinear_hi_hz": [b.hi_hz for _, b in nl],
+            "nonlinear_share": [b.share for _, b in nl],
+        })
+    effects = model_effects(result.effects)
+    if effects:
+        fit_table["effect_std_names"] = [f"{e['name']}.{k}" for e in effects for k in e if k != "name"]
+        std_of = {(e.name, k): s for e in result.effects for k, s in e.std.items()}
+        fit_table["effect_std"] = [std_of[tuple(n.split(".", 1))] for n in fit_table["effect_std_names"]]
+    if result.warnings:
+        fit_table["warnings"] = list(result.warnings)
+    names = ", ".join(Path(p).name for p in paths)
+    model = JointModel(
+        parameters=params,
+        correlation_names=list(PARAMETER_NAMES),
+        correlation=result.correlation,
+        ripple=base.ripple,
+        fit=fit_table,
+        sources=sources,
+        joint=joint,
+        robot_model=base.robot_model,
+        effects=effects,
+        description=f"Eq (4) with delay fitted to {names}",
+    )
+    return model, result

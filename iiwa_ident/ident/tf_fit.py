@@ -84,9 +84,7 @@ the H1 estimate and its uncertainty (:mod:`iiwa_ident.ident.frf`).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -94,17 +92,10 @@ from scipy.interpolate import BSpline
 from scipy.linalg import cho_factor, cho_solve
 from scipy.signal import lfilter
 
-from iiwa_ident.datasets import Dataset, read_dataset, sha256_file
+from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
-from iiwa_ident.ident.model_file import (
-    PARAMETER_UNITS,
-    JointModel,
-    Parameter,
-    Source,
-    read_model,
-    table1_model,
-)
+from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel
 
 __all__ = [
     "PARAMETER_NAMES",
@@ -119,7 +110,6 @@ __all__ = [
     "simulate_outputs",
     "initial_estimate",
     "fit_transfer_function",
-    "fit_model",
     "cramer_rao_std",
 ]
 
@@ -971,7 +961,8 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
 
 def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, float] | None = None,
                           max_starts: int = 3, outer_iterations: int = 4,
-                          known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None) -> FitResult:
+                          known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
+                          refine: bool = True) -> FitResult:
     """Fit eq (4) with delay to one or more torque-commanded chirps of one joint.
 
     Parameters
@@ -990,6 +981,9 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         [Nm])`` pairs (:data:`INPUTS`), one value per sample: the link-side
         effects and the robot's gravity model estimated beforehand
         (:func:`iiwa_ident.ident.joint_fit.fit_joint`).
+    refine : bool
+        False: no search; the fit's diagnostics (noise levels, fit quality,
+        harmonics, Fisher std) at ``initial``.
 
     Returns
     -------
@@ -1026,11 +1020,14 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     best = None
     for cand in starts[:max_starts]:
         x0 = _Problem.params_to_x([cand[k] for k in PARAMETER_NAMES])
-        sol = _solve(problem, x0)
+        sol = _solve(problem, x0, max_iterations=40 if refine else 0)
         if best is None or sol.cost < best.cost:
             best = sol
     x = best.x
-    for it in range(outer_iterations):
+    if not refine:
+        problem.reweight(x, per_block=True)
+        sol = _solve(problem, x, max_iterations=0)
+    for it in range(outer_iterations if refine else 0):
         problem.reweight(x, per_block=True)
         sol = _solve(problem, x)
         step = np.max(np.abs(sol.x - x))
@@ -1099,93 +1096,6 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
                      frf=frfs, model_frf=model_frfs, bands=bands, harmonics=harmonics, nonlinear=nonlinear,
                      warnings=warnings, initial=starts, labels=labels, cost=cost, n_evaluations=n_eval,
                      sample_times_s=[r.T for r in records])
-
-
-# --------------------------------------------------------------------------
-# model file
-
-
-def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | JointModel | None = None,
-              ) -> tuple[JointModel, FitResult]:
-    """Fit dataset files and build the joint model file content.
-
-    Parameters
-    ----------
-    paths : sequence of path
-        Chirp dataset files (HDF5) of one joint.
-    base_model : path or JointModel, optional
-        Model whose other parts are kept: ``KI`` (default 25 rad/s, Table I,
-        without std), the ripple table and the robot model.
-
-    Returns
-    -------
-    (JointModel, FitResult)
-        The model carries ``Jc, bc, K, Jl, Td`` with std, ``KI``, the
-        correlation of the five, a ``[fit]`` table of diagnostics, and the
-        sha256 of every input file.
-    """
-    if not paths:
-        raise IiwaIdentError("fit needs at least one dataset file")
-    base_path = None
-    if base_model is None:
-        base = table1_model()
-    elif isinstance(base_model, JointModel):
-        base = base_model
-    else:
-        base_path = Path(base_model)
-        base = read_model(base_path)
-    datasets = [read_dataset(p) for p in paths]
-    sources = [Source(str(p), sha256_file(p), "fit") for p in paths]
-    if base_path is not None:
-        sources.append(Source(str(base_path), sha256_file(base_path), "base"))
-    joint = int(datasets[0].joint)
-    if base_model is not None and base.joint is not None and base.joint != joint:
-        raise IiwaIdentError(f"{base_path or 'base model'}: is for joint {base.joint}, the data are joint {joint}")
-    result = fit_transfer_function(datasets)
-
-    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
-    ki = base.parameters["KI"]
-    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"])
-    fit_table: dict[str, Any] = {
-        "method": "time-domain output-error maximum likelihood; ZOH-sampled eqs (1)-(4) with fractional delay; "
-                  "outputs tau_j and q_m; per-block noise levels",
-        "datasets": len(datasets),
-        "cost": result.cost,
-        "evaluations": result.n_evaluations,
-        "std_sandwich": [result.std_sandwich[k] for k in PARAMETER_NAMES],
-        "noise_tau_j_nm": [n["tau_j_nm"] for n in result.noise],
-        "noise_q_m_rad": [n["q_m_rad"] for n in result.noise],
-        "start": [float(result.initial[0][k]) for k in PARAMETER_NAMES],
-        "band_dataset": [result.labels.index(b.dataset) for b in result.bands],
-        "band_lo_hz": [b.lo_hz for b in result.bands],
-        "band_hi_hz": [b.hi_hz for b in result.bands],
-        "band_rel_error": [b.rel_error for b in result.bands],
-        "band_z_rms": [b.z_rms for b in result.bands],
-        "band_coherence": [b.coherence for b in result.bands],
-    }
-    nl = [(i, b) for i, bands in enumerate(result.nonlinear) for b in bands]
-    if nl:
-        fit_table.update({
-            "nonlinear_dataset": [i for i, _ in nl],
-            "nonlinear_lo_hz": [b.lo_hz for _, b in nl],
-            "nonlinear_hi_hz": [b.hi_hz for _, b in nl],
-            "nonlinear_share": [b.share for _, b in nl],
-        })
-    if result.warnings:
-        fit_table["warnings"] = list(result.warnings)
-    names = ", ".join(Path(p).name for p in paths)
-    model = JointModel(
-        parameters=params,
-        correlation_names=list(PARAMETER_NAMES),
-        correlation=result.correlation,
-        ripple=base.ripple,
-        fit=fit_table,
-        sources=sources,
-        joint=joint,
-        robot_model=base.robot_model,
-        description=f"Eq (4) with delay fitted to {names}",
-    )
-    return model, result
 
 
 # --------------------------------------------------------------------------

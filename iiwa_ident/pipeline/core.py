@@ -229,7 +229,8 @@ def _truth_dynamics(ctx: PipelineContext) -> dict[str, float] | None:
 
 def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.ident.model_file import write_model
-    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, fit_model
+    from iiwa_ident.ident.joint_fit import fit_model
+    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
 
     model, result = fit_model([ctx.path("chirp")])
     model.joint = ctx.plant.joint if ctx.target == "sim" else ctx.joint

@@ -152,7 +152,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
             attempt(stage, lambda key=key: out.__setitem__(key, read_dataset(p[key])))
     if want & {"fit"} and "chirp" in out and usable("fit"):
         def fit() -> None:
-            from iiwa_ident.ident.tf_fit import fit_model
+            from iiwa_ident.ident.joint_fit import fit_model
 
             model, result = fit_model([p["chirp"]])
             out.update(model=model, fit=result)
