@@ -64,7 +64,7 @@ variable approach for industrial robot identification", IEEE TCST 22(1), 2014.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -75,7 +75,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _Record
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
-           "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM"]
+           "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM", "STICK_MIN_SHARE"]
 
 #: Velocity scale of the fitted Coulomb tanh [rad/s] (the simulator's default smoothing).
 FRICTION_SMOOTHING_RAD_S = 0.005
@@ -83,6 +83,8 @@ FRICTION_SMOOTHING_RAD_S = 0.005
 STICK_VELOCITY_RAD_S = 0.02
 #: Coulomb friction from which sticking samples are left out [Nm] (about five times a torque sensor's noise).
 STICK_COULOMB_NM = 0.1
+#: Least share of the samples that must remain for sticking samples to be left out.
+STICK_MIN_SHARE = 0.5
 #: Least span of link angles over which a load's amplitude and phase are fitted [rad].
 LOAD_MIN_RANGE_RAD = 0.5
 _EDGE_S = 0.25
@@ -227,6 +229,36 @@ def _prepared(rec: _Record) -> _Prepared:
                      rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(TSw), sp.back(TSw, 1))
 
 
+def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
+    """``rec`` with the model's prediction of the hold's aliased images taken out of ``tau_j`` and ``q_m``.
+
+    The robot holds its command over a cycle; the hold's images at ``f + k fs`` drive the joint too, and
+    sampling folds their response back onto ``f``. A continuous-time equation fitted to the samples sees
+    them as a gain and phase error that grows towards the Nyquist limit (a few per cent of ``bc`` when the
+    chirp reaches ``0.2 fs``). Their size follows from the sampled command and eq (4)'s two transfer
+    functions at the current estimate (terms ``k = +-1 .. +-4``); the link-side torques are slow and are not
+    folded back.
+    """
+    Jc, bc, K, Jl = prm["Jc"], prm["bc"], prm["K"], prm["Jl"]
+    T, n = rec.T, rec.n
+    N = next_fast_len(2 * n, real=True)
+    f = np.fft.rfftfreq(N, T)
+    fs = 1.0 / T
+    U = np.fft.rfft(rec.u - float(np.mean(rec.u)), N)
+    A_tau = np.zeros_like(U)
+    A_q = np.zeros_like(U)
+    for k in (-4, -3, -2, -1, 1, 2, 3, 4):
+        fk = f + k * fs
+        s = 2j * np.pi * fk
+        hold = np.sinc(fk * T) * np.exp(-s * (td + 0.5 * T))
+        h_tau = Jl * (bc * s + K) / (Jc * Jl * s**2 + Jl * bc * s + K * (Jl + Jc))
+        A_tau += h_tau * hold
+        A_q += h_tau * (1.0 / K + 1.0 / (Jl * s**2)) * hold
+    tau_alias = np.fft.irfft(A_tau * U, N)[:n]
+    q_alias = np.fft.irfft(A_q * U, N)[:n]
+    return replace(rec, tau=rec.tau - tau_alias, q=rec.q - q_alias)
+
+
 def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(y, Phi, Z) of the motor equation at delay ``td`` on the kept samples.
@@ -249,11 +281,14 @@ def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] 
 
 
 def _link_rows(p: _Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.ndarray] | None = None,
-               exclude_stick: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
-    """(y, Phi, Z, names, samples) of the link equation, ``theta_l`` and ``omega_l`` from eq (9) at stiffness ``K``."""
+               moving: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
+    """(y, Phi, Z, names, samples) of the link equation, ``theta_l`` and ``omega_l`` from eq (9) at stiffness ``K``.
+
+    ``moving``: the samples to use besides ``p.keep`` (default all).
+    """
     theta = p.q_w - p.tau_w / K
     omega = p.dq_w - p.dtau_w / K
-    k = p.keep & _moving(omega, p) if exclude_stick else p.keep
+    k = p.keep & moving if moving is not None else p.keep
     flt = p.sp.filtered
     cols = [p.ddq[k], -p.ddtau_s[k], np.ones(int(k.sum())), flt(np.tanh(omega / FRICTION_SMOOTHING_RAD_S))[k],
             flt(omega)[k]]
@@ -282,6 +317,19 @@ def _moving(omega: np.ndarray, p: "_Prepared") -> np.ndarray:
     if slow.any() and reach > 0:
         slow = np.convolve(slow.astype(float), np.ones(2 * reach + 1), mode="same") > 0
     return ~slow
+
+
+def _stick_masks(preps: list[_Prepared], K: float) -> list[np.ndarray] | None:
+    """Per record, the samples far from sticking, or ``None`` when too few would remain.
+
+    Fixed once (at the stiffness of the moment) so that the link equation's rows do not change
+    between passes. Leaving out most of a record would trade the friction model's error at rest for
+    the noise and leverage of a few samples; below :data:`STICK_MIN_SHARE` kept, every sample stays.
+    """
+    masks = [_moving(p.dq_w - p.dtau_w / K, p) for p in preps]
+    kept = sum(int((m & p.keep).sum()) for m, p in zip(masks, preps))
+    total = sum(int(p.keep.sum()) for p in preps)
+    return masks if kept >= STICK_MIN_SHARE * total else None
 
 
 def _iv(y: np.ndarray, Phi: np.ndarray, Z: np.ndarray) -> np.ndarray:
@@ -367,7 +415,8 @@ def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
 
     tau_hat: list | None = None
     K = 1e4
-    stick = False
+    stick: list[np.ndarray] | None = None
+    stick_checked = False
     td = _delay(preps, None)
     for it in range(_IV_ITERATIONS + 1):
         # Motor equation over all records.
@@ -376,7 +425,8 @@ def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
         xm = _iv(y_m, Phi_m, Z_m)
         # Link equation; K enters theta_l and omega_l through eq (9): a few fixed-point passes.
         for _ in range(3):
-            lrows = [_link_rows(p, K, load, None if tau_hat is None else tau_hat[i], stick)
+            lrows = [_link_rows(p, K, load, None if tau_hat is None else tau_hat[i],
+                                None if stick is None else stick[i])
                      for i, p in enumerate(preps)]
             names = lrows[0][3]
             y_l = np.concatenate([r[0] for r in lrows])
@@ -388,9 +438,13 @@ def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
             K = float(xl[0] / xl[1])
         prm = _physical(xm, xl, records)
         # Once Coulomb friction shows, samples where the link may stick leave the link equation.
-        stick = stick or float(xl[names.index("coulomb")]) > STICK_COULOMB_NM
+        if not stick_checked and float(xl[names.index("coulomb")]) > STICK_COULOMB_NM:
+            stick_checked = True
+            stick = _stick_masks(preps, prm["K"])
         if it == _IV_ITERATIONS:
             break
+        if it < 2:  # the hold's aliased images out of the samples, at the estimate so far
+            preps = [_prepared(_dealiased(r, prm, td)) for r in records]
         tau_hat = []
         for p in preps:
             lt = _link_torque(p, prm["K"], xl, names, load)
@@ -432,7 +486,7 @@ def _link_torque(p: _Prepared, K: float, xl: np.ndarray, names: list[str], load:
 
 
 def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float], xm: np.ndarray, xl: np.ndarray,
-            names: list[str], load: str, tau_hat: list | None, span: float, stick: bool) -> IdimResult:
+            names: list[str], load: str, tau_hat: list | None, span: float, stick: list[np.ndarray] | None) -> IdimResult:
     td = prm["Td"]
     K = prm["K"]
     # Joint sandwich over both equations, Td as an extra motor column (d e / d Td = -(u' + beta u'')).
@@ -449,7 +503,7 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         ym.append(y)
         Pm.append(Phi)
         Zm.append(Z)
-        y2, P2, Z2, _, k2 = _link_rows(p, K, load, th, stick)
+        y2, P2, Z2, _, k2 = _link_rows(p, K, load, th, None if stick is None else stick[i])
         yl.append(y2)
         Pl.append(P2)
         Zl.append(Z2)
