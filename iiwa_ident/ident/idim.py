@@ -83,11 +83,12 @@ FRICTION_SMOOTHING_RAD_S = 0.005
 STICK_VELOCITY_RAD_S = 0.02
 #: Coulomb friction from which sticking samples are left out [Nm] (about five times a torque sensor's noise).
 STICK_COULOMB_NM = 0.1
-#: Least share of the samples that must remain for sticking samples to be left out.
-STICK_MIN_SHARE = 0.5
+#: Least share of the samples that must remain for a fit without the sticking samples.
+STICK_MIN_SHARE = 0.05
 #: Least span of link angles over which a load's amplitude and phase are fitted [rad].
 LOAD_MIN_RANGE_RAD = 0.5
 _EDGE_S = 0.25
+_STICK_REACH = 1.0  # filter time constants around a sticking sample that its error reaches
 _BLOCK_S = 0.25
 _IV_ITERATIONS = 3
 _MAX_TD_S = 0.05
@@ -313,7 +314,7 @@ def _moving(omega: np.ndarray, p: "_Prepared") -> np.ndarray:
     the other torques; those samples, and the low-pass's reach around them, leave the link equation.
     """
     slow = np.abs(omega) < STICK_VELOCITY_RAD_S
-    reach = int(math.ceil(3.0 / (p.fc * p.rec.T)))
+    reach = int(math.ceil(_STICK_REACH / (p.fc * p.rec.T)))
     if slow.any() and reach > 0:
         slow = np.convolve(slow.astype(float), np.ones(2 * reach + 1), mode="same") > 0
     return ~slow
@@ -322,9 +323,8 @@ def _moving(omega: np.ndarray, p: "_Prepared") -> np.ndarray:
 def _stick_masks(preps: list[_Prepared], K: float) -> list[np.ndarray] | None:
     """Per record, the samples far from sticking, or ``None`` when too few would remain.
 
-    Fixed once (at the stiffness of the moment) so that the link equation's rows do not change
-    between passes. Leaving out most of a record would trade the friction model's error at rest for
-    the noise and leverage of a few samples; below :data:`STICK_MIN_SHARE` kept, every sample stays.
+    Fixed once (at the stiffness of the fit on every sample) so that the link equation's rows do not
+    change between passes; below :data:`STICK_MIN_SHARE` kept, the samples are too few to try.
     """
     masks = [_moving(p.dq_w - p.dtau_w / K, p) for p in preps]
     kept = sum(int((m & p.keep).sum()) for m, p in zip(masks, preps))
@@ -412,11 +412,35 @@ def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
     preps = [_prepared(r) for r in records]
     span = max(float(np.ptp(p.q[p.keep])) for p in preps)
     load = "sinusoid" if span >= LOAD_MIN_RANGE_RAD else "gradient"
+    everything = _solve(records, preps, load, span, None)
+    coulomb = everything.effect("link_friction")
+    if coulomb is None or not coulomb.values["coulomb_nm"] > STICK_COULOMB_NM:
+        return everything
+    # Coulomb friction shows: the same fit without the samples where the link may stick. A link at rest
+    # makes its friction whatever balances the other torques, so those samples bias the link equation; but
+    # leaving out most of a record costs precision. The fit with the smaller relative std of K and Jl wins.
+    final = [_prepared(_dealiased(r, everything.parameters, everything.parameters["Td"])) for r in records]
+    masks = _stick_masks(final, everything.parameters["K"])
+    if masks is None:
+        return everything
+    try:
+        moving = _solve(records, preps, load, span, masks)
+    except IiwaIdentError:
+        return everything
+    return min((everything, moving), key=_relative_std)
 
+
+def _relative_std(res: IdimResult) -> float:
+    """The larger relative std of ``K`` and ``Jl``: how well a fit pins down the link side."""
+    return max(res.std["K"] / res.parameters["K"], res.std["Jl"] / res.parameters["Jl"])
+
+
+def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: float,
+           stick: list[np.ndarray] | None) -> IdimResult:
+    """IV iterations with the delay search and the alias correction; ``stick``: per record the samples the
+    link equation uses (``None``: all)."""
     tau_hat: list | None = None
     K = 1e4
-    stick: list[np.ndarray] | None = None
-    stick_checked = False
     td = _delay(preps, None)
     for it in range(_IV_ITERATIONS + 1):
         # Motor equation over all records.
@@ -437,10 +461,6 @@ def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
                 break
             K = float(xl[0] / xl[1])
         prm = _physical(xm, xl, records)
-        # Once Coulomb friction shows, samples where the link may stick leave the link equation.
-        if not stick_checked and float(xl[names.index("coulomb")]) > STICK_COULOMB_NM:
-            stick_checked = True
-            stick = _stick_masks(preps, prm["K"])
         if it == _IV_ITERATIONS:
             break
         if it < 2:  # the hold's aliased images out of the samples, at the estimate so far
