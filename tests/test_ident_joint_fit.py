@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
+from iiwa_ident.excite.scenarios import draw_scenario, resonance_hz, simulate_scenario
 from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
 
@@ -50,9 +50,9 @@ def subset_outcomes():
 def test_subset_never_a_traceback_and_mostly_accurate(subset_outcomes):
     fitted = [o for o in subset_outcomes if o[1] == "fitted"]
     passed = [o for o in fitted if _accurate(o[2])]
-    # The target is 95 % (bench/bench_robustness.py fit, 10-60 s records); today 18 of these 24 short
-    # records pass. This guards what is reached; raise it as the estimator improves.
-    assert len(passed) >= 0.7 * len(subset_outcomes), "\n".join(
+    # The target is 95 % (bench/bench_robustness.py fit, 10-60 s records); today 23 of these 24 short
+    # records pass (the miss: Jl +3.8 % on a 12 s, 200 Hz chirp of an 18.7 kg m^2 link).
+    assert len(passed) >= 0.85 * len(subset_outcomes), "\n".join(
         f"{sc.describe()}: {res}" for sc, kind, res in subset_outcomes if kind != "fitted" or not _accurate(res))
 
 
@@ -68,6 +68,20 @@ def test_subset_refusals_name_a_parameter(subset_outcomes):
     for sc, kind, msg in subset_outcomes:
         if kind == "refused":
             assert msg.split(":")[0] in ("Jc", "bc", "K", "Jl", "Td") or "dataset" in msg, msg
+
+
+@pytest.mark.parametrize("seed", [1001, 1002])
+def test_a_chirp_below_the_resonance_is_refused_naming_k(seed):
+    # Below the resonance K and Jl do not separate: at 0.4 of it the estimates were off by 10-40 %
+    # with a std of 1-2 %. The refusal names K and the band, and says how far to chirp.
+    sc = draw_scenario(seed, duration_s=15.0)
+    t = sc.truth
+    f_res = resonance_hz(t["Jc"], t["K"], t["Jl"])
+    sc.protocol["f1_hz"] = 0.4 * f_res
+    with pytest.raises(IiwaIdentError, match=r"^K: the chirp's band .* stays below the resonance near"):
+        fit_joint([simulate_scenario(sc)])
+    sc.protocol["f1_hz"] = 2.0 * f_res  # the same joint, chirped past the resonance, fits
+    fit_joint([simulate_scenario(sc)])
 
 
 def test_link_effects_recovered_in_the_simulator_s_names():
