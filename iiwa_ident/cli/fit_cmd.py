@@ -66,7 +66,8 @@ def format_fit(result: FitResult) -> str:
         lines.append(f"residual noise ({Path(label).name}): tau_j {noise['tau_j_nm']:.3g} Nm RMS, "
                      f"q_m {noise['q_m_rad']:.3g} rad RMS")
     lines.append("")
-    lines.append("fit quality per octave band (H1 of tau_c -> tau_j against the fitted model)")
+    less = " less the effects' response" if result.effects else ""
+    lines.append(f"fit quality per octave band (H1 of tau_c -> tau_j{less} against the fitted eq (4))")
     lines.append("  band              coherence  rel. error  error / uncertainty")
     multi = len(result.labels) > 1
     for b in result.bands:

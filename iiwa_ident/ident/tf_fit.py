@@ -84,7 +84,7 @@ the H1 estimate and its uncertainty (:mod:`iiwa_ident.ident.frf`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -554,6 +554,14 @@ def initial_estimate(datasets: Sequence[Dataset]) -> list[dict[str, float]]:
     records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
     _check_joints(records)
     return _initial(records)
+
+
+def _less_known(rec: _Record, params: dict[str, float]) -> _Record:
+    """``rec`` with the response to its known torques taken out of ``tau_j`` and ``q_m`` (itself without)."""
+    if not rec.known:
+        return rec
+    y = sum(discretize(params, rec.T, kind).simulate(signal) for kind, signal in rec.known)
+    return replace(rec, tau=rec.tau - y[0], q=rec.q - y[1], spectra=None, known=[])
 
 
 def _analyse(rec: _Record, delay_s: float = 0.0) -> tuple[_frf.FRFEstimate, _frf.FRFEstimate]:
@@ -1063,7 +1071,9 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     noise, frfs, model_frfs, bands, harmonics, nonlinear = [], [], [], [], [], []
     for rec, (e_t, e_q) in zip(records, problem.unweighted(x)):
         noise.append({"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))})
-        est_t, _ = _analyse(rec, delay_s=values["Td"])
+        # With known torques (the fitted link-side effects) the model's linear part is compared with the
+        # data less those torques' response: eq (4) alone is not the model then.
+        est_t, _ = _analyse(_less_known(rec, values), delay_s=values["Td"])
         dm = discretize(values, rec.T)
         model = est_t.band_average(lambda f: dm.frequency_response(f)[0])
         frfs.append(est_t)
