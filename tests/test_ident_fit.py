@@ -204,16 +204,18 @@ class TestInitialEstimate:
 
 class TestFitTransferFunction:
     def test_random_truths_library_and_cli(self, ripple_files, tmp_path):
-        for path, truth in ripple_files:
-            result = fit_transfer_function([read_dataset(path)])
-            assert_accurate(result.parameters, truth)
+        for i, (path, truth) in enumerate(ripple_files):
+            joint = fit_joint([read_dataset(path)])  # what the command runs
+            assert_accurate(joint.parameters, truth)
+            if i:
+                continue
+            # Once: eq (4) alone, and the command against the library.
+            assert_accurate(fit_transfer_function([read_dataset(path)]).parameters, truth)
             out, js = tmp_path / f"{path.stem}.toml", tmp_path / f"{path.stem}.json"
             res = runner.invoke(app, ["fit", str(path), "--out", str(out), "--json", str(js)])
             assert res.exit_code == 0, res.output
             doc = json.loads(js.read_text())
             cli_values = {k: doc["parameters"][k]["value"] for k in PARAMETER_NAMES}
-            assert_accurate(cli_values, truth)
-            joint = fit_joint([read_dataset(path)])  # what the command runs
             assert doc["method"] == joint.method
             for k in PARAMETER_NAMES:
                 assert cli_values[k] == pytest.approx(joint.parameters[k], rel=1e-9, abs=0)

@@ -29,7 +29,7 @@ def _accurate(err):
 
 
 # A seeded subset of the benchmark's draws, shortened to 12 s so that make test stays fast.
-_SUBSET = list(range(1000, 1024))
+_SUBSET = list(range(1000, 1020))
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +50,7 @@ def subset_outcomes():
 def test_subset_never_a_traceback_and_mostly_accurate(subset_outcomes):
     fitted = [o for o in subset_outcomes if o[1] == "fitted"]
     passed = [o for o in fitted if _accurate(o[2])]
-    # The target is 95 % (bench/bench_robustness.py fit, 10-60 s records); today 23 of these 24 short
+    # The target is 95 % (bench/bench_robustness.py fit, 10-60 s records); today 19 of these 20 short
     # records pass (the miss: Jl +3.8 % on a 12 s, 200 Hz chirp of an 18.7 kg m^2 link).
     assert len(passed) >= 0.85 * len(subset_outcomes), "\n".join(
         f"{sc.describe()}: {res}" for sc, kind, res in subset_outcomes if kind != "fitted" or not _accurate(res))
@@ -70,11 +70,10 @@ def test_subset_refusals_name_a_parameter(subset_outcomes):
             assert msg.split(":")[0] in ("Jc", "bc", "K", "Jl", "Td") or "dataset" in msg, msg
 
 
-@pytest.mark.parametrize("seed", [1001, 1002])
-def test_a_chirp_below_the_resonance_is_refused_naming_k(seed):
+def test_a_chirp_below_the_resonance_is_refused_naming_k():
     # Below the resonance K and Jl do not separate: at 0.4 of it the estimates were off by 10-40 %
     # with a std of 1-2 %. The refusal names K and the band, and says how far to chirp.
-    sc = draw_scenario(seed, duration_s=15.0)
+    sc = draw_scenario(1001, duration_s=10.0)
     t = sc.truth
     f_res = resonance_hz(t["Jc"], t["K"], t["Jl"])
     sc.protocol["f1_hz"] = 0.4 * f_res
@@ -84,9 +83,15 @@ def test_a_chirp_below_the_resonance_is_refused_naming_k(seed):
     fit_joint([simulate_scenario(sc)])
 
 
-def test_link_effects_recovered_in_the_simulator_s_names():
+@pytest.fixture(scope="module")
+def friction_chirp():
+    """A 1 kHz chirp of a link with 4.4 Nm of Coulomb friction, viscous friction and a sensor offset."""
     sc = draw_scenario(7, nuisances=["coulomb", "viscous", "offset"], duration_s=20.0, rate_hz=1000.0)
-    ds = simulate_scenario(sc)
+    return sc, simulate_scenario(sc)
+
+
+def test_link_effects_recovered_in_the_simulator_s_names(friction_chirp):
+    sc, ds = friction_chirp
     res = fit_idim([ds])
     fr = res.effect("link_friction")
     truth = sc.effects["link_friction"]
@@ -99,11 +104,10 @@ def test_link_effects_recovered_in_the_simulator_s_names():
         assert set(e.values) == set(e.std)
 
 
-def test_band_quality_is_judged_with_the_fitted_effects():
+def test_band_quality_is_judged_with_the_fitted_effects(friction_chirp):
     # 4.4 Nm of Coulomb friction: eq (4) alone misses H1 by about 60 %; with the effects' response
     # taken out of the data, the fitted model matches it within a few per cent in every band.
-    sc = draw_scenario(7, nuisances=["coulomb", "viscous", "offset"], duration_s=20.0, rate_hz=1000.0)
-    res = fit_joint([simulate_scenario(sc)])
+    res = fit_joint([friction_chirp[1]])
     assert res.bands and all(b.rel_error < 0.05 for b in res.bands), [(b.lo_hz, b.rel_error) for b in res.bands]
     assert not [w for w in res.warnings if "misses the measured response" in w]
 

@@ -79,6 +79,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
+from scipy import fft as _fft
 from scipy.fft import next_fast_len
 
 from iiwa_ident.datasets import Dataset
@@ -180,7 +181,7 @@ class _Spectral:
         self.n, self.T = n, T
         # The even extension ends where it starts, so padding with the first value keeps it continuous.
         self.N = next_fast_len(2 * n, real=True)
-        f = np.fft.rfftfreq(self.N, T)
+        f = _fft.rfftfreq(self.N, T)
         self.f = f
         self.jw = 2j * np.pi * f
         self.lp = 1.0 / np.sqrt(1.0 + (f / fc) ** (2 * _ORDER))
@@ -190,7 +191,7 @@ class _Spectral:
 
     def spectrum(self, x: np.ndarray, wide: bool = False) -> np.ndarray:
         ext = np.concatenate([x, x[::-1], np.full(self.N - 2 * self.n, x[0])])
-        return np.fft.rfft(ext) * (self.wide if wide else self.lp)
+        return _fft.rfft(ext) * (self.wide if wide else self.lp)
 
     def filtered(self, x: np.ndarray) -> np.ndarray:
         """``x`` through the low-pass (for regressors computed sample by sample)."""
@@ -199,7 +200,7 @@ class _Spectral:
     def back(self, X: np.ndarray, order: int = 0) -> np.ndarray:
         if order:
             X = X * self.jw ** order
-        return np.fft.irfft(X, self.N)[:self.n]
+        return _fft.irfft(X, self.N)[:self.n]
 
     def held_delayed(self, U: np.ndarray, delay_s: float) -> np.ndarray:
         """Spectrum of a zero-order-held command, delayed by ``delay_s``."""
@@ -224,6 +225,7 @@ class _Prepared:
     dq_w: np.ndarray
     tau_w: np.ndarray
     dtau_w: np.ndarray
+    g_cols: list[np.ndarray] = field(default_factory=list)  # the robot model's terms, filtered (see _motor_rows)
 
 
 def _prepared(rec: _Record) -> _Prepared:
@@ -242,7 +244,14 @@ def _prepared(rec: _Record) -> _Prepared:
     TSw, Qw = sp.spectrum(rec.tau, wide=True), sp.spectrum(rec.q, wide=True)
     return _Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
                      rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2),
-                     rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(TSw), sp.back(TSw, 1))
+                     rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(TSw), sp.back(TSw, 1),
+                     _robot_model_terms(sp, rec.q0 + sp.back(Qw), sp.back(Qw, 1)))
+
+
+def _robot_model_terms(sp: _Spectral, q: np.ndarray, dq: np.ndarray) -> list[np.ndarray]:
+    """sin q, cos q, q' cos q, -q' sin q through the low-pass: the motor equation's gravity-model columns."""
+    sq, cq = np.sin(q), np.cos(q)
+    return [sp.filtered(r) for r in (sq, cq, dq * cq, -dq * sq)]
 
 
 def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
@@ -258,9 +267,9 @@ def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
     Jc, bc, K, Jl = prm["Jc"], prm["bc"], prm["K"], prm["Jl"]
     T, n = rec.T, rec.n
     N = next_fast_len(2 * n, real=True)
-    f = np.fft.rfftfreq(N, T)
+    f = _fft.rfftfreq(N, T)
     fs = 1.0 / T
-    U = np.fft.rfft(rec.u - float(np.mean(rec.u)), N)
+    U = _fft.rfft(rec.u - float(np.mean(rec.u)), N)
     A_tau = np.zeros_like(U)
     A_q = np.zeros_like(U)
     for k in (-4, -3, -2, -1, 1, 2, 3, 4):
@@ -270,8 +279,8 @@ def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
         h_tau = Jl * (bc * s + K) / (Jc * Jl * s**2 + Jl * bc * s + K * (Jl + Jc))
         A_tau += h_tau * hold
         A_q += h_tau * (1.0 / K + 1.0 / (Jl * s**2)) * hold
-    tau_alias = np.fft.irfft(A_tau * U, N)[:n]
-    q_alias = np.fft.irfft(A_q * U, N)[:n]
+    tau_alias = _fft.irfft(A_tau * U, N)[:n]
+    q_alias = _fft.irfft(A_q * U, N)[:n]
     return replace(rec, tau=rec.tau - tau_alias, q=rec.q - q_alias)
 
 
@@ -286,9 +295,7 @@ def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] 
     k = p.keep
     y = (u - p.tau_s)[k]
     dy = (du - p.dtau_s)[k]
-    q, dq = p.q_w, p.dq_w
-    sq, cq = np.sin(q), np.cos(q)
-    g = [p.sp.filtered(r)[k] for r in (sq, cq, dq * cq, -dq * sq)]
+    g = [c[k] for c in p.g_cols]
     Phi = np.column_stack([p.ddq[k], -dy, g[0], g[1], np.ones(len(y)), g[2], g[3]])
     Z = Phi.copy()
     if tau_hat is not None:
@@ -444,7 +451,7 @@ def _without_sticking(everything: IdimResult, records: list[_Record], preps: lis
     if masks is None:
         return everything
     try:
-        moving = _solve(records, preps, load, span, masks)
+        moving = _solve(records, preps, load, span, masks, everything.parameters["Td"])
     except IiwaIdentError:
         return everything
     return min((everything, moving), key=_relative_std)
@@ -478,12 +485,12 @@ def _relative_std(res: IdimResult) -> float:
 
 
 def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: float,
-           stick: list[np.ndarray] | None) -> IdimResult:
+           stick: list[np.ndarray] | None, td0: float | None = None) -> IdimResult:
     """IV iterations with the delay search and the alias correction; ``stick``: per record the samples the
-    link equation uses (``None``: all)."""
+    link equation uses (``None``: all); ``td0``: a delay found before (searched only around it)."""
     tau_hat: list | None = None
     K = 1e4
-    td = _delay(preps, None)
+    td = _delay(preps, None) if td0 is None else _delay(preps, None, max(td0 - 2e-3, 0.0), min(td0 + 2e-3, _MAX_TD_S))
     for it in range(_IV_ITERATIONS + 1):
         # Motor equation over all records.
         rows = [_motor_rows(p, td, None if tau_hat is None else tau_hat[i]) for i, p in enumerate(preps)]
