@@ -612,14 +612,27 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         std[name] = float(math.sqrt(max(g @ cov @ g, 0.0)))
     cl = {nme: (float(xl[j]), float(math.sqrt(max(cov[nm + j, nm + j], 0.0)))) for j, nme in enumerate(names)}
     effects = _effects(cl, xm, cov, nm, load, span)
+    # Only what the data show goes on as a known torque: an effect within its noise would carry that
+    # noise into the output-error fit (and triple its cost) for nothing.
+    shown = {e.name for e in effects if e.significant}
+    xl_known = np.array([0.0 if _EFFECT_OF.get(nme, nme) not in shown else v for nme, v in zip(names, xl)])
+    gravity_model = any(abs(xm[j]) > 3.0 * math.sqrt(max(cov[j, j], 0.0)) for j in (2, 3))
     known = []
     for p in preps:
-        link = _link_torque(p, K, xl, names, load)
-        motor = -(xm[2] * np.sin(p.q_w) + xm[3] * np.cos(p.q_w))  # the robot subtracts its gravity model
-        known.append([("link", _sample_mean(link)), ("motor", _sample_mean(motor))])
+        inputs = []
+        if np.any(xl_known):
+            inputs.append(("link", _sample_mean(_link_torque(p, K, xl_known, names, load))))
+        if gravity_model:  # the robot subtracts its gravity model
+            inputs.append(("motor", _sample_mean(-(xm[2] * np.sin(p.q_w) + xm[3] * np.cos(p.q_w)))))
+        known.append(inputs)
     return IdimResult(parameters={k: float(prm[k]) for k in PARAMETER_NAMES}, std=std, effects=effects,
                       residual_rms={"motor_nm": float(np.sqrt(np.mean(em**2))), "link_nm": float(np.sqrt(np.mean(el**2)))},
                       labels=[r.label for r in records], known_inputs=known)
+
+
+#: The effect each link-equation coefficient belongs to.
+_EFFECT_OF = {"coulomb": "link_friction", "viscous": "link_friction", "load_a": "position_dependent_load",
+              "load_b": "position_dependent_load", "load_gradient": "position_dependent_load"}
 
 
 def _sample_mean(x: np.ndarray) -> np.ndarray:
