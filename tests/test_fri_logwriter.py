@@ -134,38 +134,35 @@ class TestRingOverflow:
 
 LOOP_SCRIPT = textwrap.dedent(
     """
-    import sys, time
+    import sys
     from iiwa_ident.fri.logwriter import LogWriter
 
     log = LogWriter(sys.argv[1], ["t", "q_m", "tau_j"], experiment="free", source="robot",
                     joint=1, sample_rate_hz=1000.0, flush_interval_s=0.5).start()
     print("writer", log.writer_pid, flush=True)
-    # Paced at about 1 kHz like the runtime, so the writer keeps up; no test outcome depends on the pace.
-    t0 = time.perf_counter()
-    k = 0
-    while True:
+    rows = int(sys.argv[2])
+    for k in range(rows):  # far below the ring's capacity: nothing is lost however slow the writer
         log.append((k / 1000.0, 0.001 * k, float(k % 7)))
-        k += 1
-        if k == 1500:
-            print("running", k, flush=True)
-        if k >= int(sys.argv[2]):
-            break
-        delay = t0 + k / 1000.0 - time.perf_counter()
-        if delay > 0:
-            time.sleep(delay)
-    print("done", k, flush=True)  # leaves without close(): the exit hook must finish the file
+    print("running", rows, flush=True)
+    if sys.argv[3] == "hold":
+        sys.stdin.read()  # a loop that is still running when it is killed: blocks until the test ends it
+    print("done", rows, flush=True)  # leaves without close(): the exit hook must finish the file
     """
 )
 
 
 class _Loop:
-    """The loop process and its output lines."""
+    """The loop process and its output lines.
 
-    def __init__(self, path: Path, tmp_path: Path, max_rows: int = 10**9) -> None:
+    The loop appends ``rows`` rows, says so, and with ``hold`` waits (alive, its writer running)
+    until it is killed; without, it exits without closing the log. Nothing is paced by the clock.
+    """
+
+    def __init__(self, path: Path, tmp_path: Path, rows: int, hold: bool) -> None:
         self.stderr = open(tmp_path / "loop.stderr", "w+")
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", LOOP_SCRIPT, str(path), str(max_rows)],
-            stdout=subprocess.PIPE, stderr=self.stderr, cwd=REPO,
+            [sys.executable, "-c", LOOP_SCRIPT, str(path), str(rows), "hold" if hold else "exit"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr, cwd=REPO,
         )
         self._buffer = b""
 
@@ -189,7 +186,8 @@ class _Loop:
     def stop(self) -> None:
         if self.proc.poll() is None:
             self.proc.kill()
-        self.proc.wait(5)
+        self.proc.wait(60)
+        self.proc.stdin.close()
         self.proc.stdout.close()
         self.stderr.close()
 
@@ -230,12 +228,12 @@ def check_rows(ds, n_min: int) -> None:
 class TestParentKilled:
     def test_writer_finishes_the_file(self, tmp_path):
         path = tmp_path / "killed.h5"
-        loop = _Loop(path, tmp_path)
+        loop = _Loop(path, tmp_path, rows=1500, hold=True)
         try:
             loop.expect("writer")
             appended = loop.expect("running")
             os.kill(loop.proc.pid, signal.SIGKILL)  # the loop only, not its writer
-            loop.proc.wait(5)
+            loop.proc.wait(60)
             ds = wait_for_complete(path)
         finally:
             loop.stop()
@@ -247,7 +245,7 @@ class TestParentKilled:
 class TestBothKilled:
     def test_last_flush_is_readable(self, tmp_path):
         path = tmp_path / "both.h5"
-        loop = _Loop(path, tmp_path)
+        loop = _Loop(path, tmp_path, rows=1500, hold=True)
         try:
             writer_pid = loop.expect("writer")
             loop.expect("running")
@@ -255,7 +253,7 @@ class TestBothKilled:
             flushed = wait_for(lambda: _live(path, 1000), what="1000 rows flushed").n_samples
             os.kill(writer_pid, signal.SIGKILL)
             os.kill(loop.proc.pid, signal.SIGKILL)
-            loop.proc.wait(5)
+            loop.proc.wait(60)
         finally:
             loop.stop()
         with pytest.raises(OSError):
@@ -269,11 +267,12 @@ class TestBothKilled:
 class TestUnclosedAtExit:
     def test_exit_hook_finishes_the_file(self, tmp_path):
         path = tmp_path / "exit.h5"
-        loop = _Loop(path, tmp_path, max_rows=300)
+        loop = _Loop(path, tmp_path, rows=300, hold=False)
         try:
             loop.expect("writer")
+            assert loop.expect("running") == 300
             assert loop.expect("done") == 300
-            assert loop.proc.wait(15) == 0
+            assert loop.proc.wait(60) == 0
         finally:
             loop.stop()
         ds = read_dataset(path)
