@@ -4,8 +4,9 @@ For a fixed truth (Table I, Td = 5 ms) it simulates ``--seeds`` 30 s chirps
 (default ``Chirp()``: 0.5-200 Hz, 10 Nm, 3 Nm bias) with the default sensor
 noise, each seed starting at a random position within one encoder tick (the
 quantisation error of a given trajectory is otherwise the same in every
-seed and would show as bias, not spread), fits each with :func:`iiwa_ident.ident.tf_fit.fit_transfer_function`
-(start values from the data), and prints per parameter:
+seed and would show as bias, not spread), fits each with :func:`iiwa_ident.ident.joint_fit.fit_joint`
+(``--method``, default ``eq4``: the output-error fit of eq (4) from start values of the data), and prints
+per parameter:
 
 - truth, mean of the estimates, bias (absolute and relative),
 - std over seeds, the mean std the fit reported, and the RMS error,
@@ -30,7 +31,7 @@ Gaussian position noise of the same RMS instead (the textbook setting of
 the bound: quantisation error is a deterministic function of the position,
 not independent noise). Not part of ``make test`` (about five minutes).
 
-Run: ``.venv/bin/python bench/bench_fit.py [--seeds 20]``.
+Run: ``.venv/bin/python bench/bench_fit.py [--seeds 20] [--method auto]``.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ import time
 import numpy as np
 
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, cramer_rao_std, fit_transfer_function
+from iiwa_ident.ident.joint_fit import METHODS, fit_joint
+from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, cramer_rao_std
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 __all__ = ["TRUTH", "run_case", "main"]
@@ -52,7 +54,7 @@ TRUTH = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 _SCALE = {"Td": (1e3, "ms")}  # display Td in ms
 
 
-def run_case(plant, seeds: int, duration_s: float, white_q: bool = False) -> dict:
+def run_case(plant, seeds: int, duration_s: float, white_q: bool = False, method: str = "eq4") -> dict:
     """Fit ``seeds`` simulated chirps of ``plant``; return estimates, reported std and bounds.
 
     With ``white_q`` the encoder does not quantise; white noise of the
@@ -72,7 +74,7 @@ def run_case(plant, seeds: int, duration_s: float, white_q: bool = False) -> dic
         if white_q:
             ds.signals["q_m"] = ds.signals["q_m"] + q_noise * rng.standard_normal(ds.n_samples)
         t0 = time.perf_counter()
-        res = fit_transfer_function([ds])
+        res = fit_joint([ds], method=method)
         seconds.append(time.perf_counter() - t0)
         est.append([res.parameters[k] for k in PARAMETER_NAMES])
         rep.append([res.std[k] for k in PARAMETER_NAMES])
@@ -139,7 +141,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--duration", type=float, default=30.0, help="chirp duration [s]")
+    ap.add_argument("--method", default="eq4", choices=METHODS,
+                    help="estimator (iiwa_ident.ident.joint_fit.METHODS; the fit command's default is auto)")
     args = ap.parse_args()
+    print(f"method: {args.method}")
     print("truth (Table I): " + ", ".join(f"{k}={v:g}" for k, v in TRUTH.items()))
     plant = default_plant()
     for name, value in TRUTH.items():
@@ -153,7 +158,7 @@ def main() -> None:
              ("model exact, white position noise instead of quantisation", exact, True)]
     results = {}
     for title, p, white in cases:
-        results[title] = report(title, run_case(p, args.seeds, args.duration, white))
+        results[title] = report(title, run_case(p, args.seeds, args.duration, white, args.method))
     print("\nsummary:")
     for title, goals in results.items():
         met = [g.split(" (")[0] for g, ok in goals.items() if ok]

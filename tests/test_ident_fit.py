@@ -108,6 +108,24 @@ class TestEq4FrequencyResponse:
         np.testing.assert_allclose(abs(H), TABLE1["bc"] / (TABLE1["Jc"] * 2 * np.pi * f), rtol=1e-2, atol=0)
 
 
+    def test_other_inputs(self):
+        f = np.array([1e-6])
+        Jc, Jl = TABLE1["Jc"], TABLE1["Jl"]
+        # At DC a torque on the link is shared the other way round: -Jc / (Jc + Jl) reaches tau_j.
+        np.testing.assert_allclose(eq4_frequency_response(TABLE1, f, "link"), -Jc / (Jc + Jl), rtol=1e-6, atol=0)
+        g = np.array([3.0, 30.0, 150.0])
+        np.testing.assert_allclose(eq4_frequency_response(TABLE1, g, "motor"),
+                                   eq4_frequency_response(dict(TABLE1, Td=0.0), g), rtol=1e-12, atol=0)
+        # The exact sampled model with the same input agrees well below the sampling rate (the hold's
+        # half-sample lag is the difference).
+        T = 1e-3
+        for kind in ("link", "motor"):
+            dm = discretize(TABLE1, T, kind)
+            got = dm.frequency_response(np.array([0.5, 1.0, 2.0]))[0]
+            want = eq4_frequency_response(TABLE1, np.array([0.5, 1.0, 2.0]), kind)
+            np.testing.assert_allclose(got, want, rtol=1e-2, atol=0)
+
+
 class TestDiscretize:
     @pytest.mark.parametrize("Td", [0.005, 0.0053, 0.00749, 0.0])
     def test_matches_bruteforce_recursion(self, Td):

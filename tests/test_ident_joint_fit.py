@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite.scenarios import draw_scenario, resonance_hz, simulate_scenario
+from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
+from iiwa_ident.sim.plant import resonance_hz
 from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
 

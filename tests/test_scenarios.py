@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from iiwa_ident.excite.scenarios import NUISANCES, draw_scenario, resonance_hz, scenario_plant, simulate_scenario
+from iiwa_ident.excite.scenarios import NUISANCES, draw_scenario, scenario_plant, simulate_scenario
+from iiwa_ident.sim.plant import resonance_hz
 
 
 def test_same_seed_same_scenario():

@@ -48,19 +48,14 @@ from iiwa_ident.excite._runner import record
 from iiwa_ident.excite.chirp import Chirp
 from iiwa_ident.sim.effects import make_effect
 from iiwa_ident.sim.joint import SimulatedJoint
-from iiwa_ident.sim.plant import Plant, default_plant
+from iiwa_ident.sim.plant import Plant, default_plant, resonance_hz
 
-__all__ = ["NUISANCES", "Scenario", "draw_scenario", "scenario_plant", "simulate_scenario", "resonance_hz"]
+__all__ = ["NUISANCES", "Scenario", "draw_scenario", "scenario_plant", "simulate_scenario"]
 
 #: Nuisance names, in the order pass rates are printed.
 NUISANCES: tuple[str, ...] = ("coulomb", "viscous", "gravity", "offset", "ripple", "stribeck", "load_harmonic",
                               "offset_drift")
 _TABLE1 = {"Jc": 1.03, "bc": 55.0, "Td": 0.005}
-
-
-def resonance_hz(Jc: float, K: float, Jl: float) -> float:
-    """Resonance of eq (4) without damping, ``sqrt(K (1/Jc + 1/Jl)) / (2 pi)`` [Hz]."""
-    return math.sqrt(K * (1.0 / Jc + 1.0 / Jl)) / (2 * math.pi)
 
 
 @dataclass

@@ -84,7 +84,8 @@ from scipy.fft import next_fast_len
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _Record
+from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _Record, eq4_frequency_response
+from iiwa_ident.sim.plant import resonance_hz
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
            "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM", "STICK_MIN_SHARE", "MIN_BAND_OVER_RESONANCE", "MAX_RELATIVE_STD"]
@@ -264,7 +265,7 @@ def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
     functions at the current estimate (terms ``k = +-1 .. +-4``); the link-side torques are slow and are not
     folded back.
     """
-    Jc, bc, K, Jl = prm["Jc"], prm["bc"], prm["K"], prm["Jl"]
+    K, Jl = prm["K"], prm["Jl"]
     T, n = rec.T, rec.n
     N = next_fast_len(2 * n, real=True)
     f = _fft.rfftfreq(N, T)
@@ -272,13 +273,13 @@ def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
     U = _fft.rfft(rec.u - float(np.mean(rec.u)), N)
     A_tau = np.zeros_like(U)
     A_q = np.zeros_like(U)
+    delayed = {**prm, "Td": td}
     for k in (-4, -3, -2, -1, 1, 2, 3, 4):
         fk = f + k * fs
         s = 2j * np.pi * fk
-        hold = np.sinc(fk * T) * np.exp(-s * (td + 0.5 * T))
-        h_tau = Jl * (bc * s + K) / (Jc * Jl * s**2 + Jl * bc * s + K * (Jl + Jc))
-        A_tau += h_tau * hold
-        A_q += h_tau * (1.0 / K + 1.0 / (Jl * s**2)) * hold
+        h_tau = eq4_frequency_response(delayed, fk) * np.sinc(fk * T) * np.exp(-0.5 * s * T)
+        A_tau += h_tau
+        A_q += h_tau * (1.0 / K + 1.0 / (Jl * s**2))  # eqs (2)-(3): q_m = tau_j / K + theta_l
     tau_alias = _fft.irfft(A_tau * U, N)[:n]
     q_alias = _fft.irfft(A_q * U, N)[:n]
     return replace(rec, tau=rec.tau - tau_alias, q=rec.q - q_alias)
@@ -397,14 +398,12 @@ def _delay(preps: list[_Prepared], tau_hat: list | None, lo: float = 0.0, hi: fl
 def _predicted_torque(p: _Prepared, prm: dict[str, float], td: float, xm: np.ndarray, link_torque: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(tau_j', tau_j'') the model predicts from the command and the estimated link and gravity torques."""
-    Jc, bc, K, Jl = prm["Jc"], prm["bc"], prm["K"], prm["Jl"]
-    s = p.sp.jw
-    delta = Jc * Jl * s**2 + Jl * bc * s + K * (Jl + Jc)
     q = p.q_w
     g_m = xm[2] * np.sin(q) + xm[3] * np.cos(q) + xm[4]
-    U = p.sp.held_delayed(p.U, td) - p.sp.spectrum(g_m)
+    U = p.sp.held_delayed(p.U, td) - p.sp.spectrum(g_m)  # delayed already: as a torque added inside the robot
     D = p.sp.spectrum(link_torque)
-    TJ = (Jl * (bc * s + K) * U - K * Jc * D) / delta
+    model = {**prm, "Td": td}  # the two inputs here have no delay of their own
+    TJ = eq4_frequency_response(model, p.sp.f, "motor") * U + eq4_frequency_response(model, p.sp.f, "link") * D
     return p.sp.back(TJ, 1), p.sp.back(TJ, 2)
 
 
@@ -466,7 +465,7 @@ def _identified(res: IdimResult, records: list[_Record]) -> IdimResult:
     bc, K, Jl`` with a std above :data:`MAX_RELATIVE_STD` of its value is not determined either.
     """
     prm = res.parameters
-    f_res = math.sqrt(prm["K"] * (1.0 / prm["Jc"] + 1.0 / prm["Jl"])) / (2 * math.pi)
+    f_res = resonance_hz(prm["Jc"], prm["K"], prm["Jl"])
     rec = max(records, key=lambda r: r.f_hi)
     if rec.f_hi < MIN_BAND_OVER_RESONANCE * f_res:
         raise IiwaIdentError(

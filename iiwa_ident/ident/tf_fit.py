@@ -152,8 +152,13 @@ def _as_values(params: Any) -> tuple[float, float, float, float, float]:
     return vals  # type: ignore[return-value]
 
 
-def eq4_frequency_response(params: Any, f_hz: np.ndarray | float) -> np.ndarray:
-    """Eq (4): the continuous-time response ``tau_j / tau_c`` including the delay.
+#: Inputs of the sampled model: the FRI command (delayed by ``Td``), a torque added to the motor side's
+#: command inside the robot (its gravity model; not delayed) and a torque on the link (friction, loads).
+INPUTS: tuple[str, ...] = ("command", "motor", "link")
+
+
+def eq4_frequency_response(params: Any, f_hz: np.ndarray | float, input: str = "command") -> np.ndarray:
+    """Eq (4): the continuous-time response of ``tau_j`` including the delay.
 
     Parameters
     ----------
@@ -161,16 +166,26 @@ def eq4_frequency_response(params: Any, f_hz: np.ndarray | float) -> np.ndarray:
         ``Jc`` [kg m^2], ``bc`` [Nm s/rad], ``K`` [Nm/rad], ``Jl`` [kg m^2],
         ``Td`` [s].
     f_hz : array_like
-        Frequencies [Hz].
+        Frequencies [Hz] (negative ones give the conjugate).
+    input : {"command", "motor", "link"}
+        As in :func:`discretize`: ``tau_j / tau_c`` (delayed by ``Td``), the
+        same for a torque added inside the robot (no delay), or ``tau_j``
+        per torque on the link.
 
     Returns
     -------
     numpy.ndarray
         Complex response [Nm/Nm].
     """
+    if input not in INPUTS:
+        raise ValueError(f"input must be one of {INPUTS}")
     Jc, bc, K, Jl, Td = _as_values(params)
     s = 2j * np.pi * np.asarray(f_hz, float)
-    return np.exp(-Td * s) * Jl * (bc * s + K) / (Jc * Jl * s**2 + Jl * bc * s + (Jc * K + Jl * K))
+    delta = Jc * Jl * s**2 + Jl * bc * s + (Jc * K + Jl * K)
+    if input == "link":
+        return -K * Jc / delta
+    delay = np.exp(-Td * s) if input == "command" else 1.0
+    return delay * Jl * (bc * s + K) / delta
 
 
 def _expm2(M: np.ndarray) -> np.ndarray:
@@ -258,11 +273,6 @@ def _state_space(Jc: float, bc: float, K: float, Jl: float) -> tuple[np.ndarray,
     B = np.array([bc / (K * Jc), 1.0, 0.0, 0.0])
     C = np.array([[K, 0.0, -K, 0.0], [1.0, 0.0, 0.0, 0.0]])
     return A, B, C
-
-
-#: Inputs of the sampled model: the FRI command (delayed by ``Td``), a torque added to the motor side's
-#: command inside the robot (its gravity model; not delayed) and a torque on the link (friction, loads).
-INPUTS: tuple[str, ...] = ("command", "motor", "link")
 
 
 def discretize(params: Any, sample_time_s: float, input: str = "command") -> DiscreteModel:

@@ -27,6 +27,7 @@ The documented default plant is ``iiwa_ident/data/default_plant.toml``.
 from __future__ import annotations
 
 import copy
+import math
 import os
 from dataclasses import dataclass, field
 from importlib import resources
@@ -38,10 +39,22 @@ from iiwa_ident.errors import PlantError
 from iiwa_ident.robot import ROBOT_MODELS, JointLimits, joint_limits
 from iiwa_ident.sim.effects import Effect, Param, _check_number, make_effect
 
-__all__ = ["Plant", "load_plant", "default_plant", "plant_from_dict", "save_plant", "PLANT_FORMAT", "SECTIONS"]
+__all__ = ["Plant", "load_plant", "default_plant", "plant_from_dict", "save_plant", "PLANT_FORMAT", "SECTIONS",
+           "resonance_hz"]
 
 PLANT_FORMAT = "iiwa-ident-plant"
 PLANT_FORMAT_VERSION = 1
+
+
+def resonance_hz(Jc: float, K: float, Jl: float) -> float:
+    """Resonance of eq (4) without damping, ``sqrt(K (1/Jc + 1/Jl)) / (2 pi)`` [Hz].
+
+    Examples
+    --------
+    >>> round(resonance_hz(1.03, 18500.0, 5.6), 2)
+    23.21
+    """
+    return math.sqrt(K * (1.0 / Jc + 1.0 / Jl)) / (2 * math.pi)
 
 # Scalar sections of the plant file: name -> parameters (default, unit, range).
 SECTIONS: dict[str, tuple[Param, ...]] = {
