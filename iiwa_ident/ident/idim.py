@@ -622,7 +622,7 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         if np.any(xl_known):
             inputs.append(("link", _sample_mean(_link_torque(p, K, xl_known, names, load))))
         if gravity_model:  # the robot subtracts its gravity model
-            inputs.append(("motor", _sample_mean(-(xm[2] * np.sin(p.q_w) + xm[3] * np.cos(p.q_w)))))
+            inputs.append(("motor", _sample_mean(-(xm[2] * np.sin(p.q_w) + xm[3] * np.cos(p.q_w) + xm[4]))))
         known.append(inputs)
     return IdimResult(parameters={k: float(prm[k]) for k in PARAMETER_NAMES}, std=std, effects=effects,
                       residual_rms={"motor_nm": float(np.sqrt(np.mean(em**2))), "link_nm": float(np.sqrt(np.mean(el**2)))},

@@ -104,6 +104,7 @@ __all__ = [
     "DiscreteModel",
     "BandQuality",
     "FitResult",
+    "output_residual_rms",
     "eq4_frequency_response",
     "INPUTS",
     "discretize",
@@ -977,6 +978,47 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
     return out
 
 
+def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np.ndarray]]] | None
+             ) -> list[_Record]:
+    """The fit's records of ``datasets`` with their known inputs (see :func:`fit_transfer_function`)."""
+    if not datasets:
+        raise IiwaIdentError("fit needs at least one dataset")
+    records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
+    _check_joints(records)
+    if known is not None:
+        for rec, inputs in zip(records, known):
+            for kind, signal in inputs:
+                if kind not in INPUTS or np.shape(signal) != (rec.n,):
+                    raise ValueError(f"{rec.label}: known input {kind!r} needs one value per sample")
+            rec.known = [(kind, np.asarray(signal, float)) for kind, signal in inputs]
+    return records
+
+
+def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
+                        known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None) -> list[dict[str, float]]:
+    """RMS output errors of eq (4) at ``params``, per dataset, after the nuisance fits (unweighted).
+
+    Parameters
+    ----------
+    datasets : sequence of Dataset
+        As for :func:`fit_transfer_function`.
+    params : dict
+        ``Jc, bc, K, Jl`` [SI] and ``Td`` [s].
+    known : sequence, optional
+        Known torques besides the command, as for :func:`fit_transfer_function`.
+
+    Returns
+    -------
+    list of dict
+        ``{"tau_j_nm": ..., "q_m_rad": ...}`` per dataset: the simulated outputs' errors less a constant
+        (``tau_j``) and the drift spline (``q_m``). Compares models that differ in their known inputs.
+    """
+    problem = _Problem(_records(datasets, known))
+    x = _Problem.params_to_x([params[k] for k in PARAMETER_NAMES])
+    return [{"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))}
+            for e_t, e_q in problem.unweighted(x)]
+
+
 def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, float] | None = None,
                           max_starts: int = 3, outer_iterations: int = 4,
                           known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
@@ -1014,16 +1056,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         excited, has no coherent band, or the joints differ; the message
         names the file.
     """
-    if not datasets:
-        raise IiwaIdentError("fit needs at least one dataset")
-    records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
-    _check_joints(records)
-    if known is not None:
-        for rec, inputs in zip(records, known):
-            for kind, signal in inputs:
-                if kind not in INPUTS or np.shape(signal) != (rec.n,):
-                    raise ValueError(f"{rec.label}: known input {kind!r} needs one value per sample")
-            rec.known = [(kind, np.asarray(signal, float)) for kind, signal in inputs]
+    records = _records(datasets, known)
     for rec in records:  # every file must carry information, not just the first
         est_t, _ = _analyse(rec)
         if int(np.sum(_coherent(est_t))) < 4:
