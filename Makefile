@@ -25,8 +25,9 @@ demo: $(STAMP)
 
 # Two workers, one test file each at a time (module fixtures are built once); nothing in it depends on
 # wall-clock timing. The few tests that must run in real time are marked `realtime` and run apart.
+# One BLAS thread per worker: two workers with a BLAS thread pool each oversubscribe the cores.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not realtime"
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not realtime"
 
 test-realtime: $(STAMP)
 	$(BIN)/python -m pytest -q -m realtime

@@ -81,6 +81,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import fft as _fft
 from scipy.fft import next_fast_len
+from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
@@ -376,23 +377,16 @@ def _delay(preps: list[_Prepared], tau_hat: list | None, lo: float = 0.0, hi: fl
             total += float(np.sum((y - Phi @ x) ** 2))
         return total
 
-    grid = np.arange(lo, hi + 1e-12, 0.5e-3 if hi - lo > 0.01 else 0.25e-3)
+    # The residual's structure in Td is no finer than a period of the chirp's top frequency (4 ms or more
+    # for chirps up to 250 Hz): the grid brackets the minimum, Brent's method refines it.
+    grid = np.arange(lo, hi + 1e-12, 1e-3 if hi - lo > 0.01 else 0.5e-3)
     costs = np.array([cost(t) for t in grid])
     i = int(np.argmin(costs))
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    g = (math.sqrt(5) - 1) / 2
-    c, d = b - g * (b - a), a + g * (b - a)
-    fc, fd = cost(c), cost(d)
-    while b - a > 2e-6:
-        if fc < fd:
-            b, d, fd = d, c, fc
-            c = b - g * (b - a)
-            fc = cost(c)
-        else:
-            a, c, fc = c, d, fd
-            d = a + g * (b - a)
-            fd = cost(d)
-    return float(0.5 * (a + b))
+    if b <= a:
+        return float(grid[i])
+    best = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 1e-6})
+    return float(best.x) if best.fun <= costs[i] else float(grid[i])
 
 
 def _predicted_torque(p: _Prepared, prm: dict[str, float], td: float, xm: np.ndarray, link_torque: np.ndarray
