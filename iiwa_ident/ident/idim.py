@@ -44,7 +44,7 @@ instruments are the same derivatives of the joint torque the current model
 predicts from the command and the estimated link torques, computed in the
 frequency domain from eq (4)'s two transfer functions; three IV
 iterations. ``Td`` by a 1-D search on the motor equation's residual (0-50 ms,
-then a golden-section refinement), re-done after each iteration.
+a 1 ms grid, then Brent's method), re-done after each iteration.
 
 Aliasing, sticking, identifiability
 -----------------------------------
@@ -389,12 +389,15 @@ def _delay(preps: list[_Prepared], tau_hat: list | None, lo: float = 0.0, hi: fl
     return float(best.x) if best.fun <= costs[i] else float(grid[i])
 
 
+def _gravity_model(xm: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The robot's gravity model g_m(q) [Nm] from the motor equation's coefficients (sin q, cos q, 1)."""
+    return xm[2] * np.sin(q) + xm[3] * np.cos(q) + xm[4]
+
+
 def _predicted_torque(p: _Prepared, prm: dict[str, float], td: float, xm: np.ndarray, link_torque: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(tau_j', tau_j'') the model predicts from the command and the estimated link and gravity torques."""
-    q = p.q_w
-    g_m = xm[2] * np.sin(q) + xm[3] * np.cos(q) + xm[4]
-    U = p.sp.held_delayed(p.U, td) - p.sp.spectrum(g_m)  # delayed already: as a torque added inside the robot
+    U = p.sp.held_delayed(p.U, td) - p.sp.spectrum(_gravity_model(xm, p.q_w))  # delayed already: as a torque added inside the robot
     D = p.sp.spectrum(link_torque)
     model = {**prm, "Td": td}  # the two inputs here have no delay of their own
     TJ = eq4_frequency_response(model, p.sp.f, "motor") * U + eq4_frequency_response(model, p.sp.f, "link") * D
@@ -616,7 +619,7 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         if np.any(xl_known):
             inputs.append(("link", _sample_mean(_link_torque(p, K, xl_known, names, load))))
         if gravity_model:  # the robot subtracts its gravity model
-            inputs.append(("motor", _sample_mean(-(xm[2] * np.sin(p.q_w) + xm[3] * np.cos(p.q_w) + xm[4]))))
+            inputs.append(("motor", _sample_mean(-_gravity_model(xm, p.q_w))))
         known.append(inputs)
     return IdimResult(parameters={k: float(prm[k]) for k in PARAMETER_NAMES}, std=std, effects=effects,
                       residual_rms={"motor_nm": float(np.sqrt(np.mean(em**2))), "link_nm": float(np.sqrt(np.mean(el**2)))},
