@@ -7,7 +7,8 @@ assume), simulates each, runs :func:`iiwa_ident.ident.joint_fit.fit_joint` on it
 - the share of draws where ``Jc, bc, K, Jl`` are all within 3 % and ``Td`` within 0.5 ms (target: 95 %),
 - the same per nuisance (a draw counts under each nuisance it has; ``none`` has none),
 - refusals (each must name a parameter and a reason) and tracebacks (target: none), with their scenarios,
-- the worst relative error per parameter and the coverage of the reported 3-std intervals.
+- the worst relative error per parameter and the coverage of the reported 3-std intervals,
+- how often the fit found the transmission ripple on draws with it (and its period error) and without it.
 
 Run: ``.venv/bin/python bench/bench_robustness.py fit [--draws 200] [--first 0] [--jobs 2]``.
 """
@@ -57,7 +58,12 @@ def run_draw(seed: int, method: str = "auto") -> dict:
         err[k] = (v - sc.truth[k]) if k == "Td" else v / sc.truth[k] - 1.0
         z[k] = abs(v - sc.truth[k]) / s if s > 0 else math.inf
     ok = all(abs(err[k]) <= _REL_TOL for k in _NAMES[:4]) and abs(err["Td"]) <= _TD_TOL_S
-    out.update(status="pass" if ok else "miss", error=err, z=z, method=res.method)
+    ripple = next((e for e in res.effects if e.name == "transmission_ripple"), None)
+    true_period = sc.effects.get("transmission_ripple", {}).get("period_rad")
+    out.update(status="pass" if ok else "miss", error=err, z=z, method=res.method,
+               ripple_found=ripple is not None, ripple_true=true_period is not None,
+               ripple_period_error=(ripple.values["period_rad"] / true_period - 1.0
+                                    if ripple is not None and true_period else None))
     return out
 
 
@@ -91,6 +97,13 @@ def _fit(args: argparse.Namespace) -> int:
             scale, unit = (1e3, "ms") if k == "Td" else (100.0, "%")
             print(f"    {k:<4s} {np.median(e) * scale:10.3g} {unit:<3s} {np.percentile(e, 95) * scale:9.3g} "
                   f"{e.max() * scale:9.3g} {100 * cover:10.1f} %")
+    if fitted:
+        with_r = [r for r in fitted if r["ripple_true"]]
+        without = [r for r in fitted if not r["ripple_true"]]
+        pe = [abs(r["ripple_period_error"]) for r in with_r if r["ripple_period_error"] is not None]
+        print(f"  transmission ripple found: {sum(r['ripple_found'] for r in with_r)}/{len(with_r)} draws with it"
+              + (f" (period error median {100 * np.median(pe):.2g} %, worst {100 * max(pe):.2g} %)" if pe else "")
+              + f"; {sum(r['ripple_found'] for r in without)}/{len(without)} draws without it (false alarms)")
     for r in rows:
         if r["status"] == "miss" and args.verbose:
             worst = ", ".join(f"{k} {v * (1e3 if k == 'Td' else 100):+.2f}{'ms' if k == 'Td' else '%'}"

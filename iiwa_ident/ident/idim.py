@@ -25,6 +25,16 @@ K)`` and ``bc = beta K``. A sensor offset and a constant link load enter
 the link equation only as their difference; the fit reports it as the
 offset.
 
+Transmission ripple
+-------------------
+The ripple of eq (5), ``theta_l = q_m - f(q_m) - tau_j / K`` with ``f`` a
+Fourier series of period ``rho``, adds ``-Jl f''`` to the link equation and
+the reaction ``-tau_s f'`` to the motor equation, both linear in ``f``'s
+coefficients once ``rho`` is known. Unmodelled, the paper's ripple biased
+``K`` and ``Jl`` by 2-6 %. ``rho`` is given or searched in the link
+equation's residual (:func:`_ripple_search`); the ripple's columns stay only
+if their Wald statistic clears :data:`RIPPLE_CHI2`.
+
 Derivatives
 -----------
 Every signal is extended evenly (so its periodic continuation has no jump),
@@ -89,7 +99,9 @@ from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _R
 from iiwa_ident.sim.plant import resonance_hz
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
-           "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM", "STICK_MIN_SHARE", "MIN_BAND_OVER_RESONANCE", "MAX_RELATIVE_STD"]
+           "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM", "STICK_MIN_SHARE", "MIN_BAND_OVER_RESONANCE", "MAX_RELATIVE_STD",
+           "RIPPLE_CYCLES_PER_REV", "RIPPLE_HARMONICS", "RIPPLE_MIN_SHARE", "RIPPLE_HALF_SHARE",
+           "RIPPLE_CHI2"]
 
 #: Velocity scale of the fitted Coulomb tanh [rad/s] (the simulator's default smoothing).
 FRICTION_SMOOTHING_RAD_S = 0.005
@@ -105,6 +117,18 @@ MIN_BAND_OVER_RESONANCE = 0.6
 MAX_RELATIVE_STD = 0.5
 #: Least span of link angles over which a load's amplitude and phase are fitted [rad].
 LOAD_MIN_RANGE_RAD = 0.5
+#: Fundamentals searched for the transmission ripple [cycles per motor revolution].
+RIPPLE_CYCLES_PER_REV = (50.0, 2000.0)
+#: Harmonics of the ripple's fundamental fitted in both equations.
+RIPPLE_HARMONICS = 3
+#: Least share of the link equation's residual power the searched ripple must explain to be fitted.
+RIPPLE_MIN_SHARE = 0.02
+#: Least share, of what the searched family explains, that the half frequency's other lines must add
+#: for the fit with twice the period to be tried.
+RIPPLE_HALF_SHARE = 0.01
+#: Wald statistic (2 x RIPPLE_HARMONICS degrees of freedom) above which the fitted ripple is kept; far in the
+#: tail (chi-square p about 1e-6) because its period was searched over some hundred candidates.
+RIPPLE_CHI2 = 38.0
 _EDGE_S = 0.25
 _STICK_REACH = 1.0  # filter time constants around a sticking sample that its error reaches
 _BLOCK_S = 0.25
@@ -228,9 +252,13 @@ class _Prepared:
     tau_w: np.ndarray
     dtau_w: np.ndarray
     g_cols: list[np.ndarray] = field(default_factory=list)  # the robot model's terms, filtered (see _motor_rows)
+    ddq_w: np.ndarray | None = None
+    ripple: tuple[float, int] | None = None  # (period [rad], harmonics) of the ripple columns below
+    rm_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's motor-side reaction, filtered
+    rl_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's link acceleration, filtered
 
 
-def _prepared(rec: _Record) -> _Prepared:
+def _prepared(rec: _Record, ripple: tuple[float, int] | None = None) -> _Prepared:
     fs = 1.0 / rec.T
     fc = min(1.3 * rec.f_hi, _FC_MAX * fs)
     sp = _Spectral(rec.n, rec.T, fc)
@@ -244,10 +272,55 @@ def _prepared(rec: _Record) -> _Prepared:
     per_block = max(1, int(round(_BLOCK_S / rec.T)))
     block = np.arange(rec.n) // per_block
     TSw, Qw = sp.spectrum(rec.tau, wide=True), sp.spectrum(rec.q, wide=True)
-    return _Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
-                     rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2),
-                     rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(TSw), sp.back(TSw, 1),
-                     _robot_model_terms(sp, rec.q0 + sp.back(Qw), sp.back(Qw, 1)))
+    q_w, dq_w, ddq_w, tau_w = rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(Qw, 2), sp.back(TSw)
+    p = _Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
+                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, tau_w, sp.back(TSw, 1),
+                  _robot_model_terms(sp, q_w, dq_w), ddq_w)
+    if ripple is not None:
+        p.ripple = ripple
+        p.rm_cols, p.rl_cols = _ripple_terms(p, *ripple)
+    return p
+
+
+def _ripple_basis(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, period: float, harmonics: int):
+    """Per harmonic k: (w_k, cos, sin, (cos)'', (sin)'') of ``w_k q_m`` with ``w_k = 2 pi k / period``.
+
+    The second time derivatives by the chain rule from the motor's motion, so that they are exact at the
+    samples even where the ripple's lines lie above the filter's cut-off or the Nyquist limit.
+    """
+    w1 = 2.0 * math.pi / period
+    c1, s1 = np.cos(w1 * q), np.sin(w1 * q)
+    c, s = c1, s1
+    dq2 = dq * dq
+    for k in range(1, harmonics + 1):
+        w = k * w1
+        yield w, c, s, -w * s * ddq - w * w * c * dq2, w * c * ddq - w * w * s * dq2
+        c, s = c * c1 - s * s1, s * c1 + c * s1
+
+
+def _ripple_link_columns(p: _Prepared, period: float, harmonics: int) -> list[np.ndarray]:
+    """The link equation's ripple columns alone (see :func:`_ripple_terms`)."""
+    flt = p.sp.filtered
+    cols = []
+    for _, _, _, ddc, dds in _ripple_basis(p.q_w, p.dq_w, p.ddq_w, period, harmonics):
+        cols += [-flt(ddc), -flt(dds)]
+    return cols
+
+
+def _ripple_terms(p: _Prepared, period: float, harmonics: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The ripple's columns of the motor and the link equation, through the low-pass.
+
+    With ``f(q_m) = sum_k a_k cos(w_k q_m) + b_k sin(w_k q_m)`` (eq (5)), the link angle is
+    ``theta_l = q_m - f(q_m) - tau_j / K``, which adds ``-Jl f''`` to the link equation (coefficients
+    ``Jl a_k, Jl b_k``), and the motor feels the reaction ``tau_j f'(q_m)``, which adds ``-tau_s f'`` to
+    the motor equation (coefficients ``a_k, b_k``).
+    """
+    flt = p.sp.filtered
+    motor, link = [], []
+    for w, c, s, ddc, dds in _ripple_basis(p.q_w, p.dq_w, p.ddq_w, period, harmonics):
+        motor += [flt(p.tau_w * w * s), flt(-p.tau_w * w * c)]
+        link += [-flt(ddc), -flt(dds)]
+    return motor, link
 
 
 def _robot_model_terms(sp: _Spectral, q: np.ndarray, dq: np.ndarray) -> list[np.ndarray]:
@@ -298,7 +371,7 @@ def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] 
     y = (u - p.tau_s)[k]
     dy = (du - p.dtau_s)[k]
     g = [c[k] for c in p.g_cols]
-    Phi = np.column_stack([p.ddq[k], -dy, g[0], g[1], np.ones(len(y)), g[2], g[3]])
+    Phi = np.column_stack([p.ddq[k], -dy, g[0], g[1], np.ones(len(y)), g[2], g[3]] + [c[k] for c in p.rm_cols])
     Z = Phi.copy()
     if tau_hat is not None:
         Z[:, 1] = -(du[k] - tau_hat[0][k])
@@ -316,8 +389,9 @@ def _link_rows(p: _Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.
     k = p.keep & moving if moving is not None else p.keep
     flt = p.sp.filtered
     cols = [p.ddq[k], -p.ddtau_s[k], np.ones(int(k.sum())), flt(np.tanh(omega / FRICTION_SMOOTHING_RAD_S))[k],
-            flt(omega)[k]]
+            flt(omega)[k]] + [c[k] for c in p.rl_cols]
     names = ["Jl", "Jl_over_K", "offset", "coulomb", "viscous"]
+    names += [f"ripple_{ab}{j // 2 + 1}" for j, ab in zip(range(len(p.rl_cols)), "ab" * len(p.rl_cols))]
     if load == "sinusoid":
         cols += [-flt(np.sin(theta))[k], -flt(np.cos(theta))[k]]
         names += ["load_a", "load_b"]
@@ -404,14 +478,18 @@ def _predicted_torque(p: _Prepared, prm: dict[str, float], td: float, xm: np.nda
     return p.sp.back(TJ, 1), p.sp.back(TJ, 2)
 
 
-def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
-    """Fit eqs (1)-(3) with link friction, load and sensor offset by IDIM-IV.
+def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None) -> IdimResult:
+    """Fit eqs (1)-(3) with link friction, load, sensor offset and transmission ripple by IDIM-IV.
 
     Parameters
     ----------
     datasets : sequence of Dataset
         Torque-commanded runs of one joint with ``tau_c``, ``tau_j`` and
         ``q_m`` sampled once per command.
+    ripple_period_rad : float, optional
+        The ripple's period ``rho`` [rad] when it is known (for example from
+        ``iiwa-ident ripple``); by default it is searched in the link
+        equation's residual (:data:`RIPPLE_CYCLES_PER_REV`).
 
     Returns
     -------
@@ -430,8 +508,127 @@ def fit_idim(datasets: Sequence[Dataset]) -> IdimResult:
     preps = [_prepared(r) for r in records]
     span = max(float(np.ptp(p.q[p.keep])) for p in preps)
     load = "sinusoid" if span >= LOAD_MIN_RANGE_RAD else "gradient"
-    everything = _solve(records, preps, load, span, None)
-    return _identified(_without_sticking(everything, records, preps, load, span), records)
+    result = _without_sticking(_solve(records, preps, load, span, None), records, preps, load, span)
+    found = (ripple_period_rad, None) if ripple_period_rad is not None else \
+        _ripple_search(preps, result.parameters["K"], load)
+    if found is not None:
+        period, double_period = found
+        # The ripple's columns only where it shows: each adds its own noise to the fit.
+        td0 = result.parameters["Td"]
+        rippled = _with_ripple(records, load, span, float(period), RIPPLE_HARMONICS, td0)
+        if rippled is not None:
+            result = rippled
+            if double_period is not None:
+                # The searched family may be the second harmonic's: with twice the period and twice the
+                # harmonics the odd ones are new; they are the fundamental's family if they show.
+                double = _with_ripple(records, load, span, double_period, 2 * RIPPLE_HARMONICS, td0)
+                if double is not None and _odd_wald(double.effect("transmission_ripple")) > RIPPLE_CHI2:
+                    result = double
+    return _identified(result, records)
+
+
+def _with_ripple(records: list[_Record], load: str, span: float, period: float, harmonics: int, td0: float
+                 ) -> IdimResult | None:
+    """The fit with the ripple's columns, or ``None`` when the ripple is not significant in it.
+
+    ``td0``: the delay without them (the ripple barely moves it; searched only around it).
+    """
+    ripple = (period, harmonics)
+    preps = [_prepared(r, ripple) for r in records]
+    try:
+        res = _without_sticking(_solve(records, preps, load, span, None, td0), records, preps, load, span)
+    except IiwaIdentError:
+        return None
+    found = res.effect("transmission_ripple")
+    return res if found is not None and found.significant else None
+
+
+def _odd_wald(effect: LinkEffectEstimate) -> float:
+    """Sum of the odd harmonics' squared amplitude-to-std ratios (about a Wald statistic of their
+    coefficients, with their correlations left out)."""
+    total, k = 0.0, 1
+    while f"amplitude{k}_rad" in effect.values:
+        a, s = effect.values[f"amplitude{k}_rad"], effect.std[f"amplitude{k}_rad"]
+        total += (a / s) ** 2 if s > 0 else math.inf
+        k += 2
+    return total
+
+
+def _ripple_search(preps: list[_Prepared], K: float, load: str) -> tuple[float, float | None] | None:
+    """The ripple's period [rad] from the link equation's residual, or ``None`` when it explains little;
+    with it, twice that period refined with twice the harmonics, where its other lines add at least
+    :data:`RIPPLE_HALF_SHARE` (else ``None``).
+
+    1. Harmonic summation on a grid of fundamentals (a quarter of the resolution ``1 / span`` apart):
+       the residual power the first two harmonics' ``-f''`` columns explain, each alone, summed
+       (unfiltered columns: cheap, and only the peak is wanted).
+    2. Brent's method refines it on the filtered columns of :data:`RIPPLE_HARMONICS` harmonics fitted
+       together, the columns the fit then uses.
+
+    The strongest family may be the second harmonic's (``f''`` weighs harmonic ``k`` by ``k^2``):
+    :func:`fit_idim` tests the half period's odd harmonics in the full fit.
+
+    Periods longer than the motor's travel are not searched: over less than one period a ripple cannot
+    be told from a load.
+    """
+    rows = [_link_rows(p, K, load) for p in preps]
+    y = np.concatenate([r[0] for r in rows])
+    Phi = np.concatenate([r[1] for r in rows])
+    e = y - Phi @ _iv(y, Phi, Phi)
+    masks = [r[4] for r in rows]
+    q, dq, ddq = (np.concatenate([getattr(p, a)[k] for p, k in zip(preps, masks)]) for a in ("q_w", "dq_w", "ddq_w"))
+    span = max(float(np.ptp(p.q_w[k])) for p, k in zip(preps, masks))
+    lo = max(RIPPLE_CYCLES_PER_REV[0] / (2 * math.pi), 1.0 / span) if span > 0 else math.inf
+    hi = RIPPLE_CYCLES_PER_REV[1] / (2 * math.pi)
+    total = float(e @ e)
+    if not (lo < hi and total > 0):
+        return None
+    scale = np.sqrt(np.mean(Phi**2, axis=0))
+    scale[scale == 0] = 1.0
+    Phi_s, y_s = Phi / scale, y
+
+    def summed(nu: float) -> float:
+        out = 0.0
+        for _, _, _, ddc, dds in _ripple_basis(q, dq, ddq, 1.0 / nu, 2):
+            G = np.array([[ddc @ ddc, ddc @ dds], [ddc @ dds, dds @ dds]])
+            b = np.array([ddc @ e, dds @ e])
+            if np.linalg.det(G) > 0:
+                out += float(b @ np.linalg.solve(G, b))
+        return out
+
+    def columns(nu: float, harmonics: int) -> np.ndarray:
+        return np.concatenate([np.column_stack(_ripple_link_columns(p, 1.0 / nu, harmonics))[k]
+                               for p, k in zip(preps, masks)])
+
+    def joint(nu: float, harmonics: int = RIPPLE_HARMONICS) -> float:
+        """Residual power explained by the filtered columns of the harmonics of ``nu``, together."""
+        # With the equation's own columns: the ripple's overlap with them (with q'' above all) is not
+        # credited to the ripple, and the period lands where the full fit's residual is least.
+        X = np.column_stack([Phi_s, columns(nu, harmonics)])
+        coef, *_ = np.linalg.lstsq(X, y_s, rcond=None)
+        r = y_s - X @ coef
+        return total - float(r @ r)
+
+    def refined(nu: float, width: float, harmonics: int = RIPPLE_HARMONICS) -> tuple[float, float]:
+        ref = minimize_scalar(lambda v: -joint(v, harmonics), bounds=(nu - width, nu + width), method="bounded",
+                              options={"xatol": 1e-3 * width})
+        start = joint(nu, harmonics)
+        return (float(ref.x), -float(ref.fun)) if -ref.fun > start else (nu, start)
+
+    step = 0.25 / span
+    grid = np.arange(lo, hi + step, step)
+    nu, best = refined(float(grid[int(np.argmax([summed(v) for v in grid]))]), step)
+    if best < RIPPLE_MIN_SHARE * total:
+        return None
+    # The half frequency's family, refined on its own: its period is the candidate fit_idim tests.
+    half = None
+    if 0.5 * nu >= lo:
+        # Measured: a real fundamental below the strongest family added 4-10 % to what the family
+        # explains, the half frequency's other lines on a family that is the fundamental's 0.01-0.1 %.
+        half, more = refined(0.5 * nu, 0.5 * step, 2 * RIPPLE_HARMONICS)
+        if more - best < RIPPLE_HALF_SHARE * best:
+            half = None
+    return 1.0 / nu, None if half is None else 1.0 / half
 
 
 def _without_sticking(everything: IdimResult, records: list[_Record], preps: list[_Prepared], load: str,
@@ -442,7 +639,8 @@ def _without_sticking(everything: IdimResult, records: list[_Record], preps: lis
     # Coulomb friction shows: the same fit without the samples where the link may stick. A link at rest
     # makes its friction whatever balances the other torques, so those samples bias the link equation; but
     # leaving out most of a record costs precision. The fit with the smaller relative std of K and Jl wins.
-    final = [_prepared(_dealiased(r, everything.parameters, everything.parameters["Td"])) for r in records]
+    final = [_prepared(_dealiased(r, everything.parameters, everything.parameters["Td"]), preps[0].ripple)
+             for r in records]
     masks = _stick_masks(final, everything.parameters["K"])
     if masks is None:
         return everything
@@ -509,7 +707,7 @@ def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: floa
         if it == _IV_ITERATIONS:
             break
         if it < 2:  # the hold's aliased images out of the samples, at the estimate so far
-            preps = [_prepared(_dealiased(r, prm, td)) for r in records]
+            preps = [_prepared(_dealiased(r, prm, td), preps[0].ripple) for r in records]
         tau_hat = []
         for p in preps:
             lt = _link_torque(p, prm["K"], xl, names, load)
@@ -569,6 +767,9 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         Pm.append(Phi)
         Zm.append(Z)
         y2, P2, Z2, _, k2 = _link_rows(p, K, load, th, None if stick is None else stick[i])
+        if p.ripple is not None:
+            col = _period_column(p, xl, names)[k2]
+            P2, Z2 = np.column_stack([P2, col]), np.column_stack([Z2, col])
         yl.append(y2)
         Pl.append(P2)
         Zl.append(Z2)
@@ -577,7 +778,7 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         offset += int(p.block.max()) + 1
     Pm_, Zm_, Pl_, Zl_ = (np.concatenate(v) for v in (Pm, Zm, Pl, Zl))
     em = np.concatenate(ym) - Pm_[:, :-1] @ xm
-    el = np.concatenate(yl) - Pl_ @ xl
+    el = np.concatenate(yl) - Pl_[:, :len(xl)] @ xl
     b, b_l = np.concatenate(blocks), np.concatenate(blocks_l)
     nm, nl = Pm_.shape[1], Pl_.shape[1]
     A = np.zeros((nm + nl, nm + nl))
@@ -608,6 +809,8 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
         std[name] = float(math.sqrt(max(g @ cov @ g, 0.0)))
     cl = {nme: (float(xl[j]), float(math.sqrt(max(cov[nm + j, nm + j], 0.0)))) for j, nme in enumerate(names)}
     effects = _effects(cl, xm, cov, nm, load, span)
+    if preps[0].ripple is not None:
+        effects.append(_ripple_effect(preps[0].ripple[0], xl, names, cov[nm:, nm:], Jl))
     # Only what the data show goes on as a known torque: an effect within its noise would carry that
     # noise into the output-error fit (and triple its cost) for nothing.
     shown = {e.name for e in effects if e.significant}
@@ -624,6 +827,50 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
     return IdimResult(parameters={k: float(prm[k]) for k in PARAMETER_NAMES}, std=std, effects=effects,
                       residual_rms={"motor_nm": float(np.sqrt(np.mean(em**2))), "link_nm": float(np.sqrt(np.mean(el**2)))},
                       labels=[r.label for r in records], known_inputs=known)
+
+
+def _period_column(p: _Prepared, xl: np.ndarray, names: list[str]) -> np.ndarray:
+    """d/d(rho) of the link equation's ripple torque at the fitted coefficients (central difference).
+
+    The period's column of the sandwich, as ``Td``'s is of the motor equation; the motor equation's
+    reaction term depends on ``rho`` too and is left out (it is some hundred times smaller).
+    """
+    period, harmonics = p.ripple
+    coef = np.array([x for x, n in zip(xl, names) if n.startswith("ripple_")])
+    h = 1e-5 * period
+    plus = _ripple_link_columns(p, period + h, harmonics)
+    minus = _ripple_link_columns(p, period - h, harmonics)
+    return sum(c * (a - b) for c, a, b in zip(coef, plus, minus)) / (2 * h)
+
+
+def _ripple_effect(period: float, xl: np.ndarray, names: list[str], cov: np.ndarray, Jl: float) -> LinkEffectEstimate:
+    """The fitted ripple in :class:`~iiwa_ident.sim.effects.TransmissionRipple`'s terms.
+
+    ``cov``: the link equation's covariance, with the period's column last. Harmonic ``k`` has the
+    amplitude ``A_k`` [rad] and phase ``phi_k`` [rad] of ``A_k sin(2 pi k q_m / rho + phi_k)``; the
+    link equation's coefficients are ``Jl`` times its cosine and sine coefficients. Kept (significant)
+    when the coefficients' Wald statistic exceeds :data:`RIPPLE_CHI2`.
+    """
+    idx = [j for j, n in enumerate(names) if n.startswith("ripple_")]
+    x = xl[idx]
+    C = cov[np.ix_(idx, idx)]
+    try:
+        wald = float(x @ np.linalg.solve(C, x))
+    except np.linalg.LinAlgError:
+        wald = 0.0
+    values = {"period_rad": period}
+    std = {"period_rad": float(math.sqrt(max(cov[-1, -1], 0.0)))}
+    for k in range(len(idx) // 2):
+        a, b = x[2 * k] / Jl, x[2 * k + 1] / Jl
+        sa, sb = (math.sqrt(max(C[j, j], 0.0)) / Jl for j in (2 * k, 2 * k + 1))
+        amp = math.hypot(a, b)
+        values[f"amplitude{k + 1}_rad"] = amp
+        values[f"phase{k + 1}_rad"] = math.atan2(a, b)
+        std[f"amplitude{k + 1}_rad"] = math.sqrt((a * sa) ** 2 + (b * sb) ** 2) / amp if amp > 0 else math.hypot(sa, sb)
+        std[f"phase{k + 1}_rad"] = math.sqrt((b * sa) ** 2 + (a * sb) ** 2) / amp**2 if amp > 0 else math.pi
+    return LinkEffectEstimate("transmission_ripple", values, std, significant=wald > RIPPLE_CHI2,
+                              note=f"from the chirps (Wald statistic {wald:.3g}); the ripple command's table, from "
+                                   "runs at constant speed, is the one to use for the correction")
 
 
 #: The effect each link-equation coefficient belongs to.

@@ -32,7 +32,7 @@ from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_transfer_fun
 
 __all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
 
-#: ``auto``: ``idim`` when the link shows Coulomb friction, else ``joint``; ``joint``: IDIM-IV, then the
+#: ``auto``: ``idim`` when the link shows Coulomb friction or the transmission ripple, else ``joint``; ``joint``: IDIM-IV, then the
 #: output-error fit with its effects as known inputs; ``idim``: IDIM-IV alone; ``eq4``: the output-error
 #: fit of eq (4) alone (no link-side effects).
 METHODS: tuple[str, ...] = ("auto", "joint", "idim", "eq4")
@@ -86,7 +86,8 @@ def _nll(rms: Sequence[dict[str, float]], datasets: Sequence[Dataset]) -> float:
                      for ds, n in zip(datasets, rms)))
 
 
-def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto") -> FitResult:
+def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_period_rad: float | None = None
+              ) -> FitResult:
     """Fit a joint's chirps: eqs (1)-(4) with delay, link friction, load and sensor offset.
 
     Parameters
@@ -95,6 +96,9 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto") -> FitResult
         Torque-commanded chirps of one joint.
     method : {"auto", "joint", "idim", "eq4"}
         See :data:`METHODS`.
+    ripple_period_rad : float, optional
+        The transmission ripple's period [rad] if known; by default IDIM-IV
+        searches it (see :func:`~iiwa_ident.ident.idim.fit_idim`).
 
     Returns
     -------
@@ -113,12 +117,15 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto") -> FitResult
         result = fit_transfer_function(datasets)
         result.method = "eq4"
         return result
-    idim = fit_idim(datasets)
+    idim = fit_idim(datasets, ripple_period_rad)
+    ripple = idim.effect("transmission_ripple")
     if method == "auto":
         # A sticking link makes the friction torque unknown while it sticks; the output-error
         # fit would have to simulate through it, the inverse dynamics leave those samples out.
+        # The ripple is a deflection, not a torque: the output-error model has no place for it.
         friction = idim.effect("link_friction")
-        method = "idim" if friction is not None and friction.values["coulomb_nm"] > STICK_COULOMB_NM else "joint"
+        sticks = friction is not None and friction.values["coulomb_nm"] > STICK_COULOMB_NM
+        method = "idim" if sticks or ripple is not None else "joint"
     if method == "idim":
         result = _from_idim(idim, datasets)
     else:
@@ -133,6 +140,9 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto") -> FitResult
             if _nll(output_residual_rms(datasets, here, link_only), datasets) < _nll(
                     output_residual_rms(datasets, here, idim.known_inputs), datasets):
                 result = fit_transfer_function(datasets, initial=here, known=link_only)
+        if ripple is not None:
+            result.warnings.append(f"the transmission ripple (period {ripple.values['period_rad']:.4g} rad) is not in "
+                                   "the output-error model and biases it; method 'auto' or 'idim' fits it")
         moved = _departure(result.parameters, idim.parameters)
         if moved:
             # Both estimate the same parameters; a large disagreement means the output-error search
@@ -179,7 +189,8 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
         Chirp dataset files (HDF5) of one joint.
     base_model : path or JointModel, optional
         Model whose other parts are kept: ``KI`` (default 25 rad/s, Table I,
-        without std), the ripple table and the robot model.
+        without std), the ripple table (whose period the fit then uses) and
+        the robot model.
     method : str
         Estimator (:data:`METHODS`).
 
@@ -208,7 +219,8 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
     joint = int(datasets[0].joint)
     if base_model is not None and base.joint is not None and base.joint != joint:
         raise IiwaIdentError(f"{base_path or 'base model'}: is for joint {base.joint}, the data are joint {joint}")
-    result = fit_joint(datasets, method=method)
+    # A ripple table in the base model (from the ripple command) gives its period: no search needed.
+    result = fit_joint(datasets, method=method, ripple_period_rad=None if base.ripple is None else base.ripple.period_rad)
 
     params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
     ki = base.parameters["KI"]
