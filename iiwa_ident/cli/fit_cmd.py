@@ -96,11 +96,13 @@ def fit_cmd(
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the result as JSON (SI units, "
                                                                    "Td in s).")] = None,
     model: Annotated[Optional[Path], typer.Option("--model", help="Base model whose K_I and ripple table are "
-                                                                  "kept (default: K_I = 25 rad/s, Table I).")] = None,
+                                                                  "kept; the fit takes the ripple's period from "
+                                                                  "it instead of searching (default: K_I = 25 "
+                                                                  "rad/s, Table I).")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for the Bode and harmonic "
                                                                       "distortion plots (PNG).")] = None,
     method: Annotated[str, typer.Option("--method", help="Estimator: auto (idim when the link shows Coulomb "
-                                                         "friction, else joint), joint (inverse dynamics, then "
+                                                         "friction or the transmission ripple shows, else joint), joint (inverse dynamics, then "
                                                          "output error with the effects), idim (inverse "
                                                          "dynamics only) or eq4 (output error of eq (4) without "
                                                          "link-side effects).")] = "auto",
@@ -109,7 +111,8 @@ def fit_cmd(
 
     Every channel is used (commanded torque, joint torque, motor position,
     link angle from eq (9)): the inverse dynamics give link friction, a
-    position-dependent load and the torque-sensor offset with the joint's
+    position-dependent load, the torque-sensor offset and the transmission
+    ripple (its period searched, or taken from --model) with the joint's
     parameters; the sampled-data output-error fit then refines the joint's
     parameters with those effects as known torques. Prints the parameters
     with their standard deviations, the effects, the fit quality and the
@@ -121,6 +124,8 @@ def fit_cmd(
       iiwa-ident fit chirp.h5 --out joint1.toml --json joint1.json --figures figs/
 
       iiwa-ident fit chirp_a.h5 chirp_b.h5 --method idim --out joint2.toml
+
+      iiwa-ident fit chirp.h5 --model joint1_ripple.toml --out joint1.toml
     """
     try:
         if method not in METHODS:
