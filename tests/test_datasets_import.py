@@ -335,3 +335,65 @@ class TestImportCsv:
         with pytest.raises(DatasetError) as excinfo:
             import_csv(path, self.MAPPING, joint=1, experiment="free")
         one_line(excinfo, str(path), "no data rows")
+
+
+class TestSplitRuns:
+    """A log whose time restarts holds several runs: refused as one, split on request."""
+
+    @pytest.fixture
+    def two_runs(self, tmp_path):
+        rng = np.random.default_rng(5)
+        n1, n2 = int(rng.integers(20, 40)), int(rng.integers(20, 40))
+        t = np.concatenate([np.arange(n1), np.arange(n2)]) / RATE + rng.uniform(0.0, 1.0)
+        q = rng.normal(size=(n1 + n2, 7))
+        tau = rng.normal(size=(n1 + n2, 7))
+        files = {"t": write_columns(tmp_path / "time.txt", t), "q_m": write_columns(tmp_path / "pos.txt", q),
+                 "tau_j": write_columns(tmp_path / "trq.txt", tau)}
+        return files, n1, n2, q, tau
+
+    def test_refused_naming_the_sample_and_the_option(self, two_runs):
+        files, n1, *_ = two_runs
+        with pytest.raises(DatasetError) as excinfo:
+            import_columns(files, joint=3, experiment="free")
+        one_line(excinfo, "time.txt", f"time goes back at sample {n1}", "--split-runs")
+
+    def test_split_into_runs(self, two_runs):
+        files, n1, n2, q, tau = two_runs
+        runs = import_columns(files, joint=3, experiment="free", split_runs=True)
+        assert [r.n_samples for r in runs] == [n1, n2]
+        np.testing.assert_array_equal(runs[1]["q_m"], q[n1:, 2])
+        np.testing.assert_array_equal(runs[0]["tau_j"], tau[:n1, 2])
+        assert all(r.sample_rate_hz == pytest.approx(RATE) for r in runs)
+
+    def test_one_run_is_a_list_of_one(self, column_files):
+        files, t, _ = column_files
+        runs = import_columns(files, joint=1, experiment="free", split_runs=True)
+        assert len(runs) == 1 and runs[0].n_samples == len(t)
+
+    def test_a_run_of_one_sample_is_named(self, two_runs, tmp_path):
+        files, n1, n2, *_ = two_runs
+        t = np.concatenate([np.arange(n1) + 10.0, [5.0], np.arange(n2)]) / RATE
+        files["t"] = write_columns(tmp_path / "time.txt", t)
+        for name in ("q_m", "tau_j"):
+            files[name] = write_columns(tmp_path / f"{name}.txt", np.zeros((n1 + n2 + 1, 7)))
+        with pytest.raises(DatasetError) as excinfo:
+            import_columns(files, joint=1, experiment="free", split_runs=True)
+        one_line(excinfo, "run 2", "only 1 sample")
+
+    def test_cli_writes_every_run_or_none(self, two_runs, tmp_path):
+        from typer.testing import CliRunner
+
+        from iiwa_ident.cli import app
+
+        files, n1, n2, *_ = two_runs
+        args = ["import", "--joint", "3", "--experiment", "free", "--columns", f"t={files['t']}",
+                "--columns", f"q_m={files['q_m']}", "--columns", f"tau_j={files['tau_j']}"]
+        out = tmp_path / "runs" / "j3.h5"
+        out.parent.mkdir()
+        res = CliRunner().invoke(app, [*args, "--split-runs", "--out", str(out)])
+        assert res.exit_code == 0, res.output
+        assert [read_dataset(out.parent / f"j3_run{k}.h5").n_samples for k in (1, 2)] == [n1, n2]
+        assert sorted(p.name for p in out.parent.iterdir()) == ["j3_run1.h5", "j3_run2.h5"]
+        # Without the option: one line, exit 2, nothing written.
+        res = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "one.h5")])
+        assert res.exit_code != 0 and "--split-runs" in res.output and not (tmp_path / "one.h5").exists()

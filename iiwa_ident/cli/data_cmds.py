@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -108,6 +109,11 @@ def import_cmd(
         Optional[list[str]],
         typer.Option("--scale", metavar="SIGNAL=FACTOR", help="Multiply a signal, e.g. tau_j=-1 (repeatable)."),
     ] = None,
+    split_runs: Annotated[
+        bool,
+        typer.Option("--split-runs", help="The log holds several runs (its time restarts): write one dataset "
+                                          "per run, named like --out with _run1, _run2, ... before the suffix."),
+    ] = False,
 ) -> None:
     r"""Convert a recorded log into an iiwa-ident dataset file.
 
@@ -127,6 +133,13 @@ def import_cmd(
           --columns tau_j=$D/joint_torque_measured.txt \
           --columns dq_m=$D/joint_velocity_measured.txt \
           --out runs/j2_vel_p3.h5
+
+    A log whose time restarts holds several runs; --split-runs writes
+    runs/j2_run1.h5, runs/j2_run2.h5, ...:
+
+        iiwa-ident import --joint 2 --experiment constant_velocity \
+          --csv log.csv --map t=time --map q_m=q2 --map tau_j=tau2 \
+          --split-runs --out runs/j2.h5
     """
     try:
         column_files = parse_pairs(columns, "--columns", "FILE")
@@ -139,28 +152,47 @@ def import_cmd(
                 raise IiwaIdentError("--csv needs at least one --map SIGNAL=COLUMN")
             if column is not None:
                 raise IiwaIdentError("--column applies to --columns files, not to --csv")
-            dataset = import_csv(
+            datasets = import_csv(
                 csv_file, csv_map, joint=joint, experiment=experiment,
-                sample_rate_hz=rate, scale=factors,
+                sample_rate_hz=rate, scale=factors, split_runs=split_runs,
             )
         elif column_files:
             if csv_map:
                 raise IiwaIdentError("--map applies to --csv; use --columns SIGNAL=FILE for column files")
-            dataset = import_columns(
+            datasets = import_columns(
                 {name: Path(p) for name, p in column_files.items()},
                 joint=joint, experiment=experiment, sample_rate_hz=rate,
-                column=column, scale=factors,
+                column=column, scale=factors, split_runs=split_runs,
             )
         else:
             raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE or --csv FILE --map SIGNAL=COLUMN")
-        written = write_dataset(out, dataset)
+        if not split_runs:
+            datasets = [datasets]
+            targets = [out]
+        else:
+            targets = [out.with_name(f"{out.stem}_run{k}{out.suffix or '.h5'}") for k in range(1, len(datasets) + 1)]
+        # All runs or none, and no file already there lost: each run goes to a hidden file first and
+        # the files are renamed over their targets only when every run is written.
+        staged: list[Path] = []
+        try:
+            for target in targets:
+                staged.append(write_dataset(target.with_name(f".{target.name}.{os.getpid()}.staged"),
+                                            datasets[len(staged)]))
+        except BaseException:
+            for path in staged:
+                path.unlink(missing_ok=True)
+            raise
+        for tmp, target in zip(staged, targets):
+            os.replace(tmp, target)
+        written = targets
     except IiwaIdentError as err:
         raise fail(str(err)) from None
-    typer.echo(
-        f"wrote {written}: {dataset.experiment}, joint {dataset.joint}, "
-        f"{dataset.n_samples} samples at {dataset.sample_rate_hz:.6g} Hz "
-        f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
-    )
+    for path, dataset in zip(written, datasets):
+        typer.echo(
+            f"wrote {path}: {dataset.experiment}, joint {dataset.joint}, "
+            f"{dataset.n_samples} samples at {dataset.sample_rate_hz:.6g} Hz "
+            f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
+        )
 
 
 @app.command("info")

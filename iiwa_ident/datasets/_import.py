@@ -136,12 +136,25 @@ def _assemble(
     sample_rate_hz: float | None,
     scale: dict[str, float],
     where: str,
-) -> Dataset:
+    split_runs: bool = False,
+) -> Dataset | list[Dataset]:
     """Scale, add or check time, check the rate and build the dataset.
 
     ``raw`` maps signal names (time under ``"t"``) to arrays and ``origin``
     maps them to a description of where they came from, for messages.
+    With ``split_runs``, one dataset per run: a run ends where the time goes back.
     """
+    if split_runs:
+        if "t" not in raw:
+            raise DatasetError("splitting into runs needs a time signal (where the time restarts)")
+        starts = [0, *(np.flatnonzero(np.diff(raw["t"]) < 0) + 1).tolist(), len(raw["t"])]
+        runs = []
+        for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1):
+            # Samples are numbered from 0 in the whole log, so a message points at the rows of the file.
+            there = {name: f"{text}, run {k} (samples {a}-{b - 1})" for name, text in origin.items()}
+            runs.append(_assemble({name: arr[a:b] for name, arr in raw.items()}, there, joint, experiment,
+                                  sample_rate_hz, scale, f"{where}, run {k}"))
+        return runs
     lengths = {name: arr.shape[0] for name, arr in raw.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"{origin[name]} has {n} rows" for name, n in lengths.items())
@@ -164,12 +177,19 @@ def _assemble(
     if "t" in signals:
         t = signals["t"]
         dt = np.diff(t)
+        back = np.flatnonzero(dt < 0)
+        if back.size:
+            i = int(back[0]) + 1
+            raise DatasetError(
+                f"{origin['t']}: time goes back at sample {i} ({float(t[i])!r} after {float(t[i - 1])!r}): "
+                f"the log holds several runs; import them with --split-runs (split_runs=True)"
+            )
         bad = np.flatnonzero(dt <= 0)
         if bad.size:
             i = int(bad[0]) + 1
             raise DatasetError(
                 f"{origin['t']}: time is not strictly increasing at sample {i} "
-                f"({t[i]!r} after {t[i - 1]!r})"
+                f"({float(t[i])!r} after {float(t[i - 1])!r})"
             )
         if sample_rate_hz is None:
             # The median ignores the odd dropped or late packet.
@@ -205,7 +225,8 @@ def import_columns(
     column: int | None = None,
     scale: Mapping[str, float] | None = None,
     time_signal: str = "t",
-) -> Dataset:
+    split_runs: bool = False,
+) -> Dataset | list[Dataset]:
     """Import whitespace-separated column files, one file per signal.
 
     Parameters
@@ -232,10 +253,14 @@ def import_columns(
         file in milliseconds.
     time_signal : str, optional
         Key of ``files`` that holds the time stamps (stored as ``t``).
+    split_runs : bool, optional
+        The log holds several runs, each starting where the time goes back
+        (a recorder restarted without a new file): return one dataset per
+        run. Without it such a log is refused, naming the sample.
 
     Returns
     -------
-    Dataset
+    Dataset, or list of Dataset with ``split_runs``
         With ``source="import"``, not yet written.
 
     Raises
@@ -264,7 +289,7 @@ def import_columns(
     raw = {name: _read_column_file(path, use) for name, path in files.items()}
     origin = {name: f"{name} ({path})" for name, path in files.items()}
     where = str(files.get("q_m", next(iter(files.values()))).parent)
-    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, where)
+    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, where, split_runs)
 
 
 def _sniff_delimiter(header: str) -> str:
@@ -290,7 +315,8 @@ def import_csv(
     experiment: str,
     sample_rate_hz: float | None = None,
     scale: Mapping[str, float] | None = None,
-) -> Dataset:
+    split_runs: bool = False,
+) -> Dataset | list[Dataset]:
     """Import a CSV file with a header row.
 
     Parameters
@@ -310,10 +336,13 @@ def import_csv(
         Sample rate [Hz]; defaults to 1 / median sample period of ``t``.
     scale : mapping of str to float, optional
         Factor applied to a signal after reading (e.g. ``{"tau_j": -1.0}``).
+    split_runs : bool, optional
+        One dataset per run, a run starting where the time goes back (see
+        :func:`import_columns`).
 
     Returns
     -------
-    Dataset
+    Dataset, or list of Dataset with ``split_runs``
         With ``source="import"``, not yet written.
 
     Raises
@@ -364,4 +393,4 @@ def import_csv(
         raise DatasetError(f"{path}: no data rows after the header")
     raw = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
     origin = {name: f"column {mapping[name]!r}" for name in mapping}
-    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, str(path))
+    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, str(path), split_runs)
