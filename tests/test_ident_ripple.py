@@ -53,6 +53,20 @@ class TestIdentifyRipple:
         assert abs(r.period_rad / rho - 1) < 1e-4
         assert lut_error(r, effect) < 0.10
 
+    def test_a_period_beyond_the_range_is_not_reported_as_its_harmonic(self):
+        # Earlier a period longer than period_max came back as half of it, detected, without a warning.
+        rng = np.random.default_rng(7)
+        rho = rng.uniform(0.05, 0.07)
+        amp = rng.uniform(4e-5, 8e-5)
+        effect = TransmissionRipple({"period_rad": rho, "harmonics": [[amp, rng.uniform(0, 2 * np.pi)],
+                                                                      [0.6 * amp, rng.uniform(0, 2 * np.pi)]]})
+        ds = cv_run(default_plant().with_effects(effect), seed=7)
+        narrow = identify_ripple([ds], period_max=0.8 * rho)
+        assert not narrow.detected and narrow.period_rad is None
+        assert any("harmonic 2" in w and "--period-max" in w for w in narrow.warnings), narrow.warnings
+        wide = identify_ripple([ds])  # the default range, 50-2000 cycles per revolution, holds it
+        assert wide.detected and abs(wide.period_rad / rho - 1) < 1e-3
+
     @pytest.mark.parametrize("seed", [1, 2])
     def test_clean_data_reports_nothing(self, seed):
         r = identify_ripple([cv_run(default_plant().without_effects(), seed=seed, speeds=(0.3, 1.2), range_rad=0.8)])

@@ -13,7 +13,7 @@ from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import RippleTable, Source, read_model, table1_model, write_model
-from iiwa_ident.ident.ripple import RippleResult, identify_ripple
+from iiwa_ident.ident.ripple import PERIOD_MAX_RAD, PERIOD_MIN_RAD, RippleResult, identify_ripple
 
 __all__ = ["ripple_cmd", "format_ripple"]
 
@@ -59,8 +59,10 @@ def ripple_cmd(
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the result as JSON.")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for PNG figures.")] = None,
     bins: Annotated[int, typer.Option("--bins", help="Lookup-table size.")] = 256,
-    period_min: Annotated[float, typer.Option("--period-min", help="Shortest period searched [rad].")] = 0.004,
-    period_max: Annotated[float, typer.Option("--period-max", help="Longest period searched [rad].")] = 0.12,
+    period_min: Annotated[float, typer.Option("--period-min", help="Shortest period searched [rad] (2000 cycles "
+                                                                   "per revolution).")] = PERIOD_MIN_RAD,
+    period_max: Annotated[float, typer.Option("--period-max", help="Longest period searched [rad] (50 cycles per "
+                                                                   "revolution).")] = PERIOD_MAX_RAD,
     link_motion: Annotated[str, typer.Option("--link-motion", help="auto | restored | neglected (dynamic method).")] = "auto",
 ) -> None:
     """Find the period and lookup table of the transmission deflection of eq (5).

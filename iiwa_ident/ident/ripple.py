@@ -44,6 +44,8 @@ from iiwa_ident.errors import IiwaIdentError
 
 __all__ = [
     "ENCODER_TICK_RAD",
+    "PERIOD_MIN_RAD",
+    "PERIOD_MAX_RAD",
     "Pass",
     "MethodResult",
     "RippleResult",
@@ -52,6 +54,10 @@ __all__ = [
     "identify_ripple",
 ]
 
+#: Default search range of the period [rad]: 2000 down to 50 cycles per motor revolution (the paper's
+#: joint has 320; other gear ratios have other counts).
+PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
+PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
 #: Motor encoder quantisation of the iiwa (section III.B) [rad].
 ENCODER_TICK_RAD = 5.989e-8
 
@@ -559,6 +565,9 @@ class _Candidate:
     spectrum: _LineSpectrum
     period: float | None = None
     period_std: float = math.inf
+    #: Why the line found is not a detection although it is significant ('' when it is one).
+    not_decided: str = ""
+    link_inertia: float = math.inf
 
     def refine(self, false_alarm: float, harmonics: int) -> None:
         """Pick the fundamental and refine its period by a grouped, weighted Fourier fit."""
@@ -589,13 +598,52 @@ class _Candidate:
         k_hat = refine()
         _set_weights(self.passes, 1.0 / k_hat, harmonics)
         k_hat = refine()
+        if not k[0] + dk <= k_hat <= k[-1] - dk:
+            self.not_decided = (f"the best period, {1 / k_hat:.4g} rad, lies at the edge of the searched range "
+                                f"{1 / k[-1]:.4g}-{1 / k[0]:.4g} rad: not a detection; widen the range")
+            return
         self.period = 1.0 / k_hat
         std = _period_std(self.passes, k_hat, harmonics, dk) / k_hat ** 2
         self.period_std = std if math.isfinite(std) else math.inf
 
 
-def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6, period_min: float = 0.004,
-                    period_max: float = 0.12, bins: int = 256, max_harmonics: int = 8, min_speed: float = 0.003,
+def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, period_max: float, min_speed: float,
+                  min_travel: float, false_alarm: float) -> str:
+    """Why ``c``'s line is a harmonic of a period beyond ``period_max`` ('' when it is not).
+
+    The passes were high-passed for the searched range, which takes such a fundamental out: they are
+    made again for periods up to three times the line's, and the line's halves and thirds tested with
+    the same law (four tries, at least a tenth of the line's power), T^2 calibrated by its median over
+    the neighbouring frequencies as in the search.
+    """
+    passes: list[Pass] = []
+    for i, ds in enumerate(datasets):
+        passes += deflection(ds, i, K, c.link_inertia, 3.0 * c.period, min_speed, min_travel)
+    if not passes:
+        return ""
+    span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
+    chunks = _chunks(passes, span)
+    dk = 1.0 / (4.0 * span)
+    k_line = 1.0 / c.period
+    _, power_line, _ = _hotelling(chunks, np.array([k_line]))
+    for m in (2, 3):
+        kk = k_line / m
+        if 1.0 / kk <= period_max or 1.0 / kk > max(p.period_max for p in passes):
+            continue
+        grid = kk + dk * np.arange(-25, 26)
+        t2, power, count = _hotelling(chunks, grid[grid > 0])
+        centre = int(np.argmin(np.abs(grid[grid > 0] - kk)))
+        floor = float(np.median(t2))
+        t2_c = float(t2[centre]) * min(1.0, math.log(2.0) / max(floor, 1e-300))
+        if _false_alarm(t2_c, int(count[centre]), 4.0) < false_alarm and power[centre] >= 0.1 * power_line[0]:
+            return (f"the line at {c.period:.4g} rad looks like harmonic {m} of a period of {1 / kk:.4g} rad, "
+                    f"longer than the longest searched ({period_max:.4g} rad): not a detection; widen "
+                    "--period-max")
+    return ""
+
+
+def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6,
+                    period_min: float = PERIOD_MIN_RAD, period_max: float = PERIOD_MAX_RAD, bins: int = 256, max_harmonics: int = 8, min_speed: float = 0.003,
                     false_alarm: float = 1e-3, link_motion: str = "auto") -> RippleResult:
     """Decide whether a position-periodic deflection exists; find its period and lookup table.
 
@@ -610,7 +658,10 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     Jl : float
         Link inertia [kg m^2] for the dynamic method's link-motion term (Table I: 5.6).
     period_min, period_max : float
-        Search range of the period [rad].
+        Search range of the period [rad] (default 2000 to 50 cycles per
+        motor revolution). A best period at an edge of the range, or a line
+        that is a harmonic of a period beyond it, is a warning and not a
+        detection.
     bins : int
         Lookup-table size.
     max_harmonics : int
@@ -659,17 +710,23 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                                  f"{4 * period_min:g} rad) to identify a position-periodic deflection from")
         dynamic = any(p.method == "dynamic" for p in passes)
         name = ("restored" if math.isfinite(link_inertia) else "neglected") if dynamic else "measured"
-        candidates.append(_Candidate(name, passes, _line_search(passes, period_min, period_max)))
+        candidates.append(_Candidate(name, passes, _line_search(passes, period_min, period_max),
+                                     link_inertia=link_inertia))
         if not dynamic:
             break  # static passes only: the link is measured, nothing to choose
     for c in candidates:
         if c.spectrum.false_alarm(c.spectrum.i_best) <= false_alarm:
             c.refine(false_alarm, min(3, max_harmonics))
+    for c in candidates:
+        if c.period is not None and 2.0 * c.period > period_max:
+            beyond = _beyond_range(datasets, c, K, period_max, min_speed, 4.0 * period_min, false_alarm)
+            if beyond:
+                c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]
     best = min(detected, key=lambda c: c.period_std / c.period) if detected else \
         min(candidates, key=lambda c: c.spectrum.false_alarm(c.spectrum.i_best))
     passes, spec = best.passes, best.spectrum
-    warnings = list(spec.warnings)
+    warnings = list(spec.warnings) + [c.not_decided for c in candidates if c.not_decided and not detected][:1]
     directions = {np.sign(p.speed) for p in passes}
     speeds = [abs(p.speed) for p in passes]
     if len(directions) == 1 and max(speeds) <= 1.1 * min(speeds):
