@@ -53,6 +53,17 @@ class TestIdentifyRipple:
         assert abs(r.period_rad / rho - 1) < 1e-4
         assert lut_error(r, effect) < 0.10
 
+    @pytest.mark.parametrize("seed", [11, 12])
+    def test_a_second_harmonic_four_times_the_fundamental(self, seed):
+        # Earlier reported as half the period: the fundamental's line has a sixteenth of the harmonic's power.
+        rng = np.random.default_rng(seed)
+        rho = rng.uniform(0.01, 0.04)
+        amp = rng.uniform(1.5e-5, 2.5e-5)
+        effect = TransmissionRipple({"period_rad": rho, "harmonics": [[amp, rng.uniform(0, 2 * np.pi)],
+                                                                      [4 * amp, rng.uniform(0, 2 * np.pi)]]})
+        r = identify_ripple([cv_run(default_plant().with_effects(effect), seed=seed)])
+        assert r.detected and abs(r.period_rad / rho - 1) < 1e-4
+
     def test_a_period_beyond_the_range_is_not_reported_as_its_harmonic(self):
         # Earlier a period longer than period_max came back as half of it, detected, without a warning.
         rng = np.random.default_rng(7)

@@ -46,6 +46,7 @@ __all__ = [
     "ENCODER_TICK_RAD",
     "PERIOD_MIN_RAD",
     "PERIOD_MAX_RAD",
+    "MIN_FUNDAMENTAL_POWER",
     "Pass",
     "MethodResult",
     "RippleResult",
@@ -58,6 +59,9 @@ __all__ = [
 #: joint has 320; other gear ratios have other counts).
 PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
 PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
+#: Least power of a fundamental, as a share of its harmonic's line, for the harmonic's fraction to be
+#: taken as the period: a harmonic up to 10 times the fundamental's amplitude.
+MIN_FUNDAMENTAL_POWER = 0.01
 #: Motor encoder quantisation of the iiwa (section III.B) [rad].
 ENCODER_TICK_RAD = 5.989e-8
 
@@ -574,15 +578,16 @@ class _Candidate:
         spec = self.spectrum
         k, t2, power, dk, i_best = spec.k, spec.t2, spec.power, spec.dk, spec.i_best
         # The most consistent line may be a harmonic: take the lowest integer fraction of it that is
-        # itself a significant line with at least a tenth of its power (T^2 measures consistency,
-        # not size: a weak, clean harmonic can beat a strong fundamental). Only the four fractions
-        # are tested, so the false alarm is corrected for four tries.
+        # itself a significant line with at least MIN_FUNDAMENTAL_POWER of its power (T^2 measures
+        # consistency, not size: a weak, clean harmonic can beat a strong fundamental, and a second
+        # harmonic four times the fundamental's amplitude has 16 times its power). Only the four
+        # fractions are tested, so the false alarm is corrected for four tries.
         k_star = k[i_best]
         for m in range(5, 1, -1):
             near = np.abs(k - k_star / m) <= 2 * dk
             if near.any():
                 j = np.nonzero(near)[0][np.argmax(t2[near])]
-                if spec.false_alarm(j, tries=4) < false_alarm and power[j] >= 0.1 * power[i_best]:
+                if spec.false_alarm(j, tries=4) < false_alarm and power[j] >= MIN_FUNDAMENTAL_POWER * power[i_best]:
                     k_star = k[j]
                     break
         # The period that best explains the deflection with a Fourier series (tapered, nuisance
