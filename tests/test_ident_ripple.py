@@ -64,6 +64,16 @@ class TestIdentifyRipple:
         r = identify_ripple([cv_run(default_plant().with_effects(effect), seed=seed)])
         assert r.detected and abs(r.period_rad / rho - 1) < 1e-4
 
+    @pytest.mark.parametrize("seed", [21, 22])
+    def test_a_tiny_ripple_gets_a_std_that_covers(self, seed):
+        # A 3e-6 rad ripple: earlier one draw came back 1.2 % off with a std of 1e-10 rad (every
+        # jackknife subset stopped at the same bracket bound).
+        rng = np.random.default_rng(seed)
+        rho = rng.uniform(0.01, 0.04)
+        effect = TransmissionRipple({"period_rad": rho, "harmonics": [[3e-6, rng.uniform(0, 2 * np.pi)]]})
+        r = identify_ripple([cv_run(default_plant().with_effects(effect), seed=seed)])
+        assert r.detected and abs(r.period_rad - rho) <= 3.0 * r.period_std_rad, (r.period_rad, r.period_std_rad)
+
     def test_a_period_beyond_the_range_is_not_reported_as_its_harmonic(self):
         # Earlier a period longer than period_max came back as half of it, detected, without a warning.
         rng = np.random.default_rng(7)
