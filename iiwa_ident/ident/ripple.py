@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 from scipy.interpolate import BSpline
-from scipy.ndimage import median_filter
+from scipy.ndimage import maximum_filter1d, median_filter
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
@@ -46,7 +46,8 @@ __all__ = [
     "ENCODER_TICK_RAD",
     "PERIOD_MIN_RAD",
     "PERIOD_MAX_RAD",
-    "MIN_FUNDAMENTAL_POWER",
+    "FAMILY_HARMONICS",
+    "MIN_SUBHARMONIC_POWER",
     "Pass",
     "MethodResult",
     "RippleResult",
@@ -59,9 +60,11 @@ __all__ = [
 #: joint has 320; other gear ratios have other counts).
 PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
 PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
-#: Least power of a fundamental, as a share of its harmonic's line, for the harmonic's fraction to be
-#: taken as the period: a harmonic up to 10 times the fundamental's amplitude.
-MIN_FUNDAMENTAL_POWER = 0.01
+#: Harmonics summed per candidate fundamental in the family search.
+FAMILY_HARMONICS = 5
+#: Least power, as a share of the family's strongest line, of the strongest line that only a subharmonic
+#: k0/m explains, for k0/m to be the period: lines down to a tenth of the dominant one's amplitude.
+MIN_SUBHARMONIC_POWER = 0.01
 #: Motor encoder quantisation of the iiwa (section III.B) [rad].
 ENCODER_TICK_RAD = 5.989e-8
 
@@ -373,7 +376,24 @@ def _hotelling(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return np.nan_to_num(t2, nan=0.0, posinf=0.0), np.abs(mean) ** 2, count
 
 
-def _period_std(passes: list[Pass], k_hat: float, harmonics: int, dk: float, parts: int = 8) -> float:
+def _best_k(passes: list[Pass], k_c: float, half: float, harmonics: int, rtol: float, grid: int = 9) -> float:
+    """Spatial frequency in ``k_c +- half`` that minimises the grouped Fourier fit's residual [cycles/rad].
+
+    The residual has a local minimum per higher harmonic's resolution cell, so a coarse grid picks
+    the basin before a bounded Brent search refines it.
+    """
+    def cost(kk: float) -> float:
+        return _fourier_fit(passes, 1.0 / kk, harmonics, grouped=True)[1]
+
+    ks = np.linspace(k_c - half, k_c + half, grid)
+    i = int(np.argmin([cost(kk) for kk in ks]))
+    step = ks[1] - ks[0]
+    lo, hi = max(ks[0], ks[i] - step), min(ks[-1], ks[i] + step)
+    return float(optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                                          options={"xatol": rtol * k_c}).x)
+
+
+def _period_std(passes: list[Pass], k_hat: float, harmonics: int, half: float, parts: int = 8) -> float:
     """Standard error of the spatial frequency by a delete-a-group jackknife over the passes [cycles/rad].
 
     The residual is not white (double-integrated torque noise, slow leftovers), so the
@@ -386,18 +406,15 @@ def _period_std(passes: list[Pass], k_hat: float, harmonics: int, dk: float, par
     for g in groups:
         drop = set(g.tolist())
         keep = [p for i, p in enumerate(passes) if i not in drop]
-        res = optimize.minimize_scalar(lambda kk: _fourier_fit(keep, 1.0 / kk, harmonics, grouped=True)[1],
-                                       bounds=(k_hat - 1.5 * dk, k_hat + 1.5 * dk), method="bounded",
-                                       options={"xatol": 1e-8 * k_hat})
-        estimates.append(res.x)
+        estimates.append(_best_k(keep, k_hat, half, harmonics, 1e-8, grid=5))
     estimates = np.asarray(estimates)
     m = len(estimates)
     std = float(math.sqrt((m - 1) / m * np.sum((estimates - estimates.mean()) ** 2)))
-    if np.any(np.abs(np.abs(estimates - k_hat) - 1.5 * dk) < 1e-3 * dk):
+    if np.any(np.abs(np.abs(estimates - k_hat) - half) < 1e-3 * half):
         # A subset's best period lies on the bracket: the data place the line only within it, and
         # estimates stopped by the same bound agree for that reason alone (a 3e-6 rad ripple got a std
         # of 1e-10 rad for an error of 4e-4 rad).
-        std = max(std, 1.5 * dk)
+        std = max(std, half)
     return std
 
 
@@ -535,10 +552,20 @@ class _LineSpectrum:
     dk: float
     i_best: int
     warnings: list[str]
+    #: The most significant harmonic family (see :func:`_family`).
+    family: "_Family | None" = None
 
     def false_alarm(self, j: int, tries: float | None = None) -> float:
         """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
         return _false_alarm(float(self.t2[j]), int(self.count[j]), len(self.k) / 4.0 if tries is None else tries)
+
+    def detection_false_alarm(self) -> float:
+        """False-alarm probability of the search: the strongest line or the strongest family, whichever is
+        the more significant, each corrected for the frequencies searched."""
+        tries = len(self.k) / 4.0
+        p_fam = math.exp(self.family.log_p) if self.family is not None else 1.0
+        fam = float(min(1.0, -math.expm1(tries * math.log1p(-min(p_fam, 1 - 1e-16))))) if p_fam > 0 else 0.0
+        return min(self.false_alarm(self.i_best), fam)
 
 
 def _line_search(passes: list[Pass], period_min: float, period_max: float) -> _LineSpectrum:
@@ -563,7 +590,173 @@ def _line_search(passes: list[Pass], period_min: float, period_max: float) -> _L
     # significant than the law says.
     floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
     t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
-    return _LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings)
+    spec = _LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings)
+    spec.family = _family(spec)
+    return spec
+
+
+def _line_pvalues(spec: _LineSpectrum) -> np.ndarray:
+    """Per-frequency p-value of the calibrated T^2 under "no line" (F(2, 2(n-1)), 1 where too few chunks)."""
+    n = spec.count
+    with np.errstate(invalid="ignore"):
+        p = np.where(n >= 3, stats.f.sf(spec.t2, 2, 2 * np.maximum(n - 1, 1)), 1.0)
+    return np.clip(np.nan_to_num(p, nan=1.0), 1e-300, 1.0)
+
+
+def _window_logp(log_p: np.ndarray, half: int) -> np.ndarray:
+    """Best log p within +-half grid points, corrected for the window's ~(2 half + 1) / 4 independent cells."""
+    best = -maximum_filter1d(-log_p, size=2 * half + 1, mode="nearest")
+    cells = max(1.0, (2 * half + 1) / 4.0)
+    with np.errstate(divide="ignore"):
+        corrected = np.log(-np.expm1(cells * np.log1p(-np.exp(np.minimum(best, -1e-12)))))
+    return np.maximum(corrected, best)
+
+
+def _lines_logp(spec: "_LineSpectrum", log_p: np.ndarray, ks: list[float], hs: list[int]) -> float:
+    """Fisher log p-value of the lines at spatial frequencies ``ks`` (harmonic numbers ``hs`` set their
+    windows); 0 when none lies in the band."""
+    total, dof = 0.0, 0
+    for kk, h in zip(ks, hs):
+        i = int(round((kk - spec.k[0]) / spec.dk))
+        if 0 <= i < len(spec.k):
+            total += -2.0 * float(_window_logp(log_p[max(0, i - 4):i + 5], 1 + h // 2)[min(i, 4)])
+            dof += 2
+    return float(stats.chi2.logsf(total, dof)) if dof else 0.0
+
+
+def _peak_power(spec: "_LineSpectrum", kk: float, half: int) -> float:
+    """Largest power of the mean coefficient within +-half grid points of ``kk``."""
+    i = int(round((kk - spec.k[0]) / spec.dk))
+    lo, hi = max(0, i - half), min(len(spec.k), i + half + 1)
+    return float(spec.power[lo:hi].max()) if lo < hi else 0.0
+
+
+def _family(spec: "_LineSpectrum") -> "_Family":
+    """The most significant harmonic family of the spectrum.
+
+    Harmonic summation: for each candidate fundamental k0 the lines at h k0 (h = 1 ..
+    FAMILY_HARMONICS, inside the band) are combined by Fisher's method, each line's p-value the
+    best within the harmonic's uncertainty (h k0 is known to about h/2 grid steps) and corrected
+    for that window. A fundamental weaker than its harmonics, or absent, still collects them. Lines
+    are measured at the exact motor positions, so a harmonic above a pass's Nyquist limit is
+    unfolded by the pass's own speed, and its mirror images form no family.
+
+    A family and its subharmonic k0/2 can collect the same lines; so the fundamental is then moved
+    up to m k0 (m = 2, 3) while the lines that only k0 explains are not jointly significant, and
+    down to k0 / m when the lines that only k0 / m explains are (Fisher p below 1e-3 both ways) and
+    carry at least MIN_SUBHARMONIC_POWER of the family's strongest line; a weaker significant
+    subharmonic family is kept as a note (a once-per-motor-revolution effect, for example).
+    """
+    k, dk = spec.k, spec.dk
+    log_p = np.log(_line_pvalues(spec))
+    # Only local peaks count as lines: a strong line is consistent across chunks on its flanks too (its
+    # T^2 is broad), and a family of flank points would otherwise beat it. Nor does a peak whose
+    # power is below 1e-3 of the strongest (the taper's sidelobes are at 7e-4).
+    peak = log_p <= -maximum_filter1d(-log_p, size=5, mode="nearest")
+    peak &= spec.power >= 1e-3 * spec.power[int(np.argmin(log_p))]
+    log_p = np.where(peak, log_p, 0.0)
+    n_k = len(k)
+    k_lo = k[0]
+    score = np.zeros(n_k)
+    dof = np.zeros(n_k)
+    for h in range(1, FAMILY_HARMONICS + 1):
+        idx = np.round((h * k - k_lo) / dk).astype(int)
+        inside = idx < n_k
+        if not inside.any():
+            break
+        lp = _window_logp(log_p, 1 + h // 2)
+        score[inside] += -2.0 * lp[idx[inside]]
+        dof[inside] += 2.0
+    fam_logp = stats.chi2.logsf(score, np.maximum(dof, 2.0))
+    j0 = int(np.argmin(fam_logp))
+    k0 = float(k[j0])
+    alpha = math.log(1e-3)
+
+    def strongest(kk: float) -> float:
+        return max(_peak_power(spec, h * kk, 1 + h // 2) for h in range(1, FAMILY_HARMONICS + 1)
+                   if h * kk <= k[-1])
+
+    def own_lines(kk: float, m: int) -> tuple[bool, float]:
+        """Whether the lines of kk that m kk does not explain are significant, and their largest power."""
+        own = [h for h in range(1, m * FAMILY_HARMONICS + 1) if h % m and h * kk <= k[-1]][:FAMILY_HARMONICS]
+        if not own:
+            return False, 0.0
+        significant = _lines_logp(spec, log_p, [h * kk for h in own], own) < alpha
+        return significant, max(_peak_power(spec, h * kk, 1 + h // 2) for h in own)
+
+    def peaks(kk: float, h_last: int):
+        """(h, window half-width, index of the best line) for the harmonics of kk inside the band."""
+        for h in range(1, h_last + 1):
+            i = int(round((h * kk - k_lo) / dk))
+            if i >= n_k:
+                return
+            half = 1 + h // 2
+            lo = max(0, i - half)
+            yield h, half, lo + int(np.argmin(log_p[lo:i + half + 1]))
+
+    def recentre(kk: float) -> float:
+        """kk moved onto its family's most significant line (divided by its harmonic number): a
+        fundamental on the grid is off by up to half a step, and its multiples by h times that."""
+        best_lp, best_k = 0.0, kk
+        for h, _, j in peaks(kk, FAMILY_HARMONICS):
+            if log_p[j] < best_lp:
+                best_lp, best_k = float(log_p[j]), float(k[j]) / h
+        return best_k
+
+    k0 = recentre(k0)
+    # Up while k0's own lines are not significant or carry less than MIN_SUBHARMONIC_POWER of the
+    # family's strongest line, then down once where a subharmonic's own lines are and do.
+    weak_sub = None
+    moved = True
+    while moved:
+        moved = False
+        for m in (2, 3):
+            if m * k0 > k[-1]:
+                continue
+            significant, power = own_lines(k0, m)
+            if not significant or power < MIN_SUBHARMONIC_POWER * strongest(m * k0):
+                if significant:
+                    weak_sub = (k0, power / strongest(m * k0))
+                k0, moved = recentre(m * k0), True
+                break
+    for m in (2, 3):
+        kk = k0 / m
+        if kk < k_lo:
+            continue
+        significant, power = own_lines(kk, m)
+        if significant:
+            if power >= MIN_SUBHARMONIC_POWER * strongest(k0):
+                k0, weak_sub = recentre(kk), None
+                break
+            weak_sub = (kk, power / strongest(k0))
+    j0 = int(np.clip(round((k0 - k_lo) / dk), 0, n_k - 1))
+    # The highest harmonic that is itself a significant line (p < 1e-3 after its window), and the
+    # family's most significant line (where the period is best located).
+    h_top, h_strong, i_strong = 1, 1, j0
+    for h, half, j in peaks(k0, 8):
+        if log_p[j] < math.log(1e-3 / max(1.0, (2 * half + 1) / 4.0)):
+            h_top = h
+        if h == 1 or log_p[j] < log_p[i_strong]:
+            h_strong, i_strong = h, j
+    return _Family(j0, h_top, h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
+
+
+@dataclass
+class _Family:
+    """A harmonic family found by :func:`_family` (indices into the spectrum's grid)."""
+
+    j0: int
+    h_top: int
+    h_strong: int
+    i_strong: int
+    log_p: float
+    #: A significant subharmonic family too weak to be the period: (spatial frequency, power share).
+    weak_subharmonic: tuple[float, float] | None = None
+
+    def bracket(self, k: np.ndarray, dk: float) -> tuple[float, float]:
+        """Centre and half-width [cycles/rad] of the fundamental's refinement: the strongest line, located
+        to about a grid step, divided by its harmonic number."""
+        return float(k[self.i_strong] / self.h_strong), 1.5 * dk / self.h_strong
 
 
 @dataclass
@@ -579,32 +772,21 @@ class _Candidate:
     not_decided: str = ""
     link_inertia: float = math.inf
 
-    def refine(self, false_alarm: float, harmonics: int) -> None:
-        """Pick the fundamental and refine its period by a grouped, weighted Fourier fit."""
+    def refine(self, harmonics: int) -> None:
+        """Pick the fundamental of the harmonic family and refine its period by a grouped, weighted Fourier fit."""
         spec = self.spectrum
-        k, t2, power, dk, i_best = spec.k, spec.t2, spec.power, spec.dk, spec.i_best
-        # The most consistent line may be a harmonic: take the lowest integer fraction of it that is
-        # itself a significant line with at least MIN_FUNDAMENTAL_POWER of its power (T^2 measures
-        # consistency, not size: a weak, clean harmonic can beat a strong fundamental, and a second
-        # harmonic four times the fundamental's amplitude has 16 times its power). Only the four
-        # fractions are tested, so the false alarm is corrected for four tries.
-        k_star = k[i_best]
-        for m in range(5, 1, -1):
-            near = np.abs(k - k_star / m) <= 2 * dk
-            if near.any():
-                j = np.nonzero(near)[0][np.argmax(t2[near])]
-                if spec.false_alarm(j, tries=4) < false_alarm and power[j] >= MIN_FUNDAMENTAL_POWER * power[i_best]:
-                    k_star = k[j]
-                    break
+        k, dk = spec.k, spec.dk
+        fam = spec.family
+        k_star, half = fam.bracket(k, dk)
+        # ``harmonics`` at least, and every harmonic seen: an unmodelled harmonic above a pass's Nyquist
+        # limit leaves its mirror image next to a modelled one and pulls the period.
+        harmonics = max(harmonics, fam.h_top, fam.h_strong)
         # The period that best explains the deflection with a Fourier series (tapered, nuisance
         # projected, one set of coefficients per group of passes so that what is left of the
         # speed-dependent link dynamics cannot bias it), each pass weighted by its noise level.
 
         def refine() -> float:
-            res = optimize.minimize_scalar(
-                lambda kk: _fourier_fit(self.passes, 1.0 / kk, harmonics, grouped=True)[1],
-                bounds=(k_star - 1.5 * dk, k_star + 1.5 * dk), method="bounded", options={"xatol": 1e-7 * k_star})
-            return float(res.x)
+            return _best_k(self.passes, k_star, half, harmonics, 1e-7)
 
         k_hat = refine()
         _set_weights(self.passes, 1.0 / k_hat, harmonics)
@@ -614,7 +796,7 @@ class _Candidate:
                                 f"{1 / k[-1]:.4g}-{1 / k[0]:.4g} rad: not a detection; widen the range")
             return
         self.period = 1.0 / k_hat
-        std = _period_std(self.passes, k_hat, harmonics, dk) / k_hat ** 2
+        std = _period_std(self.passes, k_hat, harmonics, half) / k_hat ** 2
         self.period_std = std if math.isfinite(std) else math.inf
 
 
@@ -726,8 +908,8 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         if not dynamic:
             break  # static passes only: the link is measured, nothing to choose
     for c in candidates:
-        if c.spectrum.false_alarm(c.spectrum.i_best) <= false_alarm:
-            c.refine(false_alarm, min(3, max_harmonics))
+        if c.spectrum.detection_false_alarm() <= false_alarm:
+            c.refine(max_harmonics)
     for c in candidates:
         if c.period is not None and 2.0 * c.period > period_max:
             beyond = _beyond_range(datasets, c, K, period_max, min_speed, 4.0 * period_min, false_alarm)
@@ -735,7 +917,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                 c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]
     best = min(detected, key=lambda c: c.period_std / c.period) if detected else \
-        min(candidates, key=lambda c: c.spectrum.false_alarm(c.spectrum.i_best))
+        min(candidates, key=lambda c: c.spectrum.detection_false_alarm())
     passes, spec = best.passes, best.spectrum
     warnings = list(spec.warnings) + [c.not_decided for c in candidates if c.not_decided and not detected][:1]
     directions = {np.sign(p.speed) for p in passes}
@@ -743,7 +925,12 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     if len(directions) == 1 and max(speeds) <= 1.1 * min(speeds):
         warnings.append("one direction at one speed only: a disturbance periodic in time at speed/rho Hz "
                         "cannot be told apart from a position-periodic one; run both directions or two speeds")
-    fap = spec.false_alarm(spec.i_best)
+    if best.period is not None and spec.family is not None and spec.family.weak_subharmonic is not None:
+        k_sub, share = spec.family.weak_subharmonic
+        warnings.append(f"weaker lines at multiples of {1 / k_sub:.4g} rad ({2 * math.pi * k_sub:.0f} cycles per "
+                        f"revolution, {share:.1%} of the strongest line's power) are significant too: a slower "
+                        "periodic effect (once per motor revolution?) below what the table needs")
+    fap = spec.detection_false_alarm()
     stat = float(spec.t2[spec.i_best])
     base = dict(spectrum_k=spec.k, spectrum_stat=spec.t2, spectrum_power=spec.power, passes=passes,
                 warnings=warnings, K=K, Jl=Jl, link_motion=best.name)
