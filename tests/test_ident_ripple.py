@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from conftest import REAL_LOGS
 from iiwa_ident.cli import app
+from iiwa_ident.cli.ripple_cmd import format_ripple
 from iiwa_ident.datasets import Dataset, import_columns, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record
@@ -191,6 +192,42 @@ class TestEdgeCases:
         runs = [cv_run(plant, seed=s, speeds=(v,), range_rad=0.8) for s, v in ((7, 0.3), (8, 1.2))]
         r = identify_ripple(runs)
         assert r.detected and abs(r.period_rad / PAPER_RHO - 1) < 1e-4
+
+
+class TestSeveralRuns:
+    """One answer per joint from all its runs: per-run estimates, their agreement, a std that covers them."""
+
+    def test_runs_that_see_different_harmonics_agree_on_the_family(self):
+        # A weak fundamental and a strong second harmonic: the runs may report either; they agree as one
+        # family, and the std covers the pooled period's error.
+        rng = np.random.default_rng(51)
+        rho = rng.uniform(0.015, 0.03)
+        a = rng.uniform(1e-5, 2e-5)
+        effect = TransmissionRipple({"period_rad": rho, "harmonics": [[a / 4, rng.uniform(0, 2 * np.pi)],
+                                                                      [a, rng.uniform(0, 2 * np.pi)]]})
+        plant = default_plant().with_effects(effect)
+        plant.simulation["cycle_s"] = 0.005
+        runs = [cv_run(plant, seed=50 + i, speeds=(v,), range_rad=0.8) for i, v in enumerate((0.2, 0.5, 0.9))]
+        r = identify_ripple(runs)
+        assert r.detected and r.agreement["verdict"] == "agree", r.warnings
+        assert [run["detected"] for run in r.runs] == [True] * 3
+        assert all(run["harmonic"] in (1, 2) for run in r.runs)
+        assert abs(r.period_rad / rho - 1) < 1e-3
+        assert abs(r.period_rad - rho) <= 3 * r.period_std_rad
+        assert r.agreement["dof"] == 2 and 0 <= r.agreement["p_value"] <= 1
+
+    def test_runs_with_different_periods_do_not_decide(self):
+        # Two runs whose deflections have unrelated periods (as two joints would): no period is picked.
+        rng = np.random.default_rng(52)
+        runs = []
+        for i, cpr in enumerate((rng.uniform(200, 260), rng.uniform(330, 400))):
+            effect = TransmissionRipple({"period_rad": 2 * np.pi / cpr, "harmonics": [[2e-5, rng.uniform(0, 6)]]})
+            runs.append(cv_run(default_plant().with_effects(effect), seed=60 + i, speeds=(0.3, 0.6), range_rad=0.8))
+        r = identify_ripple(runs)
+        assert not r.detected and r.agreement["verdict"] == "disagree"
+        assert any("the runs disagree" in w for w in r.warnings)
+        res_text = format_ripple(r)
+        assert "do not decide" in res_text and res_text.count("disagrees") >= 1
 
     def test_different_joints_refused(self):
         ds = cv_run(default_plant(), speeds=(0.6,), range_rad=0.5)

@@ -21,7 +21,10 @@ __all__ = ["ripple_cmd", "format_ripple"]
 def format_ripple(r: RippleResult) -> str:
     """A readable summary: verdict, period in three units, methods, eq (6)."""
     lines = []
-    if not r.detected:
+    if not r.detected and r.agreement.get("verdict") == "disagree":
+        lines.append("the runs disagree on the period (table below): the data do not decide, nothing is written "
+                     "as a ripple table")
+    elif not r.detected:
         lines.append(f"no periodic nonlinearity: the strongest line has false-alarm probability {r.false_alarm:.2g} "
                      f"(T² = {r.statistic:.1f}); nothing is written as a ripple table")
     else:
@@ -46,6 +49,24 @@ def format_ripple(r: RippleResult) -> str:
         for row in r.velocity_table:
             measured = "-" if math.isnan(row["measured_hz"]) else f"{row['measured_hz']:.1f}"
             lines.append(f"  {row['speed_rad_s']:>15.2f}{row['predicted_hz']:>16.1f}{measured:>15}")
+    if r.runs:
+        lines += ["", f"  {'run':<40}{'speed [rad/s]':>14}{'cycles/rev':>12}{'std':>9}{'harmonic':>10}  verdict"]
+        agree = set(r.agreement.get("agree", []))
+        for run in r.runs:
+            name = run["run"] if len(run["run"]) <= 38 else "..." + run["run"][-35:]
+            if not run["detected"]:
+                verdict = "no detection" if run["usable"] else "unusable: " + run["reason"]
+                lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{'-':>12}{'-':>9}{'-':>10}  {verdict}")
+                continue
+            std_cpr = run["cycles_per_rev"] * run["period_std_rad"] / run["period_rad"]
+            lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{run['cycles_per_rev']:>12.2f}{std_cpr:>9.2f}"
+                         f"{run.get('harmonic', '-'):>10}  {'agrees' if run['run'] in agree else 'disagrees'}")
+        a = r.agreement
+        if a.get("chi2") is not None:
+            lines.append(f"  agreement: chi2 {a['chi2']:.2f} on {a['dof']} dof (p = {a['p_value']:.2g}); "
+                         f"std widened by the Birge ratio {a['birge_ratio']:.2f}")
+        elif a.get("verdict") == "none":
+            lines.append("  no run detects a periodic deflection")
     for w in r.warnings:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
@@ -69,7 +90,10 @@ def ripple_cmd(
 
     Uses every run given together: constant-velocity runs (dynamic method, also
     200 Hz position-controlled logs without a torque command) and quasi-static
-    runs with the link reference (static method).
+    runs with the link reference (static method). With several runs each is
+    also analysed alone: a table of the per-run periods, which harmonic of the
+    joint's period each one sees, and their agreement; runs that disagree are
+    reported and nothing is written as a table.
 
     Example:
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5

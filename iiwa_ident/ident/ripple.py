@@ -147,6 +147,9 @@ class RippleResult:
     K: float = 0.0
     Jl: float = 0.0
     link_motion: str = ""
+    #: Per-run estimates when several runs were given (each analysed alone), and their agreement.
+    runs: list[dict] = field(default_factory=list)
+    agreement: dict = field(default_factory=dict)
 
     @property
     def cycles_per_rev(self) -> float | None:
@@ -180,6 +183,8 @@ class RippleResult:
             "K_used": self.K,
             "Jl_used": self.Jl,
             "link_motion": self.link_motion,
+            "runs": self.runs,
+            "agreement": self.agreement,
             "warnings": self.warnings,
         }
 
@@ -641,8 +646,8 @@ def _family(spec: "_LineSpectrum") -> "_Family":
     are measured at the exact motor positions, so a harmonic above a pass's Nyquist limit is
     unfolded by the pass's own speed, and its mirror images form no family.
 
-    A family and its subharmonic k0/2 can collect the same lines; so the fundamental is then moved
-    up to m k0 (m = 2, 3) while the lines that only k0 explains are not jointly significant, and
+    A family and its subharmonic k0/m can collect the same lines; so the fundamental is then moved
+    up to m k0 (m = 2, 3, 5) while the lines that only k0 explains are not jointly significant, and
     down to k0 / m when the lines that only k0 / m explains are (Fisher p below 1e-3 both ways) and
     carry at least MIN_SUBHARMONIC_POWER of the family's strongest line; a weaker significant
     subharmonic family is kept as a note (a once-per-motor-revolution effect, for example).
@@ -710,7 +715,7 @@ def _family(spec: "_LineSpectrum") -> "_Family":
     moved = True
     while moved:
         moved = False
-        for m in (2, 3):
+        for m in (2, 3, 5):
             if m * k0 > k[-1]:
                 continue
             significant, power = own_lines(k0, m)
@@ -836,9 +841,19 @@ def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, period_max: 
 
 
 def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6,
-                    period_min: float = PERIOD_MIN_RAD, period_max: float = PERIOD_MAX_RAD, bins: int = 256, max_harmonics: int = 8, min_speed: float = 0.003,
-                    false_alarm: float = 1e-3, link_motion: str = "auto") -> RippleResult:
+                    period_min: float = PERIOD_MIN_RAD, period_max: float = PERIOD_MAX_RAD, bins: int = 256,
+                    max_harmonics: int = 8, min_speed: float = 0.003, false_alarm: float = 1e-3,
+                    link_motion: str = "auto") -> RippleResult:
     """Decide whether a position-periodic deflection exists; find its period and lookup table.
+
+    All runs are used together for the detection, the period and the table. With several runs each is
+    also analysed alone: the result lists the per-run estimates (``runs``) and their agreement
+    (``agreement``): a run agrees when its period is a harmonic of the pooled one (1/h of it) within
+    three combined std and 0.1 %; the pooled period's std is at least the spread of the runs'
+    fundamentals (their weighted mean's std times the Birge ratio sqrt(chi2 / dof)) and half the
+    distance between that mean and the pooled period. When a run that
+    detects a line disagrees, the data do not decide and nothing is reported as detected; the verdict
+    names the runs.
 
     Parameters
     ----------
@@ -877,6 +892,82 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     IiwaIdentError
         When no usable motion is found (too short, too slow, standing still).
     """
+    options = dict(K=K, Jl=Jl, period_min=period_min, period_max=period_max, bins=bins, max_harmonics=max_harmonics,
+                   min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
+    pooled = _identify_pooled(datasets, **options)
+    if len(datasets) < 2:
+        return pooled
+    runs = []
+    for i, ds in enumerate(datasets):
+        name = str(ds.path) if ds.path else f"run {i + 1}"
+        speed = float(np.median(np.abs(np.diff(ds["q_m"]) / np.maximum(np.diff(ds["t"]), 1e-9))))
+        try:
+            r = _identify_pooled([ds], **options)
+        except IiwaIdentError as err:
+            runs.append({"run": name, "speed_rad_s": speed, "detected": False, "usable": False, "reason": str(err)})
+            continue
+        runs.append({"run": name, "speed_rad_s": speed, "detected": r.detected, "usable": True,
+                     "period_rad": r.period_rad, "period_std_rad": r.period_std_rad,
+                     "cycles_per_rev": r.cycles_per_rev, "false_alarm_probability": r.false_alarm,
+                     "amplitude_rad": r.amplitude_rad, "warnings": r.warnings})
+    return _combine_runs(pooled, runs)
+
+
+def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
+    """Attach the per-run estimates to the pooled result, test their agreement and widen its std."""
+    detected = [r for r in runs if r["detected"]]
+    # verdict: "agree", "disagree" (the data do not decide) or "none" (no run detects anything).
+    agreement: dict = {"runs": len(runs), "detected": len(detected), "agree": [], "disagree": [],
+                       "chi2": None, "dof": None, "p_value": None, "birge_ratio": None}
+    pooled.runs, pooled.agreement = runs, agreement
+    if not detected:
+        agreement["verdict"] = "none"
+        return pooled
+    if not pooled.detected:
+        agreement["verdict"] = "disagree"
+        agreement["disagree"] = [r["run"] for r in detected]
+        pooled.warnings.append("the runs disagree: " + "; ".join(
+            f"{r['run']} alone gives {r['cycles_per_rev']:.1f} cycles per revolution" for r in detected)
+            + (f"; {len(runs) - len(detected)} of {len(runs)} detect nothing" if len(detected) < len(runs) else "")
+            + "; together they detect nothing: the data do not decide")
+        return pooled
+    k0, s0 = 1.0 / pooled.period_rad, pooled.period_std_rad / pooled.period_rad ** 2
+    fund, weights = [], []
+    for r in detected:
+        k, sk = 1.0 / r["period_rad"], r["period_std_rad"] / r["period_rad"] ** 2
+        h = max(1, int(round(k / k0)))
+        tol = 3.0 * math.hypot(sk, h * s0) + 1e-3 * k
+        if abs(k - h * k0) <= tol:
+            r["harmonic"] = h
+            agreement["agree"].append(r["run"])
+            fund.append(k / h)
+            weights.append((h / max(sk, 1e-12 * k)) ** 2)
+        else:
+            agreement["disagree"].append(r["run"])
+    if agreement["disagree"]:
+        pooled.detected = False
+        pooled.warnings.append("the runs disagree: " + "; ".join(
+            f"{r['run']} gives {r['cycles_per_rev']:.1f} cycles per revolution" for r in detected)
+            + f"; together they give {pooled.cycles_per_rev:.1f}: the data do not decide, nothing is reported")
+        agreement["verdict"] = "disagree"
+        return pooled
+    agreement["verdict"] = "agree"
+    if len(fund) >= 2:
+        fund, weights = np.asarray(fund), np.asarray(weights)
+        mean = float(np.sum(weights * fund) / np.sum(weights))
+        chi2 = float(np.sum(weights * (fund - mean) ** 2))
+        dof = len(fund) - 1
+        birge = math.sqrt(max(1.0, chi2 / dof))
+        spread_std = birge / math.sqrt(float(np.sum(weights)))
+        agreement.update(chi2=chi2, dof=dof, p_value=float(stats.chi2.sf(chi2, dof)), birge_ratio=birge)
+        std_k = max(s0, spread_std, abs(mean - k0) / 2.0)
+        pooled.period_std_rad = std_k / k0 ** 2
+    return pooled
+
+
+def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: float, period_max: float, bins: int,
+                     max_harmonics: int, min_speed: float, false_alarm: float, link_motion: str) -> RippleResult:
+    """identify_ripple on all runs together, without the per-run analysis."""
     if not 0 < period_min < period_max:
         raise IiwaIdentError("ripple: need 0 < period_min < period_max")
     if bins < 16:
