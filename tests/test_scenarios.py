@@ -5,7 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from iiwa_ident.excite.scenarios import NUISANCES, draw_scenario, scenario_plant, simulate_scenario
+from iiwa_ident.excite.scenarios import (
+    NUISANCES,
+    RIPPLE_NUISANCES,
+    draw_ripple_scenario,
+    draw_scenario,
+    scenario_plant,
+    simulate_ripple_scenario,
+    simulate_scenario,
+)
 from iiwa_ident.sim.plant import resonance_hz
 
 
@@ -46,3 +54,35 @@ def test_offset_reaches_the_reading():
     assert ds.sample_rate_hz == pytest.approx(500.0)
     assert "stopped_reason" not in ds.experiment_attrs
     assert math.isfinite(resonance_hz(1.03, 18500.0, 5.6)) and 22 < resonance_hz(1.03, 18500.0, 5.6) < 24
+
+
+def test_ripple_scenarios_seeded_and_null_without_ripple():
+    a, b = draw_ripple_scenario(21), draw_ripple_scenario(21)
+    assert a == b and a.ripple is not None and 100 <= a.cycles_per_rev <= 800
+    null = draw_ripple_scenario(21, null=True)
+    assert null.ripple is None and null.runs == a.runs and null.effects == a.effects
+    for seed in range(20):
+        sc = draw_ripple_scenario(seed)
+        assert 2 <= len(sc.runs) <= 3 and sc.rate_hz in (200.0, 500.0, 1000.0)
+        assert all(0.05 <= r["speed_rad_s"] <= 1.3 for r in sc.runs)
+        assert set(sc.nuisances) <= set(RIPPLE_NUISANCES)
+
+
+def test_ripple_scenario_nuisances_reach_the_logs():
+    sc = draw_ripple_scenario(3, null=True, nuisances=["gaps"])
+    for ds in simulate_ripple_scenario(sc):
+        dt = np.diff(ds["t"])
+        assert dt.max() > 5 / sc.rate_hz and np.median(dt) == pytest.approx(1 / sc.rate_hz)
+    # Hum and coloured noise are added to the torque reading: against the same runs without them the
+    # difference has the hum's line and the noise's spread.
+    quiet = simulate_ripple_scenario(draw_ripple_scenario(3, null=True, nuisances=[]))
+    sc = draw_ripple_scenario(3, null=True, nuisances=["hum", "coloured_noise"])
+    for a, b in zip(simulate_ripple_scenario(sc), quiet):
+        d = a["tau_j"] - b["tau_j"]
+        hum = sc.after["hum_harmonics"][0]
+        fs = sc.rate_hz
+        spec = np.abs(np.fft.rfft(d * np.hanning(len(d))))
+        f = np.fft.rfftfreq(len(d), 1 / fs)
+        near = np.abs(f - hum[1]) < 1.0
+        assert spec[near].max() > 5 * np.median(spec)
+        assert np.std(d) > 0.5 * hum[0]

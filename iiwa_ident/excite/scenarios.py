@@ -46,11 +46,13 @@ import numpy as np
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite._runner import record
 from iiwa_ident.excite.chirp import Chirp
+from iiwa_ident.excite.programs import ConstantVelocity
 from iiwa_ident.sim.effects import make_effect
 from iiwa_ident.sim.joint import SimulatedJoint
 from iiwa_ident.sim.plant import Plant, default_plant, resonance_hz
 
-__all__ = ["NUISANCES", "Scenario", "draw_scenario", "scenario_plant", "simulate_scenario"]
+__all__ = ["NUISANCES", "RIPPLE_NUISANCES", "Scenario", "RippleScenario", "draw_scenario", "scenario_plant",
+           "simulate_scenario", "draw_ripple_scenario", "simulate_ripple_scenario"]
 
 #: Nuisance names, in the order pass rates are printed.
 NUISANCES: tuple[str, ...] = ("coulomb", "viscous", "gravity", "offset", "ripple", "stribeck", "load_harmonic",
@@ -92,6 +94,14 @@ class Scenario:
                 f"{'held' if p['held'] else 'free'}; nuisances: {', '.join(self.nuisances) or 'none'}")
 
 
+def _checked(nuisances: Sequence[str], known: Sequence[str]) -> list[str]:
+    """The chosen nuisances, all of them known."""
+    unknown = set(nuisances) - set(known)
+    if unknown:
+        raise ValueError(f"unknown nuisances {sorted(unknown)} (known: {', '.join(known)})")
+    return list(nuisances)
+
+
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
@@ -130,10 +140,7 @@ def draw_scenario(seed: int, *, nuisances: Sequence[str] | None = None, duration
             if base in on and rng.uniform() < 0.4:
                 on.append(extra)
     else:
-        unknown = set(nuisances) - set(NUISANCES)
-        if unknown:
-            raise ValueError(f"unknown nuisances {sorted(unknown)} (known: {', '.join(NUISANCES)})")
-        on = list(nuisances)
+        on = _checked(nuisances, NUISANCES)
     effects: dict[str, dict[str, Any]] = {}
     friction = 0.0
     if {"coulomb", "viscous", "stribeck"} & set(on):
@@ -198,3 +205,142 @@ def simulate_scenario(sc: Scenario) -> Dataset:
                   hold_damping=10.0 if p["held"] else 5.0)
     joint = SimulatedJoint(scenario_plant(sc), seed=sc.seed, q0=p["q0_rad"])
     return record(joint, chirp)
+
+
+# --------------------------------------------------------------------------- ripple scenarios
+
+#: Nuisances of the ripple scenarios, in the order pass rates are printed.
+RIPPLE_NUISANCES: tuple[str, ...] = ("friction", "gravity", "hum", "coloured_noise", "gaps")
+
+
+@dataclass
+class RippleScenario:
+    """One draw for the ripple identification: a joint's runs at constant speeds, with or without a ripple.
+
+    Attributes
+    ----------
+    seed : int
+        The seed it was drawn from.
+    ripple : dict or None
+        The ``transmission_ripple`` table (``period_rad``, ``harmonics``), None for a null draw.
+    runs : list of dict
+        Per run: ``speed_rad_s``, ``range_rad``, ``mode`` ("torque" or "position").
+    rate_hz : float
+        The robot's rate (the log's rate).
+    effects : dict
+        Plant-file tables of the simulator's nuisance effects, by effect name.
+    after : dict
+        What is done to the recorded logs: ``hum_harmonics`` [(Nm, Hz), ...] added to tau_j,
+        ``coloured_noise`` (std [Nm], pole of the AR(1) filter), ``gaps`` (count and length [s]).
+    nuisances : list of str
+        The names from :data:`RIPPLE_NUISANCES` that are on.
+    """
+
+    seed: int
+    ripple: dict[str, Any] | None
+    runs: list[dict[str, Any]]
+    rate_hz: float
+    effects: dict[str, dict[str, Any]] = field(default_factory=dict)
+    after: dict[str, Any] = field(default_factory=dict)
+    nuisances: list[str] = field(default_factory=list)
+
+    @property
+    def cycles_per_rev(self) -> float | None:
+        """The true ripple's cycles per revolution (None for a null draw)."""
+        return None if self.ripple is None else 2 * math.pi / self.ripple["period_rad"]
+
+    def describe(self) -> str:
+        """One line for logs and failure messages."""
+        what = "no ripple" if self.ripple is None else (
+            f"{self.cycles_per_rev:.1f} cycles/rev, amplitudes "
+            + "/".join(f"{a * 1e6:.1f}" for a, _ in self.ripple["harmonics"]) + " urad")
+        speeds = ", ".join(f"{r['speed_rad_s']:.3g}" for r in self.runs)
+        return (f"seed {self.seed}: {what}; {self.rate_hz:g} Hz, runs at {speeds} rad/s; nuisances: "
+                f"{', '.join(self.nuisances) or 'none'}")
+
+
+def draw_ripple_scenario(seed: int, *, null: bool = False, nuisances: Sequence[str] | None = None) -> RippleScenario:
+    """Draw the ripple scenario of ``seed``.
+
+    A ripple of 100-800 cycles per revolution with three harmonics, the second 0.3-4 and the third
+    0-2 times the fundamental (amplitude 3-30 urad, log-uniform); two or three runs at speeds
+    0.05-1.3 rad/s (log-uniform; the simulated joint's limit is 1.48 rad/s) over 0.4-1.2 rad, in torque
+    or position mode, at 200, 500 or 1000 Hz. Nuisances, each on with probability one half: link
+    Coulomb and viscous friction (0.2-3 Nm, 0-1 Nm s/rad), a position-dependent load (2-30 Nm, 90-100 %
+    compensated), time-periodic hum on the torque sensor (a line of 5-80 Hz and its 2nd and 3rd
+    harmonics, 0.005-0.05 Nm each), coloured sensor noise (AR(1), pole 0.9-0.99, 0.005-0.03 Nm), and
+    gaps (1-6 dropped stretches of 10-40 ms per run). ``null`` draws everything but the ripple.
+    """
+    rng = np.random.default_rng(seed)
+    ripple = None
+    cpr = rng.uniform(100.0, 800.0)
+    a1 = _log_uniform(rng, 3e-6, 3e-5)
+    harmonics = [[a1, rng.uniform(-math.pi, math.pi)], [a1 * rng.uniform(0.3, 4.0), rng.uniform(-math.pi, math.pi)],
+                 [a1 * rng.uniform(0.0, 2.0), rng.uniform(-math.pi, math.pi)]]
+    if not null:
+        ripple = {"period_rad": 2 * math.pi / cpr, "harmonics": harmonics}
+    rate = float(rng.choice([200.0, 500.0, 1000.0]))
+    n_runs = int(rng.integers(2, 4))
+    runs = [{"speed_rad_s": _log_uniform(rng, 0.05, 1.3), "range_rad": rng.uniform(0.4, 1.2),
+             "mode": str(rng.choice(["torque", "position"]))} for _ in range(n_runs)]
+    on = [n for n in RIPPLE_NUISANCES if rng.uniform() < 0.5] if nuisances is None else \
+        _checked(nuisances, RIPPLE_NUISANCES)
+    effects: dict[str, dict[str, Any]] = {}
+    after: dict[str, Any] = {}
+    if "friction" in on:
+        effects["link_friction"] = {"coulomb_nm": rng.uniform(0.2, 3.0), "viscous_nms_rad": rng.uniform(0.0, 1.0)}
+    if "gravity" in on:
+        effects["position_dependent_load"] = {"amplitude_nm": rng.uniform(2.0, 30.0) * rng.choice([-1.0, 1.0]),
+                                              "phase_rad": rng.uniform(-math.pi, math.pi),
+                                              "compensated": rng.uniform(0.9, 1.0)}
+    if "hum" in on:
+        f_hum = rng.uniform(5.0, 80.0)
+        after["hum_harmonics"] = [(rng.uniform(0.005, 0.05), m * f_hum, rng.uniform(-math.pi, math.pi))
+                                  for m in (1, 2, 3) if m * f_hum < 0.5 * rate]
+    if "coloured_noise" in on:
+        after["coloured_noise"] = (rng.uniform(0.005, 0.03), rng.uniform(0.9, 0.99))
+    if "gaps" in on:
+        after["gaps"] = (int(rng.integers(1, 7)), rng.uniform(0.01, 0.04))
+    return RippleScenario(seed, ripple, runs, rate, effects, after, on)
+
+
+def simulate_ripple_scenario(sc: RippleScenario) -> list[Dataset]:
+    """Record the scenario's runs on its simulated joint, then apply its sensor nuisances and gaps."""
+    base = default_plant().without_effects()
+    tables = dict(sc.effects)
+    if sc.ripple is not None:
+        tables["transmission_ripple"] = sc.ripple
+    plant = base.with_effects(*(make_effect(name, table) for name, table in tables.items()))
+    plant.simulation["cycle_s"] = 1.0 / sc.rate_hz
+    rng = np.random.default_rng(sc.seed + 7919)
+    out = []
+    for i, run in enumerate(sc.runs):
+        joint = SimulatedJoint(plant, seed=sc.seed * 10 + i)
+        ds = record(joint, ConstantVelocity([run["speed_rad_s"]], range_rad=run["range_rad"], mode=run["mode"]))
+        t = ds["t"]
+        signals = {k: np.array(v, dtype=float) for k, v in ds.signals.items()}
+        tau = signals["tau_j"]
+        for amp, f, ph in sc.after.get("hum_harmonics", []):
+            tau += amp * np.sin(2 * math.pi * f * t + ph + rng.uniform(-math.pi, math.pi))
+        if "coloured_noise" in sc.after:
+            std, pole = sc.after["coloured_noise"]
+            e = rng.normal(0.0, std * math.sqrt(1 - pole ** 2), len(t))
+            tau += _ar1(e, pole)
+        keep = np.ones(len(t), bool)
+        if "gaps" in sc.after:
+            count, length = sc.after["gaps"]
+            n_gap = max(1, int(round(length * sc.rate_hz)))
+            for start in rng.integers(0, max(1, len(t) - n_gap), size=count):
+                keep[start:start + n_gap] = False
+        out.append(Dataset(signals={k: v[keep] for k, v in signals.items()}, experiment=ds.experiment,
+                           source=ds.source, joint=ds.joint, sample_rate_hz=sc.rate_hz))
+    return out
+
+
+def _ar1(e: np.ndarray, pole: float) -> np.ndarray:
+    """x[n] = pole x[n-1] + e[n] (stationary start)."""
+    from scipy.signal import lfilter
+
+    x0 = e[0] / math.sqrt(1 - pole ** 2)
+    y, _ = lfilter([1.0], [1.0, -pole], e[1:], zi=[pole * x0])
+    return np.r_[x0, y]
