@@ -276,6 +276,34 @@ def _pass_deflection(t: np.ndarray, q: np.ndarray, tau: np.ndarray, q_l: np.ndar
     return raw - Q @ (Q.T @ raw), tau - Q @ (Q.T @ tau), Q
 
 
+def _spread_repeated_stamps(t: np.ndarray) -> np.ndarray:
+    """Time stamps with each run of repeated stamps spread evenly towards the next distinct one.
+
+    Real 200 Hz logs stamp a few consecutive samples alike (the logger, not the robot, repeats a
+    stamp); the samples were taken a period apart, and a velocity or an integral over a zero time
+    step would be infinite.
+    """
+    t = np.asarray(t, dtype=float)
+    same = np.r_[False, np.diff(t) <= 0.0]
+    if not same.any():
+        return t
+    out = t.copy()
+    i, n = 1, len(t)
+    while i < n:
+        if not same[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and same[j]:
+            j += 1
+        # Samples i-1 .. j-1 share a stamp; spread them up to the next distinct one (or one period on).
+        t0 = out[i - 1]
+        t1 = t[j] if j < n else t0 + (j - i + 1) * float(np.median(np.diff(t[~same])))
+        out[i - 1:j] = t0 + (t1 - t0) * np.arange(j - i + 1) / (j - i + 1)
+        i = j
+    return out
+
+
 def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: float, min_speed: float,
                min_travel: float, method: str | None = None) -> list[Pass]:
     """The passes of one dataset with their deflection estimates.
@@ -297,7 +325,7 @@ def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: fl
     method : str, optional
         Force ``"static"`` or ``"dynamic"`` (default: static for quasi_static runs).
     """
-    t, q, tau = dataset["t"], dataset["q_m"], dataset["tau_j"]
+    t, q, tau = _spread_repeated_stamps(dataset["t"]), dataset["q_m"], dataset["tau_j"]
     if method is None:
         method = "static" if dataset.experiment == "quasi_static" else "dynamic"
     if method == "static" and not dataset.has("q_l_ref"):
