@@ -592,13 +592,14 @@ class _LineSpectrum:
         """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
         return _false_alarm(float(self.t2[j]), int(self.count[j]), len(self.k) / 4.0 if tries is None else tries)
 
-    def detection_false_alarm(self) -> float:
+    def detection_false_alarm(self, estimates: int = 1) -> float:
         """False-alarm probability of the search: the strongest line or the strongest family, whichever is
-        the more significant, each corrected for the frequencies searched."""
+        the more significant, each corrected for the frequencies searched, then (Bonferroni) for the two
+        tests and for the ``estimates`` deflection estimates the strongest is chosen from."""
         tries = len(self.k) / 4.0
         p_fam = math.exp(self.family.log_p) if self.family is not None else 1.0
         fam = float(min(1.0, -math.expm1(tries * math.log1p(-min(p_fam, 1 - 1e-16))))) if p_fam > 0 else 0.0
-        return min(self.false_alarm(self.i_best), fam)
+        return min(1.0, 2.0 * estimates * min(self.false_alarm(self.i_best), fam))
 
 
 def _line_search(passes: list[Pass], period_min: float, period_max: float) -> _LineSpectrum:
@@ -1027,7 +1028,7 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
         if not dynamic:
             break  # static passes only: the link is measured, nothing to choose
     for c in candidates:
-        if c.spectrum.detection_false_alarm() <= false_alarm:
+        if c.spectrum.detection_false_alarm(len(candidates)) <= false_alarm:
             c.refine(max_harmonics)
     for c in candidates:
         if c.period is not None and 2.0 * c.period > period_max:
@@ -1036,7 +1037,7 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
                 c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]
     best = min(detected, key=lambda c: c.period_std / c.period) if detected else \
-        min(candidates, key=lambda c: c.spectrum.detection_false_alarm())
+        min(candidates, key=lambda c: c.spectrum.detection_false_alarm(len(candidates)))
     passes, spec = best.passes, best.spectrum
     warnings = list(spec.warnings) + [c.not_decided for c in candidates if c.not_decided and not detected][:1]
     directions = {np.sign(p.speed) for p in passes}
@@ -1049,7 +1050,7 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
         warnings.append(f"weaker lines at multiples of {1 / k_sub:.4g} rad ({2 * math.pi * k_sub:.0f} cycles per "
                         f"revolution, {share:.1%} of the strongest line's power) are significant too: a slower "
                         "periodic effect (once per motor revolution?) below what the table needs")
-    fap = spec.detection_false_alarm()
+    fap = spec.detection_false_alarm(len(candidates))
     stat = float(spec.t2[spec.i_best])
     base = dict(spectrum_k=spec.k, spectrum_stat=spec.t2, spectrum_power=spec.power, passes=passes,
                 warnings=warnings, K=K, Jl=Jl, link_motion=best.name)
