@@ -169,3 +169,23 @@ class TestInfoCmd:
         with h5py.File(small_dataset, "r+") as h5:
             h5["signals"]["tau_j"].attrs["unit"] = "N"
         assert_one_line_error(invoke("info", str(small_dataset)), "signal 'tau_j' has unit 'N' (expected 'Nm')")
+
+
+class TestHelpShowsUnits:
+    def test_every_bracketed_unit_is_shown_as_written(self):
+        # Rich markup took "[s]" for a style tag and dropped it: "Run length ." instead of "Run length [s].".
+        import re
+
+        import typer
+
+        group = typer.main.get_command(app)
+        checked = 0
+        for name, command in group.commands.items():
+            res = CliRunner().invoke(app, [name, "--help"], env={"COLUMNS": "400", "TERMINAL_WIDTH": "400"})
+            assert res.exit_code == 0, res.output
+            for param in command.params:
+                for unit in re.findall(r"\[[^\]\[]+\]", getattr(param, "help", None) or ""):
+                    unit = unit.replace("\\[", "[")
+                    assert unit in res.output, (name, param.name, unit)
+                    checked += 1
+        assert checked >= 30

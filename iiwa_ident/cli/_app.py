@@ -14,7 +14,32 @@ from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["app", "fail", "finite_or_none", "json_text", "write_json"]
 
-app = typer.Typer(
+class _BracketsAsWritten(typer.core.TyperCommand):
+    """A command whose help shows square brackets as written.
+
+    The help is rendered with rich markup, which takes ``[s]`` or ``[rad]`` for a style tag and
+    drops it ("Run length [s]." came out as "Run length ."): the brackets are escaped.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        from rich.markup import escape
+
+        if self.help:
+            self.help = escape(self.help)
+        for param in self.params:
+            if getattr(param, "help", None):
+                param.help = escape(param.help)
+
+
+class _App(typer.Typer):
+    """The typer application, its commands showing units such as ``[s]`` in their help."""
+
+    def command(self, *args, cls=None, **kwargs):
+        return super().command(*args, cls=cls or _BracketsAsWritten, **kwargs)
+
+
+app = _App(
     name="iiwa-ident",
     help="Identify and tune the joint torque control of a KUKA LBR iiwa.",
     no_args_is_help=True,
