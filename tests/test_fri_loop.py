@@ -204,20 +204,21 @@ def _rows(path: Path) -> int:
 
 
 class TestRunCommand:
-    def test_sigint_ramps_out_and_closes_the_log(self, config_file, tmp_path):
+    @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+    def test_a_signal_ramps_out_and_closes_the_log(self, config_file, tmp_path, sig):
         port = free_port()
         log = tmp_path / "run.h5"
         with _emulator(port, duration_s=20.0) as emu:
             proc = _start_run(config_file, port, log, 15, "--task", "sine", "--amplitude", "3")
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(getattr(signal, sig))
             out = proc.communicate(timeout=120)[0]
             emu.stop()
             emu.join(60.0)
         assert proc.returncode == 0, out
-        assert "ended: SIGINT" in out
+        assert f"ended: {sig}" in out
         ds = read_dataset(log)
         assert "incomplete" not in ds.experiment_attrs
-        assert ds.experiment_attrs["stop_reason"] == "SIGINT"
+        assert ds.experiment_attrs["stop_reason"] == sig
         assert len(ds["t"]) >= 20  # the 20 ms ramp
         assert abs(ds["tau_c"][-1]) < 1e-9  # ramped out before the session ended
 
