@@ -348,3 +348,17 @@ class TestParseHostPort:
     def test_port_required(self):
         with pytest.raises(IiwaIdentError, match="--client '30200': expected HOST:PORT"):
             parse_host_port("30200", None, "--client")
+
+
+def test_report_says_when_no_log_file_was_kept(tmp_path):
+    # A robot that vanished after one cycle: the writer keeps no file of one row, and the summary said
+    # "log: 1 rows in run.h5" for a file that was not there.
+    from iiwa_ident.cli.run_cmd import format_report
+    from iiwa_ident.fri.runtime import RunReport
+
+    gone = RunReport(cycles=0, duration_s=0.0, stop_reason="FRI: no message from the robot for 500 ms", logged=1,
+                     log=str(tmp_path / "run.h5"))
+    assert "too few for a dataset: no file written" in format_report(gone)
+    (tmp_path / "kept.h5").write_bytes(b"")
+    kept = dataclasses.replace(gone, logged=200, log=str(tmp_path / "kept.h5"))
+    assert "log: 200 rows in" in format_report(kept)

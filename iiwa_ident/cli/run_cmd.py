@@ -31,8 +31,12 @@ def format_report(report: RunReport) -> str:
         lines.append(f"watchdog at {t:.3f} s: {text}")
     if report.connection:
         lines.append("datagrams: " + ", ".join(f"{k} {v}" for k, v in report.connection.items()))
-    lines.append(f"log: {report.logged} rows in {report.log}" +
-                 (f", {report.lost_log_rows} rows LOST" if report.lost_log_rows else ""))
+    if report.log and not Path(report.log).exists():
+        # The log writer keeps no file that no dataset reader would accept (fewer than two rows).
+        lines.append(f"log: {report.logged} row(s), too few for a dataset: no file written at {report.log}")
+    else:
+        lines.append(f"log: {report.logged} rows in {report.log}" +
+                     (f", {report.lost_log_rows} rows LOST" if report.lost_log_rows else ""))
     return "\n".join(lines)
 
 
