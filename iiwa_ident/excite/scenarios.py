@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
+from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite._runner import record
@@ -339,8 +340,6 @@ def simulate_ripple_scenario(sc: RippleScenario) -> list[Dataset]:
 
 def _ar1(e: np.ndarray, pole: float) -> np.ndarray:
     """x[n] = pole x[n-1] + e[n] (stationary start)."""
-    from scipy.signal import lfilter
-
     x0 = e[0] / math.sqrt(1 - pole ** 2)
     y, _ = lfilter([1.0], [1.0, -pole], e[1:], zi=[pole * x0])
     return np.r_[x0, y]

@@ -763,24 +763,18 @@ def _family(spec: "_LineSpectrum") -> "_Family":
                 k0, weak_sub = recentre(kk), None
                 break
             weak_sub = (kk, power / strongest(k0))
-    j0 = int(np.clip(round((k0 - k_lo) / dk), 0, n_k - 1))
-    # The highest harmonic that is itself a significant line (p < 1e-3 after its window), and the
-    # family's most significant line (where the period is best located).
-    h_top, h_strong, i_strong = 1, 1, j0
-    for h, half, j in peaks(k0, 8):
-        if log_p[j] < math.log(1e-3 / max(1.0, (2 * half + 1) / 4.0)):
-            h_top = h
+    # The family's most significant line among its first 8 harmonics: where the period is best located.
+    h_strong, i_strong = 1, int(np.clip(round((k0 - k_lo) / dk), 0, n_k - 1))
+    for h, _, j in peaks(k0, 8):
         if h == 1 or log_p[j] < log_p[i_strong]:
             h_strong, i_strong = h, j
-    return _Family(j0, h_top, h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
+    return _Family(h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
 
 
 @dataclass
 class _Family:
     """A harmonic family found by :func:`_family` (indices into the spectrum's grid)."""
 
-    j0: int
-    h_top: int
     h_strong: int
     i_strong: int
     log_p: float
@@ -812,9 +806,9 @@ class _Candidate:
         k, dk = spec.k, spec.dk
         fam = spec.family
         k_star, half = fam.bracket(k, dk)
-        # ``harmonics`` at least, and every harmonic seen: an unmodelled harmonic above a pass's Nyquist
-        # limit leaves its mirror image next to a modelled one and pulls the period.
-        harmonics = max(harmonics, fam.h_top, fam.h_strong)
+        # At least up to the strongest line: an unmodelled harmonic above a pass's Nyquist limit leaves
+        # its mirror image next to a modelled one and pulls the period.
+        harmonics = max(harmonics, fam.h_strong)
         # The period that best explains the deflection with a Fourier series (tapered, nuisance
         # projected, one set of coefficients per group of passes so that what is left of the
         # speed-dependent link dynamics cannot bias it), each pass weighted by its noise level.
@@ -929,7 +923,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     runs = []
     for i, ds in enumerate(datasets):
         name = str(ds.path) if ds.path else f"run {i + 1}"
-        speed = float(np.median(np.abs(np.diff(ds["q_m"]) / np.maximum(np.diff(ds["t"]), 1e-9))))
+        speed = float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(_spread_repeated_stamps(ds["t"])))))
         try:
             r = _identify_pooled([ds], **options)
         except IiwaIdentError as err:
