@@ -470,6 +470,8 @@ def test_each_fault_is_injected_and_counted(kind, faults):
     (lambda: check_config(EmulatorConfig(timeout_s=0.0)), "timeout_s"),
     (lambda: check_config(EmulatorConfig(client=("127.0.0.1", 0))), "client"),
     (lambda: QualityThresholds(good_loss=2.0), "quality.good_loss"),
+    (lambda: check_config(EmulatorConfig(stalls=((1.0, 0.0),))), "a stall's length"),
+    (lambda: check_config(EmulatorConfig(stalls=((1.0,),))), "stalls must be .start, length. pairs"),
 ])
 def test_bad_settings_are_refused(make, message):
     with pytest.raises(IiwaIdentError, match=message):
@@ -523,6 +525,8 @@ def test_cli_help_has_examples():
     (("--agent", "dog"), "--agent 'dog'"),
     (("--duration", "0"), "--duration 0"),
     (("--plant", "missing.toml"), "missing.toml: no such file"),
+    (("--stall", "2.0"), "--stall '2.0': expected START:LENGTH"),
+    (("--stall", "2.0:-5"), "--stall '2.0:-5': expected START:LENGTH"),
 ])
 def test_cli_bad_options_are_one_line_errors(args, message):
     res = invoke("emulate", *args)
@@ -555,3 +559,19 @@ def test_cli_lockstep_serves_a_client_exactly():
     assert "session drops: 0" in res.output and "late" in res.output
     assert client.states() == FULL_SEQUENCE[1:]
     assert [m.connection_info.session_state for m in client.messages].count(S.COMMANDING_ACTIVE) == 200
+
+
+def test_cli_stall_sends_nothing_and_keeps_the_time():
+    # 30 ms from 50 ms of commanding: 30 fewer messages, the counter does not jump, the time stamps do.
+    with Client(torque_policy(2.0)) as client:
+        res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep",
+                     "--duration", "0.2", "--stall", "0.05:30")
+        client.settle()
+    assert res.exit_code == 0, res.output
+    assert "robot-side stalls: 30 cycles without a message" in res.output and "session drops: 0" in res.output
+    active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]
+    assert len(active) == 170
+    seq = np.array([m.header.sequence_counter for m in active])
+    stamp = np.array([m.monitor_data.timestamp[0] * 10**9 + m.monitor_data.timestamp[1] for m in active])
+    assert np.all(np.diff(seq) == 1)
+    np.testing.assert_array_equal(np.diff(stamp), np.where(np.arange(169) == 49, 31_000_000, 1_000_000))

@@ -161,6 +161,33 @@ class TestRunAgainstTheEmulator:
         # The session survives 5 % loss: a lost answer costs one held cycle, only silence ends it.
         assert rep.stop_reason == "duration", rep.stop_reason
 
+    def test_a_30_ms_robot_stall_is_ridden_out(self, config, tmp_path):
+        # The robot's own cycle slips for 30 ms at 1 s of commanding: no message, no answer awaited, the
+        # sequence counter does not jump (only the time stamps show the silence).
+        port = free_port()
+        with _emulator(port, duration_s=2.5, seed=0, stalls=((1.0, 0.03),)) as emu:
+            rep = run_controller(config, _client(port), make_task("sine", 5.0, 2.0), 2.0, tmp_path / "run.h5")
+            emu.stop()
+            emu_report = emu.join(60.0)
+        assert emu_report.stalled_cycles == 30
+        assert emu_report.session_drops == [] and emu_report.missed_commanding == 0
+        assert rep.stop_reason == "duration"
+        # Every message that arrived was answered (but the one that came after the final ramp-out).
+        assert rep.connection["received"] - rep.connection["sent"] == 1 and rep.connection["lost"] == 0
+        (t_trip, trip), (t_back, back) = rep.watchdog_events
+        assert trip == "tripped: 31 cycles since the previous robot message" and back.startswith("recovered")
+        assert t_trip == pytest.approx(1.030, abs=1e-9) and t_back == pytest.approx(t_trip + 0.1, abs=1e-9)
+        log = read_dataset(tmp_path / "run.h5")
+        t, w, tau_c = log["t"], log["watchdog"], log["tau_c"]
+        gap = np.flatnonzero(np.diff(t) > 1.5e-3)
+        assert len(gap) == 1 and np.diff(t)[gap[0]] == pytest.approx(0.031, abs=1e-9)
+        k = gap[0] + 1  # the first message after the stall
+        # The additive torque ramps to zero over 20 ms, stays there, and ramps back in after recovery.
+        assert w[k - 1] == 1.0 and w[k] == pytest.approx(0.95)
+        assert np.all(w[k + 20:k + 100] == 0.0) and np.all(tau_c[k + 20:k + 100] == 0.0)
+        assert np.all(np.abs(np.diff(tau_c[k - 1:k + 21])) <= config.limits.torque_rate_nm_s * 1e-3 + 1e-9)
+        assert np.all(w[k + 120:] == 1.0) and np.abs(tau_c[k + 120:]).max() > 1.0
+
     def test_refuses_a_robot_in_the_wrong_command_mode(self, config, tmp_path):
         port = free_port()
         with _emulator(port, duration_s=1.0, client_command_mode=ClientCommandMode.POSITION) as emu:

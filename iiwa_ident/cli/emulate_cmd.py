@@ -54,6 +54,8 @@ def format_summary(report: EmulatorReport) -> str:
     if r.lockstep:
         lines.append(f"lockstep (times are virtual): messages resent to a silent client {r.resent}, client taken "
                      f"for gone {r.client_gone} times, commanding messages left unsent after that {r.unsent}")
+    if r.stalled_cycles:
+        lines.append(f"robot-side stalls: {r.stalled_cycles} cycles without a message")
     lines.append(f"commanding active: {r.commanding_s:.3f} s; wall time {r.wall_s:.3f} s; ended: {r.end_reason}")
     return "\n".join(lines)
 
@@ -70,7 +72,7 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 
 
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
-            record, max_time, hand_speed, lockstep=False) -> EmulatorConfig:
+            record, max_time, hand_speed, lockstep=False, stalls=()) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
     if mode not in ("torque", "position"):
         raise IiwaIdentError(f"--mode {mode!r}: must be 'torque' or 'position'")
@@ -101,7 +103,21 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         record=record,
         max_wall_s=max_time,
         lockstep=lockstep,
+        stalls=tuple(_stall(text) for text in stalls),
     )
+
+
+def _stall(text: str) -> tuple[float, float]:
+    """``"START:LENGTH"`` of ``--stall`` (seconds of commanding, milliseconds) -> (start, length) [s]."""
+    start, sep, length = text.partition(":")
+    try:
+        a, b = float(start), float(length) * 1e-3
+    except ValueError:
+        a = b = float("nan")
+    if not sep or not (math.isfinite(a) and a >= 0 and math.isfinite(b) and b > 0):
+        raise IiwaIdentError(f"--stall {text!r}: expected START:LENGTH, seconds of commanding >= 0 and a positive "
+                             "number of milliseconds (e.g. 2.0:30)")
+    return a, b
 
 
 @app.command("emulate")
@@ -137,6 +153,9 @@ def emulate_cmd(
     lockstep: Annotated[bool, typer.Option("--lockstep", help="Wait for each answer, on a virtual clock: "
                                            "repeatable runs whatever the machine's load (no latency is "
                                            "measured).")] = False,
+    stall: Annotated[Optional[list[str]], typer.Option("--stall", help="START:LENGTH: a robot-side stall "
+                                                       "after START seconds of commanding, LENGTH ms without "
+                                                       "a message (repeatable).")] = None,
 ) -> None:
     """Emulate the robot controller's side of FRI at 1 kHz over UDP, with the simulated joint behind it.
 
@@ -146,7 +165,8 @@ def emulate_cmd(
     a malformed or inconsistent command, as the robot does. Prints the state transitions and a
     summary; Ctrl-C (SIGINT) or SIGTERM closes the session and still writes --record and --json.
     With --lockstep the robot side waits for each answer before its next cycle (times in the
-    output are then virtual): for testing a client, not for measuring it.
+    output are then virtual): for testing a client, not for measuring it. --stall makes the robot's
+    own cycle slip: no message and no answer awaited for that long, the time stamps keep the time.
 
     Examples:
       iiwa-ident emulate --client 127.0.0.1:30200 --duration 10
@@ -154,10 +174,11 @@ def emulate_cmd(
       iiwa-ident emulate --mode position --agent hand --record robot.h5 --json report.json
       iiwa-ident emulate --plant my_plant.toml --bind 127.0.0.1:30201
       iiwa-ident emulate --lockstep --duration 5 --record robot.h5
+      iiwa-ident emulate --duration 10 --stall 2.0:30 --stall 6.5:200
     """
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
-                         agent, record, max_time, hand_speed, lockstep)
+                         agent, record, max_time, hand_speed, lockstep, stall or ())
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
         raise fail(str(err))

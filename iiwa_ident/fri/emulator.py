@@ -385,6 +385,14 @@ class EmulatorConfig:
     lockstep_guard_s : float
         Lockstep: wall time after which a client that has not answered is
         taken for gone [s].
+    stalls : tuple of (float, float)
+        Robot-side stalls ``(start, length)`` [s], the start counted in time
+        of ``COMMANDING_ACTIVE``: for ``length`` the robot sends no
+        monitoring message and awaits no answer, as when the controller
+        cabinet's own cycle slips. The joint moves on under the last command,
+        the messages' time stamps keep the time, and the sequence counter
+        does not jump (it counts messages sent), so a client sees the
+        silence only in the time stamps (or on its own clock).
     """
 
     client: tuple[str, int] = ("127.0.0.1", 30200)
@@ -417,6 +425,7 @@ class EmulatorConfig:
     lockstep: bool = False
     lockstep_latency_s: float = 0.2e-3
     lockstep_guard_s: float = 1.0
+    stalls: tuple[tuple[float, float], ...] = ()
 
 
 def _finite(name: str, value: Any, low: float = 0.0, allow_none: bool = False, strict: bool = False) -> None:
@@ -456,6 +465,13 @@ def check_config(config: EmulatorConfig) -> None:
     if config.lockstep_latency_s >= config.send_period_ms * 1e-3:
         raise IiwaIdentError(f"lockstep_latency_s must be below the send period, got {config.lockstep_latency_s!r}")
     _finite("max_position_error_rad", config.max_position_error_rad, strict=True)
+    try:
+        stalls = [(float(a), float(b)) for a, b in config.stalls]
+    except (TypeError, ValueError):
+        raise IiwaIdentError(f"stalls must be (start, length) pairs of seconds, got {config.stalls!r}") from None
+    for start, length in stalls:
+        _finite("a stall's start", start)
+        _finite("a stall's length", length, strict=True)
     for name in ("hand_peak_speed_rad_s", "hand_range_rad"):
         _finite(name, getattr(config, name), strict=True)
     for name in ("hand_stiffness_nm_rad", "hand_damping_nms_rad"):
@@ -628,6 +644,9 @@ class EmulatorReport:
     unsent : int
         Lockstep: commanding messages not sent while the session of a client
         taken for gone ran out its timeout.
+    stalled_cycles : int
+        Cycles of an injected robot-side stall (:attr:`EmulatorConfig.stalls`),
+        in which no message was sent.
     faults : dict of str to int
         Injected faults, named as the :class:`Faults` fields: ``loss``,
         ``jitter`` (datagrams delayed), ``duplicate``, ``reorder``,
@@ -672,6 +691,7 @@ class EmulatorReport:
     resent_answers: int = 0
     client_gone: int = 0
     unsent: int = 0
+    stalled_cycles: int = 0
     faults: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_FAULT_KINDS, 0))
     commanding_s: float = 0.0
     wall_s: float = 0.0
@@ -1050,6 +1070,8 @@ class RobotEmulator:
         self._due = False  # an answer is due this cycle
         self._silent = 0  # consecutive cycles without a new answer while one was due
         self._timeout_cycles = max(1, int(round(cfg.timeout_s / T)))
+        # Stalls as [first, end) counts of COMMANDING_ACTIVE cycles.
+        self._stalls = [(int(round(a / T)), int(round(a / T)) + max(1, int(round(b / T)))) for a, b in cfg.stalls]
         self._state = SessionState.IDLE
         self._state_k = 0
         self._good_cycles = 0
@@ -1158,13 +1180,20 @@ class RobotEmulator:
             self._meas = meas = self._robot.step(command)
             self._sim_k += 1
         self._positions = self._measured_positions(meas)
+        stalled = False
         if state == SessionState.COMMANDING_ACTIVE:
+            n = self._active_cycles
+            stalled = any(a <= n < b for a, b in self._stalls)
             self._active_cycles += 1
         if self._ending and state == SessionState.IDLE:
             if (k - self._state_k) * self._period >= self.config.idle_s:
                 self._finished = True
                 return
         elif state == SessionState.IDLE:
+            self._due = False
+            return
+        if stalled:
+            rep.stalled_cycles += 1
             self._due = False
             return
         self._send_monitoring(meas, state)

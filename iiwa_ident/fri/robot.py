@@ -86,7 +86,8 @@ class FriRobot(RobotInterface):
         self.connection: FriConnection | None = FriConnection(host, self.port, bind_host, _N_JOINTS)
         self.stats = self.connection.stats  # the connection's counters, kept after it is closed
         self._msg: MonitoringMessage | None = None
-        self._seq0 = 0
+        self._cycles = 0  # robot cycles since COMMANDING_ACTIVE began
+        self._prev_stamp_ns: int | None = None
 
     # ------------------------------------------------------------------ helpers
     def describe(self) -> dict:
@@ -136,12 +137,35 @@ class FriRobot(RobotInterface):
             raise SafetyStop(f"FRI: the robot's message lacks {name} for {_N_JOINTS} joints")
         return values
 
+    @staticmethod
+    def _stamp_ns(msg: MonitoringMessage) -> int | None:
+        stamp = msg.monitor_data.timestamp if msg.monitor_data is not None else None
+        return None if stamp is None else stamp[0] * 1_000_000_000 + stamp[1]
+
+    def _missed(self, msg: MonitoringMessage, answered: int) -> int:
+        """Robot cycles between the answered message and ``msg`` that brought no message to this client.
+
+        The larger of the gap in the sequence counter (messages lost, or skipped because the client was
+        late) and the gap in the time stamps (the robot's cycle slipped: it counts messages sent, so its
+        counter does not jump). A time-stamp gap longer than the silence limit is the robot's clock being
+        set, not a stall, and is ignored.
+        """
+        missed = (msg.header.sequence_counter - answered - 1) % (1 << 32)
+        stamp, prev = self._stamp_ns(msg), self._prev_stamp_ns
+        self._prev_stamp_ns = stamp
+        if stamp is not None and prev is not None:
+            # Rounded to whole cycles: the time stamps carry the sender's jitter.
+            cycles = round((stamp - prev) / (self.sample_time_s * 1e9)) - 1
+            if missed < cycles <= self.message_timeout_s / self.sample_time_s:
+                missed = cycles
+        return missed
+
     def _measurement(self, msg: MonitoringMessage) -> Measurement:
         j = self.joint - 1
-        # Time counts the robot's cycles (its sequence counter), not its timestamp: the controller runs
-        # one cycle per send period, so the log is on a uniform grid, with a lost message a gap of whole
-        # cycles, which is what identification needs; the timestamp carries the sender's jitter.
-        t = ((msg.header.sequence_counter - self._seq0) % (1 << 32)) * self.sample_time_s
+        # Time counts the robot's cycles, not its time stamps: the controller runs one cycle per send
+        # period, so the log is on a uniform grid, with a lost message or a stall a gap of whole cycles,
+        # which is what identification needs; the time stamps carry the sender's jitter.
+        t = self._cycles * self.sample_time_s
         ext = msg.monitor_data.external_torque
         return Measurement(t=t, q_m=self._values(msg, "measured_joint_position")[j],
                            tau_j=self._values(msg, "measured_torque")[j],
@@ -184,7 +208,8 @@ class FriRobot(RobotInterface):
             if self._state(msg) == SessionState.COMMANDING_ACTIVE:
                 self._check_settings(msg)
                 self._msg = msg
-                self._seq0 = msg.header.sequence_counter
+                self._cycles = 0
+                self._prev_stamp_ns = self._stamp_ns(msg)
                 self.missed_cycles = 0
                 return self._measurement(msg)
             if self._state(msg) == SessionState.COMMANDING_WAIT:
@@ -211,8 +236,8 @@ class FriRobot(RobotInterface):
         if msg is None:
             self._msg = None
             raise SafetyStop(f"FRI: no message from the robot for {self.message_timeout_s * 1e3:g} ms")
-        # Robot cycles between the answered message and this one: lost, or skipped because we were late.
-        self.missed_cycles = (msg.header.sequence_counter - answered - 1) % (1 << 32)
+        self.missed_cycles = self._missed(msg, answered)
+        self._cycles += 1 + self.missed_cycles
         state = self._state(msg)
         if state != SessionState.COMMANDING_ACTIVE:
             self._msg = None

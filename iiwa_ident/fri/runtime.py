@@ -101,7 +101,7 @@ class Watchdog:
             self._good = 0
             if not self.tripped:
                 self.tripped = True
-                self.events.append((t, f"tripped: {gap_cycles:.0f} cycles without a robot message"))
+                self.events.append((t, f"tripped: {gap_cycles:.0f} cycles since the previous robot message"))
         elif self.tripped:
             self._good += 1
             if self._good >= self.recover_cycles:
