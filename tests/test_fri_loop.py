@@ -27,6 +27,7 @@ from iiwa_ident.design.design_file import make_record
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.fri.emulator import EmulatorConfig, Faults, spawn_emulator
+from iiwa_ident.fri.logwriter import SHM_PREFIX
 from iiwa_ident.fri.protocol import ClientCommandMode, SessionState, decode_monitoring
 from iiwa_ident.fri.robot import FriRobot
 from iiwa_ident.fri.runtime import run_controller
@@ -197,10 +198,11 @@ class TestRunAgainstTheEmulator:
             emu.join(60.0)
 
 
-def _start_run(config_file, port, log, duration, *extra):
+def _start_run(config_file, port, log, duration, *extra, silence="30"):
     """``iiwa-ident run`` against the emulator; returns once it prints that it is commanding."""
     proc = subprocess.Popen(CLI + ["run", "--config", str(config_file), "--robot", "127.0.0.1", "--port", str(port),
-                                   "--duration", str(duration), "--log", str(log), "--silence-limit", "30", *extra],
+                                   "--duration", str(duration), "--log", str(log), "--silence-limit", silence,
+                                   *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines = []
     for line in proc.stdout:  # blocks until the command prints, or ends
@@ -220,6 +222,12 @@ def _state_after_commanding(port: int, timeout_s: float = 60.0) -> SessionState:
             state = decode_monitoring(s.recvfrom(4096)[0]).connection_info.session_state
             if state != SessionState.COMMANDING_ACTIVE:
                 return state
+
+
+def _left_behind(pid: int, folder: Path) -> list[str]:
+    """Shared-memory segments of process ``pid`` and temporary files in ``folder``."""
+    shm = [f for f in os.listdir("/dev/shm") if f.startswith(f"{SHM_PREFIX}{pid}-")] if os.path.isdir("/dev/shm") else []
+    return shm + [f.name for f in folder.iterdir() if f.name.endswith(".tmp")]
 
 
 def _rows(path: Path) -> int:
@@ -248,6 +256,36 @@ class TestRunCommand:
         assert ds.experiment_attrs["stop_reason"] == sig
         assert len(ds["t"]) >= 20  # the 20 ms ramp
         assert abs(ds["tau_c"][-1]) < 1e-9  # ramped out before the session ended
+        assert _left_behind(proc.pid, tmp_path) == []
+
+    def test_a_vanishing_robot_ends_the_run_cleanly(self, config_file, tmp_path):
+        port = free_port()
+        log = tmp_path / "run.h5"
+        with _emulator(port, duration_s=20.0) as emu:
+            proc = _start_run(config_file, port, log, 15, "--task", "sine", "--amplitude", "3", silence="0.3")
+            wait_for(lambda: _rows(log) >= 100, what="100 rows flushed to the live log")
+            assert len(_left_behind(proc.pid, tmp_path)) == 1  # the log's ring buffer, while the run lasts
+            emu.kill()  # the robot is gone: not one more message
+            out = proc.communicate(timeout=120)[0]
+        assert proc.returncode == 0, out
+        assert "ended: FRI: no message from the robot for 300 ms" in out and "Traceback" not in out
+        ds = read_dataset(log)
+        assert "incomplete" not in ds.experiment_attrs and "interrupted" not in ds.experiment_attrs
+        assert ds.experiment_attrs["stop_reason"] == "FRI: no message from the robot for 300 ms"
+        assert len(ds["t"]) >= 100 and np.all(np.diff(ds["t"]) > 0)
+        assert _left_behind(proc.pid, tmp_path) == []
+
+    def test_a_robot_that_never_connects_leaves_nothing(self, config_file, tmp_path):
+        log = tmp_path / "run.h5"
+        proc = subprocess.Popen(CLI + ["run", "--config", str(config_file), "--robot", "127.0.0.1", "--port",
+                                       str(free_port()), "--connect-timeout", "0.2", "--log", str(log)],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 2, out + err
+        assert "no session reached COMMANDING_ACTIVE within 0.2 s" in err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+        assert not log.exists()
+        assert _left_behind(proc.pid, tmp_path) == []
 
     def test_kill_9_leaves_a_readable_log(self, config_file, tmp_path):
         port = free_port()
@@ -271,6 +309,7 @@ class TestRunCommand:
             return None if ds.experiment_attrs.get("incomplete") else ds
 
         ds = wait_for(finished, what="the log writer finishing the file")
+        wait_for(lambda: not _left_behind(proc.pid, tmp_path), what="the writer unlinking the ring buffer")
         assert ds.experiment_attrs["interrupted"] is True
         assert len(ds["t"]) >= flushed
         assert np.all(np.diff(ds["t"]) > 0)

@@ -1677,6 +1677,14 @@ class EmulatorProcess:
             self._process.join(5.0)
         return self._report
 
+    def kill(self) -> None:
+        """End the emulator process at once (SIGKILL), as a robot that vanishes: nothing more is sent.
+
+        No report follows; :meth:`join` then raises.
+        """
+        self._process.kill()
+        self._process.join(5.0)
+
     @property
     def alive(self) -> bool:
         """Whether the emulator process is still running."""

@@ -7,7 +7,8 @@ h5py holds while it writes (a writer thread would share that GIL).
 
 Ring buffer
 -----------
-One :class:`multiprocessing.shared_memory.SharedMemory` block holds a
+One :class:`multiprocessing.shared_memory.SharedMemory` block (named
+``iiwa-ident-log-<pid>-<random>``, unlinked on every way out) holds a
 header of int64 slots (``head`` = rows appended, ``tail`` = rows taken by
 the writer, ``lost`` = rows refused because the ring was full, writer
 state) and ``capacity_rows`` x ``n_signals`` float64 rows. There is one
@@ -80,7 +81,7 @@ from iiwa_ident.datasets import _format
 from iiwa_ident.datasets._format import SIGNAL_UNITS, Dataset, write_dataset
 from iiwa_ident.errors import DatasetError, IiwaIdentError
 
-__all__ = ["LogStats", "LogWriter"]
+__all__ = ["SHM_PREFIX", "LogStats", "LogWriter"]
 
 # Header slots (int64); head and tail sit on separate 64-byte cache lines
 # so the two processes do not invalidate each other's line on every store.
@@ -90,6 +91,8 @@ _LOST = 16
 _STATE = 17
 _HEADER_SLOTS = 32
 _ROWS_OFFSET = _HEADER_SLOTS * 8  # bytes
+#: Name prefix of the ring buffers in /dev/shm, followed by the loop's pid.
+SHM_PREFIX = "iiwa-ident-log-"
 
 # Writer states in the header, for diagnostics.
 _STARTING, _RUNNING, _FINISHED, _FAILED = 0, 1, 2, 3
@@ -351,13 +354,23 @@ class LogWriter:
     def _start_writer(self) -> None:
         """Create the ring and the writer process; wait until it has the file open."""
         nbytes = _ROWS_OFFSET + self._capacity * self._n * 8
-        try:
-            shm = SharedMemory(create=True, size=nbytes)
-        except OSError as err:
-            raise IiwaIdentError(
-                f"{self._path}: cannot create a {nbytes / 1e6:.1f} MB shared-memory ring buffer "
-                f"({err.strerror or err})"
-            ) from err
+        shm = None
+        for _ in range(3):  # a name taken (a pid reused since a crash): another random part
+            # Named after the process, so that a segment left by a crash (SIGKILL of both processes) can be
+            # told apart in /dev/shm: iiwa-ident-log-<pid of the loop>-<random>.
+            name = f"{SHM_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
+            try:
+                shm = SharedMemory(create=True, size=nbytes, name=name)
+                break
+            except FileExistsError:
+                continue
+            except OSError as err:
+                raise IiwaIdentError(
+                    f"{self._path}: cannot create a {nbytes / 1e6:.1f} MB shared-memory ring buffer "
+                    f"({err.strerror or err})"
+                ) from err
+        if shm is None:
+            raise IiwaIdentError(f"{self._path}: no free name for the shared-memory ring buffer")
         self._shm = shm
         self._hdr = shm.buf[:_ROWS_OFFSET].cast("q")
         rows = np.ndarray((self._capacity, self._n), dtype=np.float64, buffer=shm.buf, offset=_ROWS_OFFSET)
