@@ -211,6 +211,28 @@ class TestControllerRuntime:
             rt.cycle(_meas(t=0.105 + k * DT))
         assert rt.tau_c == 0.0 and rt.watchdog.scale == 0.0
 
+    def test_a_cycle_builds_no_array(self, ripple_config):
+        # Every piece of the cycle is plain float arithmetic: at most a few small objects live at once
+        # (CPython's iterators and floats), where one NumPy array alone takes over 100 bytes.
+        import tracemalloc
+
+        rt = ControllerRuntime(ripple_config, make_task("sine", 5.0, 2.0))
+        meas = [_meas(k * DT, 0.3 * math.sin(k * DT), 2.0 * math.sin(3 * k * DT)) for k in range(400)]
+        for m in meas[:200]:
+            rt.cycle(m)
+        peaks = []
+        tracemalloc.start()
+        try:
+            for m in meas[200:]:
+                base = tracemalloc.get_traced_memory()[0]
+                tracemalloc.reset_peak()
+                rt.cycle(m)
+                peaks.append(tracemalloc.get_traced_memory()[1] - base)
+            net = tracemalloc.get_traced_memory()[0] - base
+        finally:
+            tracemalloc.stop()
+        assert max(peaks) <= 256 and net <= 64, (max(peaks), net)
+
     def test_tracks_25_hz_on_the_simulated_joint(self, ripple_config):
         # Section V.C: 15 Nm at 25 Hz; targets < 10 Nm raw and < 5 Nm filtered (errors against the
         # reference delayed by Td = 5 ms, which no client-side controller can remove).
@@ -348,6 +370,45 @@ class TestParseHostPort:
     def test_port_required(self):
         with pytest.raises(IiwaIdentError, match="--client '30200': expected HOST:PORT"):
             parse_host_port("30200", None, "--client")
+
+
+class TestRealtimeProcess:
+    def test_sets_and_undoes(self):
+        from iiwa_ident._realtime import realtime_process
+
+        import os
+        affinity, policy = os.sched_getaffinity(0), os.sched_getscheduler(0)
+        lines = []
+        with realtime_process(say=lines.append) as line:
+            assert os.sched_getaffinity(0) == {max(affinity)}
+            assert line.startswith(f"real time: pinned to CPU {max(affinity)}")
+            if "SCHED_FIFO priority 80" in line:
+                assert os.sched_getscheduler(0) == os.SCHED_FIFO
+        assert lines == [line] and "\n" not in line
+        assert os.sched_getaffinity(0) == affinity and os.sched_getscheduler(0) == policy
+
+    def test_not_permitted_says_how_to_grant(self, monkeypatch):
+        import os
+
+        from iiwa_ident import _realtime
+
+        def refuse(*args):
+            raise PermissionError(1, "Operation not permitted")
+
+        monkeypatch.setattr(os, "sched_setscheduler", refuse)
+        monkeypatch.setattr(_realtime, "_mlockall", lambda: "mlockall not permitted")
+        with _realtime.realtime_process(cpu=-1) as line:
+            pass
+        assert line == ("real time: nothing set; SCHED_FIFO not permitted, mlockall not permitted; "
+                        + _realtime.GRANT_HINT)
+        assert "limits.conf" in line
+
+    def test_bad_cpu_is_a_user_error(self):
+        from iiwa_ident._realtime import realtime_process
+
+        with pytest.raises(IiwaIdentError, match="CPU 4096 is not one this process may run on"):
+            with realtime_process(cpu=4096):
+                pass
 
 
 def test_report_says_when_no_log_file_was_kept(tmp_path):

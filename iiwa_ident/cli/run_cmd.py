@@ -68,6 +68,11 @@ def run_cmd(
     silence: Annotated[float, typer.Option("--silence-limit", help="End the run when the robot has sent nothing for "
                                            "this long [s]; shorter gaps trip the watchdog and the run goes "
                                            "on.")] = 1.0,
+    realtime: Annotated[bool, typer.Option("--realtime/--no-realtime", help="--target robot: pin the loop to "
+                                           "one CPU, SCHED_FIFO and locked memory where permitted (one line "
+                                           "says what was set).")] = True,
+    cpu: Annotated[Optional[int], typer.Option("--cpu", help="--realtime: CPU to pin the loop to (default: the "
+                                               "highest one allowed).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="--target sim: seed of the sensor noise.")] = 0,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the run report as JSON.")] = None,
 ) -> None:
@@ -76,7 +81,9 @@ def run_cmd(
 
     The robot side must run its FRI application with JOINT_IMPEDANCE control mode (zero stiffness),
     client command mode TORQUE and a 1 ms send period; the runtime refuses any other setting.
-    Ctrl-C (SIGINT) or SIGTERM ramps the additive torque out and closes the log.
+    Ctrl-C (SIGINT) or SIGTERM ramps the additive torque out and closes the log. Over FRI the loop
+    runs pinned to one CPU, under SCHED_FIFO and with its memory locked where the user has the rights
+    (--no-realtime: none of that); one line says what was set and, if not permitted, how to grant it.
 
     Examples:
       iiwa-ident run --config controller.toml --robot 192.170.10.2 --task zero --duration 30 --log run.h5
@@ -111,7 +118,7 @@ def run_cmd(
         else:
             raise IiwaIdentError(f"--target {target}: expected 'robot' or 'sim'")
         report = run_controller(cfg, the_robot, the_task, duration, log, watchdog=watchdog,
-                                progress=typer.echo)
+                                progress=typer.echo, realtime=realtime and target == "robot", cpu=cpu)
         typer.echo(format_report(report))
         if json_out is not None:
             write_json(json_out, report.as_dict())

@@ -715,9 +715,14 @@ class AdditiveController:
     """The discrete additive controller, one call per 1 kHz cycle.
 
     ``tau_c = step(tau_r, tau_j_filt)`` runs eqs (16)-(18) of the design's
-    feed-forward mode (module docstring) on plain floats and 4-element arrays.
-    Feed the spatially filtered joint torque of eq (15) as ``tau_j_filt`` and
-    send the returned ``tau_c`` in the same cycle.
+    feed-forward mode (module docstring). Feed the spatially filtered joint
+    torque of eq (15) as ``tau_j_filt`` and send the returned ``tau_c`` in
+    the same cycle.
+
+    The cycle is plain float arithmetic on lists allocated once (the 4-state
+    model of eqs (19)-(21) written out, the pre-filter as short loops): no
+    array is built per call, which in NumPy costs about 1 µs per operation
+    and made this 8 µs of a 13 µs runtime cycle.
 
     Parameters
     ----------
@@ -727,41 +732,76 @@ class AdditiveController:
 
     def __init__(self, design: AdditiveDesign) -> None:
         self.design = design
-        self._Ad = np.array(design.Ad, float)
-        self._Bd = np.array(design.Bd, float)
-        self._Kd = np.array(design.Kd, float)
-        self._Ld = np.array(design.Ld, float)
+        Ad, Bd = np.array(design.Ad, float), np.array(design.Bd, float).ravel()
+        Kd, Ld = np.array(design.Kd, float).ravel(), np.array(design.Ld, float).ravel()
+        if Ad.shape != (4, 4) or any(v.shape != (4,) for v in (Bd, Kd, Ld)):
+            raise ValueError(f"additive controller: a 4-state model is expected, got Ad of shape {Ad.shape}")
+        self._A = [float(v) for v in Ad.ravel()]  # row-major
+        self._B, self._K, self._L = ([float(v) for v in m] for m in (Bd, Kd, Ld))
         self._kr = float(design.Kr_d)
         self._reference = design.feedforward == "reference"
         if design.ffd is not None:
             Af, Bf, Cf, Df = design.ffd
-            self._Af, self._Bf, self._Cf, self._Df = (np.array(Af, float), np.array(Bf, float),
-                                                      np.array(Cf, float), float(Df))
+            Af = np.atleast_2d(np.array(Af, float))
+            self._Af = [[float(v) for v in row] for row in Af]
+            self._Bf = [float(v) for v in np.array(Bf, float).ravel()]
+            self._Cf = [float(v) for v in np.array(Cf, float).ravel()]
+            self._Df = float(Df)
+            self._nf = range(Af.shape[0])
         else:
             self._Af = None
-        self.reset()
+            self._nf = range(0)
+        self.x_hat = [0.0] * 4  #: observer state of eq (17)
+        self.x_ref = [0.0] * 4  #: reference model's state (feed-forward "reference")
+        self.x_ff = [0.0] * len(self._nf)  #: pre-filter state
+        self._ff_next = [0.0] * len(self._nf)
 
     def reset(self) -> None:
-        """Zero all states (observer, reference model, pre-filter)."""
-        self.x_hat = np.zeros(4)
-        self.x_ref = np.zeros(4)
-        self.x_ff = np.zeros(0 if self._Af is None else self._Af.shape[0])
+        """Zero all states (observer, reference model, pre-filter), in place."""
+        for x in (self.x_hat, self.x_ref, self.x_ff):
+            for i in range(len(x)):
+                x[i] = 0.0
+
+    @staticmethod
+    def _advance(x: list[float], A: list[float], B: list[float], u: float, L: list[float] | None = None,
+                 e: float = 0.0) -> None:
+        """``x <- A x + B u (+ L e)`` in place for the 4-state model."""
+        x0, x1, x2, x3 = x
+        if L is None:
+            L0 = L1 = L2 = L3 = 0.0
+        else:
+            L0, L1, L2, L3 = L
+        x[0] = A[0] * x0 + A[1] * x1 + A[2] * x2 + A[3] * x3 + B[0] * u + L0 * e
+        x[1] = A[4] * x0 + A[5] * x1 + A[6] * x2 + A[7] * x3 + B[1] * u + L1 * e
+        x[2] = A[8] * x0 + A[9] * x1 + A[10] * x2 + A[11] * x3 + B[2] * u + L2 * e
+        x[3] = A[12] * x0 + A[13] * x1 + A[14] * x2 + A[15] * x3 + B[3] * u + L3 * e
 
     def step(self, tau_r: float, tau_j_filt: float) -> float:
         """One cycle: reference [Nm] and filtered joint torque [Nm] -> commanded torque [Nm]."""
         r = float(tau_r)
         x = self.x_hat
-        tau_fb = self._kr * r - float(self._Kd @ x)  # eq (16)
+        K = self._K
+        tau_fb = self._kr * r - (K[0] * x[0] + K[1] * x[1] + K[2] * x[2] + K[3] * x[3])  # eq (16)
         tau_ff = 0.0
         y_ref = 0.0
         if self._Af is not None:
-            tau_ff = float(self._Cf @ self.x_ff) + self._Df * r  # eq (22) behind the pre-filter
-            self.x_ff = self._Af @ self.x_ff + self._Bf * r
+            xf, nxt, Af, Bf, Cf = self.x_ff, self._ff_next, self._Af, self._Bf, self._Cf
+            tau_ff = self._Df * r  # eq (22) behind the pre-filter
+            for i in self._nf:
+                tau_ff += Cf[i] * xf[i]
+            for i in self._nf:
+                row = Af[i]
+                acc = Bf[i] * r
+                for j in self._nf:
+                    acc += row[j] * xf[j]
+                nxt[i] = acc
+            for i in self._nf:
+                xf[i] = nxt[i]
             if self._reference:
                 y_ref = self.x_ref[3]
-                self.x_ref = self._Ad @ self.x_ref + self._Bd * tau_ff
+                self._advance(self.x_ref, self._A, self._B, tau_ff)
         innovation = float(tau_j_filt) - y_ref - x[3]
-        self.x_hat = self._Ad @ x + self._Bd * tau_fb + self._Ld * innovation  # eq (17)
+        self._advance(x, self._A, self._B, tau_fb, self._L, innovation)  # eq (17)
         return tau_fb + tau_ff  # eq (18)
 
 

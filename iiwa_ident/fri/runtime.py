@@ -41,6 +41,7 @@ Choices
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import threading
@@ -51,7 +52,7 @@ from typing import Callable
 
 import numpy as np
 
-from iiwa_ident._realtime import no_gc_pauses
+from iiwa_ident._realtime import no_gc_pauses, realtime_process
 from iiwa_ident.deploy.config_file import ControllerConfig, controller_from_config
 from iiwa_ident.design.observer import MomentumObserver
 from iiwa_ident.design.spatial_filter import SpatialFilter
@@ -147,6 +148,7 @@ class ControllerRuntime:
         self.stop_reason = ""  #: why the output is ramping out ("" while running)
         self._shutdown = 1.0  # scale of the shutdown ramp
         self._started = False
+        self._input = TaskInput(0.0, 0.0, 0.0)  # updated in place each cycle
         # Last cycle's values, for the log.
         self.tau_c = self.tau_r = self.tau_j_filt = self.tau_ext = 0.0
 
@@ -206,7 +208,9 @@ class ControllerRuntime:
 
         if self.watchdog.update(meas.t, gap_cycles):
             self._restart(meas)
-        ref = self.task.reference(TaskInput(meas.t, theta_j, self.tau_ext))
+        task_in = self._input
+        task_in.t, task_in.theta_j, task_in.tau_ext = meas.t, theta_j, self.tau_ext
+        ref = self.task.reference(task_in)
         if not math.isfinite(ref):
             self.request_stop("the task gave a non-finite reference")
             ref = 0.0
@@ -308,7 +312,8 @@ class _StopSignals:
 
 def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
                    log: str | Path, *, watchdog: Watchdog | None = None,
-                   progress: Callable[[str], None] | None = None) -> RunReport:
+                   progress: Callable[[str], None] | None = None, realtime: bool = False,
+                   cpu: int | None = None) -> RunReport:
     """Run ``task`` through the deployed controller on ``robot`` for ``duration_s`` [s], logging every cycle.
 
     Parameters
@@ -327,6 +332,14 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
         Default: :class:`Watchdog` with its defaults.
     progress : callable, optional
         Called with one-line status messages (start, watchdog events, stop).
+    realtime : bool
+        For the run, pin the process to one CPU, run it under ``SCHED_FIFO``
+        and lock its memory where permitted (:func:`iiwa_ident._realtime.realtime_process`;
+        one line through ``progress`` says what was set and what was not).
+        Undone when the run ends.
+    cpu : int, optional
+        With ``realtime``: the CPU (default: the highest one allowed; -1 leaves
+        the affinity alone).
 
     Returns
     -------
@@ -354,7 +367,8 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     events_seen = 0
     writer.start()
     try:
-        with _StopSignals() as signals, no_gc_pauses():
+        with _StopSignals() as signals, no_gc_pauses(), \
+                (realtime_process(cpu, say=say) if realtime else contextlib.nullcontext()):
             meas = robot.start()
             say(f"commanding: {task.name} for {duration_s:g} s")
             last_ns = time.perf_counter_ns()

@@ -19,9 +19,12 @@ __all__ = ["TaskInput", "Task", "ZeroTask", "ConstantTask", "StepTask", "SineTas
            "TASKS", "make_task"]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class TaskInput:
     """What a task may use in a cycle.
+
+    The runtime updates one instance in place every cycle (no allocation in
+    the 1 kHz loop): read it during :meth:`Task.reference`, do not keep it.
 
     Attributes
     ----------
