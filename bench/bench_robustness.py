@@ -23,6 +23,12 @@ noise, gaps), runs :func:`iiwa_ident.ident.ripple.identify_ripple` on each draw'
 - the draws that miss.
 
 Run: ``.venv/bin/python bench/bench_robustness.py ripple [--draws 100] [--first 0] [--jobs 2]``.
+
+``coverage``: the draws of ``fit`` (chirps), and for each parameter the share of 95 % intervals
+(1.96 reported std) that cover the truth, overall and by nuisance (target 90-98 %), with the same for the
+block sandwich std the fit computes alongside, and the median of |error| / std.
+
+Run: ``.venv/bin/python bench/bench_robustness.py coverage [--draws 100] [--first 0] [--jobs 2]``.
 """
 
 from __future__ import annotations
@@ -82,14 +88,17 @@ def run_draw(seed: int, method: str = "auto") -> dict:
     out["fit_s"] = time.perf_counter() - t0
     err = {}
     z = {}
+    z_sandwich = {}
     for k in _NAMES:
         v, s = res.parameters[k], res.std[k]
         err[k] = (v - sc.truth[k]) if k == "Td" else v / sc.truth[k] - 1.0
         z[k] = abs(v - sc.truth[k]) / s if s > 0 else math.inf
+        sw = res.std_sandwich[k]
+        z_sandwich[k] = abs(v - sc.truth[k]) / sw if sw > 0 else math.inf
     ok = all(abs(err[k]) <= _REL_TOL for k in _NAMES[:4]) and abs(err["Td"]) <= _TD_TOL_S
     ripple = next((e for e in res.effects if e.name == "transmission_ripple"), None)
     true_period = sc.effects.get("transmission_ripple", {}).get("period_rad")
-    out.update(status="pass" if ok else "miss", error=err, z=z, method=res.method,
+    out.update(status="pass" if ok else "miss", error=err, z=z, z_sandwich=z_sandwich, method=res.method,
                ripple_found=ripple is not None, ripple_true=true_period is not None,
                ripple_period_error=(ripple.values["period_rad"] / true_period - 1.0
                                     if ripple is not None and true_period else None))
@@ -142,6 +151,35 @@ def _fit(args: argparse.Namespace) -> int:
             print(f"  refused {r['describe']}\n         {r['message']}")
         elif r["status"] == "traceback":
             print(f"  TRACEBACK {r['describe']}\n{r['message']}")
+    return 0
+
+
+def _coverage(args: argparse.Namespace) -> int:
+    seeds = list(range(args.first, args.first + args.draws))
+    t0 = time.perf_counter()
+    if args.jobs > 1:
+        with ProcessPoolExecutor(args.jobs) as pool:
+            rows = list(pool.map(run_draw, seeds))
+    else:
+        rows = [run_draw(s) for s in seeds]
+    fitted = [r for r in rows if r["status"] in ("pass", "miss")]
+    print(f"coverage of the fit's 95 % intervals (1.96 std) on chirps: {len(fitted)} fitted of {len(rows)} draws "
+          f"(seeds {seeds[0]}-{seeds[-1]}), {time.perf_counter() - t0:.0f} s; target 90-98 %")
+    print("  parameter   reported std   block sandwich   median |error|/std")
+    for k in _NAMES:
+        z = np.array([r["z"][k] for r in fitted])
+        zs = np.array([r["z_sandwich"][k] for r in fitted])
+        print(f"    {k:<4s} {100 * np.mean(z <= Z95):14.1f} % {100 * np.mean(zs <= Z95):14.1f} % {np.median(z):14.2f}")
+    print("  by nuisance (reported std):  draws  " + "  ".join(f"{k:>5s}" for k in _NAMES))
+    for name in ("none", *NUISANCES):
+        sub = [r for r in fitted if (name in r["nuisances"]) or (name == "none" and not r["nuisances"])]
+        if sub:
+            cov = "  ".join(f"{100 * np.mean([r['z'][k] <= Z95 for r in sub]):4.0f}%" for k in _NAMES)
+            print(f"    {name:<24s} {len(sub):5d}  {cov}")
+    for method in sorted({r["method"] for r in fitted}):
+        sub = [r for r in fitted if r["method"] == method]
+        cov = "  ".join(f"{100 * np.mean([r['z'][k] <= Z95 for r in sub]):4.0f}%" for k in _NAMES)
+        print(f"    method {method:<17s} {len(sub):5d}  {cov}")
     return 0
 
 
@@ -239,8 +277,12 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("--first", type=int, default=0, help="first seed")
     rp.add_argument("--jobs", type=int, default=2)
     rp.add_argument("--null-only", action="store_true", help="only the null draws (false-alarm calibration)")
+    cv = sub.add_parser("coverage", help="coverage of the fit's 95 % intervals on random scenarios")
+    cv.add_argument("--draws", type=int, default=100)
+    cv.add_argument("--first", type=int, default=0, help="first seed")
+    cv.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args(argv)
-    return _fit(args) if args.what == "fit" else _ripple(args)
+    return {"fit": _fit, "ripple": _ripple, "coverage": _coverage}[args.what](args)
 
 
 if __name__ == "__main__":
