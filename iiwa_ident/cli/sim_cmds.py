@@ -17,6 +17,7 @@ from iiwa_ident.excite import (
     ConstantVelocity,
     Experiment,
     HandGuided,
+    Multisine,
     QuasiStatic,
     SineTorque,
     StepTorque,
@@ -137,7 +138,8 @@ def chirp_cmd(
 
 @app.command("simulate")
 def simulate_cmd(
-    experiment: Annotated[str, typer.Argument(help="constant_velocity | quasi_static | hand_guided | step | sine")],
+    experiment: Annotated[str, typer.Argument(help="multisine | constant_velocity | quasi_static | hand_guided | "
+                                              "step | sine")],
     out: _OutOpt,
     plant: _PlantOpt = None,
     seed: _SeedOpt = 0,
@@ -149,9 +151,18 @@ def simulate_cmd(
     torque: Annotated[str, typer.Option("--torque", help="quasi_static: commanded loads [Nm], comma-separated.")] = "2,5,10",
     duration: Annotated[Optional[float], typer.Option("--duration", help="hand_guided, sine: duration [s].")] = None,
     kappa: Annotated[float, typer.Option("--kappa", help="hand_guided: command kappa * F/T torque.")] = 0.0,
-    amplitude: Annotated[Optional[float], typer.Option("--amplitude", help="step, sine: amplitude [Nm].")] = None,
+    amplitude: Annotated[Optional[float], typer.Option("--amplitude", help="step, sine: amplitude; multisine: "
+                                                   "peak [Nm].")] = None,
     frequency: Annotated[float, typer.Option("--frequency", help="sine: frequency [Hz].")] = 0.25,
-    period: Annotated[float, typer.Option("--period", help="step: square-wave period [s].")] = 1.0,
+    period: Annotated[Optional[float], typer.Option("--period", help="step: square-wave period (default 1); "
+                                                    "multisine: period (default 2) [s].")] = None,
+    band: Annotated[str, typer.Option("--band", help="multisine: F_LO,F_HI of the excited odd lines [Hz].")] = "1,100",
+    periods: Annotated[int, typer.Option("--periods", help="multisine: steady-state periods per realisation "
+                                         "(one more is run first for the transient).")] = 2,
+    realisations: Annotated[int, typer.Option("--realisations", help="multisine: realisations with new random "
+                                              "phases.")] = 4,
+    bias: Annotated[float, typer.Option("--bias", help="multisine: constant torque [Nm].")] = 3.0,
+    phase_seed: Annotated[int, typer.Option("--phase-seed", help="multisine: seed of the random phases.")] = 0,
     cycles: Annotated[int, typer.Option("--cycles", help="step: number of periods.")] = 3,
     q0: Annotated[float, typer.Option("--q0", help="Initial joint position [rad].")] = 0.0,
     target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint) or 'robot' (FRI).")] = "sim",
@@ -163,6 +174,7 @@ def simulate_cmd(
     """Run one of the other experiments on the simulated joint (or on the robot, --target robot).
 
     Examples:
+      iiwa-ident simulate multisine --band 1,100 --period 2 --periods 2 --realisations 4 --out ms.h5
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
       iiwa-ident simulate constant_velocity --mode position --rate 200 --out cv200.h5
       iiwa-ident simulate quasi_static --torque 2,5,10 --out qs.h5
@@ -171,8 +183,16 @@ def simulate_cmd(
       iiwa-ident simulate constant_velocity --target robot --robot 192.170.10.2 --out cv.h5
     """
     try:
-        exp = _experiment(experiment, velocity, range_, repeats, mode, torque, duration, kappa, amplitude,
-                          frequency, period, cycles)
+        if experiment == "multisine":
+            lo_hi = _floats(band, "--band")
+            if len(lo_hi) != 2:
+                raise IiwaIdentError(f"--band expects F_LO,F_HI, got {band!r}")
+            exp: Experiment = Multisine(lo_hi[0], lo_hi[1], 2.0 if period is None else period, periods,
+                                        realisations, 10.0 if amplitude is None else amplitude, bias,
+                                        seed=phase_seed)
+        else:
+            exp = _experiment(experiment, velocity, range_, repeats, mode, torque, duration, kappa, amplitude,
+                              frequency, 1.0 if period is None else period, cycles)
         run_on_target(exp, target, plant, seed, rate, out, q0=q0, robot=robot, port=port,
                       robot_model=robot_model, joint=joint)
     except IiwaIdentError as err:
@@ -198,7 +218,8 @@ def _experiment(name, velocity, range_, repeats, mode, torque, duration, kappa, 
                           duration_s=duration or 8.0)
     if name == "chirp":
         raise IiwaIdentError("use 'iiwa-ident chirp' for the chirp experiment")
-    raise IiwaIdentError(f"unknown experiment {name!r} (constant_velocity, quasi_static, hand_guided, step, sine)")
+    raise IiwaIdentError(f"unknown experiment {name!r} (multisine, constant_velocity, quasi_static, hand_guided, "
+                         "step, sine)")
 
 
 @app.command("plant")

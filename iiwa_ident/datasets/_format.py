@@ -67,6 +67,7 @@ FORMAT_VERSION = 1
 #: Allowed values of the root attribute ``experiment``.
 EXPERIMENTS: tuple[str, ...] = (
     "chirp",
+    "multisine",
     "constant_velocity",
     "quasi_static",
     "hand_guided",
