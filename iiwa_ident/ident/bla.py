@@ -1,0 +1,172 @@
+"""The best linear approximation (BLA) from multisine data, its noise and its nonlinear distortion.
+
+The robust method of Pintelon and Schoukens (*System Identification: A
+Frequency Domain Approach*, 2nd ed., Wiley 2012, section 3.7; Schoukens,
+Pintelon and Rolain, *Mastering System Identification in 100 Exercises*,
+Wiley 2012, exercise 4.9) on ``M`` realisations of ``P`` steady-state periods
+of a random-phase multisine (:class:`~iiwa_ident.excite.Multisine`):
+
+1. per realisation ``m``, the spectra of input ``U`` and outputs ``Y`` at the
+   excited lines, averaged over its periods, and
+   ``G_m = mean_p Y / mean_p U`` (the ratio of averages: with the measured
+   input in the denominator, a feedback through the hold does not bias it);
+2. the noise variance of ``G_m`` from the period-to-period variation of the
+   residual ``Y_p - G_m U_p``: ``sum_p |e_p|^2 / ((P - 1) P |mean U|^2)``;
+3. the BLA ``G = mean_m G_m``, its **total** variance from the realisations,
+   ``sum_m |G_m - G|^2 / (M (M - 1))`` (noise plus the stochastic nonlinear
+   distortions, which change with the random phases), and its **noise**
+   variance ``sum_m var_n(G_m) / M^2``; the difference is the variance of the
+   nonlinear distortions (clipped at zero; the two are estimated with
+   ``M - 1`` and ``M (P - 1)`` degrees of freedom, so at a single line the
+   difference is noisy).
+
+Variances are of the complex ``G`` (``E|G - E G|^2``), per output and line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arrays"]
+
+
+@dataclass
+class BestLinearApproximation:
+    """The BLA of ``tau_c`` to the outputs at the excited lines.
+
+    Attributes
+    ----------
+    f_hz : numpy.ndarray
+        Excited frequencies [Hz].
+    lines : numpy.ndarray
+        Their line numbers ``k`` (``f = k / period``).
+    outputs : tuple of str
+        The outputs, in the order of the first axis of the arrays below.
+    G : numpy.ndarray
+        BLA per output and line (complex; [Nm/Nm] for ``tau_j``, [rad/Nm] for ``q_m``).
+    var_total : numpy.ndarray
+        Variance of ``G`` from the realisations (noise and nonlinear distortions).
+    var_noise : numpy.ndarray
+        Variance of ``G`` due to the noise alone, from the periods.
+    realisations, periods : int
+        M and P.
+    """
+
+    f_hz: np.ndarray
+    lines: np.ndarray
+    outputs: tuple[str, ...]
+    G: np.ndarray
+    var_total: np.ndarray
+    var_noise: np.ndarray
+    realisations: int
+    periods: int
+
+    @property
+    def var_nonlinear(self) -> np.ndarray:
+        """Variance of ``G`` due to the stochastic nonlinear distortions (total less noise, at least 0)."""
+        return np.maximum(self.var_total - self.var_noise, 0.0)
+
+    def bands(self, edges_hz: np.ndarray) -> list[dict[str, float | str]]:
+        """Per output and band: mean total, noise and nonlinear variance relative to ``|G|^2`` [-].
+
+        ``edges_hz`` are the band edges; a band without lines is left out.
+        """
+        out = []
+        for i, name in enumerate(self.outputs):
+            for lo, hi in zip(edges_hz[:-1], edges_hz[1:]):
+                m = (self.f_hz >= lo) & (self.f_hz < hi)
+                if not m.any():
+                    continue
+                g2 = np.abs(self.G[i, m]) ** 2
+                out.append({"output": name, "lo_hz": float(lo), "hi_hz": float(hi), "lines": int(m.sum()),
+                            "total_rel": float(np.mean(self.var_total[i, m] / g2)),
+                            "noise_rel": float(np.mean(self.var_noise[i, m] / g2)),
+                            "nonlinear_rel": float(np.mean(self.var_nonlinear[i, m] / g2))})
+        return out
+
+
+def bla_from_arrays(u: np.ndarray, y: np.ndarray, lines: np.ndarray, period_s: float,
+                    outputs: tuple[str, ...] = ("y",)) -> BestLinearApproximation:
+    """The BLA from steady-state periods already cut out.
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        Input, shape (M, P, N): realisations, periods, samples per period.
+    y : numpy.ndarray
+        Outputs, shape (n_outputs, M, P, N).
+    lines : array of int
+        Excited line numbers.
+    period_s : float
+        Period [s].
+    outputs : tuple of str
+        Names of the outputs.
+    """
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    M, P, N = u.shape
+    if M < 2 or P < 2:
+        raise IiwaIdentError(f"best linear approximation: need at least 2 realisations and 2 periods, got {M} and {P}")
+    lines = np.asarray(lines, int)
+    U = np.fft.rfft(u, axis=-1)[..., lines]  # (M, P, F)
+    Y = np.fft.rfft(y, axis=-1)[..., lines]  # (n, M, P, F)
+    Ubar = U.mean(axis=1)  # (M, F)
+    if np.any(np.abs(Ubar) == 0):
+        raise IiwaIdentError("best linear approximation: an excited line carries no input")
+    Ybar = Y.mean(axis=2)  # (n, M, F)
+    Gm = Ybar / Ubar  # (n, M, F)
+    e = Y - Gm[:, :, None, :] * U[None]  # residual per period (its mean over periods is 0)
+    var_gm = np.sum(np.abs(e) ** 2, axis=2) / ((P - 1) * P * np.abs(Ubar) ** 2)  # (n, M, F)
+    G = Gm.mean(axis=1)
+    var_total = np.sum(np.abs(Gm - G[:, None, :]) ** 2, axis=1) / (M * (M - 1))
+    var_noise = var_gm.sum(axis=1) / M**2
+    return BestLinearApproximation(f_hz=lines / period_s, lines=lines, outputs=tuple(outputs), G=G,
+                                   var_total=var_total, var_noise=var_noise, realisations=M, periods=P)
+
+
+def best_linear_approximation(ds: Dataset, outputs: tuple[str, ...] = ("tau_j", "q_m")) -> BestLinearApproximation:
+    """The BLA of a multisine dataset, ``tau_c`` to ``outputs`` (default ``tau_j`` and ``q_m``).
+
+    The design (period, periods, transient periods, realisations, excited
+    lines) is read from the dataset's ``/experiment`` attributes; the
+    transient period of each realisation is left out.
+
+    Raises
+    ------
+    IiwaIdentError
+        Not a multisine, no torque command, a design the record does not
+        match (stopped early, another rate); the message names the file.
+    """
+    label = str(ds.path) if ds.path is not None else "the dataset"
+    if ds.experiment != "multisine":
+        raise IiwaIdentError(f"{label}: a {ds.experiment} dataset, not a multisine")
+    a = ds.experiment_attrs
+    missing = [k for k in ("period_s", "periods", "realisations", "excited_lines") if k not in a]
+    if missing:
+        raise IiwaIdentError(f"{label}: the multisine design lacks {', '.join(missing)}")
+    if not ds.has("tau_c"):
+        raise IiwaIdentError(f"{label}: no torque command (tau_c)")
+    if "stopped_reason" in a:
+        raise IiwaIdentError(f"{label}: the multisine stopped early ({a['stopped_reason']})")
+    N = int(round(float(a["period_s"]) * ds.sample_rate_hz))
+    if abs(N / ds.sample_rate_hz - float(a["period_s"])) > 1e-9 * float(a["period_s"]):
+        raise IiwaIdentError(f"{label}: recorded at {ds.sample_rate_hz:g} Hz, not a whole number of samples per "
+                             f"{a['period_s']:g} s period")
+    M, P = int(a["realisations"]), int(a["periods"])
+    skip = int(a.get("transient_periods", 1))
+    if ds.n_samples != M * (P + skip) * N:
+        raise IiwaIdentError(f"{label}: {ds.n_samples} samples, the design needs {M} x {P + skip} x {N}")
+    lines = np.asarray(a["excited_lines"], int)
+    if lines.max() >= N / 2:
+        raise IiwaIdentError(f"{label}: excited lines beyond the Nyquist frequency of the recording")
+
+    def cut(x: np.ndarray) -> np.ndarray:
+        return np.asarray(x, float).reshape(M, P + skip, N)[:, skip:, :]
+
+    y = np.stack([cut(ds[name]) for name in outputs])
+    return bla_from_arrays(cut(ds["tau_c"]), y, lines, float(a["period_s"]), outputs)
