@@ -43,26 +43,35 @@ class TestMultisineExperiment:
     def test_runs_periods_times_realisations_and_records_the_design(self):
         # Without the hold the command is exactly bias + A x_m(t) (no bias either: a free link would drift).
         exp = Multisine(2.0, 50.0, period_s=0.5, periods=2, realisations=3, amplitude_nm=8.0, bias_nm=0.0,
-                        hold_stiffness=0.0, hold_damping=0.0, seed=4)
+                        hold_stiffness=0.0, hold_damping=0.0, seed=4, lead_in_s=0.25)
         ds = record(SimulatedJoint(default_plant(), seed=1), exp)
         a = ds.experiment_attrs
-        assert ds.experiment == "multisine" and ds.n_samples == 3 * 3 * 500
+        assert ds.experiment == "multisine" and ds.n_samples == 250 + 3 * 3 * 500 and a["lead_in_s"] == 0.25
         assert (a["period_s"], a["periods"], a["realisations"], a["transient_periods"]) == (0.5, 2, 3, 1)
         lines, x = exp.design(1e-3)
         np.testing.assert_array_equal(a["excited_lines"], lines)
         assert a["crest_factor"] == pytest.approx(max(crest_factor(s) for s in x))
-        u = ds["tau_c"].reshape(3, 3, 500)  # realisation, period (the first is the transient one), sample
+        assert np.all(ds["tau_c"][:250] == 0.0)  # the lead-in: no bias to ramp in, no hold
+        u = ds["tau_c"][250:].reshape(3, 3, 500)  # realisation, period (the first is the transient one), sample
         for m in range(3):
             for p in range(3):
                 np.testing.assert_allclose(u[m, p], 8.0 * x[m], rtol=0, atol=1e-12)
         # New phases in each realisation.
         assert abs(np.corrcoef(x[0], x[1])[0, 1]) < 0.2
 
+    def test_lead_in_ramps_the_bias_in_smoothly(self):
+        exp = Multisine(2.0, 50.0, period_s=0.5, amplitude_nm=8.0, bias_nm=4.0, hold_stiffness=0.0,
+                        hold_damping=0.0, lead_in_s=1.0)
+        u = record(SimulatedJoint(default_plant(), seed=1), exp)["tau_c"][:1000]
+        assert u[0] == 0.0 and np.all(np.diff(u) >= 0) and np.all(u[600:] == 4.0)
+        assert np.abs(np.diff(u)).max() < 4.0 * np.pi / 2 / 600 * 1.001  # raised cosine over 0.6 s
+
     @pytest.mark.parametrize("kw, message", [
         ({"periods": 1}, "at least 2 periods and 2 realisations"),
         ({"realisations": 1}, "at least 2 periods and 2 realisations"),
         ({"f_lo_hz": 50.0, "f_hi_hz": 10.0}, "need 0 < f_lo < f_hi"),
         ({"amplitude_nm": 0.0}, "amplitude must be positive"),
+        ({"lead_in_s": -1.0}, "lead-in must be a non-negative time"),
     ])
     def test_bad_settings(self, kw, message):
         with pytest.raises(IiwaIdentError, match=message):
@@ -88,7 +97,7 @@ def test_cli_simulate_multisine(tmp_path):
                               "--realisations", "2", "--amplitude", "5", "--out", str(out)])
     assert res.exit_code == 0, res.output
     ds = read_dataset(out)
-    assert ds.experiment == "multisine" and ds.n_samples == 2 * 3 * 500
+    assert ds.experiment == "multisine" and ds.n_samples == 6000 + 2 * 3 * 500  # the default 6 s lead-in
     assert ds.experiment_attrs["amplitude_nm"] == 5.0
 
 

@@ -92,3 +92,24 @@ def test_refuses_what_is_not_a_multisine():
         best_linear_approximation(ds)
     with pytest.raises(IiwaIdentError, match="at least 2 realisations"):
         bla_from_arrays(np.ones((1, 2, N)), np.ones((1, 1, 2, N)), LINES, N / FS)
+
+
+class TestFitBla:
+    @pytest.mark.parametrize("seed", [0, 1])
+    def test_recovers_a_random_joint_within_its_std(self, seed):
+        # A random truth within +-40 % of Table I on a joint the model describes exactly (no ripple, no
+        # friction): every parameter within 3 std, and chi2/dof near 1 (the weights are the BLA's variance).
+        from iiwa_ident.ident.bla import fit_bla
+
+        rng = np.random.default_rng(100 + seed)
+        plant = default_plant().without_effects()
+        truth = {k: v * rng.uniform(0.6, 1.4) for k, v in plant.dynamics.items() if k in ("Jc", "bc", "K", "Jl")}
+        truth["Td"] = float(rng.choice([3e-3, 4e-3, 5e-3, 6e-3]))  # the simulator realises whole substeps
+        plant.dynamics.update(truth)  # a fresh copy: without_effects() deep-copies
+        exp = Multisine(1.0, 100.0, period_s=2.0, periods=2, realisations=4, amplitude_nm=10.0, seed=seed)
+        fit = fit_bla(best_linear_approximation(record(SimulatedJoint(plant, seed=seed), exp)), 1e-3)
+        assert 0.7 < fit.chi2_dof < 1.4
+        for k, v in truth.items():
+            assert abs(fit.parameters[k] - v) <= 3.0 * fit.std[k], (k, fit.parameters[k], v, fit.std[k])
+            if k != "Td":
+                assert fit.std[k] < 0.02 * v

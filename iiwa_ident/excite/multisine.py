@@ -18,9 +18,13 @@ restoring the amplitude spectrum in turn, so that more power fits under the
 joint's torque limit.
 
 :class:`Multisine` commands ``bias + x(t)`` with the same weak position hold
-as the chirp, runs ``M`` realisations of ``P + 1`` periods each (the first
-period of each lets the transient die out) and records the design in the
-dataset: period, periods, realisations, excited lines and the phases' seed.
+as the chirp. A lead-in ramps the bias in and lets the link settle where the
+hold balances it (a free link drifts to that equilibrium, slowly: with the
+default hold its time constant is about a second, and a drift left in the
+periods would leak into the low lines of ``q_m``). Then it runs ``M``
+realisations of ``P + 1`` periods each (the first period of each lets the
+transient of the new phases die out) and records the design in the dataset:
+lead-in, period, periods, realisations, excited lines and the phases' seed.
 """
 
 from __future__ import annotations
@@ -125,13 +129,17 @@ class Multisine(Experiment):
         Weak position hold against drift [Nm/rad], [Nm s/rad].
     seed : int
         Seed of the random phases.
+    lead_in_s : float
+        Time before the first realisation [s]: the bias ramps in over its
+        first 60 % (raised cosine), then holds while the link settles.
     """
 
     name = "multisine"
 
     def __init__(self, f_lo_hz: float = 1.0, f_hi_hz: float = 100.0, period_s: float = 2.0, periods: int = 2,
                  realisations: int = 4, amplitude_nm: float = 10.0, bias_nm: float = 3.0,
-                 hold_stiffness: float = 30.0, hold_damping: float = 10.0, seed: int = 0) -> None:
+                 hold_stiffness: float = 30.0, hold_damping: float = 10.0, seed: int = 0,
+                 lead_in_s: float = 6.0) -> None:
         if not (math.isfinite(period_s) and period_s > 0):
             raise IiwaIdentError(f"multisine: the period must be positive, got {period_s!r} s")
         if not 0 < f_lo_hz < f_hi_hz:
@@ -143,12 +151,15 @@ class Multisine(Experiment):
             raise IiwaIdentError("multisine: the amplitude must be positive")
         if hold_stiffness < 0 or hold_damping < 0:
             raise IiwaIdentError("multisine: hold stiffness and damping must not be negative")
+        if not (math.isfinite(lead_in_s) and lead_in_s >= 0):
+            raise IiwaIdentError(f"multisine: the lead-in must be a non-negative time, got {lead_in_s!r} s")
         self.f_lo_hz, self.f_hi_hz, self.period_s = float(f_lo_hz), float(f_hi_hz), float(period_s)
         self.periods, self.realisations = int(periods), int(realisations)
         self.amplitude_nm, self.bias_nm = float(amplitude_nm), float(bias_nm)
         self.hold_stiffness, self.hold_damping = float(hold_stiffness), float(hold_damping)
         self.seed = int(seed)
-        self.duration_s = self.realisations * (self.periods + 1) * self.period_s
+        self.lead_in_s = float(lead_in_s)
+        self.duration_s = self.lead_in_s + self.realisations * (self.periods + 1) * self.period_s
         self._signals: np.ndarray | None = None
         self._dt = 0.0
 
@@ -175,22 +186,31 @@ class Multisine(Experiment):
             raise IiwaIdentError(f"multisine: bias + amplitude = {peak:g} Nm exceeds the joint's torque limit "
                                  f"{robot.limits.torque_nm:g} Nm")
         self._dt = robot.sample_time_s
+        self._lead = int(round(self.lead_in_s / self._dt))
+        if abs(self._lead * self._dt - self.lead_in_s) > 1e-9 * max(self.lead_in_s, 1.0):
+            raise IiwaIdentError(f"multisine: the lead-in {self.lead_in_s:g} s is not a whole number of "
+                                 f"{self._dt * 1e3:g} ms cycles")
         self._lines, self._signals = self.design(self._dt)
 
     def command(self, s: ClientState) -> Command:
         assert self._signals is not None, "check() sets up the signals"
         n = self._signals.shape[1]
-        k = int(round(s.t / self._dt))
+        k = int(round(s.t / self._dt)) - self._lead
+        hold = -self.hold_stiffness * (s.q - s.q0) - self.hold_damping * s.v
+        if k < 0:  # lead-in: the bias ramps in, then the link settles
+            ramp = 0.6 * self._lead
+            share = 1.0 if k + self._lead >= ramp else 0.5 - 0.5 * math.cos(math.pi * (k + self._lead) / ramp)
+            return Command(tau_c=share * self.bias_nm + hold)
         m = min(k // (n * (self.periods + 1)), self.realisations - 1)
         x = self._signals[m, k % n]
-        tau = self.bias_nm + self.amplitude_nm * x - self.hold_stiffness * (s.q - s.q0) - self.hold_damping * s.v
+        tau = self.bias_nm + self.amplitude_nm * x + hold
         return Command(tau_c=tau)
 
     def attrs(self) -> dict:
         out = {"multisine": "random-phase odd", "f_lo_hz": self.f_lo_hz, "f_hi_hz": self.f_hi_hz,
                "period_s": self.period_s, "periods": self.periods, "transient_periods": 1,
                "realisations": self.realisations, "amplitude_nm": self.amplitude_nm, "bias_nm": self.bias_nm,
-               "phase_seed": self.seed, "duration_s": self.duration_s,
+               "phase_seed": self.seed, "duration_s": self.duration_s, "lead_in_s": self.lead_in_s,
                "hold_stiffness_nm_rad": self.hold_stiffness, "hold_damping_nms_rad": self.hold_damping}
         if self._signals is not None:
             out["excited_lines"] = np.asarray(self._lines, dtype=np.int64)

@@ -25,6 +25,7 @@ Variances are of the complex ``G`` (``E|G - E G|^2``), per output and line.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +33,8 @@ import numpy as np
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arrays"]
+__all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arrays", "BlaFit", "fit_bla",
+           "SMOOTH_LINES"]
 
 
 @dataclass
@@ -159,14 +161,149 @@ def best_linear_approximation(ds: Dataset, outputs: tuple[str, ...] = ("tau_j", 
                              f"{a['period_s']:g} s period")
     M, P = int(a["realisations"]), int(a["periods"])
     skip = int(a.get("transient_periods", 1))
-    if ds.n_samples != M * (P + skip) * N:
-        raise IiwaIdentError(f"{label}: {ds.n_samples} samples, the design needs {M} x {P + skip} x {N}")
+    lead = int(round(float(a.get("lead_in_s", 0.0)) * ds.sample_rate_hz))
+    if ds.n_samples != lead + M * (P + skip) * N:
+        raise IiwaIdentError(f"{label}: {ds.n_samples} samples, the design needs {lead} + {M} x {P + skip} x {N}")
     lines = np.asarray(a["excited_lines"], int)
     if lines.max() >= N / 2:
         raise IiwaIdentError(f"{label}: excited lines beyond the Nyquist frequency of the recording")
 
     def cut(x: np.ndarray) -> np.ndarray:
-        return np.asarray(x, float).reshape(M, P + skip, N)[:, skip:, :]
+        return np.asarray(x, float)[lead:].reshape(M, P + skip, N)[:, skip:, :]
 
     y = np.stack([cut(ds[name]) for name in outputs])
     return bla_from_arrays(cut(ds["tau_c"]), y, lines, float(a["period_s"]), outputs)
+
+
+# --------------------------------------------------------------------------
+# eq (4) fitted to the BLA
+
+#: Neighbouring lines whose relative variances are averaged into each line's weight: a variance from
+#: M - 1 realisations alone is too noisy to weight by (lines that happen to scatter little would dominate).
+SMOOTH_LINES = 7
+
+
+@dataclass
+class BlaFit:
+    """Eq (4) with delay fitted to a best linear approximation.
+
+    Attributes
+    ----------
+    parameters, std : dict of str to float
+        ``Jc`` [kg m^2], ``bc`` [Nm s/rad], ``K`` [Nm/rad], ``Jl`` [kg m^2], ``Td`` [s] and their
+        standard deviations: from the Jacobian weighted by the BLA's total variance (noise and
+        nonlinear distortions), widened by ``sqrt(chi2_dof)`` when the model misses the BLA by more
+        than that variance explains.
+    covariance : numpy.ndarray
+        Covariance in that order [SI units squared].
+    chi2_dof : float
+        Weighted residual sum of squares per degree of freedom (about 1 when eq (4) explains the BLA
+        within its variance).
+    std_method : str
+        How the std was computed.
+    bla : BestLinearApproximation
+        The data fitted.
+    """
+
+    parameters: dict[str, float]
+    std: dict[str, float]
+    covariance: np.ndarray
+    chi2_dof: float
+    bla: BestLinearApproximation
+    std_method: str = ("inverse Fisher information of the BLA weighted by its total variance (noise and nonlinear "
+                       "distortions, robust method), times sqrt(chi2/dof) when above 1")
+
+
+def _smoothed(var: np.ndarray, G: np.ndarray, width: int = SMOOTH_LINES) -> np.ndarray:
+    """Variance per line from the mean relative variance of ``width`` neighbouring lines."""
+    rel = var / np.maximum(np.abs(G) ** 2, 1e-300)
+    kernel = np.ones(min(width, rel.shape[-1]))
+    num = np.apply_along_axis(lambda r: np.convolve(r, kernel, mode="same"), -1, rel)
+    den = np.convolve(np.ones(rel.shape[-1]), kernel, mode="same")
+    return num / den * np.abs(G) ** 2
+
+
+def _start(bla: BestLinearApproximation, T: float) -> dict[str, float]:
+    """Start values from the BLA alone: delay by a grid on eq (4)'s rational fit, scale from q_m / tau_j."""
+    from iiwa_ident.ident.tf_fit import _levy
+
+    f = bla.f_hz
+    s = 2j * np.pi * f
+    G0 = bla.G[0] / np.sinc(f * T) * np.exp(s * T / 2)  # undo the hold's half-sample lag and sinc gain
+    best = None
+    for td in np.arange(0.0, 0.05 + 1e-12, 0.1e-3):
+        out = _levy(G0 * np.exp(s * td), s)
+        if out is not None and (best is None or out[1] < best[0]):
+            best = (out[1], td, out[0])
+    if best is None:
+        raise IiwaIdentError("the BLA of tau_c to tau_j does not look like eq (4) at any delay up to 50 ms")
+    _, td, (a, b0, a0) = best
+    # q_m / tau_j = 1/K - 1/(Jl w^2) on the lines where q_m stands out of its variance, weighted by it.
+    R = bla.G[1] / bla.G[0]
+    sigma_R = np.sqrt(bla.var_total[1] / 2.0) / np.abs(bla.G[0])
+    use = np.abs(bla.G[1]) > 3.0 * np.sqrt(bla.var_total[1])
+    if use.sum() < 2:
+        raise IiwaIdentError("q_m does not stand out of its noise at 2 excited lines: cannot find the inertia "
+                             "scale (Jl); a larger amplitude or more periods and realisations would")
+    w = 2 * np.pi * f[use]
+    M = np.column_stack([np.ones_like(w), -1.0 / w**2]) / sigma_R[use, None]
+    (inv_K, inv_Jl), *_ = np.linalg.lstsq(M, R[use].real / sigma_R[use], rcond=None)
+    if not inv_Jl > 0:
+        raise IiwaIdentError("q_m does not follow the joint torque as a free link would: cannot find the inertia "
+                             "scale (Jl)")
+    Jl = 1.0 / inv_Jl
+    Jc = Jl * (a0 / b0 - 1.0)
+    return {"Jc": float(Jc), "bc": float(a * Jc), "K": float(b0 * Jc), "Jl": float(Jl), "Td": float(td)}
+
+
+def fit_bla(bla: BestLinearApproximation, sample_time_s: float, initial: dict[str, float] | None = None) -> BlaFit:
+    """Fit the sampled eq (1)-(4) model (both outputs, ``tau_j`` and ``q_m``) to the BLA.
+
+    The residual of each output and line is ``(G - G_model) / sigma`` with
+    ``sigma^2`` the BLA's total variance (smoothed over
+    :data:`SMOOTH_LINES` neighbouring lines), real and imaginary parts
+    separately; the model is :func:`~iiwa_ident.ident.tf_fit.discretize`'s
+    frequency response, which is exact for periodic steady state.
+
+    Parameters
+    ----------
+    bla : BestLinearApproximation
+        With outputs ``("tau_j", "q_m")``.
+    sample_time_s : float
+        Sample time of the data [s].
+    initial : dict, optional
+        Start values (default: from the BLA alone).
+    """
+    from scipy.optimize import least_squares
+
+    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, discretize
+
+    if bla.outputs != ("tau_j", "q_m"):
+        raise IiwaIdentError(f"eq (4) is fitted to the outputs tau_j and q_m, the BLA has {', '.join(bla.outputs)}")
+    T = float(sample_time_s)
+    p0 = initial or _start(bla, T)
+    var = _smoothed(bla.var_total, bla.G)
+    w = np.sqrt(2.0 / np.maximum(var, 1e-300))  # per real and imaginary part: var / 2 each
+
+    def params(x: np.ndarray) -> dict[str, float]:
+        return {"Jc": math.exp(x[0]), "bc": math.exp(x[1]), "K": math.exp(x[2]), "Jl": math.exp(x[3]),
+                "Td": x[4] * 1e-3}
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        e = (bla.G - discretize(params(x), T).frequency_response(bla.f_hz)) * w
+        return np.concatenate([e.real.ravel(), e.imag.ravel()])
+
+    x0 = np.array([math.log(p0[k]) for k in PARAMETER_NAMES[:4]] + [p0["Td"] * 1e3])
+    lower = np.array([math.log(1e-4), math.log(1e-3), math.log(1.0), math.log(1e-4), 0.0])
+    upper = np.array([math.log(1e4), math.log(1e6), math.log(1e8), math.log(1e5), 50.0])
+    sol = least_squares(residual, np.clip(x0, lower, upper), bounds=(lower, upper), x_scale="jac")
+    r = sol.fun
+    dof = max(len(r) - 5, 1)
+    chi2_dof = float(r @ r / dof)
+    J = sol.jac
+    cov_x = np.linalg.pinv(J.T @ J) * max(chi2_dof, 1.0)
+    p = params(sol.x)
+    D = np.diag([p["Jc"], p["bc"], p["K"], p["Jl"], 1e-3])  # d(SI)/dx
+    cov = D @ cov_x @ D
+    std = dict(zip(PARAMETER_NAMES, map(float, np.sqrt(np.diag(cov)))))
+    return BlaFit(parameters=p, std=std, covariance=cov, chi2_dof=chi2_dof, bla=bla)
