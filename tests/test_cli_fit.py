@@ -153,3 +153,45 @@ class TestFormatFit:
         value_ms = float(td_line.split()[1])
         assert value_ms == pytest.approx(result.parameters["Td"] * 1e3, rel=1e-5, abs=0)
         assert text.count(" Hz") >= len(result.bands)
+
+
+@pytest.fixture(scope="module")
+def multisine(tmp_path_factory):
+    from iiwa_ident.excite import Multisine
+
+    exp = Multisine(1.0, 100.0, period_s=1.0, periods=2, realisations=3, amplitude_nm=10.0, seed=3)
+    ds = record(SimulatedJoint(default_plant().without_effects(), seed=3), exp)
+    return write_dataset(tmp_path_factory.mktemp("ms") / "ms.h5", ds)
+
+
+class TestFitMultisine:
+    def test_fits_through_the_bla_and_reports_both_variances(self, multisine, tmp_path):
+        out, js = tmp_path / "m.toml", tmp_path / "m.json"
+        res = runner.invoke(app, ["fit", str(multisine), "--out", str(out), "--json", str(js)])
+        assert res.exit_code == 0, res.output
+        assert "chi2/dof" in res.output and "nonlinear" in res.output
+        doc = json.loads(js.read_text())
+        assert doc["method"] == "bla" and "total variance" in doc["std_method"]
+        outputs = {b["output"] for b in doc["variance_bands"]}
+        assert outputs == {"tau_j", "q_m"}
+        assert all(b["noise_rel"] >= 0 and b["nonlinear_rel"] >= 0 for b in doc["variance_bands"])
+        model = read_model(out)
+        truth = default_plant().dynamics
+        for k in PARAMETER_NAMES:
+            p = model.parameters[k]
+            assert abs(p.value - truth[k]) <= 4 * p.std, (k, p.value, truth[k], p.std)
+        assert model.fit["chi2_dof"] == pytest.approx(doc["chi2_dof"])
+        assert model.sources[0].sha256 == sha256_file(multisine)
+
+    def test_not_together_with_a_chirp(self, multisine, tmp_path):
+        chirp = write_dataset(tmp_path / "c.h5", record(SimulatedJoint(default_plant()), Chirp(duration_s=3.0)))
+        res = runner.invoke(app, ["fit", str(multisine), str(chirp), "--out", str(tmp_path / "m.toml")])
+        assert res.exit_code == 2 and "fit multisines alone" in res.output
+        assert "Traceback" not in res.output and not (tmp_path / "m.toml").exists()
+
+    @pytest.mark.parametrize("extra, message", [(["--method", "idim"], "--method chooses among the chirp"),
+                                                (["--figures", "figs"], "--figures: the plots are of chirp fits")])
+    def test_chirp_only_options_refused(self, multisine, tmp_path, extra, message):
+        res = runner.invoke(app, ["fit", str(multisine), "--out", str(tmp_path / "m.toml"), *extra])
+        assert res.exit_code == 2 and message in res.output
+        assert len(res.output.strip().splitlines()) == 1

@@ -11,11 +11,13 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.joint_fit import METHODS, fit_model
+from iiwa_ident.datasets import read_dataset
+from iiwa_ident.ident.bla import BlaFit
+from iiwa_ident.ident.joint_fit import METHODS, fit_model, fit_multisine_model
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, write_model
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult
 
-__all__ = ["fit_cmd", "format_fit"]
+__all__ = ["fit_cmd", "format_fit", "format_bla_fit"]
 
 # Units shown where they differ from the model file's SI unit: name -> (unit, factor from SI).
 _DISPLAY = {"Td": ("ms", 1e3)}
@@ -89,9 +91,33 @@ def format_fit(result: FitResult) -> str:
     return "\n".join(lines)
 
 
+def format_bla_fit(result: BlaFit) -> str:
+    """The summary printed by ``iiwa-ident fit`` for multisines: parameters, chi2/dof, the BLA's variances."""
+    lines = ["parameter  value                std              rel. std"]
+    for name in PARAMETER_NAMES:
+        v, s, r = _value_text(name, result.parameters[name], result.std[name])
+        lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
+    lines.append(f"delay Td = {result.parameters['Td'] * 1e3:.3f} +- {result.std['Td'] * 1e3:.3f} ms")
+    lines.append("method: best linear approximation of the multisines (robust method), eq (4) fitted to it")
+    lines.append(f"std: {result.std_method}")
+    lines.append(f"chi2/dof {result.chi2_dof:.2f} (about 1 when eq (4) explains the BLA within its variance)")
+    lines.append("")
+    lines.append("BLA variance per octave band, relative to |G|^2 (noise: from the periods; nonlinear: the")
+    lines.append("realisations' spread beyond it)")
+    lines.append("  output  band              lines   noise        nonlinear")
+    multi = len(result.labels) > 1
+    for b in result.variance_bands():
+        tag = f"  [{Path(str(b['dataset'])).name}]" if multi else ""
+        lines.append(f"  {b['output']:<6}  {_band(b['lo_hz'], b['hi_hz']):<16}  {b['lines']:5d}   "
+                     f"{b['noise_rel']:<11.3g}  {b['nonlinear_rel']:.3g}{tag}")
+    return "\n".join(lines)
+
+
 @app.command("fit")
 def fit_cmd(
-    chirps: Annotated[list[Path], typer.Argument(help="Chirp dataset files (.h5) of one joint, fitted together.")],
+    chirps: Annotated[list[Path], typer.Argument(help="Chirp dataset files (.h5) of one joint, fitted together; "
+                                                     "or multisine files (fitted through their best linear "
+                                                     "approximation).")],
     out: Annotated[Path, typer.Option("--out", help="Model file to write (TOML).")],
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the result as JSON (SI units, "
                                                                    "Td in s).")] = None,
@@ -126,6 +152,9 @@ def fit_cmd(
       iiwa-ident fit chirp_a.h5 chirp_b.h5 --method idim --out joint2.toml
 
       iiwa-ident fit chirp.h5 --model joint1_ripple.toml --out joint1.toml
+
+      iiwa-ident fit ms.h5 --out joint1.toml --json joint1.json   (a multisine: the BLA's noise and nonlinear
+      variance per band, the std from both)
     """
     try:
         if method not in METHODS:
@@ -135,9 +164,22 @@ def fit_cmd(
                 raise IiwaIdentError(f"{target}: is a directory, not a file")
         if figures is not None and figures.exists() and not figures.is_dir():
             raise IiwaIdentError(f"{figures}: exists and is not a folder")
-        joint_model, result = fit_model(chirps, base_model=model, method=method)
-        # Prepare every output before writing any, so a failure leaves no partial results.
-        json_doc = json_text(result.to_json()) if json_out else None
+        kinds = {read_dataset(p).experiment for p in chirps}
+        if "multisine" in kinds:
+            if kinds != {"multisine"}:
+                raise IiwaIdentError("fit multisines alone, not together with chirps or other data")
+            if method != "auto":
+                raise IiwaIdentError("--method chooses among the chirp estimators; multisines are fitted through "
+                                     "their best linear approximation")
+            if figures is not None:
+                raise IiwaIdentError("--figures: the plots are of chirp fits; not made for multisines")
+            joint_model, bla_fit = fit_multisine_model(chirps, base_model=model)
+            text, json_doc, warnings = format_bla_fit(bla_fit), json_text(bla_fit.to_json()) if json_out else None, []
+        else:
+            joint_model, result = fit_model(chirps, base_model=model, method=method)
+            text, warnings = format_fit(result), list(result.warnings)
+            # Prepare every output before writing any, so a failure leaves no partial results.
+            json_doc = json_text(result.to_json()) if json_out else None
         pngs: dict[str, bytes] = {}
         if figures is not None:
             from iiwa_ident.report.fit_figures import fit_figure_pngs
@@ -152,8 +194,8 @@ def fit_cmd(
         raise fail(str(err))
     except OSError as err:
         raise fail(f"{err.filename or 'output'}: cannot write ({err.strerror or err})")
-    typer.echo(format_fit(result))
-    for w in result.warnings:
+    typer.echo(text)
+    for w in warnings:
         typer.echo(f"warning: {w}", err=True)
     for path in written:
         typer.echo(f"wrote {path}")

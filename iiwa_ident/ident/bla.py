@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -201,17 +202,47 @@ class BlaFit:
         within its variance).
     std_method : str
         How the std was computed.
-    bla : BestLinearApproximation
-        The data fitted.
+    blas : list of BestLinearApproximation
+        The data fitted, one per dataset.
+    labels : list of str
+        The datasets' files.
     """
 
     parameters: dict[str, float]
     std: dict[str, float]
     covariance: np.ndarray
     chi2_dof: float
-    bla: BestLinearApproximation
+    blas: list[BestLinearApproximation]
+    labels: list[str]
     std_method: str = ("inverse Fisher information of the BLA weighted by its total variance (noise and nonlinear "
                        "distortions, robust method), times sqrt(chi2/dof) when above 1")
+    method: str = "bla"
+
+    def variance_bands(self) -> list[dict[str, float | str]]:
+        """Per dataset, output and octave band: the BLA's total, noise and nonlinear variance relative to |G|^2."""
+        out = []
+        for label, bla in zip(self.labels, self.blas):
+            lo, hi = float(bla.f_hz.min()), float(bla.f_hz.max())
+            edges = lo * 2.0 ** np.arange(0, math.ceil(math.log2(hi / lo)) + 1.0)
+            edges[-1] = max(edges[-1], hi) * (1 + 1e-9)
+            out += [{"dataset": label, **row} for row in bla.bands(edges)]
+        return out
+
+    def to_json(self) -> dict:
+        """The ``--json`` document (SI units, ``Td`` in s)."""
+        from iiwa_ident.ident.model_file import PARAMETER_UNITS
+        from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
+
+        std = np.sqrt(np.diag(self.covariance))
+        corr = self.covariance / np.outer(std, std)
+        return {"parameters": {k: {"value": self.parameters[k], "std": self.std[k], "unit": PARAMETER_UNITS[k]}
+                               for k in PARAMETER_NAMES},
+                "correlation": {"names": list(PARAMETER_NAMES), "matrix": corr.tolist()},
+                "method": self.method, "std_method": self.std_method, "chi2_dof": self.chi2_dof,
+                "variance_bands": self.variance_bands(),
+                "design": [{"dataset": label, "realisations": b.realisations, "periods": b.periods,
+                            "lines": int(len(b.f_hz)), "f_lo_hz": float(b.f_hz.min()), "f_hi_hz": float(b.f_hz.max())}
+                           for label, b in zip(self.labels, self.blas)]}
 
 
 def _smoothed(var: np.ndarray, G: np.ndarray, width: int = SMOOTH_LINES) -> np.ndarray:
@@ -256,8 +287,9 @@ def _start(bla: BestLinearApproximation, T: float) -> dict[str, float]:
     return {"Jc": float(Jc), "bc": float(a * Jc), "K": float(b0 * Jc), "Jl": float(Jl), "Td": float(td)}
 
 
-def fit_bla(bla: BestLinearApproximation, sample_time_s: float, initial: dict[str, float] | None = None) -> BlaFit:
-    """Fit the sampled eq (1)-(4) model (both outputs, ``tau_j`` and ``q_m``) to the BLA.
+def fit_bla(blas: BestLinearApproximation | Sequence[BestLinearApproximation], sample_time_s: float | Sequence[float],
+            initial: dict[str, float] | None = None, labels: Sequence[str] | None = None) -> BlaFit:
+    """Fit the sampled eq (1)-(4) model (both outputs, ``tau_j`` and ``q_m``) to one or more BLAs.
 
     The residual of each output and line is ``(G - G_model) / sigma`` with
     ``sigma^2`` the BLA's total variance (smoothed over
@@ -267,31 +299,41 @@ def fit_bla(bla: BestLinearApproximation, sample_time_s: float, initial: dict[st
 
     Parameters
     ----------
-    bla : BestLinearApproximation
-        With outputs ``("tau_j", "q_m")``.
-    sample_time_s : float
-        Sample time of the data [s].
+    blas : BestLinearApproximation or sequence of them
+        With outputs ``("tau_j", "q_m")``, of one joint.
+    sample_time_s : float or sequence of float
+        Sample time of each BLA's data [s].
     initial : dict, optional
-        Start values (default: from the BLA alone).
+        Start values (default: from the first BLA alone).
+    labels : sequence of str, optional
+        Names of the datasets, for the result.
     """
     from scipy.optimize import least_squares
 
     from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, discretize
 
-    if bla.outputs != ("tau_j", "q_m"):
-        raise IiwaIdentError(f"eq (4) is fitted to the outputs tau_j and q_m, the BLA has {', '.join(bla.outputs)}")
-    T = float(sample_time_s)
-    p0 = initial or _start(bla, T)
-    var = _smoothed(bla.var_total, bla.G)
-    w = np.sqrt(2.0 / np.maximum(var, 1e-300))  # per real and imaginary part: var / 2 each
+    blas = [blas] if isinstance(blas, BestLinearApproximation) else list(blas)
+    Ts = [float(sample_time_s)] * len(blas) if np.ndim(sample_time_s) == 0 else [float(t) for t in sample_time_s]
+    if not blas or len(Ts) != len(blas):
+        raise IiwaIdentError("fit_bla needs one sample time per BLA, and at least one BLA")
+    for bla in blas:
+        if bla.outputs != ("tau_j", "q_m"):
+            raise IiwaIdentError(f"eq (4) is fitted to the outputs tau_j and q_m, the BLA has "
+                                 f"{', '.join(bla.outputs)}")
+    p0 = initial or _start(blas[0], Ts[0])
+    # Per real and imaginary part: half the complex variance each.
+    weights = [np.sqrt(2.0 / np.maximum(_smoothed(b.var_total, b.G), 1e-300)) for b in blas]
 
     def params(x: np.ndarray) -> dict[str, float]:
         return {"Jc": math.exp(x[0]), "bc": math.exp(x[1]), "K": math.exp(x[2]), "Jl": math.exp(x[3]),
-                "Td": x[4] * 1e-3}
+                "Td": float(x[4]) * 1e-3}
 
     def residual(x: np.ndarray) -> np.ndarray:
-        e = (bla.G - discretize(params(x), T).frequency_response(bla.f_hz)) * w
-        return np.concatenate([e.real.ravel(), e.imag.ravel()])
+        parts = []
+        for b, T, w in zip(blas, Ts, weights):
+            e = (b.G - discretize(params(x), T).frequency_response(b.f_hz)) * w
+            parts += [e.real.ravel(), e.imag.ravel()]
+        return np.concatenate(parts)
 
     x0 = np.array([math.log(p0[k]) for k in PARAMETER_NAMES[:4]] + [p0["Td"] * 1e3])
     lower = np.array([math.log(1e-4), math.log(1e-3), math.log(1.0), math.log(1e-4), 0.0])
@@ -306,4 +348,5 @@ def fit_bla(bla: BestLinearApproximation, sample_time_s: float, initial: dict[st
     D = np.diag([p["Jc"], p["bc"], p["K"], p["Jl"], 1e-3])  # d(SI)/dx
     cov = D @ cov_x @ D
     std = dict(zip(PARAMETER_NAMES, map(float, np.sqrt(np.diag(cov)))))
-    return BlaFit(parameters=p, std=std, covariance=cov, chi2_dof=chi2_dof, bla=bla)
+    names = list(labels) if labels is not None else [f"dataset {i + 1}" for i in range(len(blas))]
+    return BlaFit(parameters=p, std=std, covariance=cov, chi2_dof=chi2_dof, blas=blas, labels=names)

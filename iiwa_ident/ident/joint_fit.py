@@ -26,11 +26,12 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
 from iiwa_ident.ident.idim import STICK_COULOMB_NM, IdimResult, LinkEffectEstimate, fit_idim
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, Parameter, Source, read_model, table1_model
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_transfer_function, output_residual_rms
 
-__all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
+__all__ = ["METHODS", "fit_joint", "fit_model", "fit_multisine_model", "model_effects"]
 
 #: ``auto``: ``idim`` when the link shows Coulomb friction or the transmission ripple, else ``joint``; ``joint``: IDIM-IV, then the
 #: output-error fit with its effects as known inputs; ``idim``: IDIM-IV alone; ``eq4``: the output-error
@@ -179,6 +180,87 @@ def model_effects(effects: Sequence[LinkEffectEstimate]) -> list[dict[str, Any]]
     return out
 
 
+def _inputs(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | JointModel | None
+            ) -> tuple[JointModel, list[Dataset], list[Source], int]:
+    """The base model, the datasets, the sources (with sha256) and the joint of a fit's input files."""
+    if not paths:
+        raise IiwaIdentError("fit needs at least one dataset file")
+    base_path = None
+    if base_model is None:
+        base = table1_model()
+    elif isinstance(base_model, JointModel):
+        base = base_model
+    else:
+        base_path = Path(base_model)
+        base = read_model(base_path)
+    datasets = [read_dataset(p) for p in paths]
+    sources = [Source(str(p), sha256_file(p), "fit") for p in paths]
+    if base_path is not None:
+        sources.append(Source(str(base_path), sha256_file(base_path), "base"))
+    joint = int(datasets[0].joint)
+    if base_model is not None and base.joint is not None and base.joint != joint:
+        raise IiwaIdentError(f"{base_path or 'base model'}: is for joint {base.joint}, the data are joint {joint}")
+    return base, datasets, sources, joint
+
+
+def fit_multisine_model(paths: Sequence[str | os.PathLike],
+                        base_model: str | os.PathLike | JointModel | None = None) -> tuple[JointModel, BlaFit]:
+    """Fit multisine dataset files through their best linear approximation and build the model file content.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        Multisine dataset files (HDF5) of one joint (:class:`~iiwa_ident.excite.Multisine`).
+    base_model : path or JointModel, optional
+        Model whose ``KI``, ripple table and robot model are kept.
+
+    Returns
+    -------
+    (JointModel, BlaFit)
+        The model carries ``Jc, bc, K, Jl, Td`` with std, ``KI``, their correlation, a ``[fit]``
+        table (method, std method, chi2/dof, the BLA's variances per band) and the inputs' sha256.
+    """
+    base, datasets, sources, joint = _inputs(paths, base_model)
+    labels = [str(p) for p in paths]
+    if any(int(ds.joint) != joint for ds in datasets):
+        raise IiwaIdentError("the datasets are of different joints: " + ", ".join(
+            f"{label} joint {ds.joint}" for label, ds in zip(labels, datasets)))
+    for label, ds in zip(labels, datasets):
+        if ds.experiment != "multisine":
+            raise IiwaIdentError(f"{label}: a {ds.experiment} dataset; fit multisines alone, not with other data")
+    blas = []
+    for label, ds in zip(labels, datasets):
+        try:
+            blas.append(best_linear_approximation(ds))
+        except IiwaIdentError as err:
+            raise IiwaIdentError(str(err).replace("the dataset", label, 1)) from None
+    result = fit_bla(blas, [1.0 / ds.sample_rate_hz for ds in datasets], labels=labels)
+    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
+    ki = base.parameters["KI"]
+    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"])
+    bands = result.variance_bands()
+    fit_table: dict[str, Any] = {
+        "method": "best linear approximation of random-phase odd multisines (robust method), eq (1)-(4) with "
+                  "fractional delay fitted to it for tau_j and q_m, weighted by its total variance",
+        "std_method": result.std_method,
+        "datasets": len(datasets),
+        "chi2_dof": result.chi2_dof,
+        "band_dataset": [labels.index(b["dataset"]) for b in bands],
+        "band_output": [b["output"] for b in bands],
+        "band_lo_hz": [b["lo_hz"] for b in bands],
+        "band_hi_hz": [b["hi_hz"] for b in bands],
+        "band_noise_rel": [b["noise_rel"] for b in bands],
+        "band_nonlinear_rel": [b["nonlinear_rel"] for b in bands],
+    }
+    std = np.sqrt(np.diag(result.covariance))
+    model = JointModel(
+        parameters=params, correlation_names=list(PARAMETER_NAMES),
+        correlation=result.covariance / np.outer(std, std), ripple=base.ripple, fit=fit_table, sources=sources,
+        joint=joint, robot_model=base.robot_model,
+        description="Eq (4) with delay fitted to the BLA of " + ", ".join(Path(p).name for p in paths))
+    return model, result
+
+
 def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | JointModel | None = None,
               *, method: str = "auto") -> tuple[JointModel, FitResult]:
     """Fit dataset files and build the joint model file content.
@@ -202,23 +284,10 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
         ``[[effects]]`` (their std in ``[fit]``), a ``[fit]`` table of
         diagnostics, and the sha256 of every input file.
     """
-    if not paths:
-        raise IiwaIdentError("fit needs at least one dataset file")
-    base_path = None
-    if base_model is None:
-        base = table1_model()
-    elif isinstance(base_model, JointModel):
-        base = base_model
-    else:
-        base_path = Path(base_model)
-        base = read_model(base_path)
-    datasets = [read_dataset(p) for p in paths]
-    sources = [Source(str(p), sha256_file(p), "fit") for p in paths]
-    if base_path is not None:
-        sources.append(Source(str(base_path), sha256_file(base_path), "base"))
-    joint = int(datasets[0].joint)
-    if base_model is not None and base.joint is not None and base.joint != joint:
-        raise IiwaIdentError(f"{base_path or 'base model'}: is for joint {base.joint}, the data are joint {joint}")
+    base, datasets, sources, joint = _inputs(paths, base_model)
+    if any(ds.experiment == "multisine" for ds in datasets):
+        raise IiwaIdentError(", ".join(str(p) for p, ds in zip(paths, datasets) if ds.experiment == "multisine")
+                             + ": a multisine; fit multisines alone (fit_multisine_model), not with chirps")
     # A ripple table in the base model (from the ripple command) gives its period: no search needed.
     result = fit_joint(datasets, method=method, ripple_period_rad=None if base.ripple is None else base.ripple.period_rad)
 
