@@ -24,11 +24,14 @@ noise, gaps), runs :func:`iiwa_ident.ident.ripple.identify_ripple` on each draw'
 
 Run: ``.venv/bin/python bench/bench_robustness.py ripple [--draws 100] [--first 0] [--jobs 2]``.
 
-``coverage``: the draws of ``fit`` (chirps), and for each parameter the share of 95 % intervals
-(1.96 reported std) that cover the truth, overall and by nuisance (target 90-98 %), with the same for the
-block sandwich std the fit computes alongside, and the median of |error| / std.
+``coverage``: the draws of ``fit``, excited by their chirp and by random-phase odd multisines over the
+same band (:func:`iiwa_ident.excite.scenarios.simulate_scenario_multisine`, fitted through the best
+linear approximation), and for each parameter and excitation the share of 95 % intervals (1.96 reported
+std) that cover the truth, overall and by nuisance (target 90-98 %), with the block sandwich std the chirp
+fit computes alongside, and the median of |error| / std.
 
-Run: ``.venv/bin/python bench/bench_robustness.py coverage [--draws 100] [--first 0] [--jobs 2]``.
+Run: ``.venv/bin/python bench/bench_robustness.py coverage [--draws 100] [--first 0] [--jobs 2]
+[--excitation chirp|multisine|both]``.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ from iiwa_ident.excite.scenarios import (
     draw_scenario,
     simulate_ripple_scenario,
     simulate_scenario,
+    simulate_scenario_multisine,
 )
 
 __all__ = ["run_draw", "run_ripple_draw", "main"]
@@ -154,22 +158,55 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_multisine_draw(seed: int) -> dict:
+    """Simulate the scenario of ``seed`` with multisines and fit it through the BLA; return its outcome."""
+    from iiwa_ident.ident.bla import best_linear_approximation, fit_bla
+
+    sc = draw_scenario(seed)
+    out = {"seed": seed, "describe": sc.describe(), "nuisances": sc.nuisances, "method": "bla"}
+    ds = simulate_scenario_multisine(sc)
+    if "stopped_reason" in ds.experiment_attrs:
+        out.update(status="refused", message=f"the multisine stopped: {ds.experiment_attrs['stopped_reason']}")
+        return out
+    res = _guarded(lambda: fit_bla(best_linear_approximation(ds), 1.0 / ds.sample_rate_hz), out)
+    if res is None:
+        return out
+    z = {k: abs(res.parameters[k] - sc.truth[k]) / res.std[k] if res.std[k] > 0 else math.inf for k in _NAMES}
+    out.update(status="done", z=z, z_sandwich=z, chi2_dof=res.chi2_dof)
+    return out
+
+
 def _coverage(args: argparse.Namespace) -> int:
     seeds = list(range(args.first, args.first + args.draws))
+    for excitation in (("chirp", "multisine") if args.excitation == "both" else (args.excitation,)):
+        _coverage_of(excitation, seeds, args.jobs)
+    return 0
+
+
+def _coverage_of(excitation: str, seeds: list[int], jobs: int) -> None:
+    run = run_draw if excitation == "chirp" else run_multisine_draw
     t0 = time.perf_counter()
-    if args.jobs > 1:
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = list(pool.map(run_draw, seeds))
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs) as pool:
+            rows = list(pool.map(run, seeds))
     else:
-        rows = [run_draw(s) for s in seeds]
-    fitted = [r for r in rows if r["status"] in ("pass", "miss")]
-    print(f"coverage of the fit's 95 % intervals (1.96 std) on chirps: {len(fitted)} fitted of {len(rows)} draws "
-          f"(seeds {seeds[0]}-{seeds[-1]}), {time.perf_counter() - t0:.0f} s; target 90-98 %")
+        rows = [run(s) for s in seeds]
+    fitted = [r for r in rows if r["status"] in ("pass", "miss", "done")]
+    print(f"coverage of the fit's 95 % intervals (1.96 std) on {excitation}s: {len(fitted)} fitted of {len(rows)} "
+          f"draws (seeds {seeds[0]}-{seeds[-1]}), {time.perf_counter() - t0:.0f} s; target 90-98 %")
+    for r in rows:
+        if r["status"] in ("refused", "traceback"):
+            print(f"  {r['status']}: {r['describe']}\n         {r['message'].strip().splitlines()[-1]}")
+    if not fitted:
+        return
+    if excitation == "multisine":
+        print(f"  chi2/dof: median {np.median([r['chi2_dof'] for r in fitted]):.2f}")
     print("  parameter   reported std   block sandwich   median |error|/std")
     for k in _NAMES:
         z = np.array([r["z"][k] for r in fitted])
         zs = np.array([r["z_sandwich"][k] for r in fitted])
-        print(f"    {k:<4s} {100 * np.mean(z <= Z95):14.1f} % {100 * np.mean(zs <= Z95):14.1f} % {np.median(z):14.2f}")
+        sw = f"{100 * np.mean(zs <= Z95):14.1f} %" if excitation == "chirp" else f"{'-':>16s}"
+        print(f"    {k:<4s} {100 * np.mean(z <= Z95):14.1f} % {sw} {np.median(z):14.2f}")
     print("  by nuisance (reported std):  draws  " + "  ".join(f"{k:>5s}" for k in _NAMES))
     for name in ("none", *NUISANCES):
         sub = [r for r in fitted if (name in r["nuisances"]) or (name == "none" and not r["nuisances"])]
@@ -180,7 +217,6 @@ def _coverage(args: argparse.Namespace) -> int:
         sub = [r for r in fitted if r["method"] == method]
         cov = "  ".join(f"{100 * np.mean([r['z'][k] <= Z95 for r in sub]):4.0f}%" for k in _NAMES)
         print(f"    method {method:<17s} {len(sub):5d}  {cov}")
-    return 0
 
 
 def run_ripple_draw(seed: int, null: bool = False) -> dict:
@@ -281,6 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     cv.add_argument("--draws", type=int, default=100)
     cv.add_argument("--first", type=int, default=0, help="first seed")
     cv.add_argument("--jobs", type=int, default=2)
+    cv.add_argument("--excitation", default="both", choices=("chirp", "multisine", "both"))
     args = parser.parse_args(argv)
     return {"fit": _fit, "ripple": _ripple, "coverage": _coverage}[args.what](args)
 

@@ -113,3 +113,16 @@ class TestFitBla:
             assert abs(fit.parameters[k] - v) <= 3.0 * fit.std[k], (k, fit.parameters[k], v, fit.std[k])
             if k != "Td":
                 assert fit.std[k] < 0.02 * v
+
+
+def test_sampled_response_is_the_fit_models_and_adds_the_link_terms():
+    from iiwa_ident.ident.bla import sampled_response
+    from iiwa_ident.ident.tf_fit import discretize
+
+    p = {"Jc": 1.03, "bc": 55.0, "K": 18000.0, "Jl": 5.6, "Td": 0.0053}
+    f = np.linspace(0.5, 400.0, 60)
+    np.testing.assert_allclose(sampled_response(p, f, 1e-3), discretize(p, 1e-3).frequency_response(f),
+                               rtol=1e-10, atol=0)
+    # A stiff link spring: far below the resonance, q_m / tau_j tends to 1/K + 1/kl (a static deflection).
+    stiff = sampled_response({**p, "kl": 500.0, "bl": 0.0}, np.array([0.01]), 1e-3)
+    assert (stiff[1] / stiff[0])[0] == pytest.approx(1 / 18000.0 + 1 / 500.0, rel=1e-3)

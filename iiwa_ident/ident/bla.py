@@ -26,7 +26,7 @@ Variances are of the complex ``G`` (``E|G - E G|^2``), per output and line.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -35,7 +35,7 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arrays", "BlaFit", "fit_bla",
-           "SMOOTH_LINES"]
+           "sampled_response", "LINK_TERMS", "SMOOTH_LINES"]
 
 
 @dataclass
@@ -217,6 +217,8 @@ class BlaFit:
     std_method: str = ("inverse Fisher information of the BLA weighted by its total variance (noise and nonlinear "
                        "distortions, robust method), times sqrt(chi2/dof) when above 1")
     method: str = "bla"
+    #: The link terms (:data:`LINK_TERMS`) fitted alongside: name -> (value, std) [SI].
+    link: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def variance_bands(self) -> list[dict[str, float | str]]:
         """Per dataset, output and octave band: the BLA's total, noise and nonlinear variance relative to |G|^2."""
@@ -239,6 +241,7 @@ class BlaFit:
                                for k in PARAMETER_NAMES},
                 "correlation": {"names": list(PARAMETER_NAMES), "matrix": corr.tolist()},
                 "method": self.method, "std_method": self.std_method, "chi2_dof": self.chi2_dof,
+                "link_terms": {k: {"value": v, "std": sd} for k, (v, sd) in self.link.items()},
                 "variance_bands": self.variance_bands(),
                 "design": [{"dataset": label, "realisations": b.realisations, "periods": b.periods,
                             "lines": int(len(b.f_hz)), "f_lo_hz": float(b.f_hz.min()), "f_hi_hz": float(b.f_hz.max())}
@@ -287,15 +290,76 @@ def _start(bla: BestLinearApproximation, T: float) -> dict[str, float]:
     return {"Jc": float(Jc), "bc": float(a * Jc), "K": float(b0 * Jc), "Jl": float(Jl), "Td": float(td)}
 
 
+#: Link-side terms fitted with eq (4) to the BLA: a viscous damping ``bl`` [Nm s/rad] and a stiffness ``kl``
+#: [Nm/rad] on the link, ``Jl theta_l'' = tau_j - bl theta_l' - kl theta_l``: the linear part of link friction
+#: (Coulomb friction's describing function is a damping) and of a position-dependent load (its slope).
+LINK_TERMS: tuple[str, ...] = ("bl", "kl")
+
+
+def sampled_response(params: dict[str, float], f_hz: np.ndarray, sample_time_s: float) -> np.ndarray:
+    """Exact sampled-data response of eqs (1)-(3) with link damping and stiffness, ZOH input, fractional delay.
+
+    Parameters
+    ----------
+    params : dict
+        ``Jc, bc, K, Jl`` [SI], ``Td`` [s], and optionally ``bl`` [Nm s/rad], ``kl`` [Nm/rad] (default 0).
+    f_hz : numpy.ndarray
+        Frequencies [Hz], not 0.
+    sample_time_s : float
+        T [s].
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (2, n), complex: ``tau_j / tau_c`` [Nm/Nm] and ``q_m / tau_c`` [rad/Nm]. With ``bl = kl = 0``
+        it equals :meth:`~iiwa_ident.ident.tf_fit.DiscreteModel.frequency_response`.
+    """
+    from scipy.linalg import expm
+
+    Jc, bc, K, Jl, Td = (float(params[k]) for k in ("Jc", "bc", "K", "Jl", "Td"))
+    bl, kl = float(params.get("bl", 0.0)), float(params.get("kl", 0.0))
+    T = float(sample_time_s)
+    # State (theta_m, z, theta_l, omega_l): Jc theta_m' = (bc/K)(u - tau_j) + z, z' = u - tau_j,
+    # Jl omega_l' = tau_j - bl omega_l - kl theta_l, tau_j = K (theta_m - theta_l).
+    A = np.array([[-bc / Jc, 1.0 / Jc, bc / Jc, 0.0],
+                  [-K, 0.0, K, 0.0],
+                  [0.0, 0.0, 0.0, 1.0],
+                  [K / Jl, 0.0, -(K + kl) / Jl, -bl / Jl]])
+    B = np.array([bc / (K * Jc), 1.0, 0.0, 0.0])
+    C = np.array([[K, 0.0, -K, 0.0], [1.0, 0.0, 0.0, 0.0]])
+    d = int(math.floor(Td / T + 1e-12))
+    tau = Td - d * T
+
+    def hold(h: float) -> tuple[np.ndarray, np.ndarray]:
+        """(e^{Ah}, int_0^h e^{As} ds B) from one exponential of the augmented matrix."""
+        M = np.zeros((5, 5))
+        M[:4, :4], M[:4, 4] = A * h, B * h
+        E = expm(M)
+        return E[:4, :4], E[:4, 4]
+
+    Phi, _ = hold(T)
+    E1, G_a = hold(T - tau)
+    _, G_b = hold(tau)
+    Gamma0, Gamma1 = G_a, E1 @ G_b
+    zi = np.exp(-2j * np.pi * np.asarray(f_hz, float) * T)  # z^-1
+    out = np.empty((2, len(zi)), complex)
+    for n, w in enumerate(zi):
+        x = np.linalg.solve(np.eye(4) / w - Phi, Gamma0 + Gamma1 * w)  # (z I - Phi)^-1 (Gamma0 + Gamma1 z^-1)
+        out[:, n] = (C @ x) * w**d
+    return out
+
+
 def fit_bla(blas: BestLinearApproximation | Sequence[BestLinearApproximation], sample_time_s: float | Sequence[float],
-            initial: dict[str, float] | None = None, labels: Sequence[str] | None = None) -> BlaFit:
+            initial: dict[str, float] | None = None, labels: Sequence[str] | None = None,
+            link_terms: bool = True) -> BlaFit:
     """Fit the sampled eq (1)-(4) model (both outputs, ``tau_j`` and ``q_m``) to one or more BLAs.
 
     The residual of each output and line is ``(G - G_model) / sigma`` with
     ``sigma^2`` the BLA's total variance (smoothed over
     :data:`SMOOTH_LINES` neighbouring lines), real and imaginary parts
-    separately; the model is :func:`~iiwa_ident.ident.tf_fit.discretize`'s
-    frequency response, which is exact for periodic steady state.
+    separately; the model is :func:`sampled_response` (exact for periodic
+    steady state), with the link terms :data:`LINK_TERMS` unless
+    ``link_terms`` is False.
 
     Parameters
     ----------
@@ -307,10 +371,14 @@ def fit_bla(blas: BestLinearApproximation | Sequence[BestLinearApproximation], s
         Start values (default: from the first BLA alone).
     labels : sequence of str, optional
         Names of the datasets, for the result.
+    link_terms : bool
+        Also fit :data:`LINK_TERMS` (link damping and stiffness), which take up
+        the linear part of link friction and loads instead of letting it bias
+        ``Jc, bc, K, Jl``.
     """
     from scipy.optimize import least_squares
 
-    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, discretize
+    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
 
     blas = [blas] if isinstance(blas, BestLinearApproximation) else list(blas)
     Ts = [float(sample_time_s)] * len(blas) if np.ndim(sample_time_s) == 0 else [float(t) for t in sample_time_s]
@@ -324,29 +392,43 @@ def fit_bla(blas: BestLinearApproximation | Sequence[BestLinearApproximation], s
     # Per real and imaginary part: half the complex variance each.
     weights = [np.sqrt(2.0 / np.maximum(_smoothed(b.var_total, b.G), 1e-300)) for b in blas]
 
+    n_link = len(LINK_TERMS) if link_terms else 0
+
     def params(x: np.ndarray) -> dict[str, float]:
-        return {"Jc": math.exp(x[0]), "bc": math.exp(x[1]), "K": math.exp(x[2]), "Jl": math.exp(x[3]),
-                "Td": float(x[4]) * 1e-3}
+        out = {"Jc": math.exp(x[0]), "bc": math.exp(x[1]), "K": math.exp(x[2]), "Jl": math.exp(x[3]),
+               "Td": float(x[4]) * 1e-3}
+        for name, v in zip(LINK_TERMS[:n_link], x[5:]):
+            out[name] = float(v)
+        return out
+
+    size = 2 * sum(b.G.size for b in blas)
 
     def residual(x: np.ndarray) -> np.ndarray:
         parts = []
-        for b, T, w in zip(blas, Ts, weights):
-            e = (b.G - discretize(params(x), T).frequency_response(b.f_hz)) * w
-            parts += [e.real.ravel(), e.imag.ravel()]
-        return np.concatenate(parts)
+        p = params(x)
+        with np.errstate(all="ignore"):  # a trial step far out: no model there, a cost no step accepts
+            for b, T, w in zip(blas, Ts, weights):
+                e = (b.G - sampled_response(p, b.f_hz, T)) * w
+                parts += [e.real.ravel(), e.imag.ravel()]
+            r = np.concatenate(parts)
+        return r if np.all(np.isfinite(r)) else np.full(size, 1e10)
 
-    x0 = np.array([math.log(p0[k]) for k in PARAMETER_NAMES[:4]] + [p0["Td"] * 1e3])
-    lower = np.array([math.log(1e-4), math.log(1e-3), math.log(1.0), math.log(1e-4), 0.0])
-    upper = np.array([math.log(1e4), math.log(1e6), math.log(1e8), math.log(1e5), 50.0])
+    x0 = np.array([math.log(p0[k]) for k in PARAMETER_NAMES[:4]] + [p0["Td"] * 1e3] + [0.0] * n_link)
+    lower = np.array([math.log(1e-4), math.log(1e-3), math.log(1.0), math.log(1e-4), 0.0] + [-np.inf] * n_link)
+    upper = np.array([math.log(1e4), math.log(1e6), math.log(1e8), math.log(1e5), 50.0] + [np.inf] * n_link)
     sol = least_squares(residual, np.clip(x0, lower, upper), bounds=(lower, upper), x_scale="jac")
     r = sol.fun
-    dof = max(len(r) - 5, 1)
+    dof = max(len(r) - len(x0), 1)
     chi2_dof = float(r @ r / dof)
     J = sol.jac
     cov_x = np.linalg.pinv(J.T @ J) * max(chi2_dof, 1.0)
     p = params(sol.x)
-    D = np.diag([p["Jc"], p["bc"], p["K"], p["Jl"], 1e-3])  # d(SI)/dx
-    cov = D @ cov_x @ D
+    D = np.diag([p["Jc"], p["bc"], p["K"], p["Jl"], 1e-3] + [1.0] * n_link)  # d(SI)/dx
+    cov_all = D @ cov_x @ D
+    cov = cov_all[:5, :5]
     std = dict(zip(PARAMETER_NAMES, map(float, np.sqrt(np.diag(cov)))))
+    link = {name: (p[name], float(math.sqrt(max(cov_all[5 + i, 5 + i], 0.0))))
+            for i, name in enumerate(LINK_TERMS[:n_link])}
     names = list(labels) if labels is not None else [f"dataset {i + 1}" for i in range(len(blas))]
-    return BlaFit(parameters=p, std=std, covariance=cov, chi2_dof=chi2_dof, blas=blas, labels=names)
+    return BlaFit(parameters={k: p[k] for k in PARAMETER_NAMES}, std=std, covariance=cov, chi2_dof=chi2_dof,
+                  blas=blas, labels=names, link=link)
