@@ -43,7 +43,7 @@ class TestMultisineExperiment:
     def test_runs_periods_times_realisations_and_records_the_design(self):
         # Without the hold the command is exactly bias + A x_m(t) (no bias either: a free link would drift).
         exp = Multisine(2.0, 50.0, period_s=0.5, periods=2, realisations=3, amplitude_nm=8.0, bias_nm=0.0,
-                        hold_stiffness=0.0, hold_damping=0.0, seed=4, lead_in_s=0.25)
+                        hold_stiffness=0.0, hold_damping=0.0, seed=4, lead_in_s=0.25, transient_periods=1)
         ds = record(SimulatedJoint(default_plant(), seed=1), exp)
         a = ds.experiment_attrs
         assert ds.experiment == "multisine" and ds.n_samples == 250 + 3 * 3 * 500 and a["lead_in_s"] == 0.25
@@ -72,6 +72,7 @@ class TestMultisineExperiment:
         ({"f_lo_hz": 50.0, "f_hi_hz": 10.0}, "need 0 < f_lo < f_hi"),
         ({"amplitude_nm": 0.0}, "amplitude must be positive"),
         ({"lead_in_s": -1.0}, "lead-in must be a non-negative time"),
+        ({"transient_periods": 0}, "at least 1 transient period"),
     ])
     def test_bad_settings(self, kw, message):
         with pytest.raises(IiwaIdentError, match=message):
@@ -97,7 +98,9 @@ def test_cli_simulate_multisine(tmp_path):
                               "--realisations", "2", "--amplitude", "5", "--out", str(out)])
     assert res.exit_code == 0, res.output
     ds = read_dataset(out)
-    assert ds.experiment == "multisine" and ds.n_samples == 6000 + 2 * 3 * 500  # the default 6 s lead-in
+    # The default 6 s lead-in, and 4 s of transient periods in each realisation.
+    assert ds.experiment == "multisine" and ds.n_samples == 6000 + 2 * (8 + 2) * 500
+    assert ds.experiment_attrs["transient_periods"] == 8
     assert ds.experiment_attrs["amplitude_nm"] == 5.0
 
 
