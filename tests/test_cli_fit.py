@@ -48,6 +48,8 @@ class TestFitCommand:
         assert model.parameters["KI"].value == 25.0
         doc = json.loads(js.read_text())
         assert {"parameters", "correlation", "bands", "nonlinear_share", "warnings"} <= set(doc)
+        # The std names how it was computed (and that it describes the noise only).
+        assert "noise" in doc["std_method"] and model.fit["std_method"] == doc["std_method"]
         assert set(doc["parameters"]) == set(PARAMETER_NAMES)
         for name in PARAMETER_NAMES:
             entry = doc["parameters"][name]

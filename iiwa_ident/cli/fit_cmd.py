@@ -54,6 +54,7 @@ def format_fit(result: FitResult) -> str:
         lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
     lines.append(f"delay Td = {result.parameters['Td'] * 1e3:.3f} +- {result.std['Td'] * 1e3:.3f} ms")
     lines.append(f"method: {result.method}")
+    lines.append(f"std: {result.std_method}")
     if result.effects:
         lines.append("")
         lines.append("link-side effects (simulator names; * = above 3 std)")

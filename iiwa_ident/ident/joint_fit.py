@@ -53,6 +53,8 @@ def _from_idim(idim: IdimResult, datasets: Sequence[Dataset]) -> FitResult:
     result = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs, refine=False)
     result.std = dict(idim.std)
     result.std_sandwich = dict(idim.std)
+    result.std_method = ("block sandwich of the inverse-dynamics (IDIM-IV) estimating equations over quarter-second "
+                         "blocks; describes the noise and slow residuals, not effects of another shape")
     result.covariance = np.diag([idim.std[k] ** 2 for k in PARAMETER_NAMES])
     result.correlation = np.eye(len(PARAMETER_NAMES))
     # The output-error std is of no use here; its warnings about it are replaced by IDIM's own.
@@ -296,6 +298,7 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
     params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"])
     fit_table: dict[str, Any] = {
         "method": _METHOD_TEXT[result.method],
+        "std_method": result.std_method,
         "datasets": len(datasets),
         "cost": result.cost,
         "evaluations": result.n_evaluations,

@@ -112,6 +112,7 @@ __all__ = [
     "initial_estimate",
     "fit_transfer_function",
     "cramer_rao_std",
+    "STD_FISHER",
 ]
 
 #: The estimated parameters, in this order everywhere (SI units: kg m^2, Nm s/rad, Nm/rad, kg m^2, s).
@@ -122,6 +123,9 @@ MIN_DURATION_S = 2.0
 MIN_COMMAND_STD_NM = 0.5
 
 _BLOCK_S = 0.25  # length of the blocks with their own noise level [s]
+#: :attr:`FitResult.std_method` of the output-error fit.
+STD_FISHER = ("inverse Fisher information of the output-error fit, weighted by per-block noise levels "
+              "estimated from the residuals; describes the noise, not unmodelled effects")
 _SIGMA_FLOOR = 0.1  # a block's noise level is at least this fraction of its channel's RMS
 _COHERENT = 0.5  # a band with less coherence than this carries no usable information
 _LOW_COHERENCE = 0.8  # warn below this mean coherence in an octave band
@@ -900,6 +904,8 @@ class FitResult:
     method: str = "eq4"
     #: Fitted link-side effects (:class:`iiwa_ident.ident.idim.LinkEffectEstimate`), if any.
     effects: list[Any] = field(default_factory=list)
+    #: How :attr:`std` was computed (named in the JSON).
+    std_method: str = STD_FISHER
 
     @property
     def relative_std(self) -> dict[str, float]:
@@ -928,6 +934,7 @@ class FitResult:
             "nonlinear_share": nonlinear,
             "warnings": list(self.warnings),
             "method": self.method,
+            "std_method": self.std_method,
             "effects": {e.name: e.to_json() for e in self.effects},
         }
 
