@@ -8,7 +8,7 @@ from scipy.signal import freqz, lfilter
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Multisine, odd_lines, odd_multisine, record
-from iiwa_ident.ident.bla import best_linear_approximation, bla_from_arrays
+from iiwa_ident.ident.bla import BestLinearApproximation, best_linear_approximation, bla_from_arrays
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 N, FS = 256, 1000.0
@@ -126,3 +126,21 @@ def test_sampled_response_is_the_fit_models_and_adds_the_link_terms():
     # A stiff link spring: far below the resonance, q_m / tau_j tends to 1/K + 1/kl (a static deflection).
     stiff = sampled_response({**p, "kl": 500.0, "bl": 0.0}, np.array([0.01]), 1e-3)
     assert (stiff[1] / stiff[0])[0] == pytest.approx(1 / 18000.0 + 1 / 500.0, rel=1e-3)
+
+
+def test_warnings_name_a_misfit_and_a_nonlinear_band():
+    from iiwa_ident.ident.bla import BlaFit
+
+    f = np.array([1.0, 2.0, 3.0, 5.0])
+    G = np.ones((2, 4), complex)
+    bla = BestLinearApproximation(f_hz=f, lines=np.arange(4), outputs=("tau_j", "q_m"), G=G,
+                                  var_total=np.array([[1e-6, 1e-6, 0.05, 0.05], [1e-6] * 4]),
+                                  var_noise=np.full((2, 4), 1e-6), realisations=4, periods=2)
+    fit = BlaFit(parameters={}, std={}, covariance=np.eye(5), chi2_dof=5.0, blas=[bla], labels=["ms.h5"])
+    w = fit.warnings()
+    assert any("chi2/dof 5" in x for x in w)
+    assert any("not linear in 2-4 Hz" in x for x in w) and not any("1-2 Hz" in x for x in w)
+    quiet = BlaFit(parameters={}, std={}, covariance=np.eye(5), chi2_dof=1.0,
+                   blas=[BestLinearApproximation(f, np.arange(4), ("tau_j", "q_m"), G, np.full((2, 4), 1e-6),
+                                                 np.full((2, 4), 1e-6), 4, 2)], labels=["ms.h5"])
+    assert quiet.warnings() == []

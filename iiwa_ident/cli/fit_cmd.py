@@ -175,7 +175,8 @@ def fit_cmd(
             if figures is not None:
                 raise IiwaIdentError("--figures: the plots are of chirp fits; not made for multisines")
             joint_model, bla_fit = fit_multisine_model(chirps, base_model=model)
-            text, json_doc, warnings = format_bla_fit(bla_fit), json_text(bla_fit.to_json()) if json_out else None, []
+            text, warnings = format_bla_fit(bla_fit), bla_fit.warnings()
+            json_doc = json_text(bla_fit.to_json()) if json_out else None
         else:
             joint_model, result = fit_model(chirps, base_model=model, method=method)
             text, warnings = format_fit(result), list(result.warnings)

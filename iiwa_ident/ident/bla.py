@@ -179,6 +179,12 @@ def best_linear_approximation(ds: Dataset, outputs: tuple[str, ...] = ("tau_j", 
 # --------------------------------------------------------------------------
 # eq (4) fitted to the BLA
 
+#: Warn when the weighted residual per degree of freedom exceeds this [-].
+CHI2_WARN = 2.0
+#: Warn when the nonlinear distortions' variance of tau_j's BLA in a band exceeds this share of |G|^2 [-]
+#: (a 3 % standard deviation of G).
+NONLINEAR_WARN_REL = 1e-3
+
 #: Neighbouring lines whose relative variances are averaged into each line's weight: a variance from
 #: M - 1 realisations alone is too noisy to weight by (lines that happen to scatter little would dominate).
 SMOOTH_LINES = 7
@@ -230,6 +236,20 @@ class BlaFit:
             out += [{"dataset": label, **row} for row in bla.bands(edges)]
         return out
 
+    def warnings(self) -> list[str]:
+        """What a user should know before trusting the result."""
+        out = []
+        if self.chi2_dof > CHI2_WARN:
+            out.append(f"eq (4) misses the BLA by more than its variance explains (chi2/dof {self.chi2_dof:.2g}): "
+                       "effects the model lacks; the std is widened by sqrt(chi2/dof) but may not cover them")
+        for b in self.variance_bands():
+            if b["output"] == "tau_j" and b["nonlinear_rel"] > NONLINEAR_WARN_REL:
+                where = f"{b['dataset']}: " if len(self.labels) > 1 else ""
+                out.append(f"{where}the joint is not linear in {b['lo_hz']:.3g}-{b['hi_hz']:.3g} Hz: the nonlinear "
+                           f"distortions' variance is {b['nonlinear_rel']:.2g} of |G|^2 (noise "
+                           f"{b['noise_rel']:.2g})")
+        return out
+
     def to_json(self) -> dict:
         """The ``--json`` document (SI units, ``Td`` in s)."""
         from iiwa_ident.ident.model_file import PARAMETER_UNITS
@@ -242,7 +262,7 @@ class BlaFit:
                 "correlation": {"names": list(PARAMETER_NAMES), "matrix": corr.tolist()},
                 "method": self.method, "std_method": self.std_method, "chi2_dof": self.chi2_dof,
                 "link_terms": {k: {"value": v, "std": sd} for k, (v, sd) in self.link.items()},
-                "variance_bands": self.variance_bands(),
+                "variance_bands": self.variance_bands(), "warnings": self.warnings(),
                 "design": [{"dataset": label, "realisations": b.realisations, "periods": b.periods,
                             "lines": int(len(b.f_hz)), "f_lo_hz": float(b.f_hz.min()), "f_hi_hz": float(b.f_hz.max())}
                            for label, b in zip(self.labels, self.blas)]}
