@@ -102,11 +102,16 @@ def test_cli_simulate_multisine(tmp_path):
     assert ds.experiment == "multisine" and ds.n_samples == 6000 + 2 * (8 + 2) * 500
     assert ds.experiment_attrs["transient_periods"] == 8
     assert ds.experiment_attrs["amplitude_nm"] == 5.0
+    res = runner.invoke(app, ["simulate", "multisine", "--band", "2,40", "--period", "0.5", "--periods", "2",
+                              "--realisations", "2", "--transient-periods", "3", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert read_dataset(out).n_samples == 6000 + 2 * (3 + 2) * 500
 
 
 @pytest.mark.parametrize("args, message", [
     (["--band", "2"], "--band expects F_LO,F_HI"),
     (["--periods", "1"], "at least 2 periods"),
+    (["--transient-periods", "0"], "at least 1 transient period"),
 ])
 def test_cli_bad_multisine_options(tmp_path, args, message):
     res = runner.invoke(app, ["simulate", "multisine", "--out", str(tmp_path / "x.h5"), *args])

@@ -163,6 +163,9 @@ def simulate_cmd(
                                               "phases.")] = 4,
     bias: Annotated[float, typer.Option("--bias", help="multisine: constant torque [Nm].")] = 3.0,
     phase_seed: Annotated[int, typer.Option("--phase-seed", help="multisine: seed of the random phases.")] = 0,
+    transient_periods: Annotated[Optional[int], typer.Option("--transient-periods", help="multisine: periods run "
+                                                             "first in each realisation and left out (default: "
+                                                             "4 s worth).")] = None,
     cycles: Annotated[int, typer.Option("--cycles", help="step: number of periods.")] = 3,
     q0: Annotated[float, typer.Option("--q0", help="Initial joint position [rad].")] = 0.0,
     target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint) or 'robot' (FRI).")] = "sim",
@@ -189,7 +192,7 @@ def simulate_cmd(
                 raise IiwaIdentError(f"--band expects F_LO,F_HI, got {band!r}")
             exp: Experiment = Multisine(lo_hi[0], lo_hi[1], 2.0 if period is None else period, periods,
                                         realisations, 10.0 if amplitude is None else amplitude, bias,
-                                        seed=phase_seed)
+                                        seed=phase_seed, transient_periods=transient_periods)
         else:
             exp = _experiment(experiment, velocity, range_, repeats, mode, torque, duration, kappa, amplitude,
                               frequency, 1.0 if period is None else period, cycles)
