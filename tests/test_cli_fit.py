@@ -191,7 +191,7 @@ class TestFitMultisine:
         assert res.exit_code == 2 and "fit multisines alone" in res.output
         assert "Traceback" not in res.output and not (tmp_path / "m.toml").exists()
 
-    @pytest.mark.parametrize("extra, message", [(["--method", "idim"], "--method chooses among the chirp"),
+    @pytest.mark.parametrize("extra, message", [(["--method", "idim"], "method 'idim' is a chirp estimator"),
                                                 (["--figures", "figs"], "--figures: the plots are of chirp fits")])
     def test_chirp_only_options_refused(self, multisine, tmp_path, extra, message):
         res = runner.invoke(app, ["fit", str(multisine), "--out", str(tmp_path / "m.toml"), *extra])

@@ -11,9 +11,8 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.datasets import read_dataset
 from iiwa_ident.ident.bla import BlaFit
-from iiwa_ident.ident.joint_fit import METHODS, fit_model, fit_multisine_model
+from iiwa_ident.ident.joint_fit import METHODS, fit_model
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, write_model
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult
 
@@ -33,6 +32,16 @@ def _band(lo: float, hi: float) -> str:
     return f"{lo:.3g}-{hi:.3g} Hz"
 
 
+def _parameter_lines(values: dict[str, float], std: dict[str, float]) -> list[str]:
+    """The parameter table (value, std, relative std; the delay in ms) and the delay line."""
+    lines = ["parameter  value                std              rel. std"]
+    for name in PARAMETER_NAMES:
+        v, s, r = _value_text(name, values[name], std[name])
+        lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
+    lines.append(f"delay Td = {values['Td'] * 1e3:.3f} +- {std['Td'] * 1e3:.3f} ms")
+    return lines
+
+
 def format_fit(result: FitResult) -> str:
     """The human-readable summary printed by ``iiwa-ident fit``.
 
@@ -48,11 +57,7 @@ def format_fit(result: FitResult) -> str:
         noise levels, fit quality per octave band and the nonlinear share
         per octave band.
     """
-    lines = ["parameter  value                std              rel. std"]
-    for name in PARAMETER_NAMES:
-        v, s, r = _value_text(name, result.parameters[name], result.std[name])
-        lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
-    lines.append(f"delay Td = {result.parameters['Td'] * 1e3:.3f} +- {result.std['Td'] * 1e3:.3f} ms")
+    lines = _parameter_lines(result.parameters, result.std)
     lines.append(f"method: {result.method}")
     lines.append(f"std: {result.std_method}")
     if result.effects:
@@ -94,11 +99,7 @@ def format_fit(result: FitResult) -> str:
 
 def format_bla_fit(result: BlaFit) -> str:
     """The summary printed by ``iiwa-ident fit`` for multisines: parameters, chi2/dof, the BLA's variances."""
-    lines = ["parameter  value                std              rel. std"]
-    for name in PARAMETER_NAMES:
-        v, s, r = _value_text(name, result.parameters[name], result.std[name])
-        lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
-    lines.append(f"delay Td = {result.parameters['Td'] * 1e3:.3f} +- {result.std['Td'] * 1e3:.3f} ms")
+    lines = _parameter_lines(result.parameters, result.std)
     lines.append("method: best linear approximation of the multisines (robust method), eq (4) fitted to it")
     lines.append(f"std: {result.std_method}")
     lines.append(f"chi2/dof {result.chi2_dof:.2f} (about 1 when eq (4) explains the BLA within its variance)")
@@ -165,23 +166,15 @@ def fit_cmd(
                 raise IiwaIdentError(f"{target}: is a directory, not a file")
         if figures is not None and figures.exists() and not figures.is_dir():
             raise IiwaIdentError(f"{figures}: exists and is not a folder")
-        kinds = {read_dataset(p).experiment for p in chirps}
-        if "multisine" in kinds:
-            if kinds != {"multisine"}:
-                raise IiwaIdentError("fit multisines alone, not together with chirps or other data")
-            if method != "auto":
-                raise IiwaIdentError("--method chooses among the chirp estimators; multisines are fitted through "
-                                     "their best linear approximation")
+        joint_model, result = fit_model(chirps, base_model=model, method=method)
+        if isinstance(result, BlaFit):
             if figures is not None:
                 raise IiwaIdentError("--figures: the plots are of chirp fits; not made for multisines")
-            joint_model, bla_fit = fit_multisine_model(chirps, base_model=model)
-            text, warnings = format_bla_fit(bla_fit), bla_fit.warnings()
-            json_doc = json_text(bla_fit.to_json()) if json_out else None
+            text, warnings = format_bla_fit(result), result.warnings()
         else:
-            joint_model, result = fit_model(chirps, base_model=model, method=method)
             text, warnings = format_fit(result), list(result.warnings)
-            # Prepare every output before writing any, so a failure leaves no partial results.
-            json_doc = json_text(result.to_json()) if json_out else None
+        # Prepare every output before writing any, so a failure leaves no partial results.
+        json_doc = json_text(result.to_json()) if json_out else None
         pngs: dict[str, bytes] = {}
         if figures is not None:
             from iiwa_ident.report.fit_figures import fit_figure_pngs

@@ -1183,7 +1183,7 @@ class RobotEmulator:
         stalled = False
         if state == SessionState.COMMANDING_ACTIVE:
             n = self._active_cycles
-            stalled = any(a <= n < b for a, b in self._stalls)
+            stalled = bool(self._stalls) and any(a <= n < b for a, b in self._stalls)
             self._active_cycles += 1
         if self._ending and state == SessionState.IDLE:
             if (k - self._state_k) * self._period >= self.config.idle_s:

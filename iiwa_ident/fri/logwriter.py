@@ -354,23 +354,16 @@ class LogWriter:
     def _start_writer(self) -> None:
         """Create the ring and the writer process; wait until it has the file open."""
         nbytes = _ROWS_OFFSET + self._capacity * self._n * 8
-        shm = None
-        for _ in range(3):  # a name taken (a pid reused since a crash): another random part
-            # Named after the process, so that a segment left by a crash (SIGKILL of both processes) can be
-            # told apart in /dev/shm: iiwa-ident-log-<pid of the loop>-<random>.
-            name = f"{SHM_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
-            try:
-                shm = SharedMemory(create=True, size=nbytes, name=name)
-                break
-            except FileExistsError:
-                continue
-            except OSError as err:
-                raise IiwaIdentError(
-                    f"{self._path}: cannot create a {nbytes / 1e6:.1f} MB shared-memory ring buffer "
-                    f"({err.strerror or err})"
-                ) from err
-        if shm is None:
-            raise IiwaIdentError(f"{self._path}: no free name for the shared-memory ring buffer")
+        # Named after the process, so that a segment left by a crash (SIGKILL of both processes) can be told
+        # apart in /dev/shm: iiwa-ident-log-<pid of the loop>-<random>.
+        name = f"{SHM_PREFIX}{os.getpid()}-{secrets.token_hex(8)}"
+        try:
+            shm = SharedMemory(create=True, size=nbytes, name=name)
+        except OSError as err:
+            raise IiwaIdentError(
+                f"{self._path}: cannot create a {nbytes / 1e6:.1f} MB shared-memory ring buffer "
+                f"({err.strerror or err})"
+            ) from err
         self._shm = shm
         self._hdr = shm.buf[:_ROWS_OFFSET].cast("q")
         rows = np.ndarray((self._capacity, self._n), dtype=np.float64, buffer=shm.buf, offset=_ROWS_OFFSET)

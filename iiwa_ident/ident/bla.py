@@ -336,17 +336,15 @@ def sampled_response(params: dict[str, float], f_hz: np.ndarray, sample_time_s: 
     """
     from scipy.linalg import expm
 
+    from iiwa_ident.ident.tf_fit import _state_space
+
     Jc, bc, K, Jl, Td = (float(params[k]) for k in ("Jc", "bc", "K", "Jl", "Td"))
-    bl, kl = float(params.get("bl", 0.0)), float(params.get("kl", 0.0))
     T = float(sample_time_s)
-    # State (theta_m, z, theta_l, omega_l): Jc theta_m' = (bc/K)(u - tau_j) + z, z' = u - tau_j,
-    # Jl omega_l' = tau_j - bl omega_l - kl theta_l, tau_j = K (theta_m - theta_l).
-    A = np.array([[-bc / Jc, 1.0 / Jc, bc / Jc, 0.0],
-                  [-K, 0.0, K, 0.0],
-                  [0.0, 0.0, 0.0, 1.0],
-                  [K / Jl, 0.0, -(K + kl) / Jl, -bl / Jl]])
-    B = np.array([bc / (K * Jc), 1.0, 0.0, 0.0])
-    C = np.array([[K, 0.0, -K, 0.0], [1.0, 0.0, 0.0, 0.0]])
+    # The chirp fit's eqs (1)-(3), state (theta_m, z, theta_l, omega_l), with the link terms added to
+    # Jl omega_l' = tau_j - bl omega_l - kl theta_l.
+    A, B, C = _state_space(Jc, bc, K, Jl)
+    A[3, 2] -= float(params.get("kl", 0.0)) / Jl
+    A[3, 3] -= float(params.get("bl", 0.0)) / Jl
     d = int(math.floor(Td / T + 1e-12))
     tau = Td - d * T
 

@@ -31,7 +31,7 @@ from iiwa_ident.ident.idim import STICK_COULOMB_NM, IdimResult, LinkEffectEstima
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, Parameter, Source, read_model, table1_model
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_transfer_function, output_residual_rms
 
-__all__ = ["METHODS", "fit_joint", "fit_model", "fit_multisine_model", "model_effects"]
+__all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
 
 #: ``auto``: ``idim`` when the link shows Coulomb friction or the transmission ripple, else ``joint``; ``joint``: IDIM-IV, then the
 #: output-error fit with its effects as known inputs; ``idim``: IDIM-IV alone; ``eq4``: the output-error
@@ -205,31 +205,13 @@ def _inputs(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | 
     return base, datasets, sources, joint
 
 
-def fit_multisine_model(paths: Sequence[str | os.PathLike],
-                        base_model: str | os.PathLike | JointModel | None = None) -> tuple[JointModel, BlaFit]:
-    """Fit multisine dataset files through their best linear approximation and build the model file content.
-
-    Parameters
-    ----------
-    paths : sequence of path
-        Multisine dataset files (HDF5) of one joint (:class:`~iiwa_ident.excite.Multisine`).
-    base_model : path or JointModel, optional
-        Model whose ``KI``, ripple table and robot model are kept.
-
-    Returns
-    -------
-    (JointModel, BlaFit)
-        The model carries ``Jc, bc, K, Jl, Td`` with std, ``KI``, their correlation, a ``[fit]``
-        table (method, std method, chi2/dof, the BLA's variances per band) and the inputs' sha256.
-    """
-    base, datasets, sources, joint = _inputs(paths, base_model)
+def _multisine_model(paths: Sequence[str | os.PathLike], datasets: list[Dataset], base: JointModel,
+                     sources: list[Source], joint: int) -> tuple[JointModel, BlaFit]:
+    """The model file content from multisine datasets, fitted through their best linear approximation."""
     labels = [str(p) for p in paths]
     if any(int(ds.joint) != joint for ds in datasets):
         raise IiwaIdentError("the datasets are of different joints: " + ", ".join(
             f"{label} joint {ds.joint}" for label, ds in zip(labels, datasets)))
-    for label, ds in zip(labels, datasets):
-        if ds.experiment != "multisine":
-            raise IiwaIdentError(f"{label}: a {ds.experiment} dataset; fit multisines alone, not with other data")
     blas = []
     for label, ds in zip(labels, datasets):
         try:
@@ -264,13 +246,19 @@ def fit_multisine_model(paths: Sequence[str | os.PathLike],
 
 
 def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | JointModel | None = None,
-              *, method: str = "auto") -> tuple[JointModel, FitResult]:
+              *, method: str = "auto") -> tuple[JointModel, FitResult | BlaFit]:
     """Fit dataset files and build the joint model file content.
+
+    Chirps go to :func:`fit_joint`; multisines
+    (:class:`~iiwa_ident.excite.Multisine`, all files) through their best
+    linear approximation to :func:`~iiwa_ident.ident.bla.fit_bla`, whose
+    ``[fit]`` table carries the std's method, chi2/dof and the BLA's noise and
+    nonlinear variance per output and octave band.
 
     Parameters
     ----------
     paths : sequence of path
-        Chirp dataset files (HDF5) of one joint.
+        Chirp dataset files (HDF5) of one joint, or multisine files.
     base_model : path or JointModel, optional
         Model whose other parts are kept: ``KI`` (default 25 rad/s, Table I,
         without std), the ripple table (whose period the fit then uses) and
@@ -287,9 +275,14 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
         diagnostics, and the sha256 of every input file.
     """
     base, datasets, sources, joint = _inputs(paths, base_model)
-    if any(ds.experiment == "multisine" for ds in datasets):
-        raise IiwaIdentError(", ".join(str(p) for p, ds in zip(paths, datasets) if ds.experiment == "multisine")
-                             + ": a multisine; fit multisines alone (fit_multisine_model), not with chirps")
+    kinds = {ds.experiment for ds in datasets}
+    if "multisine" in kinds:
+        if kinds != {"multisine"}:
+            raise IiwaIdentError("fit multisines alone, not together with chirps or other data")
+        if method != "auto":
+            raise IiwaIdentError(f"method {method!r} is a chirp estimator; multisines are fitted through their best "
+                                 "linear approximation")
+        return _multisine_model(paths, datasets, base, sources, joint)
     # A ripple table in the base model (from the ripple command) gives its period: no search needed.
     result = fit_joint(datasets, method=method, ripple_period_rad=None if base.ripple is None else base.ripple.period_rad)
 
