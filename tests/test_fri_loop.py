@@ -264,7 +264,8 @@ class TestRunCommand:
         with _emulator(port, duration_s=20.0) as emu:
             proc = _start_run(config_file, port, log, 15, "--task", "sine", "--amplitude", "3", silence="0.3")
             wait_for(lambda: _rows(log) >= 100, what="100 rows flushed to the live log")
-            assert len(_left_behind(proc.pid, tmp_path)) == 1  # the log's ring buffer, while the run lasts
+            if os.path.isdir("/dev/shm"):  # the log's ring buffer, while the run lasts (Linux)
+                assert len(_left_behind(proc.pid, tmp_path)) == 1
             emu.kill()  # the robot is gone: not one more message
             out = proc.communicate(timeout=120)[0]
         assert proc.returncode == 0, out
