@@ -117,6 +117,13 @@ class RippleTable:
         frac = x - np.floor(x)
         return (1 - frac) * self.lut[i0] + frac * self.lut[(i0 + 1) % n]
 
+    def slope(self, theta_m: np.ndarray | float) -> np.ndarray:
+        """df/dtheta_m [rad/rad] of the interpolated table (constant between its entries)."""
+        n = len(self.lut)
+        x = np.mod(np.asarray(theta_m, float), self.period_rad) / self.period_rad * n
+        i0 = np.floor(x).astype(int) % n
+        return (self.lut[(i0 + 1) % n] - self.lut[i0]) * (n / self.period_rad)
+
     def at(self, theta_m: float) -> float:
         """``self(theta_m)`` for one float [rad], without numpy (a few hundred ns in a 1 kHz loop)."""
         lut = self.__dict__.get("_lut_list")

@@ -88,14 +88,14 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.interpolate import BSpline
+from scipy.interpolate import BSpline, CubicSpline
 from scipy.linalg import cho_factor, cho_solve
 from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
-from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel
+from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
 
 __all__ = [
     "PARAMETER_NAMES",
@@ -113,6 +113,8 @@ __all__ = [
     "fit_transfer_function",
     "cramer_rao_std",
     "STD_FISHER",
+    "RIPPLE_HARMONICS",
+    "RippleTerms",
 ]
 
 #: The estimated parameters, in this order everywhere (SI units: kg m^2, Nm s/rad, Nm/rad, kg m^2, s).
@@ -126,6 +128,9 @@ _BLOCK_S = 0.25  # length of the blocks with their own noise level [s]
 #: :attr:`FitResult.std_method` of the output-error fit.
 STD_FISHER = ("inverse Fisher information of the output-error fit, weighted by per-block noise levels "
               "estimated from the residuals; describes the noise, not unmodelled effects")
+#: What the transmission ripple's terms add to :data:`STD_FISHER`.
+STD_RIPPLE = ("; with the transmission ripple's coefficients fitted alongside, plus the sampled model's own error "
+              "for the ripple's inputs (estimated by step doubling), and at least the block sandwich std")
 _SIGMA_FLOOR = 0.1  # a block's noise level is at least this fraction of its channel's RMS
 _COHERENT = 0.5  # a band with less coherence than this carries no usable information
 _LOW_COHERENCE = 0.8  # warn below this mean coherence in an octave band
@@ -158,8 +163,59 @@ def _as_values(params: Any) -> tuple[float, float, float, float, float]:
 
 
 #: Inputs of the sampled model: the FRI command (delayed by ``Td``), a torque added to the motor side's
-#: command inside the robot (its gravity model; not delayed) and a torque on the link (friction, loads).
-INPUTS: tuple[str, ...] = ("command", "motor", "link")
+#: command inside the robot (its gravity model; not delayed), a torque on the link (friction, loads) [Nm],
+#: and the transmission's deflection ``f(theta_m)`` of eq (5) [rad] (the ripple; ``tau_j = K (theta_m - f -
+#: theta_l)``, so it acts on both sides of the spring and on the sensor).
+INPUTS: tuple[str, ...] = ("command", "motor", "link", "deflection", "reaction")
+
+#: Harmonics of the ripple's period whose coefficients the output-error fit estimates with the parameters.
+RIPPLE_HARMONICS = 4
+
+
+@dataclass(frozen=True)
+class RippleTerms:
+    """The transmission ripple of eq (5) in the output-error fit.
+
+    The deflection ``f(theta_m)`` enters the spring (``tau_j = K (theta_m - f -
+    theta_l)``) and the motor side feels the joint torque through the
+    transmission's ratio ``1 - f'`` (the reaction ``tau_j f'``); both are
+    computed from the measured ``q_m`` and ``tau_j``. A ``table`` (from the
+    ripple command) gives ``f`` as a known input; the Fourier coefficients of
+    harmonics ``1..harmonics`` of the period are fitted on top of it, as
+    nuisance parameters whose uncertainty the parameters' std includes (a
+    table's error, or a ripple without a table, is absorbed there).
+
+    Attributes
+    ----------
+    period_rad : float
+        The ripple's period rho [rad].
+    harmonics : int
+        Harmonics fitted (2 per harmonic: cosine and sine).
+    table : RippleTable, optional
+        The identified lookup table, taken as known.
+    """
+
+    period_rad: float
+    harmonics: int = RIPPLE_HARMONICS
+    table: RippleTable | None = None
+
+    def known_inputs(self, q_m: np.ndarray, tau_j: np.ndarray) -> list[tuple[str, np.ndarray]]:
+        """The table's deflection and reaction as known inputs (none without a table)."""
+        if self.table is None:
+            return []
+        f = np.asarray(self.table(q_m), float)
+        # The record starts at rest: its first deflection is in the link's rest position, not a step.
+        return [("deflection", f - f[0]), ("reaction", tau_j * self.table.slope(q_m))]
+
+    def basis(self, q_m: np.ndarray, tau_j: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``(deflection, reaction)`` of each cosine and sine of the fitted harmonics."""
+        w = 2.0 * np.pi / self.period_rad
+        out = []
+        for k in range(1, self.harmonics + 1):
+            c, s = np.cos(k * w * q_m), np.sin(k * w * q_m)
+            out.append((c - c[0], -k * w * s * tau_j))
+            out.append((s - s[0], k * w * c * tau_j))
+        return out
 
 
 def eq4_frequency_response(params: Any, f_hz: np.ndarray | float, input: str = "command") -> np.ndarray:
@@ -172,15 +228,15 @@ def eq4_frequency_response(params: Any, f_hz: np.ndarray | float, input: str = "
         ``Td`` [s].
     f_hz : array_like
         Frequencies [Hz] (negative ones give the conjugate).
-    input : {"command", "motor", "link"}
+    input : {"command", "motor", "link", "deflection"}
         As in :func:`discretize`: ``tau_j / tau_c`` (delayed by ``Td``), the
-        same for a torque added inside the robot (no delay), or ``tau_j``
-        per torque on the link.
+        same for a torque added inside the robot (no delay), ``tau_j`` per
+        torque on the link, or per transmission deflection [Nm/rad].
 
     Returns
     -------
     numpy.ndarray
-        Complex response [Nm/Nm].
+        Complex response [Nm/Nm] ([Nm/rad] for the deflection).
     """
     if input not in INPUTS:
         raise ValueError(f"input must be one of {INPUTS}")
@@ -189,6 +245,10 @@ def eq4_frequency_response(params: Any, f_hz: np.ndarray | float, input: str = "
     delta = Jc * Jl * s**2 + Jl * bc * s + (Jc * K + Jl * K)
     if input == "link":
         return -K * Jc / delta
+    if input == "deflection":
+        # K d pushes the motor side, -K d the link, and the sensor reads -K d directly: the sum leaves
+        # only the inertias' share (no torque at low frequency, -K d far above the resonance).
+        return -K * Jc * Jl * s**2 / delta
     delay = np.exp(-Td * s) if input == "command" else 1.0
     return delay * Jl * (bc * s + K) / delta
 
@@ -227,6 +287,13 @@ class DiscreteModel:
     num_resonant, num_rigid : numpy.ndarray
         ``Nr`` and ``Nj`` per output, shape ``(2, 4)``; output 0 is ``tau_j``
         [Nm], output 1 is ``theta_m`` [rad].
+    feedthrough : numpy.ndarray
+        Direct path per output (``-K`` to ``tau_j`` for the deflection input,
+        else zero).
+    sampled_motion : bool
+        The input is a sampled function of the motion (the deflection, the
+        reaction), not a command held over each sample: the dynamics see its
+        mean over each sample, taken as the mean of the samples at its ends.
     """
 
     sample_time_s: float
@@ -234,6 +301,8 @@ class DiscreteModel:
     den_resonant: np.ndarray
     num_resonant: np.ndarray
     num_rigid: np.ndarray
+    feedthrough: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    sampled_motion: bool = False
 
     def simulate(self, tau_c: np.ndarray) -> np.ndarray:
         """Outputs for the command ``tau_c`` [Nm] from rest: array ``(2, n)`` of ``tau_j`` [Nm], ``theta_m`` [rad]."""
@@ -243,11 +312,18 @@ class DiscreteModel:
         ud = np.zeros(n)
         if d < n:
             ud[d:] = u[:n - d]
+        uh = ud
+        if self.sampled_motion and n > 1:
+            # Held as a command, a 50 Hz ripple would lag by half a sample (9 degrees at 1 kHz).
+            up = np.concatenate([ud[:1], ud, ud[-1:], ud[-1:]])
+            uh = (13.0 * (up[1:-2] + up[2:-1]) - up[:-3] - up[3:]) / 24.0
         out = np.empty((2, n))
         for i in range(2):
-            out[i] = lfilter(self.num_resonant[i], self.den_resonant, ud)
+            out[i] = lfilter(self.num_resonant[i], self.den_resonant, uh)
             if i == 1:  # tau_j does not see the rigid-body mode
-                out[i] += lfilter(self.num_rigid[i], (1.0, -2.0, 1.0), ud)
+                out[i] += lfilter(self.num_rigid[i], (1.0, -2.0, 1.0), uh)
+            if self.feedthrough[i]:
+                out[i] += self.feedthrough[i] * ud
         return out
 
     def frequency_response(self, f_hz: np.ndarray) -> np.ndarray:
@@ -264,7 +340,7 @@ class DiscreteModel:
         den_r = self.den_resonant @ powers[:3]
         den_j = np.array([1.0, -2.0, 1.0]) @ powers[:3]
         with np.errstate(divide="ignore", invalid="ignore"):
-            out = np.array([(self.num_resonant[i] @ powers) / den_r
+            out = np.array([(self.num_resonant[i] @ powers) / den_r + self.feedthrough[i]
                             + (0.0 if i == 0 else (self.num_rigid[i] @ powers) / den_j) for i in range(2)])
         return out * zi[None, :] ** self.delay_samples
 
@@ -289,10 +365,12 @@ def discretize(params: Any, sample_time_s: float, input: str = "command") -> Dis
         ``Jc, bc, K, Jl`` [SI] and ``Td`` [s], ``Td >= 0``.
     sample_time_s : float
         Sample time T [s] (the input is held over each sample).
-    input : {"command", "motor", "link"}
+    input : {"command", "motor", "link", "deflection"}
         Which input (:data:`INPUTS`): the command ``tau_c`` (delayed by
-        ``Td``), a torque added to it inside the robot, or a torque on the
-        link [Nm] (both without delay).
+        ``Td``), a torque added to it inside the robot, a torque on the
+        link [Nm], or the transmission's deflection ``f(theta_m)`` of
+        eq (5) [rad] (the last three without delay; the deflection's direct
+        path ``-K f`` to ``tau_j`` is :attr:`DiscreteModel.feedthrough`).
 
     Returns
     -------
@@ -307,6 +385,11 @@ def discretize(params: Any, sample_time_s: float, input: str = "command") -> Dis
     A, B, C = _state_space(Jc, bc, K, Jl)
     if input == "link":
         B = np.array([0.0, 0.0, 0.0, 1.0 / Jl])
+    elif input == "deflection":
+        # tau_j gains -K f: the motor side's torque error, the integral state and the link all see it.
+        B = np.array([bc / Jc, K, 0.0, -K / Jl])
+    elif input == "reaction":
+        B = np.array([0.0, 1.0, 0.0, 0.0])
     if input != "command":
         Td = 0.0
     # Modal split: range(A^2) is the resonant pair, null(A^2) the rigid-body Jordan chain
@@ -345,7 +428,9 @@ def discretize(params: Any, sample_time_s: float, input: str = "command") -> Dis
         a0, a1 = c @ gj0, c @ gj1
         s0, s1 = c[0] * T * gj0[1], c[0] * T * gj1[1]
         num_j.append([0.0, a0, a1 - a0 + s0, s1 - a1])
-    return DiscreteModel(T, d, np.array([1.0, -tr, det]), num_r, np.array(num_j))
+    feed = np.array([-K, 0.0]) if input == "deflection" else np.zeros(2)
+    return DiscreteModel(T, d, np.array([1.0, -tr, det]), num_r, np.array(num_j), feed,
+                         sampled_motion=input in ("deflection", "reaction"))
 
 
 def simulate_outputs(params: Any, tau_c: np.ndarray, sample_time_s: float) -> np.ndarray:
@@ -359,13 +444,24 @@ def simulate_outputs(params: Any, tau_c: np.ndarray, sample_time_s: float) -> np
     return discretize(params, sample_time_s).simulate(tau_c)
 
 
-def _simulate_record(params: Any, rec: "_Record") -> np.ndarray:
+def _input_response(params: Any, T: float, kind: str, signal: np.ndarray, substeps: int = 1) -> np.ndarray:
+    """Outputs ``(2, n)`` for one input; ``substeps > 1`` samples a function of the motion ``substeps`` times
+    finer between its samples (cubic interpolation), to estimate the sampled model's own error by step
+    doubling."""
+    if substeps == 1 or kind not in ("deflection", "reaction"):
+        return discretize(params, T, kind).simulate(signal)
+    n = len(signal)
+    fine = CubicSpline(np.arange(n), signal)(np.arange(n * substeps) / substeps)
+    return discretize(params, T / substeps, kind).simulate(fine)[:, ::substeps]
+
+
+def _simulate_record(params: Any, rec: "_Record", substeps: int = 1) -> np.ndarray:
     """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN."""
     try:
         with np.errstate(all="ignore"):
             y = simulate_outputs(params, rec.u, rec.T)
             for kind, signal in rec.known:
-                y = y + discretize(params, rec.T, kind).simulate(signal)
+                y = y + _input_response(params, rec.T, kind, signal, substeps)
     except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
         return np.full((2, rec.n), np.nan)
     return y
@@ -397,6 +493,9 @@ class _Record:
     #: Known torques besides the command, as ``(input, signal [Nm])`` (see :data:`INPUTS`): the link-side
     #: effects and the robot's gravity model, estimated beforehand from the measured motion.
     known: list[tuple[str, np.ndarray]] = field(default_factory=list)
+    #: The ripple's Fourier basis as ``(deflection [rad], reaction [Nm])`` pairs, one per coefficient; their
+    #: coefficients are fitted with the parameters (projected out of the residual), see :class:`RippleTerms`.
+    ripple_basis: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
     @property
     def n(self) -> int:
@@ -664,6 +763,9 @@ class _Problem:
         self.sigma = [[np.ones(r.n_blocks), np.ones(r.n_blocks)] for r in records]
         self._weights: list[tuple[np.ndarray, np.ndarray, float, Any]] = []
         self.n_evaluations = 0
+        #: Model steps per sample for the inputs that are sampled functions of the motion (see
+        #: :func:`_input_response`); 2 only to estimate the error of the usual 1.
+        self.substeps = 1
         self.update_projections()
 
     @staticmethod
@@ -699,14 +801,57 @@ class _Problem:
         parts = []
         p = self.x_to_params(x)
         for r, weights in zip(self.records, self._weights):
-            y = _simulate_record(p, r)
+            y = _simulate_record(p, r, self.substeps)
             if not np.all(np.isfinite(y)):  # no model there: a cost no step can accept
                 return np.full(2 * sum(rec.n for rec in self.records), 1e150)
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
+            if r.ripple_basis:
+                fitted = self._ripple_fit(p, r, weights, e_t, e_q)
+                if fitted is None:
+                    return np.full(2 * sum(rec.n for rec in self.records), 1e150)
+                e_t -= fitted[1][:r.n]
+                e_q -= fitted[1][r.n:]
             parts.extend((e_t, e_q))
         return np.concatenate(parts)
+
+    def _ripple_fit(self, p: Sequence[float], r: _Record, weights: tuple, e_t: np.ndarray, e_q: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The ripple coefficients fitted to the weighted residual: (coefficients, their weighted projected
+        response, their response in signal units ``(2, n)``), or ``None`` where the model does not exist."""
+        cols, raw = [], []
+        try:
+            with np.errstate(all="ignore"):
+                for d, rx in r.ripple_basis:
+                    y = (_input_response(p, r.T, "deflection", d, self.substeps)
+                         + _input_response(p, r.T, "reaction", rx, self.substeps))
+                    c_t, c_q = weights[0] * y[0], weights[1] * y[1]
+                    self._project(r, c_t, c_q, weights)
+                    cols.append(np.concatenate([c_t, c_q]))
+                    raw.append(y)
+        except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+            return None
+        G = np.column_stack(cols)
+        if not np.all(np.isfinite(G)):
+            return None
+        coef, *_ = np.linalg.lstsq(G, np.concatenate([e_t, e_q]), rcond=None)
+        return coef, G @ coef, np.tensordot(coef, np.array(raw), axes=1)
+
+    def ripple_response(self, x: np.ndarray) -> list[np.ndarray | None]:
+        """Per record, the fitted ripple's output response ``(2, n)`` in signal units (``None`` without)."""
+        p = self.x_to_params(x)
+        out: list[np.ndarray | None] = []
+        for r, weights in zip(self.records, self._weights):
+            if not r.ripple_basis:
+                out.append(None)
+                continue
+            y = _simulate_record(p, r)
+            e_t, e_q = weights[0] * (r.tau - y[0]), weights[1] * (r.q - y[1])
+            self._project(r, e_t, e_q, weights)
+            fitted = self._ripple_fit(p, r, weights, e_t, e_q)
+            out.append(None if fitted is None else fitted[2])
+        return out
 
     def unweighted(self, x: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """Residuals with the nuisance removed, in signal units, per record: (tau_j [Nm], q_m [rad])."""
@@ -985,9 +1130,10 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
     return out
 
 
-def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np.ndarray]]] | None
-             ) -> list[_Record]:
-    """The fit's records of ``datasets`` with their known inputs (see :func:`fit_transfer_function`)."""
+def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np.ndarray]]] | None,
+             ripple: RippleTerms | None = None) -> list[_Record]:
+    """The fit's records of ``datasets`` with their known inputs and ripple terms (see
+    :func:`fit_transfer_function`)."""
     if not datasets:
         raise IiwaIdentError("fit needs at least one dataset")
     records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
@@ -998,11 +1144,17 @@ def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np
                 if kind not in INPUTS or np.shape(signal) != (rec.n,):
                     raise ValueError(f"{rec.label}: known input {kind!r} needs one value per sample")
             rec.known = [(kind, np.asarray(signal, float)) for kind, signal in inputs]
+    if ripple is not None:
+        for rec in records:
+            q_m = rec.q + rec.q0
+            rec.known = rec.known + ripple.known_inputs(q_m, rec.tau)
+            rec.ripple_basis = ripple.basis(q_m, rec.tau)
     return records
 
 
 def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
-                        known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None) -> list[dict[str, float]]:
+                        known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
+                        ripple: RippleTerms | None = None) -> list[dict[str, float]]:
     """RMS output errors of eq (4) at ``params``, per dataset, after the nuisance fits (unweighted).
 
     Parameters
@@ -1013,6 +1165,8 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
         ``Jc, bc, K, Jl`` [SI] and ``Td`` [s].
     known : sequence, optional
         Known torques besides the command, as for :func:`fit_transfer_function`.
+    ripple : RippleTerms, optional
+        As for :func:`fit_transfer_function` (its coefficients fitted at ``params``).
 
     Returns
     -------
@@ -1020,7 +1174,7 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
         ``{"tau_j_nm": ..., "q_m_rad": ...}`` per dataset: the simulated outputs' errors less a constant
         (``tau_j``) and the drift spline (``q_m``). Compares models that differ in their known inputs.
     """
-    problem = _Problem(_records(datasets, known))
+    problem = _Problem(_records(datasets, known, ripple))
     x = _Problem.params_to_x([params[k] for k in PARAMETER_NAMES])
     return [{"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))}
             for e_t, e_q in problem.unweighted(x)]
@@ -1029,7 +1183,7 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
 def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, float] | None = None,
                           max_starts: int = 3, outer_iterations: int = 4,
                           known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
-                          refine: bool = True) -> FitResult:
+                          ripple: RippleTerms | None = None, refine: bool = True) -> FitResult:
     """Fit eq (4) with delay to one or more torque-commanded chirps of one joint.
 
     Parameters
@@ -1048,6 +1202,10 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         [Nm])`` pairs (:data:`INPUTS`), one value per sample: the link-side
         effects and the robot's gravity model estimated beforehand
         (:func:`iiwa_ident.ident.joint_fit.fit_joint`).
+    ripple : RippleTerms, optional
+        The transmission ripple: its table (if any) as a known input and the
+        coefficients of its first harmonics fitted with the parameters, so
+        that neither biases them and the std includes their uncertainty.
     refine : bool
         False: no search; the fit's diagnostics (noise levels, fit quality,
         harmonics, Fisher std) at ``initial``.
@@ -1063,7 +1221,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         excited, has no coherent band, or the joints differ; the message
         names the file.
     """
-    records = _records(datasets, known)
+    records = _records(datasets, known, ripple)
     for rec in records:  # every file must carry information, not just the first
         est_t, _ = _analyse(rec)
         if int(np.sum(_coherent(est_t))) < 4:
@@ -1109,6 +1267,22 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     p = np.array(_Problem.x_to_params(x))
     D = np.diag([*p[:4], 1e-3])  # d(SI)/dx
     cov = D @ Finv @ D
+    std_method = STD_FISHER
+    if any(kind in ("deflection", "reaction") for rec in records for kind, _ in rec.known) or \
+            any(rec.ripple_basis for rec in records):
+        # The ripple's inputs are known at the samples only; between them the model interpolates, with
+        # an error that matters at this signal-to-noise ratio. Step doubling estimates it: the fit's
+        # step to a model twice as fine is 3/4 of the usual model's error (the error goes as the square).
+        problem.substeps = 2
+        shift = -Finv @ (J.T @ (problem.residual(x) - r))
+        problem.substeps = 1
+        err = D @ (shift * 4.0 / 3.0)
+        cov = cov + np.outer(err, err)
+        # What the model still misses (the sandwich sees it in slow residuals) shows first in Td: each
+        # std is at least the block sandwich's, the correlations kept.
+        widen = np.maximum(np.sqrt(np.diag(D @ cov_s @ D) / np.diag(cov)), 1.0)
+        cov = cov * np.outer(widen, widen)
+        std_method = STD_FISHER + STD_RIPPLE
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
     np.fill_diagonal(corr, 1.0)
@@ -1119,11 +1293,14 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     std_s = dict(zip(PARAMETER_NAMES, map(float, np.sqrt(np.diag(D @ cov_s @ D)))))
 
     noise, frfs, model_frfs, bands, harmonics, nonlinear = [], [], [], [], [], []
-    for rec, (e_t, e_q) in zip(records, problem.unweighted(x)):
+    for rec, (e_t, e_q), y_ripple in zip(records, problem.unweighted(x), problem.ripple_response(x)):
         noise.append({"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))})
         # With known torques (the fitted link-side effects) the model's linear part is compared with the
         # data less those torques' response: eq (4) alone is not the model then.
-        est_t, _ = _analyse(_less_known(rec, values), delay_s=values["Td"])
+        plain = _less_known(rec, values)
+        if y_ripple is not None:
+            plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
+        est_t, _ = _analyse(plain, delay_s=values["Td"])
         dm = discretize(values, rec.T)
         model = est_t.band_average(lambda f: dm.frequency_response(f)[0])
         frfs.append(est_t)
@@ -1152,7 +1329,8 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     if any(r.sweep is None for r in records):
         warnings.append("no exponential sweep in " + ", ".join(r.label for r in records if r.sweep is None)
                         + ": harmonic distortion not analysed")
-    return FitResult(parameters=values, std=std_d, std_sandwich=std_s, correlation=corr, covariance=cov, noise=noise,
+    return FitResult(parameters=values, std=std_d, std_sandwich=std_s, std_method=std_method, correlation=corr,
+                     covariance=cov, noise=noise,
                      frf=frfs, model_frf=model_frfs, bands=bands, harmonics=harmonics, nonlinear=nonlinear,
                      warnings=warnings, initial=starts, labels=labels, cost=cost, n_evaluations=n_eval,
                      sample_times_s=[r.T for r in records])
