@@ -130,10 +130,12 @@ def fit_cmd(
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for the Bode and harmonic "
                                                                       "distortion plots (PNG).")] = None,
     method: Annotated[str, typer.Option("--method", help="Estimator: auto (idim when the link shows Coulomb "
-                                                         "friction or the transmission ripple shows, else joint), joint (inverse dynamics, then "
-                                                         "output error with the effects), idim (inverse "
-                                                         "dynamics only) or eq4 (output error of eq (4) without "
-                                                         "link-side effects).")] = "auto",
+                                                         "friction, else joint), joint (inverse dynamics, then "
+                                                         "output error with the effects and the transmission "
+                                                         "ripple's deflection; reported as joint+ripple when it "
+                                                         "shows), idim (inverse dynamics only) or eq4 (output "
+                                                         "error of eq (4) without link-side effects or "
+                                                         "ripple).")] = "auto",
 ) -> None:
     """Fit eqs (1)-(4) with the delay and the link-side effects to torque-commanded chirps.
 

@@ -28,19 +28,26 @@ from iiwa_ident.datasets import Dataset, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
 from iiwa_ident.ident.idim import STICK_COULOMB_NM, IdimResult, LinkEffectEstimate, fit_idim
-from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, Parameter, Source, read_model, table1_model
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult, fit_transfer_function, output_residual_rms
+from iiwa_ident.ident.model_file import (PARAMETER_UNITS, JointModel, Parameter, RippleTable, Source, read_model,
+                                         table1_model)
+from iiwa_ident.ident.tf_fit import (PARAMETER_NAMES, FitResult, RippleTerms, fit_transfer_function,
+                                     output_residual_rms)
 
 __all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
 
-#: ``auto``: ``idim`` when the link shows Coulomb friction or the transmission ripple, else ``joint``; ``joint``: IDIM-IV, then the
-#: output-error fit with its effects as known inputs; ``idim``: IDIM-IV alone; ``eq4``: the output-error
-#: fit of eq (4) alone (no link-side effects).
+#: ``auto``: ``idim`` when the link shows Coulomb friction, else ``joint``; ``joint``: IDIM-IV, then the
+#: output-error fit with its effects as known inputs and the transmission ripple's terms; ``idim``: IDIM-IV
+#: alone; ``eq4``: the output-error fit of eq (4) alone (no link-side effects, no ripple).
 METHODS: tuple[str, ...] = ("auto", "joint", "idim", "eq4")
 _METHOD_TEXT = {
     "joint": "inverse dynamics (IDIM-IV) for the link-side effects, then time-domain output-error maximum "
              "likelihood; ZOH-sampled eqs (1)-(4) with fractional delay and the effects' torques as known inputs; "
              "outputs tau_j and q_m; per-block noise levels",
+    "joint+ripple": "inverse dynamics (IDIM-IV) for the link-side effects, then time-domain output-error maximum "
+                    "likelihood; ZOH-sampled eqs (1)-(5) with fractional delay, the effects' torques as known "
+                    "inputs and the transmission ripple's deflection and reaction (its table, and the "
+                    "coefficients of its first harmonics fitted alongside); outputs tau_j and q_m; per-block "
+                    "noise levels",
     "idim": "inverse dynamics (IDIM-IV): eqs (1)-(3) with link friction, load and sensor offset, exact spectral "
             "derivatives, predicted-torque instruments, block sandwich std",
     "eq4": "time-domain output-error maximum likelihood; ZOH-sampled eqs (1)-(4) with fractional delay; "
@@ -89,8 +96,8 @@ def _nll(rms: Sequence[dict[str, float]], datasets: Sequence[Dataset]) -> float:
                      for ds, n in zip(datasets, rms)))
 
 
-def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_period_rad: float | None = None
-              ) -> FitResult:
+def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_period_rad: float | None = None,
+              ripple_table: RippleTable | None = None) -> FitResult:
     """Fit a joint's chirps: eqs (1)-(4) with delay, link friction, load and sensor offset.
 
     Parameters
@@ -102,11 +109,19 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
     ripple_period_rad : float, optional
         The transmission ripple's period [rad] if known; by default IDIM-IV
         searches it (see :func:`~iiwa_ident.ident.idim.fit_idim`).
+    ripple_table : RippleTable, optional
+        The ripple's lookup table (from the ripple command), which also gives
+        its period: the output-error fit takes its deflection as known and
+        fits the first harmonics' coefficients on top
+        (:class:`~iiwa_ident.ident.tf_fit.RippleTerms`). Without a table, a
+        ripple IDIM-IV finds is fitted by those coefficients alone.
 
     Returns
     -------
     FitResult
-        With ``method`` and ``effects`` (the link-side effects, from IDIM-IV).
+        With ``method`` (``"joint+ripple"`` when the ripple was in the
+        output-error model) and ``effects`` (the link-side effects, from
+        IDIM-IV).
 
     Raises
     ------
@@ -120,32 +135,37 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         result = fit_transfer_function(datasets)
         result.method = "eq4"
         return result
+    if ripple_table is not None:
+        ripple_period_rad = ripple_table.period_rad
     idim = fit_idim(datasets, ripple_period_rad)
     ripple = idim.effect("transmission_ripple")
+    terms = None
+    if ripple_table is not None:
+        terms = RippleTerms(ripple_table.period_rad, table=ripple_table)
+    elif ripple is not None:
+        terms = RippleTerms(ripple.values["period_rad"])
     if method == "auto":
         # A sticking link makes the friction torque unknown while it sticks; the output-error
         # fit would have to simulate through it, the inverse dynamics leave those samples out.
-        # The ripple is a deflection, not a torque: the output-error model has no place for it.
         friction = idim.effect("link_friction")
         sticks = friction is not None and friction.values["coulomb_nm"] > STICK_COULOMB_NM
-        method = "idim" if sticks or ripple is not None else "joint"
+        method = "idim" if sticks else "joint"
     if method == "idim":
         result = _from_idim(idim, datasets)
     else:
         start = dict(idim.parameters)
-        result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs)
+        result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs, ripple=terms)
         if any(kind == "motor" for inputs in idim.known_inputs for kind, _ in inputs):
             # The gravity-model terms can absorb the inverse dynamics' own approximation error (they
             # did so at 20-40 std on joints without any); the exact output-error model decides.
             # Compared at the fitted values first, so that the second fit runs only when it may win.
             link_only = [[(kind, s) for kind, s in inputs if kind != "motor"] for inputs in idim.known_inputs]
             here = result.parameters
-            if _nll(output_residual_rms(datasets, here, link_only), datasets) < _nll(
-                    output_residual_rms(datasets, here, idim.known_inputs), datasets):
-                result = fit_transfer_function(datasets, initial=here, known=link_only)
-        if ripple is not None:
-            result.warnings.append(f"the transmission ripple (period {ripple.values['period_rad']:.4g} rad) is not in "
-                                   "the output-error model and biases it; method 'auto' or 'idim' fits it")
+            if _nll(output_residual_rms(datasets, here, link_only, terms), datasets) < _nll(
+                    output_residual_rms(datasets, here, idim.known_inputs, terms), datasets):
+                result = fit_transfer_function(datasets, initial=here, known=link_only, ripple=terms)
+        if terms is not None:
+            method = "joint+ripple"
         moved = _departure(result.parameters, idim.parameters)
         if moved:
             # Both estimate the same parameters; a large disagreement means the output-error search
@@ -283,8 +303,8 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
             raise IiwaIdentError(f"method {method!r} is a chirp estimator; multisines are fitted through their best "
                                  "linear approximation")
         return _multisine_model(paths, datasets, base, sources, joint)
-    # A ripple table in the base model (from the ripple command) gives its period: no search needed.
-    result = fit_joint(datasets, method=method, ripple_period_rad=None if base.ripple is None else base.ripple.period_rad)
+    # A ripple table in the base model (from the ripple command) gives its period and shape.
+    result = fit_joint(datasets, method=method, ripple_table=base.ripple)
 
     params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
     ki = base.parameters["KI"]

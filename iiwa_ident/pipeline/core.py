@@ -32,7 +32,7 @@ __all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "PipelineContext
 FILES = {
     "chirp": "chirp.h5", "model": "model.toml", "fit_json": "fit.json",
     "cv": "constant_velocity.h5", "qs": "quasi_static.h5", "hand": "hand_guided.h5",
-    "model_ripple": "model_ripple.toml", "ripple_json": "ripple.json",
+    "model_ripple": "model_ripple.toml", "ripple_json": "ripple.json", "fit_ripple_json": "fit_ripple.json",
     "design": "design.toml", "design_json": "design.json", "observers_json": "observers.json",
     "controller": "controller.toml", "controller_json": "controller.json",
     "validation_dir": "validation", "validation_json": "validation.json",
@@ -230,7 +230,6 @@ def _truth_dynamics(ctx: PipelineContext) -> dict[str, float] | None:
 def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.ident.model_file import write_model
     from iiwa_ident.ident.joint_fit import fit_model
-    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
 
     model, result = fit_model([ctx.path("chirp")])
     model.joint = ctx.plant.joint if ctx.target == "sim" else ctx.joint
@@ -238,16 +237,24 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model"), model)
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
     ctx.results.update(model=model, fit=result)
+    return {"parameters": _parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings)}
+
+
+def _parameter_rows(ctx: PipelineContext, result: Any) -> dict[str, dict[str, Any]]:
+    """A fit's parameters with std and, on the simulator, their error against the simulated plant."""
+    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
+
     truth = _truth_dynamics(ctx)
-    out: dict[str, Any] = {}
+    out: dict[str, dict[str, Any]] = {}
     for name in PARAMETER_NAMES:
         v, sd = result.parameters[name], result.std[name]
         row = {"value": v, "std": sd, "rel_std_pct": 100 * sd / abs(v) if v else None}
         if truth is not None and name in truth:
             row["simulated"] = truth[name]
             row["error_pct"] = 100 * (v - truth[name]) / truth[name]
+            row["error_std"] = (v - truth[name]) / sd if sd > 0 else None
         out[name] = row
-    return {"parameters": out, "warnings": list(result.warnings)}
+    return out
 
 
 def _stage_cv(ctx: PipelineContext) -> dict[str, Any]:
@@ -274,6 +281,7 @@ def _stage_hand(ctx: PipelineContext) -> dict[str, Any]:
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
     from iiwa_ident.ident import RippleTable, Source, write_model
+    from iiwa_ident.ident.joint_fit import fit_model
     from iiwa_ident.ident.model_file import model_from_dict
     from iiwa_ident.ident.ripple import identify_ripple
 
@@ -282,11 +290,19 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     files = [ctx.path("cv")] + ([ctx.path("qs")] if "qs" in ctx.results else [])
     r = identify_ripple(data, K=base.value("K"), Jl=base.value("Jl"))
     model = model_from_dict(base.to_dict())
+    refit = None
     if r.detected:
         model.ripple = RippleTable(r.period_rad, r.lut, {
             "period_std_rad": r.period_std_rad, "amplitude_rad": r.amplitude_rad, "cycles_per_rev": r.cycles_per_rev,
             "period_ticks": r.period_ticks, "false_alarm_probability": r.false_alarm, "methods": sorted(r.methods),
             "link_motion": r.link_motion})
+        # The chirp again, with the table's deflection in the output-error model (eq (5)): the first
+        # fit had only the period it could find in the chirp itself.
+        refitted, refit = fit_model([ctx.path("chirp")], base_model=model)
+        refitted.joint, refitted.robot_model = model.joint, model.robot_model
+        refitted.sources = model.sources
+        model = refitted
+        write_atomic(ctx.path("fit_ripple_json"), json.dumps(refit.to_json(), indent=2) + "\n")
     else:
         model.ripple = None
     model.sources = [x for x in model.sources if x.role != "ripple"] + [
@@ -294,9 +310,14 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
     ctx.results.update(ripple=r, model_ripple=model)
+    if refit is not None:
+        ctx.results["fit_ripple"] = refit
     out: dict[str, Any] = {"detected": r.detected, "period_rad": _num(r.period_rad),
                            "period_std_rad": _num(r.period_std_rad), "period_ticks": _num(r.period_ticks),
                            "amplitude_rad": _num(r.amplitude_rad), "methods": sorted(r.methods)}
+    if refit is not None:
+        out["refit"] = {"parameters": _parameter_rows(ctx, refit), "method": refit.method,
+                        "warnings": list(refit.warnings)}
     if ctx.target == "sim":
         true = [e for e in ctx.plant.effects if e.name == "transmission_ripple"]
         if true:
@@ -411,8 +432,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("fit", "transfer-function fit, eq (4)", ("chirp",), ("model", "fit_json"), _stage_fit),
     Stage("constant_velocity", "constant-velocity (and quasi-static) runs", (), ("cv", "qs"), _stage_cv),
     Stage("hand_guided", "hand-guided record", (), ("hand",), _stage_hand),
-    Stage("ripple", "ripple period and lookup table", ("fit", "constant_velocity"), ("model_ripple", "ripple_json"),
-          _stage_ripple),
+    Stage("ripple", "ripple period and lookup table, and the fit with it", ("fit", "constant_velocity"),
+          ("model_ripple", "ripple_json", "fit_ripple_json"), _stage_ripple),
     Stage("design", "additive controller, kappa margins, observers", ("ripple",),
           ("design", "design_json", "observers_json"), _stage_design),
     Stage("deploy", "controller config and safety checks", ("design",), ("controller", "controller_json"),
@@ -436,6 +457,9 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
         out["fit"] = {k: {kk: v[kk] for kk in ("value", "std", "rel_std_pct", "error_pct") if kk in v}
                       for k, v in h["parameters"].items()}
     if (h := ok("ripple")) is not None:
+        if "refit" in h:
+            out["fit_ripple"] = {k: {kk: v[kk] for kk in ("value", "std", "rel_std_pct", "error_pct", "error_std")
+                                     if kk in v} for k, v in h["refit"]["parameters"].items()}
         out["rho_rad"] = h["period_rad"]
         out["rho_std_rad"] = h["period_std_rad"]
         if "period_rel_error" in h:
@@ -462,15 +486,17 @@ def format_summary(result: PipelineResult) -> str:
         lines.append(f"  {s.name:<18}{s.status:<10}{s.duration_s:>8.1f}  {note}")
     h = result.headline
     lines.append("")
-    if "fit" in h:
+    for key, title in (("fit", "fit"), ("fit_ripple", "fit with the ripple table")):
+        if key not in h:
+            continue
         parts = []
-        for k, v in h["fit"].items():
+        for k, v in h[key].items():
             if "error_pct" in v:
-                parts.append(f"{k} {v['error_pct']:+.2f} % (std {v['rel_std_pct']:.2f} %)")
+                parts.append(f"{k} {v['error_pct']:+.3f} % (std {v['rel_std_pct']:.3f} %)")
             else:
-                parts.append(f"{k} std {v['rel_std_pct']:.2f} %")
-        lines.append("fit: " + ", ".join(parts) + (" (error against the simulated plant)" if any(
-            "error_pct" in v for v in h["fit"].values()) else ""))
+                parts.append(f"{k} std {v['rel_std_pct']:.3f} %")
+        lines.append(f"{title}: " + ", ".join(parts) + (" (error against the simulated plant)" if any(
+            "error_pct" in v for v in h[key].values()) else ""))
     if h.get("rho_rad") is not None:
         extra = f", error {h['rho_rel_error']:+.1e} relative" if "rho_rel_error" in h else ""
         lines.append(f"ripple period rho = {h['rho_rad']:.6f} rad (std {h['rho_std_rad']:.1e}{extra}; paper 0.01963)")
