@@ -32,6 +32,14 @@ fit computes alongside, and the median of |error| / std.
 
 Run: ``.venv/bin/python bench/bench_robustness.py coverage [--draws 100] [--first 0] [--jobs 2]
 [--excitation chirp|multisine|both]``.
+
+``diagnose``: hidden-effect cases (:mod:`iiwa_ident.diagnose.benchmark`, ``shapes=True``: 0-2 hidden effects of
+random size, half of them in a shape the candidates do not have, on a joint within 30 % of Table I; chirp,
+constant-velocity and hand-guided runs), each diagnosed against the true eq (4) and against the chirp's fit;
+prints the share named exactly (target 90 %), the share with a false-positive effect (target at most 5 %) and
+found, missed and false per hidden effect and shape.
+
+Run: ``.venv/bin/python bench/bench_robustness.py diagnose [--draws 100] [--first 0] [--jobs 2] [--verbose]``.
 """
 
 from __future__ import annotations
@@ -56,7 +64,7 @@ from iiwa_ident.excite.scenarios import (
     simulate_scenario_multisine,
 )
 
-__all__ = ["run_draw", "run_ripple_draw", "main"]
+__all__ = ["run_draw", "run_ripple_draw", "run_diagnose_draw", "main"]
 
 #: Relative period error counted as a hit, and the 95 % interval's half-width in std.
 RIPPLE_REL_TOL = 1e-3
@@ -299,6 +307,68 @@ def _ripple(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_diagnose_draw(seed: int, fit: bool) -> dict:
+    """One hidden-effect case of :mod:`iiwa_ident.diagnose.benchmark` (harder shapes), diagnosed against the
+    true eq (4) or the chirp's fit; its score, or its refusal or traceback."""
+    from iiwa_ident.diagnose.benchmark import run_case
+
+    out: dict = {"seed": seed, "fit": fit}
+    res = _guarded(lambda: run_case(seed, shapes=True, fit=fit), out)
+    if res is not None:
+        out.update(res, status="hit" if res["names_ok"] else "wrong")
+    return out
+
+
+def _diagnose(args: argparse.Namespace) -> int:
+    from collections import Counter
+
+    from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
+
+    seeds = list(range(args.first, args.first + args.draws))
+    for fit in (False, True):
+        t0 = time.perf_counter()
+        if args.jobs > 1:
+            with ProcessPoolExecutor(args.jobs) as pool:
+                rows = list(pool.map(run_diagnose_draw, seeds, [fit] * len(seeds)))
+        else:
+            rows = [run_diagnose_draw(s, fit) for s in seeds]
+        wall = time.perf_counter() - t0
+        n = len(rows)
+        done = [r for r in rows if r["status"] in ("hit", "wrong")]
+        print(f"diagnosis against {'the chirp fit' if fit else 'the true eq (4)'}: {n} cases (seeds "
+              f"{seeds[0]}-{seeds[-1]}), {wall:.0f} s; refused {sum(r['status'] == 'refused' for r in rows)}, "
+              f"traceback {sum(r['status'] == 'traceback' for r in rows)}")
+        exact = sum(r["names_ok"] for r in done)
+        false = sum(bool(r["false"]) for r in done)
+        print(f"  exactly the hidden effects named: {exact}/{n} = {100 * exact / n:.1f} %  (target 90 %); "
+              f"with parameters in tolerance too: {sum(r['hit'] for r in done)}")
+        print(f"  a false-positive effect: {false}/{n} = {100 * false / n:.1f} %  (target at most 5 %); "
+              f"misses: {sum(len(r['missed']) for r in done)} of {sum(len(r['hidden']) for r in done)} hidden")
+        print("  by hidden effect (own shape / other shape): found, missed (absorbed: in the fit's parameters); "
+              "+ named besides it")
+        by: dict[str, Counter] = {}
+        for r in done:
+            for h in r["hidden"] or ["(none)"]:
+                c = by.setdefault(h, Counter())
+                shape = "other" if h in r.get("reshaped", []) else "own"
+                if fit and h in ABSORBED_BY_FIT:
+                    c["absorbed"] += 1
+                else:
+                    c[f"{shape} {'missed' if h in r['missed'] else 'found'}"] += 1
+                for f in r["false"]:
+                    c[f"+{f}"] += 1
+        for name, c in sorted(by.items()):
+            print(f"    {name:<26} " + ", ".join(f"{k}: {v}" for k, v in sorted(c.items())))
+        if args.verbose:
+            for r in rows:
+                if r["status"] != "hit":
+                    print(f"  {r['status']} seed {r['seed']}: hidden {r.get('hidden')} (other shape "
+                          f"{r.get('reshaped')}), named {sorted(r.get('named', {}))} {r.get('message', '')}"
+                          + (" fit error " + ", ".join(f"{k} {100 * v:+.2f} %" for k, v in r["fit_error"].items())
+                             if r.get("fit_error") else ""))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="what", required=True)
@@ -318,8 +388,13 @@ def main(argv: list[str] | None = None) -> int:
     cv.add_argument("--first", type=int, default=0, help="first seed")
     cv.add_argument("--jobs", type=int, default=2)
     cv.add_argument("--excitation", default="both", choices=("chirp", "multisine", "both"))
+    dg = sub.add_parser("diagnose", help="hidden effects named exactly by the diagnosis, true model and after a fit")
+    dg.add_argument("--draws", type=int, default=100)
+    dg.add_argument("--first", type=int, default=0, help="first seed")
+    dg.add_argument("--jobs", type=int, default=2)
+    dg.add_argument("--verbose", action="store_true", help="list every case not named exactly")
     args = parser.parse_args(argv)
-    return {"fit": _fit, "ripple": _ripple, "coverage": _coverage}[args.what](args)
+    return {"fit": _fit, "ripple": _ripple, "coverage": _coverage, "diagnose": _diagnose}[args.what](args)
 
 
 if __name__ == "__main__":
