@@ -209,15 +209,17 @@ def test_a_clean_joint_gets_no_gravity_model_input():
         assert abs(joint.parameters[k] - eq4.parameters[k]) < 0.2 * eq4.std[k], k
 
 
-def test_a_compensated_load_keeps_the_gravity_model_input():
-    # The other side of the choice: a 1 kHz chirp of a held link under a load the robot compensates by
-    # 90-100 %, where the output-error residuals are smaller with the gravity-model torque.
+def test_a_compensated_load_is_decided_by_the_output_error_model():
+    # The other side of the choice: a 1 kHz chirp of a held link under a 37 Nm load the robot compensates
+    # by 96 %. The load's link torque and the robot's compensation nearly cancel: the exact model's
+    # residuals are smallest with neither (q_m 3.2e-6 rad against 8.5e-6 with both), and that fit is
+    # the more accurate one (within 0.17 % against 0.28 %).
     sc = draw_scenario(40, nuisances=["gravity"], duration_s=12.0, rate_hz=1000.0)
     ds = simulate_scenario(sc)
     idim = fit_idim([ds])
     assert any(kind == "motor" for kind, _ in idim.known_inputs[0])
     with_model = fit_transfer_function([ds], initial=idim.parameters, known=idim.known_inputs)
     res = fit_joint([ds], method="joint")
-    for k in ("Jc", "bc", "K", "Jl", "Td"):
-        assert res.parameters[k] == pytest.approx(with_model.parameters[k], rel=1e-9), k
     assert _accurate(_errors(res, sc.truth)), (sc.describe(), _errors(res, sc.truth))
+    worst = lambda r: max(abs(v) for k, v in _errors(r, sc.truth).items() if k != "Td")
+    assert worst(res) < worst(with_model)
