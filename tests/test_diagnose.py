@@ -13,7 +13,7 @@ from conftest import REAL_LOGS
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import import_columns, write_dataset
 from iiwa_ident.diagnose import CANDIDATES, CandidateEffect, build_context, diagnose
-from iiwa_ident.diagnose.benchmark import TOLERANCES, Case, draw_case, run_case, score_case, simulate_case
+from iiwa_ident.diagnose.benchmark import TOLERANCES, Case, case_model, draw_case, run_case, score_case, simulate_case
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.ident import ModelError, model_from_dict, read_model, table1_model, write_model
@@ -293,3 +293,23 @@ class TestRandomBatch:
             fitted.parameters[k].value = v
         assert diagnose(data, fitted).effect("input_delay") is None
         assert diagnose(data, table1_model()).effect("input_delay") is not None
+
+    def test_stribeck_friction_is_named_as_friction_in_another_shape(self):
+        # A 3.4 Nm Coulomb friction with 1.2 Nm of breakaway above it: the candidate's Coulomb-plus-viscous
+        # fit has a negative slope, which alone would reject it although it removes most of the residual.
+        case = draw_case(54, shapes=True)
+        assert case.reshaped == ["link_friction"] and "stribeck_nm" in case.hidden["link_friction"]
+        d = diagnose(simulate_case(case), case_model(case))
+        e = d.effect("link_friction")
+        assert e is not None and not d.explained
+        assert "Stribeck" in e.detail["other_shape"] and e.gain_pct > 50
+
+    def test_a_large_effect_that_fails_a_test_is_not_explained(self):
+        # With a confidence no effect can reach nothing is named, but a hidden 6 Nm load still keeps the
+        # diagnosis from saying the model explains the data.
+        case = _case(2, a="position_dependent_load")
+        d = diagnose(simulate_case(case), table1_model(), min_confidence=1.01)
+        assert not d.effects and not d.explained
+        assert d.suspects[0]["name"] == "position_dependent_load" and d.suspects[0]["gain"] > 0.5
+        assert "confidence" in d.suspects[0]["failed"]
+        assert d.as_json()["suspects"] and "would remove" in d.summary()

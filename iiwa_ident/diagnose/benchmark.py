@@ -31,7 +31,7 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite import Chirp, ConstantVelocity, HandGuided, record
 from iiwa_ident.ident.model_file import JointModel, table1_model
 
-__all__ = ["RANGES", "LARGE_RANGES", "OTHER_SHAPES", "TOLERANCES", "ABSORBED_BY_FIT", "JL_OFF", "Case", "draw_case",
+__all__ = ["RANGES", "LARGE_RANGES", "OTHER_SHAPES", "TOLERANCES", "ABSORBED_BY_FIT", "Case", "draw_case",
            "case_model", "simulate_case", "score_case", "run_case"]
 
 #: Ranges the hidden parameters are drawn from (JSON parameter names, SI units).
@@ -187,8 +187,6 @@ def _within(value: float, truth: float, tol: tuple[float, float], angle: bool = 
 #: a torque sensor's scale scales the fitted bc, K and Jl alike (the motor position fixes Jc). After a fit
 #: the diagnosis need not name them (naming them is no error either).
 ABSORBED_BY_FIT = ("input_delay", "torque_sensor_scale")
-#: Relative error of the fitted Jl beyond which naming ``link_inertia`` (the model's own parameter) is right.
-JL_OFF = 0.01
 
 
 def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[str, float] | None = None
@@ -196,8 +194,8 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
     """Score named effects against the case.
 
     ``fit_error``: with a fitted model, its parameters' relative errors; then the effects of
-    :data:`ABSORBED_BY_FIT` need not be named, and ``link_inertia`` is right where Jl is off by more than
-    :data:`JL_OFF`.
+    :data:`ABSORBED_BY_FIT` need not be named, and ``link_inertia`` (a correction of the model's own Jl)
+    is right where it moves Jl towards the truth, and not needed where it is not named.
 
     Returns
     -------
@@ -211,9 +209,11 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
         absorbed = hidden & set(ABSORBED_BY_FIT)
         hidden -= absorbed
         found -= absorbed
-        if abs(fit_error.get("Jl", 0.0)) > JL_OFF:
-            hidden.add("link_inertia")
-            found.add("link_inertia")  # right whether named or not: the fit's own error, not an effect
+        if "link_inertia" in found:
+            true_jl = case.dynamics["Jl"]
+            model_jl = true_jl * (1.0 + fit_error.get("Jl", 0.0))
+            if abs(named["link_inertia"].get("Jl_kgm2", model_jl) - true_jl) < abs(model_jl - true_jl):
+                found.discard("link_inertia")  # a right correction of the fit's own error, not an effect
     bad = []
     for name in (hidden & found & set(case.expected)) - set(case.reshaped):
         for key, truth in case.expected[name].items():
@@ -253,6 +253,6 @@ def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, f
     out = score_case(case, named, fit_error if fit else None)
     out.update(seed=seed, hidden=sorted(case.expected), expected=case.expected, named=named,
                reshaped=list(case.reshaped), simulate_s=t1 - t0, fit_s=t2 - t1, diagnose_s=t3 - t2,
-               explained=d.explained, fit_error=fit_error,
+               explained=d.explained, suspects=[x["name"] for x in d.suspects], fit_error=fit_error,
                gains={e.name: e.gain_pct for e in d.effects})
     return out

@@ -212,6 +212,11 @@ class CandidateEffect:
         """Whether fitted coefficients describe a physically possible effect (default: always)."""
         return True
 
+    def other_shape(self, coef: np.ndarray) -> str:
+        """For coefficients that are not :meth:`plausible`: how they still describe this family of effect in
+        another shape ('' when they do not; default: never)."""
+        return ""
+
     def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
         """Coefficients of an effect the model already has (plant-effect values), or None."""
         return None
@@ -439,6 +444,13 @@ class LinkFrictionCandidate(CandidateEffect):
     def plausible(self, coef):
         # Friction dissipates: a clearly negative level is some other misfit.
         return coef[0] > -0.05 and coef[1] > -0.05
+
+    def other_shape(self, coef):
+        # A friction that is larger at standstill than the Coulomb-plus-viscous line: a negative slope.
+        if coef[0] > 0.05 and coef[1] <= -0.05:
+            return ("friction that falls with speed (negative viscous slope): breakaway (Stribeck) friction, "
+                    "which the Coulomb-plus-viscous shape does not have")
+        return ""
 
     def from_values(self, values):
         self.smoothing_rad_s = float(values.get("smoothing_rad_s", self.smoothing_rad_s))

@@ -28,13 +28,16 @@ import numpy as np
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
-from iiwa_ident.diagnose.select import Selection, cv_residuals, select_effects
+from iiwa_ident.diagnose.select import BANDS, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import JointModel
 
-__all__ = ["EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
+__all__ = ["LARGE_GAIN", "EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
 
 _LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
+#: Held-out reduction of the residual's power a candidate that failed the other tests must not reach for
+#: the model to count as explaining the data.
+LARGE_GAIN = 0.3
 
 
 @dataclass
@@ -102,6 +105,10 @@ class Diagnosis:
     heldout_before: list[np.ndarray]
     heldout_after: list[np.ndarray]
     model_out: str | None = None
+    #: Candidates of the last selection step that would remove at least :data:`LARGE_GAIN` of the held-out
+    #: residual but failed another test (BIC, confidence, plausibility): the model does not explain the data
+    #: even when nothing is named.
+    suspects: list[dict[str, Any]] = field(default_factory=list)
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
@@ -136,6 +143,7 @@ class Diagnosis:
         return {
             "explained": self.explained,
             "effects": [e.as_json() for e in self.effects],
+            "suspects": self.suspects,
             "model_out": self.model_out,
             "datasets": list(datasets.values()),
             "tried": [{"step": s.step, "name": s.name, "gain": s.gain, "delta_bic": s.delta_bic,
@@ -147,13 +155,21 @@ class Diagnosis:
         lines = []
         if self.explained:
             lines.append("the model explains the data: no candidate effect reduces the held-out residual enough")
-        else:
+        elif self.effects:
             lines.append(f"named {len(self.effects)} effect(s):")
             for e in self.effects:
                 pars = ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
                 lines.append(f"  {e.name:<24} confidence {e.confidence:.4f}  {pars}")
                 lines.append(f"  {'':<24} held-out RMS {e.rms_before:.4f} -> {e.rms_after:.4f} Nm "
                              f"({e.gain_pct:.1f}% lower)")
+                if "other_shape" in e.detail:
+                    lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
+        if self.suspects:
+            lines.append("the model does not explain the data: " + ("besides, " if self.effects else "")
+                         + "these would remove a large part of the residual but failed a test (not named):")
+            for x in self.suspects:
+                lines.append(f"  {x['name']:<24} would remove {100 * x['gain']:.0f} % of the held-out residual "
+                             f"({x['band']} band) but {x['failed']}")
         lines.append("")
         lines.append(f"  {'dataset':<28}{'channel':<10}{'RMS before [Nm]':>16}{'after [Nm]':>12}{'gain':>8}")
         for c in self.channels:
@@ -280,9 +296,36 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         effects.append(EffectReport(cand.name, sel.confidence[cand.name], params, rb, ra,
                                     100.0 * (1 - ra / rb) if rb > 0 else 0.0,
                                     {**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
-                                     "selected_in": sel.band[cand.name]}))
+                                     "selected_in": sel.band[cand.name],
+                                     **({"other_shape": sel.other_shape[cand.name]}
+                                        if cand.name in sel.other_shape else {})}))
     if effects:
         extended.description = (extended.description + " | " if extended.description else "") + \
             "extended by diagnose: " + ", ".join(e.name for e in effects)
-    return Diagnosis(explained=not effects, effects=effects, channels=channels, model=model, extended=extended,
-                     contexts=contexts, blocks=blocks, selection=sel, heldout_before=before, heldout_after=after)
+    suspects = _suspects(sel)
+    return Diagnosis(explained=not effects and not suspects, effects=effects, channels=channels, model=model,
+                     extended=extended, contexts=contexts, blocks=blocks, selection=sel, heldout_before=before,
+                     heldout_after=after, suspects=suspects)
+
+
+def _suspects(sel: Selection) -> list[dict[str, Any]]:
+    """Large held-out reductions of the selection's last step that were not accepted, best first per name."""
+    if not sel.steps:
+        return []
+    last = max(s.step for s in sel.steps)
+    out: dict[str, dict[str, Any]] = {}
+    for s in sel.steps:
+        # Only the residual channels: an effect's own evidence channel can show a small correction of an
+        # effect the model already has plainly, while the torque prediction gains nothing from it.
+        if s.step != last or s.accepted or s.gain < LARGE_GAIN or s.band not in BANDS:
+            continue
+        if s.implausible:
+            failed = "its fitted parameters are not physically possible"
+        elif s.delta_bic >= 0:
+            failed = "the information criterion does not favour it"
+        else:
+            failed = f"its held-out confidence is {s.confidence:.3f}"
+        if s.name not in out or s.gain > out[s.name]["gain"]:
+            out[s.name] = {"name": s.name, "gain": s.gain, "band": s.band, "confidence": s.confidence,
+                           "delta_bic": s.delta_bic, "failed": failed}
+    return sorted(out.values(), key=lambda x: -x["gain"])

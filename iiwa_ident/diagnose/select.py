@@ -18,7 +18,11 @@ the already selected ones and keeps the best if all of these hold:
                 of the held-out residual with the effect, ``(1 - r1) / (1 + r1)``
                 per block;
 ``plausible``   the effect's own fitted parameters are physically possible
-                (:meth:`CandidateEffect.plausible`);
+                (:meth:`CandidateEffect.plausible`), or, for an effect that
+                removes at least :data:`MIN_GAIN_OTHER_SHAPE` of the held-out
+                residual, they describe its family in another shape
+                (:meth:`CandidateEffect.other_shape`, e.g. Stribeck friction
+                as a negative viscous slope): it is named with that note;
 ``confidence``  a one-sided t-test on the relative held-out SSE reductions
                 per (block, segment) (:data:`SEGMENTS` contiguous held-out
                 segments per block), over the blocks the effect acts on, gives
@@ -64,8 +68,8 @@ from scipy import signal, stats
 
 from iiwa_ident.diagnose.candidates import Block, CandidateEffect, EvidenceChannel, block_columns
 
-__all__ = ["FOLDS", "MIN_GAIN", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS", "Step", "Selection", "cv_residuals",
-           "select_effects"]
+__all__ = ["FOLDS", "MIN_GAIN", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS", "MIN_GAIN_OTHER_SHAPE", "Step",
+           "Selection", "cv_residuals", "select_effects"]
 
 #: Number of contiguous folds per block.
 FOLDS = 5
@@ -77,6 +81,9 @@ MIN_GAIN = 0.03
 MIN_CONFIDENCE = 0.999
 #: Most effects named.
 MAX_EFFECTS = 4
+#: Least held-out reduction for an effect whose fit is not physically possible to be named as its family in
+#: another shape (a large effect must be named, not hidden by the shape of its candidate).
+MIN_GAIN_OTHER_SHAPE = 0.5
 #: Lower edge of the fast band [Hz].
 FAST_BAND_HZ = 3.0
 #: Bands an effect is judged in, in order of precedence.
@@ -150,6 +157,8 @@ class Step:
     accepted: bool = False
     band: str = "full"
     implausible: bool = False
+    #: How the effect's fit departs from its candidate's shape, when it was named in another shape.
+    other_shape: str = ""
 
 
 @dataclass
@@ -176,6 +185,8 @@ class Selection:
     confidence: dict[str, float] = field(default_factory=dict)
     gain: dict[str, float] = field(default_factory=dict)
     band: dict[str, str] = field(default_factory=dict)
+    #: Per effect named in another shape than its candidate's, how (see :class:`Step`).
+    other_shape: dict[str, str] = field(default_factory=dict)
     steps: list[Step] = field(default_factory=list)
 
     def columns(self, blocks: Sequence[Block], skip: str | None = None) -> list[np.ndarray]:
@@ -314,6 +325,9 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                                               np.concatenate(ys), rcond=None)[0][-cand.n_columns():]
                     if cand.plausible(fit):
                         passed[band].append((cand, Xc, record))
+                    elif record.gain >= MIN_GAIN_OTHER_SHAPE and cand.other_shape(fit):
+                        record.other_shape = cand.other_shape(fit)
+                        passed[band].append((cand, Xc, record))
                     else:
                         record.implausible = True
         # The whole band first (it judges the effect everywhere); the fast band only when nothing passes there;
@@ -329,6 +343,8 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
         sel.confidence[cand.name] = record.confidence
         sel.gain[cand.name] = record.gain
         sel.band[cand.name] = record.band
+        if record.other_shape:
+            sel.other_shape[cand.name] = record.other_shape
         remaining.remove(cand)
         cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
         X, y = np.vstack(cur_X), np.concatenate(ys)

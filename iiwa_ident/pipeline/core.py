@@ -525,7 +525,9 @@ def format_summary(result: PipelineResult) -> str:
                          f"{row['additive_rms_error_nm']:.1f} Nm)")
     if "named_effects" in h:
         if not h["named_effects"]:
-            lines.append("diagnosis: the model explains the data, no effect named")
+            lines.append("diagnosis: the model explains the data, no effect named" if h["model_explained"] else
+                         "diagnosis: the model does not explain the data, but no effect passed every test "
+                         "(diagnose.json: suspects)")
         for e in h["named_effects"]:
             lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
     if result.report is not None:
