@@ -305,11 +305,14 @@ class DiscreteModel:
     sampled_motion: bool = False
 
     def simulate(self, tau_c: np.ndarray) -> np.ndarray:
-        """Outputs for the command ``tau_c`` [Nm] from rest: array ``(2, n)`` of ``tau_j`` [Nm], ``theta_m`` [rad]."""
+        """Outputs for the command ``tau_c`` [Nm] from rest: array ``(2, n)`` of ``tau_j`` [Nm], ``theta_m`` [rad].
+
+        ``tau_c`` of shape ``(n, m)`` simulates ``m`` inputs at once (outputs ``(2, n, m)``).
+        """
         u = np.asarray(tau_c, float)
         n = u.shape[0]
         d = self.delay_samples
-        ud = np.zeros(n)
+        ud = np.zeros_like(u)
         if d < n:
             ud[d:] = u[:n - d]
         uh = ud
@@ -317,11 +320,11 @@ class DiscreteModel:
             # Held as a command, a 50 Hz ripple would lag by half a sample (9 degrees at 1 kHz).
             up = np.concatenate([ud[:1], ud, ud[-1:], ud[-1:]])
             uh = (13.0 * (up[1:-2] + up[2:-1]) - up[:-3] - up[3:]) / 24.0
-        out = np.empty((2, n))
+        out = np.empty((2,) + u.shape)
         for i in range(2):
-            out[i] = lfilter(self.num_resonant[i], self.den_resonant, uh)
+            out[i] = lfilter(self.num_resonant[i], self.den_resonant, uh, axis=0)
             if i == 1:  # tau_j does not see the rigid-body mode
-                out[i] += lfilter(self.num_rigid[i], (1.0, -2.0, 1.0), uh)
+                out[i] += lfilter(self.num_rigid[i], (1.0, -2.0, 1.0), uh, axis=0)
             if self.feedthrough[i]:
                 out[i] += self.feedthrough[i] * ud
         return out
@@ -823,9 +826,15 @@ class _Problem:
         cols, raw = [], []
         try:
             with np.errstate(all="ignore"):
-                for d, rx in r.ripple_basis:
-                    y = (_input_response(p, r.T, "deflection", d, self.substeps)
-                         + _input_response(p, r.T, "reaction", rx, self.substeps))
+                if self.substeps == 1:  # the usual case: all columns through each model at once
+                    D = np.asfortranarray(np.column_stack([d for d, _ in r.ripple_basis]))
+                    RX = np.asfortranarray(np.column_stack([rx for _, rx in r.ripple_basis]))
+                    Y = discretize(p, r.T, "deflection").simulate(D) + discretize(p, r.T, "reaction").simulate(RX)
+                    responses = [Y[:, :, j] for j in range(Y.shape[2])]
+                else:
+                    responses = [_input_response(p, r.T, "deflection", d, self.substeps)
+                                 + _input_response(p, r.T, "reaction", rx, self.substeps) for d, rx in r.ripple_basis]
+                for y in responses:
                     c_t, c_q = weights[0] * y[0], weights[1] * y[1]
                     self._project(r, c_t, c_q, weights)
                     cols.append(np.concatenate([c_t, c_q]))
@@ -835,7 +844,8 @@ class _Problem:
         G = np.column_stack(cols)
         if not np.all(np.isfinite(G)):
             return None
-        coef, *_ = np.linalg.lstsq(G, np.concatenate([e_t, e_q]), rcond=None)
+        # Normal equations: a handful of columns against two outputs of every sample.
+        coef, *_ = np.linalg.lstsq(G.T @ G, G.T @ np.concatenate([e_t, e_q]), rcond=None)
         return coef, G @ coef, np.tensordot(coef, np.array(raw), axes=1)
 
     def ripple_response(self, x: np.ndarray) -> list[np.ndarray | None]:
