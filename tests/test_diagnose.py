@@ -272,11 +272,11 @@ class TestRandomBatch:
     def test_harder_cases_subset(self):
         # Drawn dynamics, larger effects, half in another shape (bench/bench_robustness.py diagnose: 93 % of
         # 100 cases named exactly against the true eq (4), 3 % with a false positive); loosely here.
-        rows = [run_case(seed, shapes=True) for seed in range(200, 208)]
+        rows = [run_case(seed, shapes=True) for seed in range(200, 206)]
         exact = sum(r["names_ok"] for r in rows)
         summary = [(r["seed"], r["hidden"], r["reshaped"], sorted(r["named"])) for r in rows]
         assert any(r["reshaped"] for r in rows)
-        assert exact >= 6, summary
+        assert exact >= 5, summary
         assert sum(bool(r["false"]) for r in rows) <= 1, summary
 
     def test_after_a_fit_the_delay_is_in_td_not_an_effect(self):
