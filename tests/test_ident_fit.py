@@ -199,12 +199,12 @@ class TestSimulateOutputs:
 
 @pytest.fixture(scope="module")
 def ripple_files(tmp_path_factory):
-    """Three random truths, ripple and noise on: (path, truth) per seed."""
+    """Three random truths, ripple and noise on, 15 s chirps: (path, truth) per seed."""
     out = []
     for seed in (11, 12, 13):
         truth = random_truth(seed)
         path = tmp_path_factory.mktemp("fit") / f"chirp_{seed}.h5"
-        write_dataset(path, simulate_chirp(truth, seed))
+        write_dataset(path, simulate_chirp(truth, seed, duration_s=15.0))
         out.append((path, truth))
     return out
 
