@@ -383,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
     rp.add_argument("--first", type=int, default=0, help="first seed")
     rp.add_argument("--jobs", type=int, default=2)
     rp.add_argument("--null-only", action="store_true", help="only the null draws (false-alarm calibration)")
-    cv = sub.add_parser("coverage", help="coverage of the fit's 95 % intervals on random scenarios")
+    cv = sub.add_parser("coverage", help="coverage of the fit's 95 %% intervals on random scenarios")
     cv.add_argument("--draws", type=int, default=100)
     cv.add_argument("--first", type=int, default=0, help="first seed")
     cv.add_argument("--jobs", type=int, default=2)
