@@ -26,8 +26,10 @@ def diagnose_cmd(
     """Compare the model with measurements, name the effects it misses, extend it and measure the gain.
 
     Candidate effects: transmission_ripple, link_friction, position_dependent_load,
-    torque_sensor_offset, torque_sensor_scale, periodic_disturbance, input_delay,
-    link_inertia. An effect is named only when it lowers the held-out residual
+    torque_sensor_offset, torque_sensor_scale, periodic_disturbance, and
+    model_parameters (the model's own Jc, bc, K, Jl and Td refitted together,
+    e.g. an extra input delay or Table I on another joint). An effect is named
+    only when it lowers the held-out residual
     (blocked cross-validation, BIC, t-test confidence); on data the model
     explains, nothing is named.
 

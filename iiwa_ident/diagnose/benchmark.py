@@ -67,7 +67,8 @@ TOLERANCES: dict[str, dict[str, tuple[float, float]]] = {
     "torque_sensor_offset": {"offset_nm": (0.1, 0.05)},
     "torque_sensor_scale": {"scale": (0.0, 0.01)},
     "periodic_disturbance": {"frequency_hz": (0.005, 0.0), "amplitude_nm": (0.2, 0.02)},
-    "input_delay": {"delay_s": (0.0, 3e-4)},
+    # A hidden extra input delay is the model's Td being off: named as model_parameters with the total delay.
+    "model_parameters": {"Td_s": (0.0, 3e-4), "K_nm_rad": (0.03, 0.0), "Jl_kgm2": (0.05, 0.0)},
 }
 
 
@@ -144,7 +145,8 @@ def draw_case(seed: int, n_effects: int | None = None, *, shapes: bool = False) 
             case.expected[name] = r
         elif name == "input_delay":
             case.hidden[name] = {"extra_s": r["delay_s"]}
-            case.expected[name] = {"delay_s": 0.005 + r["delay_s"]}
+            case.expected["model_parameters"] = {"Td_s": case.dynamics["Td"] + r["delay_s"],
+                                                 "K_nm_rad": case.dynamics["K"], "Jl_kgm2": case.dynamics["Jl"]}
     return case
 
 
@@ -183,10 +185,14 @@ def _within(value: float, truth: float, tol: tuple[float, float], angle: bool = 
     return err <= max(tol[0] * abs(truth), tol[1])
 
 
-#: Hidden effects a chirp's fit takes into its eq (4) parameters: the extra delay is part of the fitted Td,
-#: a torque sensor's scale scales the fitted bc, K and Jl alike (the motor position fixes Jc). After a fit
-#: the diagnosis need not name them (naming them is no error either).
-ABSORBED_BY_FIT = ("input_delay", "torque_sensor_scale")
+#: Hidden effects a chirp's fit takes into its eq (4) parameters: the extra delay is part of the fitted Td
+#: (named, it is ``model_parameters``), a torque sensor's scale scales the fitted bc, K and Jl alike (the
+#: motor position fixes Jc). After a fit the diagnosis need not name them (naming them is no error either).
+ABSORBED_BY_FIT = ("model_parameters", "torque_sensor_scale")
+
+#: ``model_parameters`` after a fit is right when it leaves none of these farther from the truth than the fit
+#: did, beyond its tolerance in :data:`TOLERANCES` (relative; Td absolute).
+_REFIT_KEYS = {"K": "K_nm_rad", "Jl": "Jl_kgm2", "Td": "Td_s"}
 
 
 def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[str, float] | None = None
@@ -194,8 +200,8 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
     """Score named effects against the case.
 
     ``fit_error``: with a fitted model, its parameters' relative errors; then the effects of
-    :data:`ABSORBED_BY_FIT` need not be named, and ``link_inertia`` (a correction of the model's own Jl)
-    is right where it moves Jl towards the truth, and not needed where it is not named.
+    :data:`ABSORBED_BY_FIT` need not be named, and ``model_parameters`` (a correction of the fit's
+    own values) is right unless it moves K, Jl or Td away from the truth beyond its tolerance.
 
     Returns
     -------
@@ -205,16 +211,20 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
         and ``bad_parameters`` (``effect.parameter`` outside tolerance).
     """
     hidden, found = set(case.expected), set(named)
+    bad = []
     if fit_error:
-        absorbed = hidden & set(ABSORBED_BY_FIT)
+        if "model_parameters" in found:
+            tol = TOLERANCES["model_parameters"]
+            for k, key in _REFIT_KEYS.items():
+                truth = case.dynamics[k]
+                fitted = truth * (1.0 + fit_error.get(k, 0.0))
+                value = named["model_parameters"].get(key, fitted)
+                allowed = max(abs(fitted - truth), tol[key][0] * truth + tol[key][1])
+                if abs(value - truth) > allowed:
+                    bad.append(f"model_parameters.{key}")
+        absorbed = set(ABSORBED_BY_FIT)
         hidden -= absorbed
         found -= absorbed
-        if "link_inertia" in found:
-            true_jl = case.dynamics["Jl"]
-            model_jl = true_jl * (1.0 + fit_error.get("Jl", 0.0))
-            if abs(named["link_inertia"].get("Jl_kgm2", model_jl) - true_jl) < abs(model_jl - true_jl):
-                found.discard("link_inertia")  # a right correction of the fit's own error, not an effect
-    bad = []
     for name in (hidden & found & set(case.expected)) - set(case.reshaped):
         for key, truth in case.expected[name].items():
             value = named[name].get(key)

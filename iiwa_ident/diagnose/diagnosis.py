@@ -321,6 +321,8 @@ def _suspects(sel: Selection) -> list[dict[str, Any]]:
             continue
         if s.implausible:
             failed = "its fitted parameters are not physically possible"
+        elif s.irrelevant:
+            failed = "the change it describes is below the identification's accuracy"
         elif s.delta_bic >= 0:
             failed = "the information criterion does not favour it"
         else:

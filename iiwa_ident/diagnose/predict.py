@@ -36,7 +36,8 @@ never needs to know the channels' equations:
 ``sensor``      an additive error of the torque reading [Nm]
 ``deflection``  an added transmission deflection f(theta_m) [rad], eq (5)
 ``command``     a torque added to the internal loop's target [Nm] (the robot's own compensation)
-``command_raw`` a change of the command channel's prediction itself [Nm] (a delay change)
+``command_raw`` a change of the command channel's prediction itself [Nm] (the model's own parameters)
+``link_raw``    a change of the link channel's prediction itself [Nm] (the model's own parameters)
 ``reading_scale`` the torque reading ``phi`` (a relative reading error): the command channel
                 sees ``(1 - G_c) phi``, the link channel the model's own link-side torque
                 prediction instead of ``phi`` (the measured torque holds whatever the model
@@ -55,14 +56,14 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.ident.model_file import JointModel
 
 __all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",
-           "command_prediction"]
+           "command_prediction", "predict_channel"]
 
 #: Cut-off of the zero-phase low-pass of the link channel [Hz].
 LINK_CUTOFF_HZ = 20.0
 #: Residual channels, in report order.
 CHANNELS = ("link", "command")
 #: Injection points an effect may use.
-INJECTIONS = ("link", "sensor", "deflection", "command", "command_raw", "reading_scale")
+INJECTIONS = ("link", "sensor", "deflection", "command", "command_raw", "link_raw", "reading_scale")
 
 _EDGE_S = 0.15  # filter and derivative edge effects of the link channel [s]
 _SETTLE_S = 0.3  # start-up transient of the command channel (robot released from standstill) [s]
@@ -120,6 +121,8 @@ class Context:
     tau_c: np.ndarray | None
     params: dict[str, float]
     cutoff_hz: float
+    #: The model's ripple deflection f(q_m mod rho) [rad] (zeros without a table).
+    f0: np.ndarray | None = None
     masks: dict[str, np.ndarray] = field(default_factory=dict)
     measured: dict[str, np.ndarray] = field(default_factory=dict)
     predicted: dict[str, np.ndarray] = field(default_factory=dict)
@@ -140,13 +143,15 @@ class Context:
         """Time derivative by central differences [unit/s]."""
         return np.gradient(x, self.dt)
 
-    def tf(self, name: str, x: np.ndarray, steady: bool = True) -> np.ndarray:
+    def tf(self, name: str, x: np.ndarray, steady: bool = True, params: dict[str, float] | None = None
+           ) -> np.ndarray:
         """Apply the discretised transfer function ``name`` (Gc, Gd, S, 1-Gc) to ``x``.
 
         ``steady`` starts the filter in the steady state of ``x[0]`` (signals
         that existed before the recording); otherwise it starts at rest.
+        ``params``: other eq (4) parameters than the model's.
         """
-        b, a = self._tf[name]
+        b, a = (self._tf if params is None else _transfer_functions(params, self.dt))[name]
         zi = signal.lfilter_zi(b, a) * x[0] if steady else np.zeros(max(len(a), len(b)) - 1)
         return signal.lfilter(b, a, x, zi=zi)[0]
 
@@ -168,11 +173,11 @@ def _transfer_functions(p: dict[str, float], dt: float) -> dict[str, tuple[np.nd
     }
 
 
-def command_prediction(ctx: Context, Td: float) -> np.ndarray:
+def command_prediction(ctx: Context, Td: float, params: dict[str, float] | None = None) -> np.ndarray:
     """``G_c tau_c(t - T_d)`` [Nm]: eq (4) driven by the measured command, from rest.
 
     The delay is ``Td`` [s], realised as whole samples plus a linear
-    interpolation for the fraction.
+    interpolation for the fraction; ``params``: other Jc, bc, K, Jl than the model's.
     """
     n = max(Td, 0.0) / ctx.dt
     k = int(math.floor(n))
@@ -180,7 +185,29 @@ def command_prediction(ctx: Context, Td: float) -> np.ndarray:
     padded = np.concatenate([np.zeros(k + 1), ctx.tau_c])
     m = len(ctx.tau_c)
     u = (1 - frac) * padded[1:m + 1] + frac * padded[0:m]
-    return ctx.tf("Gc", u, steady=False)
+    return ctx.tf("Gc", u, steady=False, params=params)
+
+
+def predict_channel(ctx: Context, channel: str, params: dict[str, float] | None = None) -> np.ndarray:
+    """The model's prediction of a residual channel [Nm] (module docstring), at the model's parameters or others.
+
+    ``params``: Jc, bc, K, Jl, Td [SI] in place of the model's (the ripple table and the
+    measured signals stay); this is how a wrong parameter of eq (4) shows in each channel.
+    """
+    p = ctx.params if params is None else params
+    if channel == "link":
+        theta = ctx.theta_l
+        if ctx.link_from_eq9 and params is not None and p["K"] != ctx.params["K"]:
+            # eq (9) with another K moves the link by tau_J (1/K_model - 1/K).
+            theta = theta + ctx.lowpass(ctx.tau) * (1.0 / ctx.params["K"] - 1.0 / p["K"])
+        return p["Jl"] * ctx.ddt(ctx.ddt(theta)) - ctx.lowpass(ctx.tau_ext)
+    if channel == "command":
+        tfp = None if params is None else p
+        pred = command_prediction(ctx, p["Td"], tfp) - ctx.tf("Gd", ctx.tau_ext, params=tfp)
+        if ctx.f0 is not None:
+            pred = pred - p["K"] * ctx.tf("S", ctx.f0, params=tfp)
+        return pred
+    raise ValueError(f"unknown channel {channel!r}")
 
 
 def build_context(dataset: Dataset, model: JointModel, index: int = 0,
@@ -221,26 +248,23 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
     ctx = Context(index=index, name=str(dataset.path.name) if dataset.path else f"dataset {index}",
                   experiment=dataset.experiment, dt=dt, t=t, q_m=q_m, tau=tau, theta_l=np.zeros_like(t),
                   omega_l=np.zeros_like(t), omega_fast=np.zeros_like(t), tau_ext=tau_ext, link_from_eq9=from_eq9, tau_c=tau_c, params=p,
-                  cutoff_hz=fc, _sos=sos, _tf=_transfer_functions(p, dt))
+                  cutoff_hz=fc, f0=f0 if model.ripple is not None else None, _sos=sos,
+                  _tf=_transfer_functions(p, dt))
     ctx.theta_l = ctx.lowpass(theta_raw)
     ctx.omega_l = ctx.ddt(ctx.theta_l)
     wide = signal.butter(2, 0.3 / dt, fs=1.0 / dt, output="sos")
     ctx.omega_fast = ctx.ddt(signal.sosfiltfilt(wide, theta_raw))
-    alpha = ctx.ddt(ctx.omega_l)
     usable = not contact or has_ext  # an unmeasured push makes both equations unusable
     n = len(t)
     if usable and n * dt > 4 * _EDGE_S:
         mask = (t - t[0] > _EDGE_S) & (t[-1] - t > _EDGE_S)
         ctx.masks["link"] = mask
         ctx.measured["link"] = ctx.lowpass(tau)
-        ctx.predicted["link"] = p["Jl"] * alpha - ctx.lowpass(tau_ext)
+        ctx.predicted["link"] = predict_channel(ctx, "link")
     if usable and tau_c is not None and n * dt > 2 * _SETTLE_S:
         ctx.masks["command"] = t - t[0] > _SETTLE_S
         ctx.measured["command"] = tau
-        pred = command_prediction(ctx, p["Td"]) - ctx.tf("Gd", tau_ext)
-        if model.ripple is not None:
-            pred = pred - p["K"] * ctx.tf("S", f0)
-        ctx.predicted["command"] = pred
+        ctx.predicted["command"] = predict_channel(ctx, "command")
     for c in ctx.masks:
         ctx.residual[c] = ctx.measured[c] - ctx.predicted[c]
     return ctx
@@ -295,4 +319,6 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
             out["command"] = ctx.tf("Gc", phi)
         elif injection == "command_raw":
             out["command"] = phi
+    if injection == "link_raw" and "link" in ctx.masks:
+        out["link"] = phi
     return out

@@ -23,6 +23,9 @@ the already selected ones and keeps the best if all of these hold:
                 residual, they describe its family in another shape
                 (:meth:`CandidateEffect.other_shape`, e.g. Stribeck friction
                 as a negative viscous slope): it is named with that note;
+``relevant``    the change the effect describes matters (:meth:`CandidateEffect.relevant`:
+                a refit of the model's own parameters by less than the
+                identification's accuracy on real joints is not a finding);
 ``confidence``  a one-sided t-test on the relative held-out SSE reductions
                 per (block, segment) (:data:`SEGMENTS` contiguous held-out
                 segments per block), over the blocks the effect acts on, gives
@@ -157,6 +160,8 @@ class Step:
     accepted: bool = False
     band: str = "full"
     implausible: bool = False
+    #: Passed the tests, but the change it describes is too small to matter (:meth:`CandidateEffect.relevant`).
+    irrelevant: bool = False
     #: How the effect's fit departs from its candidate's shape, when it was named in another shape.
     other_shape: str = ""
 
@@ -323,8 +328,10 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                     if fit is None:
                         fit = np.linalg.lstsq(np.vstack([np.hstack([a, b]) for a, b in zip(cur_X, Xc)]),
                                               np.concatenate(ys), rcond=None)[0][-cand.n_columns():]
-                    if cand.plausible(fit):
+                    if cand.plausible(fit) and cand.relevant(fit):
                         passed[band].append((cand, Xc, record))
+                    elif cand.plausible(fit):
+                        record.irrelevant = True
                     elif record.gain >= MIN_GAIN_OTHER_SHAPE and cand.other_shape(fit):
                         record.other_shape = cand.other_shape(fit)
                         passed[band].append((cand, Xc, record))
