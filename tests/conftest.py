@@ -72,3 +72,18 @@ def wait_for(predicate, timeout_s: float = 60.0, what: str = "the condition"):
         if time.monotonic() > deadline:
             pytest.fail(f"{what} did not happen within {timeout_s:g} s")
         pause.wait(0.02)
+
+
+#: Test files of a minute or more of work (shared fixtures that simulate and fit), run first: ``make test``
+#: hands whole files to its two workers in collection order, and a long file collected last would run alone
+#: at the end.
+_LONG_FILES = ("test_pipeline.py", "test_diagnose.py", "test_report.py", "test_ident_joint_fit.py",
+               "test_ident_ripple_subset.py", "test_ident_fit.py", "test_ident_bla_subset.py", "test_fri_loop.py")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    def rank(item) -> int:
+        name = Path(str(item.fspath)).name
+        return _LONG_FILES.index(name) if name in _LONG_FILES else len(_LONG_FILES)
+
+    items.sort(key=rank)  # stable: the order inside each file is kept

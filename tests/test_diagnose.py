@@ -334,6 +334,36 @@ class TestRandomBatch:
         assert e is not None and not d.explained
         assert "Stribeck" in e.detail["other_shape"] and e.gain_pct > 50
 
+    @pytest.mark.parametrize("family, other", [
+        ("periodic_disturbance", True), ("link_friction", True), ("torque_sensor_offset", True),
+        ("periodic_disturbance", False), ("link_friction", False)])
+    def test_shape_fit_tells_the_candidates_shape_from_another(self, family, other):
+        # A random effect of each family, in the candidate's shape or not (hum with 2nd and 3rd harmonics,
+        # Stribeck breakaway, a drifting offset): named by family either way; a freer shape of the family
+        # removes most of what the candidate leaves only when the shape differs.
+        rng = np.random.default_rng([61, len(family), other])
+        if family == "periodic_disturbance":
+            A = rng.uniform(0.2, 0.4)
+            v = {"amplitude_nm": A, "frequency_hz": rng.uniform(20, 80), "phase_rad": rng.uniform(-3, 3)}
+            if other:
+                v.update(harmonic2_nm=rng.uniform(0.3, 0.5) * A, harmonic3_nm=rng.uniform(0.3, 0.5) * A,
+                         harmonic3_phase_rad=rng.uniform(-3, 3))
+        elif family == "link_friction":
+            v = {"coulomb_nm": rng.uniform(1.5, 3.0), "viscous_nms_rad": rng.uniform(0.5, 1.5)}
+            if other:
+                v.update(stribeck_nm=0.4 * v["coulomb_nm"], stribeck_velocity_rad_s=rng.uniform(0.03, 0.08))
+        else:
+            v = {"offset_nm": rng.choice([-1, 1]) * rng.uniform(0.5, 1.0), "drift_nm_s": rng.choice([-1, 1]) * 0.008}
+        d = diagnose(simulate_case(Case(62, hidden={family: v})), table1_model())
+        assert [e.name for e in d.effects] == [family], _named(d)
+        detail = d.effects[0].detail
+        assert 0.8 <= detail["shape_fit"] <= 1.0
+        if other:
+            assert detail["shape_left_pct"] > 30, detail
+        else:
+            assert detail["shape_left_pct"] < 10, detail
+        assert "its shape reaches" in d.summary()
+
     def test_a_large_effect_that_fails_a_test_is_not_explained(self):
         # With a confidence no effect can reach nothing is named, but a hidden 6 Nm load still keeps the
         # diagnosis from saying the model explains the data.

@@ -12,7 +12,7 @@ Harder cases (``draw_case(..., shapes=True)``): the joint's own parameters
 drawn within 30 % of Table I, larger loads (up to 40 Nm) and frictions (up
 to 6 Nm), and half of the effects in a shape the candidates do not have
 (:data:`OTHER_SHAPES`: Stribeck friction, a load with a second harmonic, a
-drifting offset, a ripple with a third harmonic); such an effect must be
+drifting offset, a ripple with a third harmonic, a hum with harmonics); such an effect must be
 named by its family, its parameters are not scored. ``run_case(...,
 fit=True)`` diagnoses against the chirp's fit (its eq (4) parameters) instead
 of the true eq (4).
@@ -57,6 +57,7 @@ OTHER_SHAPES: dict[str, str] = {
     "position_dependent_load": "a second harmonic of 5-20 % of the load",
     "torque_sensor_offset": "a drift of up to 0.01 Nm/s",
     "transmission_ripple": "a third harmonic of 20-50 % of the fundamental",
+    "periodic_disturbance": "second and third harmonics of 20-50 % of the fundamental each",
 }
 
 #: Tolerances per parameter: ``(relative, absolute)``; a value passes within either.
@@ -142,6 +143,10 @@ def draw_case(seed: int, n_effects: int | None = None, *, shapes: bool = False) 
             case.hidden[name] = case.expected[name] = {"scale": s}
         elif name == "periodic_disturbance":
             case.hidden[name] = {**r, "phase_rad": float(rng.uniform(-np.pi, np.pi))}
+            if other:
+                for k in (2, 3):
+                    case.hidden[name].update({f"harmonic{k}_nm": float(extra.uniform(0.2, 0.5)) * r["amplitude_nm"],
+                                              f"harmonic{k}_phase_rad": float(extra.uniform(-np.pi, np.pi))})
             case.expected[name] = r
         elif name == "input_delay":
             case.hidden[name] = {"extra_s": r["delay_s"]}

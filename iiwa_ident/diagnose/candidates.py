@@ -214,6 +214,14 @@ class CandidateEffect:
         """Whether fitted coefficients describe a physically possible effect (default: always)."""
         return True
 
+    #: The freer shape of the family :meth:`free_columns` describes ('' when there is none).
+    free_shape: ClassVar[str] = ""
+
+    def free_columns(self, ctx: Context) -> list[Column]:
+        """Columns of the effect's family in a freer shape (the effect's own columns first, then more), for the
+        shape-fit measure of :func:`~iiwa_ident.diagnose.diagnosis.diagnose`; [] when there is none."""
+        return []
+
     def relevant(self, coef: np.ndarray) -> bool:
         """Whether the fitted change matters enough to be named (default: always; a refit of the model's own
         parameters only when it exceeds the identification's accuracy)."""
@@ -400,6 +408,13 @@ class TransmissionRippleCandidate(CandidateEffect):
         x = 2 * np.pi * ctx.q_m / self.period
         return [[("deflection", fn(k * x))] for k in range(1, self.harmonics + 1) for fn in (np.cos, np.sin)]
 
+    free_shape = "harmonics 1-6 of the period"
+
+    def free_columns(self, ctx):
+        x = 2 * np.pi * ctx.q_m / self.period
+        return self.columns(ctx) + [[("deflection", fn(k * x))] for k in range(self.harmonics + 1, 7)
+                                    for fn in (np.cos, np.sin)]
+
     def _series(self, coef: np.ndarray, bins: int = 256) -> np.ndarray:
         x = 2 * np.pi * np.arange(bins) / bins
         lut = np.zeros(bins)
@@ -444,6 +459,14 @@ class LinkFrictionCandidate(CandidateEffect):
     def columns(self, ctx):
         w = ctx.omega_fast
         return [[("link", -np.tanh(w / self.smoothing_rad_s))], [("link", -w)]]
+
+    free_shape = "Coulomb, viscous, breakaway at 0.01, 0.03, 0.1 and 0.3 rad/s, and quadratic drag"
+
+    def free_columns(self, ctx):
+        w = ctx.omega_fast
+        sign = np.tanh(w / self.smoothing_rad_s)
+        return self.columns(ctx) + [[("link", -sign * np.exp(-(w / vs) ** 2))] for vs in (0.01, 0.03, 0.1, 0.3)] \
+            + [[("link", -w * np.abs(w))]]
 
     def parameters(self, coef):
         return {"coulomb_nm": float(coef[0]), "viscous_nms": float(coef[1])}
@@ -493,6 +516,12 @@ class PositionDependentLoadCandidate(CandidateEffect):
         th, tm = ctx.theta_l, ctx.q_m
         return [[("link", np.sin(th))], [("link", np.cos(th))], [("command", np.sin(tm))], [("command", np.cos(tm))]]
 
+    free_shape = "harmonics 1-3 of the link angle"
+
+    def free_columns(self, ctx):
+        th = ctx.theta_l
+        return self.columns(ctx) + [[("link", fn(k * th))] for k in (2, 3) for fn in (np.sin, np.cos)]
+
     def _values(self, coef) -> dict[str, float]:
         a, b = float(coef[0]), float(coef[1])
         amp = math.hypot(a, b)
@@ -534,6 +563,16 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
 
     def columns(self, ctx):
         return [[("sensor", np.ones_like(ctx.t))]]
+
+    free_shape = "an offset and a drift of its own in each dataset"
+
+    def free_columns(self, ctx):
+        zero = np.zeros_like(ctx.t)
+        cols = self.columns(ctx)
+        for i in range(self.n_datasets):
+            own = i == ctx.index
+            cols += [[("sensor", np.ones_like(ctx.t) if own else zero)], [("sensor", ctx.t - ctx.t[0] if own else zero)]]
+        return cols
 
     def parameters(self, coef):
         return {"offset_nm": float(coef[0])}
@@ -645,6 +684,18 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
         for i in range(self.n_datasets):
             own = i == ctx.index
             cols += [[("sensor", np.sin(w) if own else zero)], [("sensor", np.cos(w) if own else zero)]]
+        return cols
+
+    free_shape = "harmonics 1-3 of the frequency"
+
+    def free_columns(self, ctx):
+        cols = self.columns(ctx)
+        zero = np.zeros_like(ctx.t)
+        for k in (2, 3):
+            w = 2 * np.pi * k * self.frequency * (ctx.t - ctx.t[0])
+            for i in range(self.n_datasets):
+                own = i == ctx.index
+                cols += [[("sensor", np.sin(w) if own else zero)], [("sensor", np.cos(w) if own else zero)]]
         return cols
 
     def _amp_phase(self, coef) -> tuple[np.ndarray, np.ndarray]:

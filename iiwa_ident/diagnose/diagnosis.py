@@ -162,6 +162,10 @@ class Diagnosis:
                 lines.append(f"  {e.name:<24} confidence {e.confidence:.4f}  {pars}")
                 lines.append(f"  {'':<24} held-out RMS {e.rms_before:.4f} -> {e.rms_after:.4f} Nm "
                              f"({e.gain_pct:.1f}% lower)")
+                if "shape_fit" in e.detail:
+                    lines.append(f"  {'':<24} its shape reaches {100 * e.detail['shape_fit']:.1f} % of the reduction "
+                                 f"of {e.detail['free_shape']}; those remove {e.detail['shape_left_pct']:.0f} % "
+                                 f"of what it leaves ({e.detail['shape_left_in']})")
                 if "other_shape" in e.detail:
                     lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
         if self.suspects:
@@ -293,10 +297,12 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         total = coef + known[cand.name][1] if cand.name in known and len(known[cand.name][1]) == len(coef) else coef
         cand.extend(extended, total)
         params = cand.parameters(total)
+        shape = _shape_fit(cand, blocks, ys, sel, without, after, acts)
         effects.append(EffectReport(cand.name, sel.confidence[cand.name], params, rb, ra,
                                     100.0 * (1 - ra / rb) if rb > 0 else 0.0,
                                     {**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
                                      "selected_in": sel.band[cand.name],
+                                     **shape,
                                      **({"other_shape": sel.other_shape[cand.name]}
                                         if cand.name in sel.other_shape else {})}))
     if effects:
@@ -306,6 +312,35 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     return Diagnosis(explained=not effects and not suspects, effects=effects, channels=channels, model=model,
                      extended=extended, contexts=contexts, blocks=blocks, selection=sel, heldout_before=before,
                      heldout_after=after, suspects=suspects)
+
+
+def _shape_fit(cand: CandidateEffect, blocks: list[Block], ys: list[np.ndarray], sel: Selection,
+               without: list[np.ndarray], after: list[np.ndarray], acts: list[int]) -> dict[str, Any]:
+    """How well the candidate's shape fits, against a freer shape of its family
+    (:meth:`CandidateEffect.free_columns`), on held-out data; {} when it has none.
+
+    ``shape_fit``: the share of the freer shape's reduction of the held-out residual that the candidate
+    reaches (blocks weighted alike, as in the selection), in [0, 1]. ``shape_left_pct``: on the block where
+    it is largest (``shape_left_in``), the share of the residual left with the candidate that the freer shape
+    removes besides [%]. A large effect in another shape (a Stribeck friction, a load that is not a sinusoid,
+    a hum with harmonics) has a shape_fit near 1 and yet a large shape_left_pct.
+    """
+    n = len(cand.free_columns(blocks[0].ctx))
+    if n == 0 or not acts:
+        return {}
+    free = block_columns(blocks, cand.free_columns, n)
+    res = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks, skip=cand.name), free)], ys)
+
+    def sse(parts: list[np.ndarray], i: int) -> float:
+        return float(np.sum(parts[i] ** 2))
+
+    reach = sum(sse(without, i) - sse(res, i) for i in acts)
+    share = 1.0 if reach <= 0 else sum(sse(without, i) - sse(after, i) for i in acts) / reach
+    left = {i: 1.0 - sse(res, i) / sse(after, i) for i in acts if sse(after, i) > 0}
+    worst = max(left, key=left.get) if left else acts[0]
+    return {"shape_fit": float(np.clip(share, 0.0, 1.0)), "free_shape": cand.free_shape,
+            "shape_left_pct": float(100.0 * max(left.get(worst, 0.0), 0.0)),
+            "shape_left_in": f"{blocks[worst].ctx.name} {blocks[worst].channel}"}
 
 
 def _suspects(sel: Selection) -> list[dict[str, Any]]:

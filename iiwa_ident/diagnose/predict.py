@@ -46,6 +46,7 @@ never needs to know the channels' equations:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -163,7 +164,13 @@ def _discrete(num: list[float], den: list[float], dt: float) -> tuple[np.ndarray
 
 
 def _transfer_functions(p: dict[str, float], dt: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    Jc, bc, K, Jl = p["Jc"], p["bc"], p["K"], p["Jl"]
+    return _transfer_functions_of(float(p["Jc"]), float(p["bc"]), float(p["K"]), float(p["Jl"]), float(dt))
+
+
+@functools.lru_cache(maxsize=64)
+def _transfer_functions_of(Jc: float, bc: float, K: float, Jl: float, dt: float
+                           ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    # Cached: a parameter search predicts every channel of every dataset at the same parameters.
     den = [Jc * Jl, Jl * bc, (Jc + Jl) * K]
     return {
         "Gc": _discrete([Jl * bc, Jl * K], den, dt),

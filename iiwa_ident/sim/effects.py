@@ -368,7 +368,11 @@ class TorqueSensorScale(Effect):
 
 @register_effect
 class PeriodicDisturbance(Effect):
-    """Time-periodic disturbance on the torque sensor (mains hum)."""
+    """Time-periodic disturbance on the torque sensor (mains hum).
+
+    Second and third harmonics (default 0) stand for a hum that is not a pure
+    sinusoid (a rectifier's or a PWM's); the diagnosis fits the fundamental.
+    """
 
     name = "periodic_disturbance"
     summary = "time-periodic torque-sensor disturbance"
@@ -376,10 +380,17 @@ class PeriodicDisturbance(Effect):
         Param("amplitude_nm", 0.2, "Nm", 0.0, 50.0, "amplitude"),
         Param("frequency_hz", 50.0, "Hz", 0.01, 499.0, "frequency"),
         Param("phase_rad", 0.0, "rad", -10.0, 10.0, "phase at t = 0"),
+        Param("harmonic2_nm", 0.0, "Nm", 0.0, 50.0, "amplitude of the second harmonic"),
+        Param("harmonic2_phase_rad", 0.0, "rad", -10.0, 10.0, "phase of the second harmonic at t = 0"),
+        Param("harmonic3_nm", 0.0, "Nm", 0.0, 50.0, "amplitude of the third harmonic"),
+        Param("harmonic3_phase_rad", 0.0, "rad", -10.0, 10.0, "phase of the third harmonic at t = 0"),
     )
 
     def sensor(self, tau, t, P):
-        return tau + P["amplitude_nm"] * ca.sin(2 * math.pi * P["frequency_hz"] * t + P["phase_rad"])
+        w = 2 * math.pi * P["frequency_hz"] * t
+        return (tau + P["amplitude_nm"] * ca.sin(w + P["phase_rad"])
+                + P["harmonic2_nm"] * ca.sin(2 * w + P["harmonic2_phase_rad"])
+                + P["harmonic3_nm"] * ca.sin(3 * w + P["harmonic3_phase_rad"]))
 
 
 @register_effect
