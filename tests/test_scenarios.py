@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 
 from iiwa_ident.excite.scenarios import (
+    HIDDEN_OTHER_SHAPES,
+    HIDDEN_RANGES,
     NUISANCES,
     RIPPLE_NUISANCES,
+    draw_hidden_effects,
     draw_ripple_scenario,
+    hidden_effect_plant,
     draw_scenario,
     scenario_plant,
     simulate_ripple_scenario,
@@ -86,3 +90,25 @@ def test_ripple_scenario_nuisances_reach_the_logs():
         near = np.abs(f - hum[1]) < 1.0
         assert spec[near].max() > 5 * np.median(spec)
         assert np.std(d) > 0.5 * hum[0]
+
+
+def test_hidden_effects_seeded_in_range_and_simulatable():
+    draws = [draw_hidden_effects(seed, shapes=True) for seed in range(60)]
+    again = draw_hidden_effects(7, shapes=True)
+    assert again.hidden == draws[7].hidden and again.dynamics == draws[7].dynamics
+    counts = {len(d.hidden) for d in draws}
+    assert counts == {0, 1, 2}
+    seen = {name for d in draws for name in d.hidden}
+    assert seen == set(HIDDEN_RANGES)
+    assert {name for d in draws for name in d.reshaped} == set(HIDDEN_OTHER_SHAPES)
+    for d in draws:
+        assert set(d.reshaped) <= set(d.hidden)
+        table1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
+        for k, v in d.dynamics.items():
+            assert 0.7 * table1[k] - 1e-4 <= v <= 1.3 * table1[k] + 1e-4, (k, v)
+        assert abs(d.dynamics["Td"] / 1e-4 - round(d.dynamics["Td"] / 1e-4)) < 1e-9
+        plant = hidden_effect_plant(d)  # every table is a valid plant effect of the simulator
+        assert {e.name for e in plant.effects} == set(d.hidden)
+        assert plant.dynamics["K"] == d.dynamics["K"]
+    plain = draw_hidden_effects(7)
+    assert plain.reshaped == [] and plain.dynamics["K"] == 18500.0

@@ -1,18 +1,20 @@
 """Hidden-effect cases for testing ``diagnose``: draw, simulate, score.
 
-A case hides 0, 1 or 2 plant effects with random parameters in realistic
-ranges (:data:`RANGES`) in the simulated joint, simulates the typical input
-of the experiments (a short chirp, constant-velocity runs, a hand-guided
-run) and scores a diagnosis against the hidden truth: every hidden effect
-must be named with its parameters within :data:`TOLERANCES`, and nothing
-else may be named. The truth stays in the :class:`Case`; the diagnosis only
-sees the datasets.
+A case hides 0, 1 or 2 plant effects with random parameters in the simulated
+joint, drawn by the shared scenario generator
+(:func:`iiwa_ident.excite.scenarios.draw_hidden_effects`, which also
+simulates the typical input of the experiments: a short chirp,
+constant-velocity runs, a hand-guided run), and scores a diagnosis against
+the hidden truth: every hidden effect must be named (as
+:func:`expected_findings` says) with its parameters within
+:data:`TOLERANCES`, and nothing else may be named. The truth stays in the
+:class:`Case`; the diagnosis only sees the datasets.
 
 Harder cases (``draw_case(..., shapes=True)``): the joint's own parameters
 drawn within 30 % of Table I, larger loads (up to 40 Nm) and frictions (up
 to 6 Nm), and half of the effects in a shape the candidates do not have
-(:data:`OTHER_SHAPES`: Stribeck friction, a load with a second harmonic, a
-drifting offset, a ripple with a third harmonic, a hum with harmonics); such an effect must be
+(Stribeck friction, a load with a second harmonic, a drifting offset, a
+ripple with a third harmonic, a hum with harmonics); such an effect must be
 named by its family, its parameters are not scored. ``run_case(...,
 fit=True)`` diagnoses against the chirp's fit (its eq (4) parameters) instead
 of the true eq (4).
@@ -28,37 +30,11 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.excite import Chirp, ConstantVelocity, HandGuided, record
+from iiwa_ident.excite.scenarios import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
 from iiwa_ident.ident.model_file import JointModel, table1_model
 
-__all__ = ["RANGES", "LARGE_RANGES", "OTHER_SHAPES", "TOLERANCES", "ABSORBED_BY_FIT", "Case", "draw_case",
-           "case_model", "simulate_case", "score_case", "run_case"]
-
-#: Ranges the hidden parameters are drawn from (JSON parameter names, SI units).
-RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "transmission_ripple": {"period_rad": (0.008, 0.05), "amplitude_rad": (2.5e-5, 8e-5)},
-    "link_friction": {"coulomb_nm": (0.5, 3.0), "viscous_nms": (0.5, 3.0)},
-    "position_dependent_load": {"amplitude_nm": (2.0, 10.0), "phase_rad": (-math.pi, math.pi)},
-    "torque_sensor_offset": {"offset_nm": (0.3, 2.0)},  # either sign
-    "torque_sensor_scale": {"scale": (0.03, 0.10)},  # |scale - 1|, either sign
-    "periodic_disturbance": {"frequency_hz": (8.0, 90.0), "amplitude_nm": (0.1, 0.5)},
-    "input_delay": {"delay_s": (0.001, 0.003)},  # extra delay on top of the model's 5 ms
-}
-
-#: Wider ranges of the harder cases (``shapes=True``).
-LARGE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "link_friction": {"coulomb_nm": (0.5, 6.0), "viscous_nms": (0.5, 3.0)},
-    "position_dependent_load": {"amplitude_nm": (2.0, 40.0), "phase_rad": (-math.pi, math.pi)},
-}
-
-#: The shape each family takes instead of the candidate's in a harder case.
-OTHER_SHAPES: dict[str, str] = {
-    "link_friction": "Stribeck breakaway friction (20-50 % above Coulomb below 0.01-0.1 rad/s)",
-    "position_dependent_load": "a second harmonic of 5-20 % of the load",
-    "torque_sensor_offset": "a drift of up to 0.01 Nm/s",
-    "transmission_ripple": "a third harmonic of 20-50 % of the fundamental",
-    "periodic_disturbance": "second and third harmonics of 20-50 % of the fundamental each",
-}
+__all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
+           "score_case", "run_case"]
 
 #: Tolerances per parameter: ``(relative, absolute)``; a value passes within either.
 TOLERANCES: dict[str, dict[str, tuple[float, float]]] = {
@@ -75,10 +51,11 @@ TOLERANCES: dict[str, dict[str, tuple[float, float]]] = {
 
 @dataclass
 class Case:
-    """One hidden-effect case: the seed, the hidden effects (plant tables) and their expected parameters."""
+    """One hidden-effect case: the seed, the hidden effects (plant tables) and the findings they call for."""
 
     seed: int
     hidden: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The findings the diagnosis must report, by candidate name (JSON parameters); see :func:`expected_findings`.
     expected: dict[str, dict[str, float]] = field(default_factory=dict)
     #: The joint's eq (4) parameters (Table I unless drawn).
     dynamics: dict[str, float] = field(default_factory=lambda: dict(_TABLE1))
@@ -89,70 +66,39 @@ class Case:
 _TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 
 
-def draw_case(seed: int, n_effects: int | None = None, *, shapes: bool = False) -> Case:
-    """Draw a case: 0, 1 or 2 effects (weights 1:2:2 unless ``n_effects`` is given) with random parameters.
+def expected_findings(hidden: dict[str, dict[str, Any]], dynamics: dict[str, float]) -> dict[str, dict[str, float]]:
+    """What a diagnosis must name for hidden plant effects: candidate names and their JSON parameters.
 
-    ``shapes``: the harder case of the module docstring (drawn dynamics, larger loads and frictions, half the
-    effects in another shape).
+    An extra input delay is the model's Td being off (``model_parameters`` with the total delay); a
+    ripple's amplitude is half the peak-to-peak of its deflection.
     """
-    rng = np.random.default_rng(seed)
-    n = int(rng.choice([0, 1, 1, 2, 2])) if n_effects is None else n_effects
-    names = list(rng.choice(list(RANGES), size=n, replace=False)) if n else []
-    case = Case(seed)
-    extra = np.random.default_rng([seed, 1])  # the harder case's own draws leave the plain case's unchanged
-    if shapes:
-        case.dynamics = {k: v * float(extra.uniform(0.7, 1.3)) for k, v in _TABLE1.items()}
-        # The simulator realises the delay to its 0.1 ms substep: the truth is the delay the data have.
-        case.dynamics["Td"] = round(case.dynamics["Td"] / 1e-4) * 1e-4
-    for name in names:
-        ranges = LARGE_RANGES.get(name, RANGES[name]) if shapes else RANGES[name]
-        r = {k: float(rng.uniform(*v)) for k, v in ranges.items()}
-        other = shapes and name in OTHER_SHAPES and extra.uniform() < 0.5
-        if other:
-            case.reshaped.append(name)
+    out: dict[str, dict[str, float]] = {}
+    for name, v in hidden.items():
         if name == "transmission_ripple":
-            ph = rng.uniform(0, 2 * np.pi, 2)
-            A = r["amplitude_rad"]
-            harmonics = [[A, ph[0]], [0.25 * A, ph[1]]]
-            if other:
-                harmonics.append([float(extra.uniform(0.2, 0.5)) * A, float(extra.uniform(0, 2 * np.pi))])
-            case.hidden[name] = {"period_rad": r["period_rad"], "harmonics": harmonics}
             x = np.arange(4096) * 2 * np.pi / 4096
-            f = sum(a * np.sin((k + 1) * x + p) for k, (a, p) in enumerate(harmonics))
-            case.expected[name] = {"period_rad": r["period_rad"], "amplitude_rad": float(np.ptp(f) / 2)}
+            f = sum(a * np.sin((k + 1) * x + ph) for k, (a, ph) in enumerate(v["harmonics"]))
+            out[name] = {"period_rad": v["period_rad"], "amplitude_rad": float(np.ptp(f) / 2)}
         elif name == "link_friction":
-            case.hidden[name] = {"coulomb_nm": r["coulomb_nm"], "viscous_nms_rad": r["viscous_nms"]}
-            if other:
-                case.hidden[name].update(stribeck_nm=float(extra.uniform(0.2, 0.5)) * r["coulomb_nm"],
-                                         stribeck_velocity_rad_s=float(extra.uniform(0.01, 0.1)))
-            case.expected[name] = r
+            out[name] = {"coulomb_nm": v["coulomb_nm"], "viscous_nms": v["viscous_nms_rad"]}
         elif name == "position_dependent_load":
-            case.hidden[name] = {**r, "compensated": 1.0}
-            if other:
-                case.hidden[name].update(harmonic2_nm=float(extra.uniform(0.05, 0.2)) * r["amplitude_nm"],
-                                         harmonic2_phase_rad=float(extra.uniform(-np.pi, np.pi)))
-            case.expected[name] = r
+            out[name] = {"amplitude_nm": v["amplitude_nm"], "phase_rad": v["phase_rad"]}
         elif name == "torque_sensor_offset":
-            r["offset_nm"] *= rng.choice([-1, 1])
-            case.hidden[name] = dict(r)
-            if other:
-                case.hidden[name]["drift_nm_s"] = float(extra.uniform(-0.01, 0.01))
-            case.expected[name] = r
+            out[name] = {"offset_nm": v["offset_nm"]}
         elif name == "torque_sensor_scale":
-            s = 1 + r["scale"] * rng.choice([-1, 1])
-            case.hidden[name] = case.expected[name] = {"scale": s}
+            out[name] = {"scale": v["scale"]}
         elif name == "periodic_disturbance":
-            case.hidden[name] = {**r, "phase_rad": float(rng.uniform(-np.pi, np.pi))}
-            if other:
-                for k in (2, 3):
-                    case.hidden[name].update({f"harmonic{k}_nm": float(extra.uniform(0.2, 0.5)) * r["amplitude_nm"],
-                                              f"harmonic{k}_phase_rad": float(extra.uniform(-np.pi, np.pi))})
-            case.expected[name] = r
+            out[name] = {"frequency_hz": v["frequency_hz"], "amplitude_nm": v["amplitude_nm"]}
         elif name == "input_delay":
-            case.hidden[name] = {"extra_s": r["delay_s"]}
-            case.expected["model_parameters"] = {"Td_s": case.dynamics["Td"] + r["delay_s"],
-                                                 "K_nm_rad": case.dynamics["K"], "Jl_kgm2": case.dynamics["Jl"]}
-    return case
+            out["model_parameters"] = {"Td_s": dynamics["Td"] + v["extra_s"], "K_nm_rad": dynamics["K"],
+                                       "Jl_kgm2": dynamics["Jl"]}
+    return out
+
+
+def draw_case(seed: int, n_effects: int | None = None, *, shapes: bool = False) -> Case:
+    """A case drawn by the shared scenario generator (:func:`iiwa_ident.excite.scenarios.draw_hidden_effects`:
+    0-2 effects, weights 1:2:2 unless ``n_effects`` is given; ``shapes`` the harder draw), with its findings."""
+    sc = draw_hidden_effects(seed, n_effects, shapes=shapes)
+    return Case(seed, sc.hidden, expected_findings(sc.hidden, sc.dynamics), dict(sc.dynamics), list(sc.reshaped))
 
 
 def case_model(case: Case) -> JointModel:
@@ -164,23 +110,11 @@ def case_model(case: Case) -> JointModel:
 
 
 def simulate_case(case: Case, model: JointModel | None = None, chirp_s: float = 4.0) -> list[Dataset]:
-    """The typical input on a joint with the case's hidden effects (about 20 s of data in all).
-
-    A ``chirp_s`` chirp (0.5-150 Hz), constant-velocity runs at 0.4 and 1.0
-    rad/s over 0.5 rad (torque mode) and a 5 s hand-guided run, on the model's
-    dynamics (the case's by default) with the case's effects and default noise.
-    """
-    from iiwa_ident.sim import SimulatedJoint
-    from iiwa_ident.sim.effects import make_effect
-
-    plant = (model or case_model(case)).to_plant()
-    plant = plant.without_effects().with_effects(*[make_effect(n, v) for n, v in case.hidden.items()])
-    s = case.seed * 10
-    return [
-        record(SimulatedJoint(plant, seed=s + 1), Chirp(f0_hz=0.5, f1_hz=150.0, duration_s=chirp_s)),
-        record(SimulatedJoint(plant, seed=s + 2), ConstantVelocity([0.4, 1.0], range_rad=0.5)),
-        record(SimulatedJoint(plant, seed=s + 3), HandGuided(duration_s=5.0, seed=case.seed)),
-    ]
+    """The typical input on a joint with the case's hidden effects
+    (:func:`~iiwa_ident.excite.scenarios.simulate_hidden_effects`), on the model's dynamics (the case's by
+    default)."""
+    sc = HiddenEffectScenario(case.seed, case.hidden, dict(case.dynamics), list(case.reshaped))
+    return simulate_hidden_effects(sc, (model or case_model(case)).to_plant(), chirp_s)
 
 
 def _within(value: float, truth: float, tol: tuple[float, float], angle: bool = False) -> bool:

@@ -33,6 +33,13 @@ Nuisances (each switched on with its own probability):
 ``stribeck``       Stribeck breakaway friction (with Coulomb friction)
 ``load_harmonic``  a second harmonic of the load (with the load)
 ``offset_drift``   the offset drifts by up to 0.01 Nm/s (with the offset)
+
+Hidden-effect scenarios (:func:`draw_hidden_effects`, for judging a
+diagnosis): 0-2 of the plant effects of :data:`HIDDEN_RANGES` on a Table I
+joint, or (``shapes=True``) on a joint within 30 % of Table I with larger
+loads and frictions and half of the effects in another shape
+(:data:`HIDDEN_OTHER_SHAPES`), recorded on a chirp, constant-velocity runs
+and a hand-guided run (:func:`simulate_hidden_effects`).
 """
 
 from __future__ import annotations
@@ -48,13 +55,15 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite._runner import record
 from iiwa_ident.excite.chirp import Chirp
 from iiwa_ident.excite.multisine import Multisine
-from iiwa_ident.excite.programs import ConstantVelocity
+from iiwa_ident.excite.programs import ConstantVelocity, HandGuided
 from iiwa_ident.sim.effects import make_effect
 from iiwa_ident.sim.joint import SimulatedJoint
 from iiwa_ident.sim.plant import Plant, default_plant, resonance_hz
 
 __all__ = ["NUISANCES", "RIPPLE_NUISANCES", "Scenario", "RippleScenario", "draw_scenario", "scenario_plant",
-           "simulate_scenario", "simulate_scenario_multisine", "draw_ripple_scenario", "simulate_ripple_scenario"]
+           "simulate_scenario", "simulate_scenario_multisine", "draw_ripple_scenario", "simulate_ripple_scenario",
+           "HIDDEN_RANGES", "HIDDEN_LARGE_RANGES", "HIDDEN_OTHER_SHAPES", "HiddenEffectScenario",
+           "draw_hidden_effects", "hidden_effect_plant", "simulate_hidden_effects"]
 
 #: Nuisance names, in the order pass rates are printed.
 NUISANCES: tuple[str, ...] = ("coulomb", "viscous", "gravity", "offset", "ripple", "stribeck", "load_harmonic",
@@ -352,6 +361,140 @@ def simulate_ripple_scenario(sc: RippleScenario) -> list[Dataset]:
         out.append(Dataset(signals={k: v[keep] for k, v in signals.items()}, experiment=ds.experiment,
                            source=ds.source, joint=ds.joint, sample_rate_hz=sc.rate_hz))
     return out
+
+
+# ----------------------------------------------------------------------------- hidden effects (diagnosis)
+
+#: Ranges the hidden effects of :func:`draw_hidden_effects` are drawn from (plant-effect names; SI units).
+HIDDEN_RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "transmission_ripple": {"period_rad": (0.008, 0.05), "amplitude_rad": (2.5e-5, 8e-5)},
+    "link_friction": {"coulomb_nm": (0.5, 3.0), "viscous_nms": (0.5, 3.0)},
+    "position_dependent_load": {"amplitude_nm": (2.0, 10.0), "phase_rad": (-math.pi, math.pi)},
+    "torque_sensor_offset": {"offset_nm": (0.3, 2.0)},  # either sign
+    "torque_sensor_scale": {"scale": (0.03, 0.10)},  # |scale - 1|, either sign
+    "periodic_disturbance": {"frequency_hz": (8.0, 90.0), "amplitude_nm": (0.1, 0.5)},
+    "input_delay": {"delay_s": (0.001, 0.003)},  # extra delay on top of the joint's Td
+}
+
+#: Wider ranges of the harder draws (``shapes=True``).
+HIDDEN_LARGE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
+    "link_friction": {"coulomb_nm": (0.5, 6.0), "viscous_nms": (0.5, 3.0)},
+    "position_dependent_load": {"amplitude_nm": (2.0, 40.0), "phase_rad": (-math.pi, math.pi)},
+}
+
+#: The shape each family takes instead of the simple one in a harder draw.
+HIDDEN_OTHER_SHAPES: dict[str, str] = {
+    "link_friction": "Stribeck breakaway friction (20-50 % above Coulomb below 0.01-0.1 rad/s)",
+    "position_dependent_load": "a second harmonic of 5-20 % of the load",
+    "torque_sensor_offset": "a drift of up to 0.01 Nm/s",
+    "transmission_ripple": "a third harmonic of 20-50 % of the fundamental",
+    "periodic_disturbance": "second and third harmonics of 20-50 % of the fundamental each",
+}
+
+
+@dataclass
+class HiddenEffectScenario:
+    """A joint with 0-2 hidden effects, for judging a diagnosis (see :func:`draw_hidden_effects`).
+
+    Attributes
+    ----------
+    seed : int
+    hidden : dict
+        Plant-effect tables by name (:mod:`iiwa_ident.sim.effects`), the truth a diagnosis must not see.
+    dynamics : dict
+        The joint's Jc, bc, K, Jl, Td [SI] (Table I unless drawn).
+    reshaped : list of str
+        Hidden effects given a shape other than the simple one of their family.
+    """
+
+    seed: int
+    hidden: dict[str, dict[str, Any]] = field(default_factory=dict)
+    dynamics: dict[str, float] = field(default_factory=lambda: dict(_TABLE1_FULL))
+    reshaped: list[str] = field(default_factory=list)
+
+
+_TABLE1_FULL = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
+
+
+def draw_hidden_effects(seed: int, n_effects: int | None = None, *, shapes: bool = False) -> HiddenEffectScenario:
+    """Draw 0, 1 or 2 hidden effects (weights 1:2:2 unless ``n_effects`` is given) with random parameters.
+
+    ``shapes``: the harder draw: the joint's dynamics within 30 % of Table I (Td on the simulator's 0.1 ms
+    substep), the wider ranges of :data:`HIDDEN_LARGE_RANGES`, and half of the effects in the shape of
+    :data:`HIDDEN_OTHER_SHAPES`.
+    """
+    rng = np.random.default_rng(seed)
+    n = int(rng.choice([0, 1, 1, 2, 2])) if n_effects is None else n_effects
+    names = [str(x) for x in rng.choice(list(HIDDEN_RANGES), size=n, replace=False)] if n else []
+    sc = HiddenEffectScenario(seed)
+    extra = np.random.default_rng([seed, 1])  # the harder draw's own numbers leave the plain draw's unchanged
+    if shapes:
+        sc.dynamics = {k: v * float(extra.uniform(0.7, 1.3)) for k, v in _TABLE1_FULL.items()}
+        # The simulator realises the delay to its 0.1 ms substep: the truth is the delay the data have.
+        sc.dynamics["Td"] = round(sc.dynamics["Td"] / 1e-4) * 1e-4
+    for name in names:
+        ranges = HIDDEN_LARGE_RANGES.get(name, HIDDEN_RANGES[name]) if shapes else HIDDEN_RANGES[name]
+        r = {k: float(rng.uniform(*v)) for k, v in ranges.items()}
+        other = shapes and name in HIDDEN_OTHER_SHAPES and extra.uniform() < 0.5
+        if other:
+            sc.reshaped.append(name)
+        if name == "transmission_ripple":
+            ph = rng.uniform(0, 2 * np.pi, 2)
+            A = r["amplitude_rad"]
+            harmonics = [[A, float(ph[0])], [0.25 * A, float(ph[1])]]
+            if other:
+                harmonics.append([float(extra.uniform(0.2, 0.5)) * A, float(extra.uniform(0, 2 * np.pi))])
+            sc.hidden[name] = {"period_rad": r["period_rad"], "harmonics": harmonics}
+        elif name == "link_friction":
+            sc.hidden[name] = {"coulomb_nm": r["coulomb_nm"], "viscous_nms_rad": r["viscous_nms"]}
+            if other:
+                sc.hidden[name].update(stribeck_nm=float(extra.uniform(0.2, 0.5)) * r["coulomb_nm"],
+                                       stribeck_velocity_rad_s=float(extra.uniform(0.01, 0.1)))
+        elif name == "position_dependent_load":
+            sc.hidden[name] = {**r, "compensated": 1.0}
+            if other:
+                sc.hidden[name].update(harmonic2_nm=float(extra.uniform(0.05, 0.2)) * r["amplitude_nm"],
+                                       harmonic2_phase_rad=float(extra.uniform(-np.pi, np.pi)))
+        elif name == "torque_sensor_offset":
+            sc.hidden[name] = {"offset_nm": r["offset_nm"] * float(rng.choice([-1, 1]))}
+            if other:
+                sc.hidden[name]["drift_nm_s"] = float(extra.uniform(-0.01, 0.01))
+        elif name == "torque_sensor_scale":
+            sc.hidden[name] = {"scale": 1 + r["scale"] * float(rng.choice([-1, 1]))}
+        elif name == "periodic_disturbance":
+            sc.hidden[name] = {**r, "phase_rad": float(rng.uniform(-np.pi, np.pi))}
+            if other:
+                for k in (2, 3):
+                    sc.hidden[name].update({f"harmonic{k}_nm": float(extra.uniform(0.2, 0.5)) * r["amplitude_nm"],
+                                            f"harmonic{k}_phase_rad": float(extra.uniform(-np.pi, np.pi))})
+        elif name == "input_delay":
+            sc.hidden[name] = {"extra_s": r["delay_s"]}
+    return sc
+
+
+def hidden_effect_plant(sc: HiddenEffectScenario, base: Plant | None = None) -> Plant:
+    """The joint of a hidden-effect scenario: ``base`` (default: the default plant with the scenario's
+    dynamics) without its own effects, with the hidden ones."""
+    if base is None:
+        base = default_plant()
+        base.dynamics.update(sc.dynamics)
+    return base.without_effects().with_effects(*[make_effect(n, v) for n, v in sc.hidden.items()])
+
+
+def simulate_hidden_effects(sc: HiddenEffectScenario, base: Plant | None = None, chirp_s: float = 4.0
+                            ) -> list[Dataset]:
+    """The typical input of a diagnosis on the scenario's joint (about 20 s of data in all).
+
+    A ``chirp_s`` chirp (0.5-150 Hz), constant-velocity runs at 0.4 and 1.0 rad/s over 0.5 rad (torque mode)
+    and a 5 s hand-guided run, with the default noise.
+    """
+    plant = hidden_effect_plant(sc, base)
+    s = sc.seed * 10
+    return [
+        record(SimulatedJoint(plant, seed=s + 1), Chirp(f0_hz=0.5, f1_hz=150.0, duration_s=chirp_s)),
+        record(SimulatedJoint(plant, seed=s + 2), ConstantVelocity([0.4, 1.0], range_rad=0.5)),
+        record(SimulatedJoint(plant, seed=s + 3), HandGuided(duration_s=5.0, seed=sc.seed)),
+    ]
 
 
 def _ar1(e: np.ndarray, pole: float) -> np.ndarray:
