@@ -667,7 +667,15 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
             freqs = np.fft.rfftfreq(len(x), dt)
             background = median_filter(spec, size=41, mode="nearest") + 1e-30
             score += np.log(np.interp(grid, freqs, spec / background))
-        f0 = grid[int(np.argmax(score))]
+        i0 = int(np.argmax(score))
+        f0 = grid[i0]
+        # A hum that is not a pure sinusoid: its strongest line relative to the background may be a harmonic.
+        # The fundamental is the lowest f0 / k that is itself a clear line (half the peak's log-ratio or more).
+        for k in (3, 2):
+            near = np.abs(grid - f0 / k) <= 0.1
+            if near.any() and score[near].max() >= 0.5 * score[i0] > 0:
+                f0 = grid[near][int(np.argmax(score[near]))]
+                break
 
         def sse(f: float) -> float:
             self.frequency = f
