@@ -133,12 +133,19 @@ class TestExtendedModel:
         assert d.extended.value("Td") == pytest.approx(0.007, abs=3e-4)
         assert d.extended.effects == []
 
-    @pytest.mark.parametrize("seed", [31, 32])
-    def test_wrong_model_parameters_are_refitted_not_explained_by_an_effect(self, seed):
-        # The model's K, Jl and Td off by a few per cent and up to 1.5 ms (hidden from the diagnosis): the finding
-        # is model_parameters with values near the plant's, not a sensor scale or another invented effect.
+    @pytest.mark.parametrize("seed, hidden", [
+        (31, {}), (32, {}),
+        (71, {"link_friction": {"coulomb_nm": 2.5, "viscous_nms_rad": 1.0, "stribeck_nm": 1.0,
+                                "stribeck_velocity_rad_s": 0.05}}),
+        (72, {"position_dependent_load": {"amplitude_nm": 12.0, "phase_rad": 0.4, "compensated": 1.0}}),
+        (73, {"periodic_disturbance": {"amplitude_nm": 0.3, "frequency_hz": 37.0, "phase_rad": 0.2,
+                                       "harmonic3_nm": 0.1}})])
+    def test_wrong_model_parameters_are_refitted_not_explained_by_an_effect(self, seed, hidden):
+        # The model's K, Jl and Td off by a few per cent and up to 1.5 ms (hidden from the diagnosis), alone or
+        # next to an effect in a shape no candidate has: the finding is model_parameters with values near the
+        # plant's (besides the effect's family), not a sensor scale or another invented effect.
         rng = np.random.default_rng(seed)
-        case = Case(seed, dynamics={"Jc": 1.03 * rng.uniform(0.8, 1.2), "bc": 55.0 * rng.uniform(0.8, 1.2),
+        case = Case(seed, hidden=hidden, dynamics={"Jc": 1.03 * rng.uniform(0.8, 1.2), "bc": 55.0 * rng.uniform(0.8, 1.2),
                                     "K": 18500.0 * rng.uniform(0.7, 1.3), "Jl": 5.6 * rng.uniform(0.7, 1.3),
                                     "Td": round(rng.uniform(0.003, 0.007), 4)})
         data = simulate_case(case)
@@ -148,14 +155,15 @@ class TestExtendedModel:
             model.parameters[k].value *= 1.0 + v
         model.parameters["Td"].value += rng.choice([-1, 1]) * rng.uniform(0.0007, 0.0015)
         d = diagnose(data, model)
-        assert [e.name for e in d.effects] == ["model_parameters"], _named(d)
-        p = d.effects[0].parameters
+        assert {e.name for e in d.effects} == {"model_parameters", *hidden}, _named(d)
+        p = d.effect("model_parameters").parameters
         assert p["K_nm_rad"] == pytest.approx(case.dynamics["K"], rel=0.02)
         assert p["Jl_kgm2"] == pytest.approx(case.dynamics["Jl"], rel=0.03)
         assert p["Td_s"] == pytest.approx(case.dynamics["Td"], abs=2e-4)
-        assert d.effects[0].gain_pct > 20
-        again = diagnose(data, d.extended)
-        assert again.explained, _named(again)
+        assert d.effect("model_parameters").gain_pct > 20
+        if not hidden:
+            again = diagnose(data, d.extended)
+            assert again.explained, _named(again)
 
     def test_model_file_effects_round_trip(self, tmp_path):
         m = table1_model()
@@ -296,7 +304,7 @@ class TestRandomBatch:
         summary = [(r["seed"], r["hidden"], sorted(r["named"]), r["bad_parameters"]) for r in rows]
         assert hits >= 0.75, summary
         assert false <= 1, summary
-        assert all(math.isfinite(r["diagnose_s"]) and r["diagnose_s"] < 20 for r in rows)
+        assert all(math.isfinite(r["diagnose_s"]) for r in rows)  # timings belong to the benchmark
 
     def test_harder_cases_subset(self):
         # Drawn dynamics, larger effects, half in another shape (bench/bench_robustness.py diagnose: 93 % of

@@ -18,7 +18,7 @@ from iiwa_ident.excite.scenarios import (
     simulate_ripple_scenario,
     simulate_scenario,
 )
-from iiwa_ident.sim.plant import resonance_hz
+from iiwa_ident.sim.plant import default_plant, resonance_hz
 
 
 def test_same_seed_same_scenario():
@@ -103,7 +103,7 @@ def test_hidden_effects_seeded_in_range_and_simulatable():
     assert {name for d in draws for name in d.reshaped} == set(HIDDEN_OTHER_SHAPES)
     for d in draws:
         assert set(d.reshaped) <= set(d.hidden)
-        table1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
+        table1 = default_plant().dynamics
         for k, v in d.dynamics.items():
             assert 0.7 * table1[k] - 1e-4 <= v <= 1.3 * table1[k] + 1e-4, (k, v)
         assert abs(d.dynamics["Td"] / 1e-4 - round(d.dynamics["Td"] / 1e-4)) < 1e-9

@@ -58,12 +58,10 @@ class Case:
     #: The findings the diagnosis must report, by candidate name (JSON parameters); see :func:`expected_findings`.
     expected: dict[str, dict[str, float]] = field(default_factory=dict)
     #: The joint's eq (4) parameters (Table I unless drawn).
-    dynamics: dict[str, float] = field(default_factory=lambda: dict(_TABLE1))
+    dynamics: dict[str, float] = field(default_factory=lambda: dict(HiddenEffectScenario(0).dynamics))
     #: The hidden effects given a shape other than the candidate's (named by family, parameters not scored).
     reshaped: list[str] = field(default_factory=list)
 
-
-_TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 
 
 def expected_findings(hidden: dict[str, dict[str, Any]], dynamics: dict[str, float]) -> dict[str, dict[str, float]]:
@@ -177,7 +175,7 @@ def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, f
     """Draw, simulate, diagnose and score one case; adds timing [s].
 
     The model is the case's true eq (4), or with ``fit`` the eq (4) parameters of
-    :func:`~iiwa_ident.ident.joint_fit.fit_model` on the case's chirp (10 s then; the
+    :func:`~iiwa_ident.ident.joint_fit.fit_joint` on the case's chirp (10 s then; the
     fitted effects are left out: the diagnosis must find them).
     """
     from iiwa_ident.diagnose.diagnosis import diagnose

@@ -284,6 +284,13 @@ def _search_1d(fn: Callable[[float], float], grid: np.ndarray) -> float:
     return float(res.x) if res.fun <= values[i] else float(grid[i])
 
 
+def _own_dataset(ctx: Context, n_datasets: int, injection: str, signals: Sequence[np.ndarray]) -> list[Column]:
+    """Columns with coefficients of each dataset's own: ``signals`` in ``ctx``'s slot, zeros in the others'
+    (recordings share no time origin, so a time-periodic or drifting effect has a phase or start of each)."""
+    zero = np.zeros_like(ctx.t)
+    return [[(injection, x if i == ctx.index else zero)] for i in range(n_datasets) for x in signals]
+
+
 def _sse_of(blocks: Sequence[Block], residuals: Sequence[np.ndarray], columns, n: int) -> float:
     Xs = block_columns(blocks, columns, n)
     return block_sse(Xs, residuals)[0]
@@ -567,12 +574,7 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
     free_shape = "an offset and a drift of its own in each dataset"
 
     def free_columns(self, ctx):
-        zero = np.zeros_like(ctx.t)
-        cols = self.columns(ctx)
-        for i in range(self.n_datasets):
-            own = i == ctx.index
-            cols += [[("sensor", np.ones_like(ctx.t) if own else zero)], [("sensor", ctx.t - ctx.t[0] if own else zero)]]
-        return cols
+        return self.columns(ctx) + _own_dataset(ctx, self.n_datasets, "sensor", [np.ones_like(ctx.t), ctx.t - ctx.t[0]])
 
     def parameters(self, coef):
         return {"offset_nm": float(coef[0])}
@@ -685,26 +687,17 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
         self.frequency = _search_1d(sse, f0 + np.linspace(-span, span, 13))
         return True
 
+    def _harmonic(self, ctx: Context, k: int) -> list[Column]:
+        w = 2 * np.pi * k * self.frequency * (ctx.t - ctx.t[0])
+        return _own_dataset(ctx, self.n_datasets, "sensor", [np.sin(w), np.cos(w)])
+
     def columns(self, ctx):
-        cols: list[Column] = []
-        w = 2 * np.pi * self.frequency * (ctx.t - ctx.t[0])
-        zero = np.zeros_like(ctx.t)
-        for i in range(self.n_datasets):
-            own = i == ctx.index
-            cols += [[("sensor", np.sin(w) if own else zero)], [("sensor", np.cos(w) if own else zero)]]
-        return cols
+        return self._harmonic(ctx, 1)
 
     free_shape = "harmonics 1-3 of the frequency"
 
     def free_columns(self, ctx):
-        cols = self.columns(ctx)
-        zero = np.zeros_like(ctx.t)
-        for k in (2, 3):
-            w = 2 * np.pi * k * self.frequency * (ctx.t - ctx.t[0])
-            for i in range(self.n_datasets):
-                own = i == ctx.index
-                cols += [[("sensor", np.sin(w) if own else zero)], [("sensor", np.cos(w) if own else zero)]]
-        return cols
+        return self.columns(ctx) + self._harmonic(ctx, 2) + self._harmonic(ctx, 3)
 
     def _amp_phase(self, coef) -> tuple[np.ndarray, np.ndarray]:
         c = np.asarray(coef).reshape(-1, 2)
@@ -843,8 +836,7 @@ class ModelParametersCandidate(CandidateEffect):
         # The coefficient scales the change of the predictions; to first order it scales each parameter's change
         # (a coefficient far from 1 that would take a parameter below zero says the change is something else).
         c = float(coef[0]) if len(coef) else 1.0
-        return {k: self._model.get(k, 0.0) + c * (self.refit.get(k, 0.0) - self._model.get(k, 0.0))
-                for k in _MODEL_KEYS}
+        return {k: self._model[k] + c * (self.refit[k] - self._model[k]) for k in _MODEL_KEYS}
 
     def parameters(self, coef):
         return {_MODEL_JSON[k]: v for k, v in self._values(coef).items()}
@@ -863,6 +855,3 @@ class ModelParametersCandidate(CandidateEffect):
             model.parameters[k].value = float(v)
             model.parameters[k].std = None
         model.effects = [e for e in model.effects if e.get("name") != "input_delay"]
-
-    def evidence_axis(self, ctx):
-        return ctx.t, "time [s]"

@@ -122,7 +122,7 @@ class Context:
     tau_c: np.ndarray | None
     params: dict[str, float]
     cutoff_hz: float
-    #: The model's ripple deflection f(q_m mod rho) [rad] (zeros without a table).
+    #: The model's ripple deflection f(q_m mod rho) [rad] (None without a table).
     f0: np.ndarray | None = None
     masks: dict[str, np.ndarray] = field(default_factory=dict)
     measured: dict[str, np.ndarray] = field(default_factory=dict)

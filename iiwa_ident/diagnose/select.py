@@ -328,12 +328,12 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                     if fit is None:
                         fit = np.linalg.lstsq(np.vstack([np.hstack([a, b]) for a, b in zip(cur_X, Xc)]),
                                               np.concatenate(ys), rcond=None)[0][-cand.n_columns():]
-                    if cand.plausible(fit) and cand.relevant(fit):
-                        passed[band].append((cand, Xc, record))
-                    elif cand.plausible(fit):
+                    plausible = cand.plausible(fit)
+                    note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(fit)
+                    if plausible and not cand.relevant(fit):
                         record.irrelevant = True
-                    elif record.gain >= MIN_GAIN_OTHER_SHAPE and cand.other_shape(fit):
-                        record.other_shape = cand.other_shape(fit)
+                    elif plausible or note:
+                        record.other_shape = note
                         passed[band].append((cand, Xc, record))
                     else:
                         record.implausible = True

@@ -68,7 +68,8 @@ __all__ = ["NUISANCES", "RIPPLE_NUISANCES", "Scenario", "RippleScenario", "draw_
 #: Nuisance names, in the order pass rates are printed.
 NUISANCES: tuple[str, ...] = ("coulomb", "viscous", "gravity", "offset", "ripple", "stribeck", "load_harmonic",
                               "offset_drift")
-_TABLE1 = {"Jc": 1.03, "bc": 55.0, "Td": 0.005}
+#: Table I's eq (4) parameters (the default plant's).
+_TABLE1 = dict(default_plant().dynamics)
 
 
 @dataclass
@@ -409,11 +410,9 @@ class HiddenEffectScenario:
 
     seed: int
     hidden: dict[str, dict[str, Any]] = field(default_factory=dict)
-    dynamics: dict[str, float] = field(default_factory=lambda: dict(_TABLE1_FULL))
+    dynamics: dict[str, float] = field(default_factory=lambda: dict(_TABLE1))
     reshaped: list[str] = field(default_factory=list)
 
-
-_TABLE1_FULL = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 
 
 def draw_hidden_effects(seed: int, n_effects: int | None = None, *, shapes: bool = False) -> HiddenEffectScenario:
@@ -429,7 +428,7 @@ def draw_hidden_effects(seed: int, n_effects: int | None = None, *, shapes: bool
     sc = HiddenEffectScenario(seed)
     extra = np.random.default_rng([seed, 1])  # the harder draw's own numbers leave the plain draw's unchanged
     if shapes:
-        sc.dynamics = {k: v * float(extra.uniform(0.7, 1.3)) for k, v in _TABLE1_FULL.items()}
+        sc.dynamics = {k: v * float(extra.uniform(0.7, 1.3)) for k, v in _TABLE1.items()}
         # The simulator realises the delay to its 0.1 ms substep: the truth is the delay the data have.
         sc.dynamics["Td"] = round(sc.dynamics["Td"] / 1e-4) * 1e-4
     for name in names:
