@@ -55,6 +55,7 @@ from scipy import optimize, signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.lines import line_ratio
 from iiwa_ident.ident.model_file import JointModel, RippleTable
 
 __all__ = [
@@ -649,8 +650,6 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
         return 2 * self.n_datasets
 
     def prepare(self, blocks, residuals) -> bool:
-        from scipy.ndimage import median_filter
-
         super().prepare(blocks, residuals)
         # Per dataset, the fullest-band channel: the command channel when there is one.
         best: dict[int, tuple[Block, np.ndarray]] = {}
@@ -664,11 +663,7 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
         score = np.zeros_like(grid)
         for b, r in best.values():
             dt = b.ctx.dt * (np.median(np.diff(np.nonzero(b.mask)[0])) if np.count_nonzero(b.mask) > 1 else 1)
-            x = (r - r.mean()) * np.hanning(len(r))
-            spec = np.abs(np.fft.rfft(x)) ** 2
-            freqs = np.fft.rfftfreq(len(x), dt)
-            background = median_filter(spec, size=41, mode="nearest") + 1e-30
-            score += np.log(np.interp(grid, freqs, spec / background))
+            score += np.log(line_ratio(r, dt, grid))
         i0 = int(np.argmax(score))
         f0 = grid[i0]
         # A hum that is not a pure sinusoid: its strongest line relative to the background may be a harmonic.

@@ -95,13 +95,14 @@ from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.lines import BACKGROUND_CELLS, line_ratio
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _Record, eq4_frequency_response
 from iiwa_ident.sim.plant import resonance_hz
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
            "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM", "STICK_MIN_SHARE", "MIN_BAND_OVER_RESONANCE", "MAX_RELATIVE_STD",
            "RIPPLE_CYCLES_PER_REV", "RIPPLE_HARMONICS", "RIPPLE_MIN_SHARE", "RIPPLE_HALF_SHARE",
-           "RIPPLE_CHI2"]
+           "RIPPLE_CHI2", "LINE_RATIO", "MAX_LINES"]
 
 #: Velocity scale of the fitted Coulomb tanh [rad/s] (the simulator's default smoothing).
 FRICTION_SMOOTHING_RAD_S = 0.005
@@ -129,6 +130,12 @@ RIPPLE_HALF_SHARE = 0.01
 #: Wald statistic (2 x RIPPLE_HARMONICS degrees of freedom) above which the fitted ripple is kept; far in the
 #: tail (chi-square p about 1e-6) because its period was searched over some hundred candidates.
 RIPPLE_CHI2 = 38.0
+#: Least ratio of the link equation residual's periodogram to its running median (geometric mean over the
+#: records) for a spectral line to be fitted as a free sinusoid; white noise exceeds it with probability
+#: 1e-15 per cell, a chirp's model error (broadband) does not reach it.
+LINE_RATIO = 50.0
+#: Most spectral lines fitted (a hum and its harmonics).
+MAX_LINES = 6
 _EDGE_S = 0.25
 _STICK_REACH = 1.0  # filter time constants around a sticking sample that its error reaches
 _BLOCK_S = 0.25
@@ -260,9 +267,32 @@ class _Prepared:
     ripple: tuple[float, int] | None = None  # (period [rad], harmonics) of the ripple columns below
     rm_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's motor-side reaction, filtered
     rl_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's link acceleration, filtered
+    lines: _Lines | None = None  # spectral lines fitted as free sinusoids (see _line_search)
+    line_cols: list[np.ndarray] = field(default_factory=list)  # their sin, cos through the low-pass
 
 
-def _prepared(rec: _Record, ripple: tuple[float, int] | None = None) -> _Prepared:
+@dataclass(frozen=True)
+class _Lines:
+    """Spectral lines [Hz] of the torque reading, with the record's slot among ``count`` records (each record
+    has its own amplitudes and phases: recordings share no time origin)."""
+
+    freqs: tuple[float, ...]
+    slot: int
+    count: int
+
+    def block(self, cols: list[np.ndarray], k: np.ndarray) -> np.ndarray:
+        """The rows ``k`` of every record's line columns: this record's filled, the others' zero."""
+        out = np.zeros((int(np.count_nonzero(k)) if k.dtype == bool else len(k), 2 * len(self.freqs) * self.count))
+        if cols:
+            w = 2 * len(self.freqs)
+            out[:, self.slot * w:(self.slot + 1) * w] = np.column_stack([c[k] for c in cols])
+        return out
+
+    def names(self) -> list[str]:
+        return [f"line{j + 1}_{sc}_{r + 1}" for r in range(self.count) for j in range(len(self.freqs)) for sc in "sc"]
+
+
+def _prepared(rec: _Record, ripple: tuple[float, int] | None = None, lines: _Lines | None = None) -> _Prepared:
     fs = 1.0 / rec.T
     fc = min(1.3 * rec.f_hi, _FC_MAX * fs)
     sp = _Spectral(rec.n, rec.T, fc)
@@ -283,7 +313,17 @@ def _prepared(rec: _Record, ripple: tuple[float, int] | None = None) -> _Prepare
     if ripple is not None:
         p.ripple = ripple
         p.rm_cols, p.rl_cols = _ripple_terms(p, *ripple)
+    if lines is not None and lines.freqs:
+        p.lines = lines
+        t = np.arange(rec.n) * rec.T
+        for f in lines.freqs:
+            p.line_cols += [sp.filtered(np.sin(2 * np.pi * f * t)), sp.filtered(np.cos(2 * np.pi * f * t))]
     return p
+
+
+def _again(rec: _Record, like: _Prepared) -> _Prepared:
+    """``rec`` prepared with the same ripple and line columns as ``like``."""
+    return _prepared(rec, like.ripple, like.lines)
 
 
 def _ripple_basis(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, period: float, harmonics: int):
@@ -376,6 +416,8 @@ def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] 
     dy = (du - p.dtau_s)[k]
     g = [c[k] for c in p.g_cols]
     Phi = np.column_stack([p.ddq[k], -dy, g[0], g[1], np.ones(len(y)), g[2], g[3]] + [c[k] for c in p.rm_cols])
+    if p.lines is not None:
+        Phi = np.column_stack([Phi, p.lines.block(p.line_cols, k)])
     Z = Phi.copy()
     if tau_hat is not None:
         Z[:, 1] = -(du[k] - tau_hat[0][k])
@@ -403,6 +445,9 @@ def _link_rows(p: _Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.
         cols += [-(flt(theta)[k] - float(np.mean(theta[k])))]
         names += ["load_gradient"]
     Phi = np.column_stack(cols)
+    if p.lines is not None:
+        Phi = np.column_stack([Phi, p.lines.block(p.line_cols, k)])
+        names += p.lines.names()
     Z = Phi.copy()
     if tau_hat is not None:
         Z[:, 1] = -tau_hat[1][k]
@@ -512,6 +557,9 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
     preps = [_prepared(r) for r in records]
     span = max(float(np.ptp(p.q[p.keep])) for p in preps)
     load = "sinusoid" if span >= LOAD_MIN_RANGE_RAD else "gradient"
+    lines = _line_search(preps, load)
+    if lines:
+        preps = [_prepared(r, None, _Lines(lines, i, len(records))) for i, r in enumerate(records)]
     result = _without_sticking(_solve(records, preps, load, span, None), records, preps, load, span)
     found = (ripple_period_rad, None) if ripple_period_rad is not None else \
         _ripple_search(preps, result.parameters["K"], load)
@@ -519,26 +567,95 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
         period, double_period = found
         # The ripple's columns only where it shows: each adds its own noise to the fit.
         td0 = result.parameters["Td"]
-        rippled = _with_ripple(records, load, span, float(period), RIPPLE_HARMONICS, td0)
+        rippled = _with_ripple(records, preps, load, span, float(period), RIPPLE_HARMONICS, td0)
         if rippled is not None:
             result = rippled
             if double_period is not None:
                 # The searched family may be the second harmonic's: with twice the period and twice the
                 # harmonics the odd ones are new; they are the fundamental's family if they show.
-                double = _with_ripple(records, load, span, double_period, 2 * RIPPLE_HARMONICS, td0)
+                double = _with_ripple(records, preps, load, span, double_period, 2 * RIPPLE_HARMONICS, td0)
                 if double is not None and _odd_wald(double.effect("transmission_ripple")) > RIPPLE_CHI2:
                     result = double
+    if lines:
+        result.warnings.append("spectral lines in the torque reading at " + ", ".join(f"{f:.6g}" for f in lines)
+                               + " Hz (a hum?) fitted as free sinusoids in both equations")
     return _identified(result, records)
 
 
-def _with_ripple(records: list[_Record], load: str, span: float, period: float, harmonics: int, td0: float
-                 ) -> IdimResult | None:
+def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
+    """Frequencies [Hz] of the spectral lines in the link equation's residual, strongest first.
+
+    A disturbance of the torque reading periodic in time (a hum ``h``) enters the link equation as
+    ``(1 - Jl w^2 / K) h`` (``tau_s - h`` obeys eq (2)), amplified above the link's resonance by the
+    ``tau_s''`` regressor: 0.15-0.4 Nm at 50-90 Hz made ``Jl`` negative. Each line is one free sine
+    and cosine per record in both equations.
+
+    The residual of a least-squares fit of the link equation (no physical check: it only has to
+    expose the lines); a line is a cell whose periodogram over its running median
+    (:func:`~iiwa_ident.ident.lines.line_ratio`), geometric mean over the records, exceeds
+    :data:`LINE_RATIO`; its frequency refined by the power a sinusoid explains, it is projected out and
+    the next is searched, up to :data:`MAX_LINES`.
+    """
+    rows = [_link_rows(p, 1e4, load) for p in preps]
+    y = np.concatenate([r[0] for r in rows])
+    Phi = np.concatenate([r[1] for r in rows])
+    e = y - Phi @ _iv(y, Phi, Phi)
+    res, start = [], 0
+    for r in rows:
+        res.append(e[start:start + len(r[0])])
+        start += len(r[0])
+    times = [np.nonzero(r[4])[0] * p.rec.T for r, p in zip(rows, preps)]
+    # The chirp's model error passes each frequency briefly and loudly (at 117 Hz it pulled a line's
+    # frequency by 0.01 Hz, which over 8 s turns its phase by half a radian): the sinusoids are fitted with
+    # each block weighted by the inverse of its residual power.
+    weights = []
+    for x, r, p in zip(res, rows, preps):
+        b = p.block[r[4]]
+        power = np.bincount(b - b[0], weights=x * x) / np.maximum(np.bincount(b - b[0]), 1)
+        weights.append(np.sqrt(1.0 / np.maximum(power, 1e-12 * power.max() + 1e-300))[b - b[0]])
+    longest = max(len(t) * p.rec.T for t, p in zip(times, preps))
+    hi = min(min(1.5 * p.fc, 0.45 / p.rec.T) for p in preps)
+    grid = np.arange(1.0, hi, 0.25 / longest)
+    if len(grid) < 10 or min(len(x) for x in res) < 4 * BACKGROUND_CELLS:
+        return ()
+
+    def fitted(f: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per record, the sinusoid at ``f`` fitted to the residual and the residual without it."""
+        out = []
+        for x, t, w in zip(res, times, weights):
+            S = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)])
+            fit = S @ np.linalg.lstsq(S * w[:, None], x * w, rcond=None)[0]
+            out.append((fit * w, x - fit))
+        return out
+
+    found: list[float] = []
+    for _ in range(MAX_LINES):
+        score = np.mean([np.log(line_ratio(x, p.rec.T, grid)) for x, p in zip(res, preps)], axis=0)
+        for f in found:
+            # What a line leaves in its neighbour cells is its amplitude's slow variation, not another line.
+            score[np.abs(grid - f) < 3.0 / longest] = 0.0
+        i = int(np.argmax(score))
+        if not score[i] > math.log(LINE_RATIO):
+            break
+        step = 1.0 / longest
+        best = minimize_scalar(lambda f: -sum(float(s @ s) for s, _ in fitted(f)),
+                               bounds=(grid[i] - step, grid[i] + step), method="bounded",
+                               options={"xatol": 1e-4 * step})
+        f = float(best.x)
+        found.append(f)
+        res = [x for _, x in fitted(f)]
+    return tuple(found)
+
+
+def _with_ripple(records: list[_Record], like: list[_Prepared], load: str, span: float, period: float,
+                 harmonics: int, td0: float) -> IdimResult | None:
     """The fit with the ripple's columns, or ``None`` when the ripple is not significant in it.
 
-    ``td0``: the delay without them (the ripple barely moves it; searched only around it).
+    ``like``: the records prepared without them (their line columns are kept); ``td0``: the delay without
+    them (the ripple barely moves it; searched only around it).
     """
     ripple = (period, harmonics)
-    preps = [_prepared(r, ripple) for r in records]
+    preps = [_prepared(r, ripple, p.lines) for r, p in zip(records, like)]
     try:
         res = _without_sticking(_solve(records, preps, load, span, None, td0), records, preps, load, span)
     except IiwaIdentError:
@@ -643,8 +760,8 @@ def _without_sticking(everything: IdimResult, records: list[_Record], preps: lis
     # Coulomb friction shows: the same fit without the samples where the link may stick. A link at rest
     # makes its friction whatever balances the other torques, so those samples bias the link equation; but
     # leaving out most of a record costs precision. The fit with the smaller relative std of K and Jl wins.
-    final = [_prepared(_dealiased(r, everything.parameters, everything.parameters["Td"]), preps[0].ripple)
-             for r in records]
+    final = [_again(_dealiased(r, everything.parameters, everything.parameters["Td"]), p)
+             for r, p in zip(records, preps)]
     masks = _stick_masks(final, everything.parameters["K"])
     if masks is None:
         return everything
@@ -711,7 +828,7 @@ def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: floa
         if it == _IV_ITERATIONS:
             break
         if it < 2:  # the hold's aliased images out of the samples, at the estimate so far
-            preps = [_prepared(_dealiased(r, prm, td), preps[0].ripple) for r in records]
+            preps = [_again(_dealiased(r, prm, td), p) for r, p in zip(records, preps)]
         tau_hat = []
         for p in preps:
             lt = _link_torque(p, prm["K"], xl, names, load)
