@@ -33,6 +33,9 @@ Nuisances (each switched on with its own probability):
 ``stribeck``       Stribeck breakaway friction (with Coulomb friction)
 ``load_harmonic``  a second harmonic of the load (with the load)
 ``offset_drift``   the offset drifts by up to 0.01 Nm/s (with the offset)
+``hum``            a time-periodic disturbance of the torque reading, 0.05-0.5 Nm at 5-150 Hz, half
+                   of them with 2nd and 3rd harmonics (drawn from a stream of its own, so that the
+                   other draws of a seed are those without it)
 
 Hidden-effect scenarios (:func:`draw_hidden_effects`, for judging a
 diagnosis): 0-2 of the plant effects of :data:`HIDDEN_RANGES` on a Table I
@@ -67,7 +70,7 @@ __all__ = ["NUISANCES", "RIPPLE_NUISANCES", "Scenario", "RippleScenario", "draw_
 
 #: Nuisance names, in the order pass rates are printed.
 NUISANCES: tuple[str, ...] = ("coulomb", "viscous", "gravity", "offset", "ripple", "stribeck", "load_harmonic",
-                              "offset_drift")
+                              "offset_drift", "hum")
 #: Table I's eq (4) parameters (the default plant's).
 _TABLE1 = dict(default_plant().dynamics)
 
@@ -151,6 +154,8 @@ def draw_scenario(seed: int, *, nuisances: Sequence[str] | None = None, duration
         for extra, base in (("stribeck", "coulomb"), ("load_harmonic", "gravity"), ("offset_drift", "offset")):
             if base in on and rng.uniform() < 0.4:
                 on.append(extra)
+        if np.random.default_rng([seed, 1]).uniform() < 0.25:
+            on.append("hum")
     else:
         on = _checked(nuisances, NUISANCES)
     effects: dict[str, dict[str, Any]] = {}
@@ -181,6 +186,8 @@ def draw_scenario(seed: int, *, nuisances: Sequence[str] | None = None, duration
         effects["torque_sensor_offset"] = off
     if "ripple" in on:
         effects["transmission_ripple"] = dict(default_plant().effect("transmission_ripple").to_dict())
+    if "hum" in on:
+        effects["periodic_disturbance"] = _hum(np.random.default_rng([seed, 2]), rate)
 
     # Protocol: a chirp that moves the link well beyond friction and stays within about 0.3 rad.
     fs = rate
@@ -198,6 +205,17 @@ def draw_scenario(seed: int, *, nuisances: Sequence[str] | None = None, duration
     protocol = {"rate_hz": rate, "duration_s": duration, "f0_hz": f0, "f1_hz": f1, "amplitude_nm": amplitude,
                 "bias_nm": bias, "held": held, "q0_rad": rng.uniform(-1.0, 1.0)}
     return Scenario(seed=seed, truth=truth, protocol=protocol, effects=effects, nuisances=on)
+
+
+def _hum(rng: np.random.Generator, rate_hz: float) -> dict[str, float]:
+    """A hum's parameters (see the ``hum`` nuisance); its fundamental below 0.4 of the rate."""
+    hum = {"amplitude_nm": rng.uniform(0.05, 0.5), "frequency_hz": rng.uniform(5.0, min(150.0, 0.4 * rate_hz)),
+           "phase_rad": rng.uniform(-math.pi, math.pi)}
+    if rng.uniform() < 0.5:
+        for k in (2, 3):
+            hum[f"harmonic{k}_nm"] = rng.uniform(0.2, 0.5) * hum["amplitude_nm"]
+            hum[f"harmonic{k}_phase_rad"] = rng.uniform(-math.pi, math.pi)
+    return hum
 
 
 def scenario_plant(sc: Scenario) -> Plant:

@@ -307,8 +307,16 @@ def _prepared(rec: _Record, ripple: tuple[float, int] | None = None, lines: _Lin
     block = np.arange(rec.n) // per_block
     TSw, Qw = sp.spectrum(rec.tau, wide=True), sp.spectrum(rec.q, wide=True)
     q_w, dq_w, ddq_w, tau_w = rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(Qw, 2), sp.back(TSw)
+    dtau_w = sp.back(TSw, 1)
+    if lines is not None:
+        # The link's angle and speed (eq (9)) from the reading without its lines: a 0.4 Nm hum at 114 Hz
+        # adds 0.08 rad/s to omega_l through tau_s' / K, and the friction's tanh turned it into a
+        # torque of its own (K 15 % off).
+        for f in lines.freqs:
+            h, dh = _line_of(sp, TSw, f, keep, block)
+            tau_w, dtau_w = tau_w - h, dtau_w - dh
     p = _Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
-                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, tau_w, sp.back(TSw, 1),
+                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, tau_w, dtau_w,
                   _robot_model_terms(sp, q_w, dq_w), ddq_w)
     if ripple is not None:
         p.ripple = ripple
@@ -319,6 +327,50 @@ def _prepared(rec: _Record, ripple: tuple[float, int] | None = None, lines: _Lin
         for f in lines.freqs:
             p.line_cols += [sp.filtered(np.sin(2 * np.pi * f * t)), sp.filtered(np.cos(2 * np.pi * f * t))]
     return p
+
+
+#: Half-width of the band around a line in which its sinusoid is fitted to the reading [Hz].
+_LINE_BAND_HZ = 1.0
+
+
+def _block_weights(x: np.ndarray, block: np.ndarray) -> np.ndarray:
+    """Per sample, the square root of the inverse of its block's mean power in ``x``."""
+    b = block - block[0]
+    power = np.bincount(b, weights=x * x) / np.maximum(np.bincount(b), 1)
+    return np.sqrt(1.0 / np.maximum(power, 1e-12 * power.max() + 1e-300))[b]
+
+
+def _sinusoid(x: np.ndarray, w: np.ndarray, t: np.ndarray, f: float) -> tuple[np.ndarray, float]:
+    """Coefficients of ``sin, cos(2 pi f t)`` in ``x`` by least squares weighted by ``w``, and the weighted
+    power they explain."""
+    S = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)]) * w[:, None]
+    coef = np.linalg.lstsq(S, x * w, rcond=None)[0]
+    fit = S @ coef
+    return coef, float(fit @ fit)
+
+
+class _Narrowband:
+    """A signal's band within :data:`_LINE_BAND_HZ` of a frequency, on the kept samples, with block weights:
+    the chirp passes the band once and loudly, a line stays; weighted by the inverse of each block's power
+    there, the chirp's passage does not pull the line's frequency or amplitude."""
+
+    def __init__(self, sp: _Spectral, X: np.ndarray, f: float, keep: np.ndarray, block: np.ndarray) -> None:
+        self.x = sp.back(np.where(np.abs(sp.f - f) <= _LINE_BAND_HZ, X, 0.0))[keep]
+        self.w = _block_weights(self.x, block[keep])
+        self.t = np.nonzero(keep)[0] * sp.T
+
+    def fit(self, f: float) -> tuple[np.ndarray, float]:
+        return _sinusoid(self.x, self.w, self.t, f)
+
+
+def _line_of(sp: _Spectral, X: np.ndarray, f: float, keep: np.ndarray, block: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The sinusoid at ``f`` [Hz] in the signal of spectrum ``X`` (see :class:`_Narrowband`), over the whole
+    record, and its derivative."""
+    (a, c), _ = _Narrowband(sp, X, f, keep, block).fit(f)
+    t = np.arange(sp.n) * sp.T
+    s, co = np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)
+    return a * s + c * co, 2 * np.pi * f * (a * co - c * s)
 
 
 def _again(rec: _Record, like: _Prepared) -> _Prepared:
@@ -608,24 +660,22 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
     # The chirp's model error passes each frequency briefly and loudly (at 117 Hz it pulled a line's
     # frequency by 0.01 Hz, which over 8 s turns its phase by half a radian): the sinusoids are fitted with
     # each block weighted by the inverse of its residual power.
-    weights = []
-    for x, r, p in zip(res, rows, preps):
-        b = p.block[r[4]]
-        power = np.bincount(b - b[0], weights=x * x) / np.maximum(np.bincount(b - b[0]), 1)
-        weights.append(np.sqrt(1.0 / np.maximum(power, 1e-12 * power.max() + 1e-300))[b - b[0]])
+    weights = [_block_weights(x, p.block[r[4]]) for x, r, p in zip(res, rows, preps)]
+    readings = [p.sp.spectrum(p.rec.tau, wide=True) for p in preps]
     longest = max(len(t) * p.rec.T for t, p in zip(times, preps))
-    hi = min(min(1.5 * p.fc, 0.45 / p.rec.T) for p in preps)
+    # Up to the Nyquist limit: the low-pass attenuates a line above the chirp's band, but the tau_s''
+    # regressor amplifies it by (Jl / K) w^2 (a 0.4 Nm hum at 114 Hz, 2.4 times the cut-off: 1.8 Nm).
+    hi = min(0.45 / p.rec.T for p in preps)
     grid = np.arange(1.0, hi, 0.25 / longest)
     if len(grid) < 10 or min(len(x) for x in res) < 4 * BACKGROUND_CELLS:
         return ()
 
-    def fitted(f: float) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per record, the sinusoid at ``f`` fitted to the residual and the residual without it."""
+    def without(f: float) -> list[np.ndarray]:
+        """Per record, the residual without its sinusoid at ``f``."""
         out = []
         for x, t, w in zip(res, times, weights):
-            S = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)])
-            fit = S @ np.linalg.lstsq(S * w[:, None], x * w, rcond=None)[0]
-            out.append((fit * w, x - fit))
+            (a, c), _ = _sinusoid(x, w, t, f)
+            out.append(x - a * np.sin(2 * np.pi * f * t) - c * np.cos(2 * np.pi * f * t))
         return out
 
     found: list[float] = []
@@ -637,13 +687,16 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
         i = int(np.argmax(score))
         if not score[i] > math.log(LINE_RATIO):
             break
+        # The frequency from the reading itself: in the residual the line also passed through the
+        # friction's tanh, whose intermodulation pulled it by 0.007 Hz (0.6 rad over a 13 s record).
         step = 1.0 / longest
-        best = minimize_scalar(lambda f: -sum(float(s @ s) for s, _ in fitted(f)),
+        bands = [_Narrowband(p.sp, X, float(grid[i]), p.keep, p.block) for p, X in zip(preps, readings)]
+        best = minimize_scalar(lambda f: -sum(nb.fit(f)[1] for nb in bands),
                                bounds=(grid[i] - step, grid[i] + step), method="bounded",
                                options={"xatol": 1e-4 * step})
         f = float(best.x)
         found.append(f)
-        res = [x for _, x in fitted(f)]
+        res = without(f)
     return tuple(found)
 
 
