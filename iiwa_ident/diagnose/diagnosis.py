@@ -28,16 +28,21 @@ import numpy as np
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
-from iiwa_ident.diagnose.select import BANDS, Selection, cv_residuals, select_effects
+from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import JointModel
 
-__all__ = ["LARGE_GAIN", "EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
+__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
 
 _LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
 #: Held-out reduction of the residual's power a candidate that failed the other tests must not reach for
 #: the model to count as explaining the data.
 LARGE_GAIN = 0.3
+#: ``shape_left_pct`` from which a named effect counts as being in another shape of its family (its freer
+#: shape removes that much of what the named effects leave); another named effect that the freer shape
+#: makes redundant is then reported as ambiguous, not named.
+OTHER_SHAPE_LEFT_PCT = 20.0
+_REDUNDANT_SHARE = 0.25  # of its own held-out gain, at most, that an ambiguous effect keeps beyond the other's shape
 
 
 @dataclass
@@ -109,6 +114,10 @@ class Diagnosis:
     #: residual but failed another test (BIC, confidence, plausibility): the model does not explain the data
     #: even when nothing is named.
     suspects: list[dict[str, Any]] = field(default_factory=list)
+    #: Effects the selection named that a named effect's other shape explains as well (the data do not
+    #: decide between them): not named, not in the extended model; each with ``name``, ``or_shape_of``,
+    #: ``gain_pct`` (its held-out gain when named) and ``gain_beyond_pct`` (beyond the other's freer shape).
+    ambiguous: list[dict[str, Any]] = field(default_factory=list)
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
@@ -144,6 +153,7 @@ class Diagnosis:
             "explained": self.explained,
             "effects": [e.as_json() for e in self.effects],
             "suspects": self.suspects,
+            "ambiguous": self.ambiguous,
             "model_out": self.model_out,
             "datasets": list(datasets.values()),
             "tried": [{"step": s.step, "name": s.name, "gain": s.gain, "delta_bic": s.delta_bic,
@@ -168,6 +178,10 @@ class Diagnosis:
                                  f"of what it leaves ({e.detail['shape_left_in']})")
                 if "other_shape" in e.detail:
                     lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
+        for x in self.ambiguous:
+            lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
+                         f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
+                         f"{x['gain_beyond_pct']:.1f} %)")
         if self.suspects:
             lines.append("the model does not explain the data: " + ("besides, " if self.effects else "")
                          + "these would remove a large part of the residual but failed a test (not named):")
@@ -270,19 +284,35 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         raise IiwaIdentError(f"{names}: nothing to compare (too short, or contact without a measured external torque)")
     ys = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
     names = list(candidates) if candidates is not None else list(CANDIDATES)
+    sel, effects, extended, after = _selected(names, work, model, known, blocks, ys, selection_options)
+    ambiguous = _ambiguous(sel, effects, blocks, ys)
+    if ambiguous:
+        # Named again without them: the others' coefficients and gains must not lean on them.
+        left = [n for n in names if n not in {a["name"] for a in ambiguous}]
+        sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options)
+    before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
+    channels = []
+    for b, rb, ra in zip(blocks, before, after):
+        channels.append(ChannelReport(b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]),
+                                      _rms([ra / b.weight])))
+    suspects = _suspects(sel)
+    return Diagnosis(explained=not effects and not suspects and not ambiguous, effects=effects, channels=channels,
+                     model=model, extended=extended, contexts=contexts, blocks=blocks, selection=sel,
+                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous)
+
+
+def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
+              ys: list[np.ndarray], selection_options: dict[str, Any]
+              ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]]:
+    """The selection among the candidates ``names``, its effect reports, the extended model and the held-out
+    residuals with the named effects."""
     cands = [make_candidate(n) for n in names]
     for c in cands:
         if hasattr(c, "base_table"):
             c.base_table = work.ripple
     sel = select_effects(blocks, ys, cands, **selection_options)
-
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
     after = cv_residuals(sel.columns(blocks), ys) if sel.selected else list(before)
-    channels = []
-    for b, rb, ra in zip(blocks, before, after):
-        channels.append(ChannelReport(b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]),
-                                      _rms([ra / b.weight])))
-
     extended = copy.deepcopy(model)
     extended.parameters["Td"].value = work.parameters["Td"].value
     extended.effects = [e for e in extended.effects if e.get("name") != "input_delay"]
@@ -308,10 +338,53 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     if effects:
         extended.description = (extended.description + " | " if extended.description else "") + \
             "extended by diagnose: " + ", ".join(e.name for e in effects)
-    suspects = _suspects(sel)
-    return Diagnosis(explained=not effects and not suspects, effects=effects, channels=channels, model=model,
-                     extended=extended, contexts=contexts, blocks=blocks, selection=sel, heldout_before=before,
-                     heldout_after=after, suspects=suspects)
+    return sel, effects, extended, after
+
+
+def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block], ys: list[np.ndarray]
+               ) -> list[dict[str, Any]]:
+    """Named effects that another named effect's freer shape makes redundant.
+
+    A named effect in another shape of its family (``shape_left_pct`` at least
+    :data:`OTHER_SHAPE_LEFT_PCT`) leaves a remainder that a second effect may remove: over
+    a short link travel a load's second harmonic is nearly a constant, which a sensor offset also is (a 37
+    Nm load with a 3.5 Nm second harmonic came out as a 24 Nm load and a 9.6 Nm offset), and a drifting
+    offset next to a load is nearly a load in another shape. When the second effect gains less than the
+    selection's least gain beyond the first one's freer shape (:meth:`CandidateEffect.free_columns`; held
+    out, on the blocks it acts on) and keeps less than a quarter of its own gain, the data do not decide
+    between the two: it is reported, not named. An effect named on its own evidence channel (the ripple's
+    deflection) is not judged by the residual channels.
+
+    Without the evidence of another shape the simpler explanation stands: a freer shape (six columns for a
+    load) can stand for a small offset (one) over a short travel too, and then would have swallowed real
+    offsets next to sinusoidal loads.
+    """
+    reports = {e.name: e for e in effects}
+    out = []
+    for first in sel.selected:
+        n = len(first.free_columns(blocks[0].ctx))
+        if n == 0 or any(a["name"] == first.name for a in out) or \
+                reports[first.name].detail.get("shape_left_pct", 0.0) < OTHER_SHAPE_LEFT_PCT:
+            continue
+        free = block_columns(blocks, first.free_columns, n)
+        with_it = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks), free)], ys)
+        for second in sel.selected:
+            if second is first or any(a["name"] == second.name for a in out) or sel.band[second.name] not in BANDS:
+                continue  # (an effect named on its own evidence channel is not judged by the residual's)
+            own = block_columns(blocks, second.columns, second.n_columns())
+            acts = [i for i, X in enumerate(own) if np.any(X)]
+            if not acts:
+                continue
+            without = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks, skip=second.name), free)],
+                                   ys)
+            sse_with = sum(float(np.sum(with_it[i] ** 2)) for i in acts)
+            sse_without = sum(float(np.sum(without[i] ** 2)) for i in acts)
+            beyond = 1.0 - sse_with / sse_without if sse_without > 0 else 0.0
+            # Redundant: beyond the freer shape it gains too little, and most of what it gained is gone.
+            if beyond < MIN_GAIN and 100.0 * beyond < _REDUNDANT_SHARE * reports[second.name].gain_pct:
+                out.append({"name": second.name, "or_shape_of": first.name, "gain_pct": reports[second.name].gain_pct,
+                            "gain_beyond_pct": 100.0 * beyond, "free_shape": first.free_shape})
+    return out
 
 
 def _shape_fit(cand: CandidateEffect, blocks: list[Block], ys: list[np.ndarray], sel: Selection,
