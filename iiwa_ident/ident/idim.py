@@ -35,6 +35,17 @@ coefficients once ``rho`` is known. Unmodelled, the paper's ripple biased
 equation's residual (:func:`_ripple_search`); the ripple's columns stay only
 if their Wald statistic clears :data:`RIPPLE_CHI2`.
 
+Spectral lines
+--------------
+A disturbance of the torque reading periodic in time (mains hum, a PWM's
+lines), ``tau_s = tau_j + h``, enters the link equation as
+``(1 - Jl w^2 / K) h`` and the motor equation through the torque loop:
+at each line one free sine and cosine per record in both equations. The
+lines are searched in the link equation's residual (:func:`_line_search`,
+:mod:`iiwa_ident.ident.lines`), their frequencies refined on the reading,
+and the link's angle and speed of eq (9) are computed from the reading
+without them (a hum in ``tau_s' / K`` passes through the friction's tanh).
+
 Derivatives
 -----------
 Every signal is extended evenly (so its periodic continuation has no jump),
@@ -282,7 +293,7 @@ class _Lines:
 
     def block(self, cols: list[np.ndarray], k: np.ndarray) -> np.ndarray:
         """The rows ``k`` of every record's line columns: this record's filled, the others' zero."""
-        out = np.zeros((int(np.count_nonzero(k)) if k.dtype == bool else len(k), 2 * len(self.freqs) * self.count))
+        out = np.zeros((int(np.count_nonzero(k)), 2 * len(self.freqs) * self.count))
         if cols:
             w = 2 * len(self.freqs)
             out[:, self.slot * w:(self.slot + 1) * w] = np.column_stack([c[k] for c in cols])
