@@ -411,6 +411,12 @@ class TestRandomBatch:
         for a in d.ambiguous:
             assert a["or_shape_of"] == "position_dependent_load" and a["gain_beyond_pct"] < 3.0
         assert d.as_json()["ambiguous"] == d.ambiguous
+        assert "the data do not decide" in d.summary()
+        from iiwa_ident.report.diagnose_figures import gain_table_figure
+
+        fig = gain_table_figure(d)
+        cells = [c.get_text().get_text() for c in fig.axes[0].tables[0].get_celld().values()]
+        assert "ambiguous" in cells and "1 ambiguous" in fig.axes[0].get_title()
 
     def test_a_real_offset_next_to_a_sinusoidal_load_is_still_named(self):
         # The check must not swallow what the data do decide: an offset beside a load of the candidate's

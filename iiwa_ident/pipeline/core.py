@@ -423,6 +423,8 @@ def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
     ctx.results["diagnosis"] = result
     return {"explained": result.explained,
             "effects": [{"name": e.name, "gain_pct": e.gain_pct, "confidence": e.confidence} for e in result.effects],
+            "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
+                          for a in result.ambiguous],
             "channels": [{"dataset": c.dataset, "channel": c.channel, "gain_pct": c.gain_pct} for c in result.channels]}
 
 
@@ -475,6 +477,7 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
     if (h := ok("diagnose")) is not None:
         out["named_effects"] = h["effects"]
         out["model_explained"] = h["explained"]
+        out["ambiguous_effects"] = h.get("ambiguous", [])
     return out
 
 
@@ -530,6 +533,9 @@ def format_summary(result: PipelineResult) -> str:
                          "(diagnose.json: suspects)")
         for e in h["named_effects"]:
             lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
+        for a in h.get("ambiguous_effects", []):
+            lines.append(f"diagnosis: {a['name']} not named: the data do not tell it from another shape of "
+                         f"{a['or_shape_of']} ({a['gain_pct']:.1f} % lower with it)")
     if result.report is not None:
         lines.append(f"report: {result.report}")
     lines.append(f"wall time {result.wall_s:.1f} s")

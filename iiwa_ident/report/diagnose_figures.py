@@ -113,6 +113,9 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     """Table of held-out residual RMS before and after, per effect and per dataset channel."""
     rows = [[e.name, f"{e.confidence:.4f}", f"{e.rms_before:.4f}", f"{e.rms_after:.4f}", f"{e.gain_pct:.1f}"]
             for e in d.effects]
+    # Not named: the data do not decide between it and another shape of a named effect (its gain as named).
+    rows += [[f"({a['name']} or {a['or_shape_of']}'s shape)", "ambiguous", "", "", f"{a['gain_pct']:.1f}"]
+             for a in d.ambiguous]
     rows += [[f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}", f"{c.gain_pct:.1f}"]
              for c in d.channels]
     fig, ax = plt.subplots(figsize=(9, 0.6 + 0.3 * (len(rows) + 1)))
@@ -122,6 +125,8 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     verdict = "model explains the data: nothing named" if d.explained else f"{len(d.effects)} effect(s) named"
+    if d.ambiguous:
+        verdict += f", {len(d.ambiguous)} ambiguous"
     ax.set_title(f"Held-out gain of the named effects ({verdict})", fontsize=10)
     return fig
 
