@@ -320,8 +320,7 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
     for cand, sl in zip(sel.selected, sel.slices):
         coef = sel.coef[sl]
         without = cv_residuals(sel.columns(blocks, skip=cand.name), ys)
-        own = block_columns(blocks, cand.columns, cand.n_columns())
-        acts = [i for i, X in enumerate(own) if np.any(X)]
+        acts = _acting(cand, blocks)
         rb = _rms([without[i] / blocks[i].weight for i in acts])
         ra = _rms([after[i] / blocks[i].weight for i in acts])
         total = coef + known[cand.name][1] if cand.name in known and len(known[cand.name][1]) == len(coef) else coef
@@ -339,6 +338,16 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         extended.description = (extended.description + " | " if extended.description else "") + \
             "extended by diagnose: " + ", ".join(e.name for e in effects)
     return sel, effects, extended, after
+
+
+def _acting(cand: CandidateEffect, blocks: list[Block]) -> list[int]:
+    """The blocks a candidate's columns act on."""
+    return [i for i, X in enumerate(block_columns(blocks, cand.columns, cand.n_columns())) if np.any(X)]
+
+
+def _sse(parts: list[np.ndarray], idx: list[int]) -> float:
+    """Sum of squares of the blocks ``idx`` of held-out residuals."""
+    return sum(float(np.sum(parts[i] ** 2)) for i in idx)
 
 
 def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block], ys: list[np.ndarray]
@@ -371,14 +380,12 @@ def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block],
         for second in sel.selected:
             if second is first or any(a["name"] == second.name for a in out) or sel.band[second.name] not in BANDS:
                 continue  # (an effect named on its own evidence channel is not judged by the residual's)
-            own = block_columns(blocks, second.columns, second.n_columns())
-            acts = [i for i, X in enumerate(own) if np.any(X)]
+            acts = _acting(second, blocks)
             if not acts:
                 continue
             without = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks, skip=second.name), free)],
                                    ys)
-            sse_with = sum(float(np.sum(with_it[i] ** 2)) for i in acts)
-            sse_without = sum(float(np.sum(without[i] ** 2)) for i in acts)
+            sse_with, sse_without = _sse(with_it, acts), _sse(without, acts)
             beyond = 1.0 - sse_with / sse_without if sse_without > 0 else 0.0
             # Redundant: beyond the freer shape it gains too little, and most of what it gained is gone.
             if beyond < MIN_GAIN and 100.0 * beyond < _REDUNDANT_SHARE * reports[second.name].gain_pct:
@@ -404,12 +411,9 @@ def _shape_fit(cand: CandidateEffect, blocks: list[Block], ys: list[np.ndarray],
     free = block_columns(blocks, cand.free_columns, n)
     res = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks, skip=cand.name), free)], ys)
 
-    def sse(parts: list[np.ndarray], i: int) -> float:
-        return float(np.sum(parts[i] ** 2))
-
-    reach = sum(sse(without, i) - sse(res, i) for i in acts)
-    share = 1.0 if reach <= 0 else sum(sse(without, i) - sse(after, i) for i in acts) / reach
-    left = {i: 1.0 - sse(res, i) / sse(after, i) for i in acts if sse(after, i) > 0}
+    reach = _sse(without, acts) - _sse(res, acts)
+    share = 1.0 if reach <= 0 else (_sse(without, acts) - _sse(after, acts)) / reach
+    left = {i: 1.0 - _sse(res, [i]) / _sse(after, [i]) for i in acts if _sse(after, [i]) > 0}
     worst = max(left, key=left.get) if left else acts[0]
     return {"shape_fit": float(np.clip(share, 0.0, 1.0)), "free_shape": cand.free_shape,
             "shape_left_pct": float(100.0 * max(left.get(worst, 0.0), 0.0)),

@@ -106,7 +106,7 @@ from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.lines import BACKGROUND_CELLS, line_ratio
+from iiwa_ident.ident.lines import BACKGROUND_CELLS, block_weights, fit_sinusoid, line_ratio
 from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _Record, eq4_frequency_response
 from iiwa_ident.sim.plant import resonance_hz
 
@@ -148,6 +148,7 @@ LINE_RATIO = 50.0
 #: Most spectral lines fitted (a hum and its harmonics).
 MAX_LINES = 6
 _EDGE_S = 0.25
+_K0 = 1e4  # stiffness [Nm/rad] of eq (9) in the link equation's first pass (a joint's order; refined after it)
 _STICK_REACH = 1.0  # filter time constants around a sticking sample that its error reaches
 _BLOCK_S = 0.25
 _IV_ITERATIONS = 3
@@ -217,6 +218,9 @@ class IdimResult:
     #: the robot's gravity model on the motor side. Each signal is the mean over its sample (the
     #: model holds an input over the sample).
     known_inputs: list[list[tuple[str, np.ndarray]]] = field(default_factory=list)
+    #: Spectral lines of the torque reading [Hz] fitted as free sinusoids in both equations (a hum and its
+    #: harmonics; see :func:`_line_search`), strongest first.
+    lines_hz: tuple[float, ...] = ()
 
     def effect(self, name: str) -> LinkEffectEstimate | None:
         return next((e for e in self.effects if e.name == name), None)
@@ -344,22 +348,6 @@ def _prepared(rec: _Record, ripple: tuple[float, int] | None = None, lines: _Lin
 _LINE_BAND_HZ = 1.0
 
 
-def _block_weights(x: np.ndarray, block: np.ndarray) -> np.ndarray:
-    """Per sample, the square root of the inverse of its block's mean power in ``x``."""
-    b = block - block[0]
-    power = np.bincount(b, weights=x * x) / np.maximum(np.bincount(b), 1)
-    return np.sqrt(1.0 / np.maximum(power, 1e-12 * power.max() + 1e-300))[b]
-
-
-def _sinusoid(x: np.ndarray, w: np.ndarray, t: np.ndarray, f: float) -> tuple[np.ndarray, float]:
-    """Coefficients of ``sin, cos(2 pi f t)`` in ``x`` by least squares weighted by ``w``, and the weighted
-    power they explain."""
-    S = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)]) * w[:, None]
-    coef = np.linalg.lstsq(S, x * w, rcond=None)[0]
-    fit = S @ coef
-    return coef, float(fit @ fit)
-
-
 class _Narrowband:
     """A signal's band within :data:`_LINE_BAND_HZ` of a frequency, on the kept samples, with block weights:
     the chirp passes the band once and loudly, a line stays; weighted by the inverse of each block's power
@@ -367,11 +355,11 @@ class _Narrowband:
 
     def __init__(self, sp: _Spectral, X: np.ndarray, f: float, keep: np.ndarray, block: np.ndarray) -> None:
         self.x = sp.back(np.where(np.abs(sp.f - f) <= _LINE_BAND_HZ, X, 0.0))[keep]
-        self.w = _block_weights(self.x, block[keep])
+        self.w = block_weights(self.x, block[keep])
         self.t = np.nonzero(keep)[0] * sp.T
 
     def fit(self, f: float) -> tuple[np.ndarray, float]:
-        return _sinusoid(self.x, self.w, self.t, f)
+        return fit_sinusoid(self.x, self.w, self.t, f)
 
 
 def _line_of(sp: _Spectral, X: np.ndarray, f: float, keep: np.ndarray, block: np.ndarray
@@ -639,10 +627,20 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
                 double = _with_ripple(records, preps, load, span, double_period, 2 * RIPPLE_HARMONICS, td0)
                 if double is not None and _odd_wald(double.effect("transmission_ripple")) > RIPPLE_CHI2:
                     result = double
+    result.lines_hz = lines
     if lines:
         result.warnings.append("spectral lines in the torque reading at " + ", ".join(f"{f:.6g}" for f in lines)
                                + " Hz (a hum?) fitted as free sinusoids in both equations")
     return _identified(result, records)
+
+
+def _link_residual(preps: list[_Prepared], K: float, load: str) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
+    """The link equation's rows per record at stiffness ``K``, stacked ``y`` and ``Phi``, and the residual of
+    their least-squares fit (no physical check: a search only needs what the columns leave)."""
+    rows = [_link_rows(p, K, load) for p in preps]
+    y = np.concatenate([r[0] for r in rows])
+    Phi = np.concatenate([r[1] for r in rows])
+    return rows, y, Phi, y - Phi @ _iv(y, Phi, Phi)
 
 
 def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
@@ -659,10 +657,7 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
     :data:`LINE_RATIO`; its frequency refined by the power a sinusoid explains, it is projected out and
     the next is searched, up to :data:`MAX_LINES`.
     """
-    rows = [_link_rows(p, 1e4, load) for p in preps]
-    y = np.concatenate([r[0] for r in rows])
-    Phi = np.concatenate([r[1] for r in rows])
-    e = y - Phi @ _iv(y, Phi, Phi)
+    rows, _, _, e = _link_residual(preps, _K0, load)
     res, start = [], 0
     for r in rows:
         res.append(e[start:start + len(r[0])])
@@ -671,7 +666,7 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
     # The chirp's model error passes each frequency briefly and loudly (at 117 Hz it pulled a line's
     # frequency by 0.01 Hz, which over 8 s turns its phase by half a radian): the sinusoids are fitted with
     # each block weighted by the inverse of its residual power.
-    weights = [_block_weights(x, p.block[r[4]]) for x, r, p in zip(res, rows, preps)]
+    weights = [block_weights(x, p.block[r[4]]) for x, r, p in zip(res, rows, preps)]
     readings = [p.sp.spectrum(p.rec.tau, wide=True) for p in preps]
     longest = max(len(t) * p.rec.T for t, p in zip(times, preps))
     # Up to the Nyquist limit: the low-pass attenuates a line above the chirp's band, but the tau_s''
@@ -685,7 +680,7 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
         """Per record, the residual without its sinusoid at ``f``."""
         out = []
         for x, t, w in zip(res, times, weights):
-            (a, c), _ = _sinusoid(x, w, t, f)
+            (a, c), _ = fit_sinusoid(x, w, t, f)
             out.append(x - a * np.sin(2 * np.pi * f * t) - c * np.cos(2 * np.pi * f * t))
         return out
 
@@ -756,10 +751,7 @@ def _ripple_search(preps: list[_Prepared], K: float, load: str) -> tuple[float, 
     Periods longer than the motor's travel are not searched: over less than one period a ripple cannot
     be told from a load.
     """
-    rows = [_link_rows(p, K, load) for p in preps]
-    y = np.concatenate([r[0] for r in rows])
-    Phi = np.concatenate([r[1] for r in rows])
-    e = y - Phi @ _iv(y, Phi, Phi)
+    rows, y, Phi, e = _link_residual(preps, K, load)
     masks = [r[4] for r in rows]
     q, dq, ddq = (np.concatenate([getattr(p, a)[k] for p, k in zip(preps, masks)]) for a in ("q_w", "dq_w", "ddq_w"))
     span = max(float(np.ptp(p.q_w[k])) for p, k in zip(preps, masks))
@@ -868,7 +860,7 @@ def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: floa
     """IV iterations with the delay search and the alias correction; ``stick``: per record the samples the
     link equation uses (``None``: all); ``td0``: a delay found before (searched only around it)."""
     tau_hat: list | None = None
-    K = 1e4
+    K = _K0
     td = _delay(preps, None) if td0 is None else _delay(preps, None, max(td0 - 2e-3, 0.0), min(td0 + 2e-3, _MAX_TD_S))
     for it in range(_IV_ITERATIONS + 1):
         # Motor equation over all records.

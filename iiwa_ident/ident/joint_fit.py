@@ -192,6 +192,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
                 result, method = fallback, "idim"
     result.method = method
     result.effects = idim.effects
+    result.lines_hz = idim.lines_hz
     return result
 
 

@@ -1061,6 +1061,8 @@ class FitResult:
     effects: list[Any] = field(default_factory=list)
     #: How :attr:`std` was computed (named in the JSON).
     std_method: str = STD_FISHER
+    #: Spectral lines of the torque reading [Hz] the inverse dynamics fitted as free sinusoids (a hum).
+    lines_hz: tuple[float, ...] = ()
 
     @property
     def relative_std(self) -> dict[str, float]:
@@ -1091,6 +1093,7 @@ class FitResult:
             "method": self.method,
             "std_method": self.std_method,
             "effects": {e.name: e.to_json() for e in self.effects},
+            "spectral_lines_hz": [float(f) for f in self.lines_hz],
         }
 
 
