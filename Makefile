@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-realtime bench clean
+.PHONY: demo test test-realtime bench clean proto
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) on PATH"; exit 1; }
@@ -42,3 +42,10 @@ bench: $(STAMP) test-realtime
 
 clean:
 	rm -rf $(VENV) build *.egg-info
+
+# Regenerate the FRI messages' Python module after an edit of their schema. Only this target needs protoc
+# (from grpcio-tools, in a throw-away environment); installing and running the package do not.
+proto:
+	$(PYTHON) -m venv /tmp/iiwa-ident-protoc
+	/tmp/iiwa-ident-protoc/bin/pip install --quiet 'grpcio-tools==1.85.1'
+	/tmp/iiwa-ident-protoc/bin/python -m grpc_tools.protoc -I. --python_out=. iiwa_ident/fri/messages.proto
