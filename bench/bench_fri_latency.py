@@ -69,9 +69,11 @@ def write_messages(path: Path, seconds: float, stalls: bool) -> int:
     n = int(round((WARMUP_S + seconds + 1.0) * 1e3))
     j = 0
     pose = list(DEFAULT_JOINT_POSITIONS)
-    info = P.RobotInfo(7, P.SafetyState.NORMAL_OPERATION, (P.DriveState.ACTIVE,) * 7, P.OperationMode.AUT,
-                     P.ControlMode.JOINT_IMPEDANCE)
-    conn = P.ConnectionInfo(P.SessionState.COMMANDING_ACTIVE, P.ConnectionQuality.EXCELLENT, 1, 1)
+    info = dict(number_of_joints=7, safety_state=P.SafetyState.NORMAL_OPERATION,
+                drive_state=(P.DriveState.ACTIVE,) * 7, operation_mode=P.OperationMode.AUT,
+                control_mode=P.ControlMode.JOINT_IMPEDANCE)
+    conn = dict(session_state=P.SessionState.COMMANDING_ACTIVE, quality=P.ConnectionQuality.EXCELLENT,
+                send_period_ms=1, receive_multiplier=1)
     epoch_ns = time.time_ns()
     chunks = [struct.pack("<I", n)]
     shift_ns = 0
@@ -88,13 +90,14 @@ def write_messages(path: Path, seconds: float, stalls: bool) -> int:
         tau[j] = 5.0 + 0.5 * np.sin(3.0 * t)
         sec, nsec = divmod(epoch_ns + offset, 1_000_000_000)
         msg = P.MonitoringMessage(
-            header=P.MessageHeader(P.MONITORING_MESSAGE_ID, k, 0),
+            header=dict(message_identifier=P.MONITORING_MESSAGE_ID, sequence_counter=k, reflected_sequence_counter=0),
             robot_info=info,
-            monitor_data=P.MonitorData(measured_joint_position=positions, measured_torque=tuple(tau),
-                                     commanded_joint_position=positions, commanded_torque=(0.0,) * 7,
-                                     external_torque=(0.0,) * 7, timestamp=(sec & 0xFFFFFFFF, nsec)),
+            monitor_data=dict(measured_joint_position=dict(value=positions), measured_torque=dict(value=tau),
+                              commanded_joint_position=dict(value=positions), commanded_torque=dict(value=(0.0,) * 7),
+                              external_torque=dict(value=(0.0,) * 7), timestamp=dict(sec=sec & 0xFFFFFFFF, nanosec=nsec)),
             connection_info=conn,
-            ipo_data=P.IpoData(positions, P.ClientCommandMode.TORQUE, P.OverlayType.JOINT, 1.0),
+            ipo_data=dict(joint_position=dict(value=positions), client_command_mode=P.ClientCommandMode.TORQUE,
+                          overlay_type=P.OverlayType.JOINT, tracking_performance=1.0),
         )
         data = P.encode_monitoring(msg)
         chunks.append(struct.pack("<QII", offset, k, len(data)) + data)

@@ -36,15 +36,14 @@ from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
     ClientCommandMode,
     CommandData,
+    JointValues,
     CommandMessage,
     ConnectionQuality,
     ControlMode,
     DriveState,
     FriDecodeError,
-    MessageHeader,
     SessionState,
     decode_monitoring,
-    encode_command,
 )
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
@@ -135,7 +134,7 @@ class Client:
             except FriDecodeError:
                 self.decode_errors += 1
                 continue
-            if msg.connection_info is None:  # a corrupted datagram can still parse: nothing to answer
+            if not msg.HasField("connection_info"):  # a corrupted datagram can still parse: nothing to answer
                 self.decode_errors += 1
                 continue
             self.messages.append(msg)
@@ -146,13 +145,25 @@ class Client:
             self.answered.append(reply is not SILENT)
             if reply is SILENT:
                 continue
-            header = MessageHeader(COMMAND_MESSAGE_ID, self.seq, msg.header.sequence_counter)
-            self.sock.sendto(encode_command(CommandMessage(header, reply)), addr)
+            answer = CommandMessage(header=dict(message_identifier=COMMAND_MESSAGE_ID, sequence_counter=self.seq,
+                                                reflected_sequence_counter=msg.header.sequence_counter))
+            if reply is not None:
+                answer.command_data.CopyFrom(reply)
+            # Serialized without encode_command's checks: some policies send invalid commands on purpose.
+            self.sock.sendto(answer.SerializeToString(), addr)
             self.seq += 1
             if reply is None:
                 self.header_only += 1
             else:
                 self.commands += 1
+
+
+def command(q, tau) -> CommandData:
+    """Command data of joint positions ``q`` [rad] and torques ``tau`` [Nm] (None: left out)."""
+    data = CommandData(joint_position=JointValues(value=q))
+    if tau is not None:
+        data.joint_torque.value[:] = tau
+    return data
 
 
 def torque_policy(tau: float, joint: int = 1):
@@ -165,7 +176,7 @@ def torque_policy(tau: float, joint: int = 1):
         torques = [0.0] * 7
         if state == S.COMMANDING_ACTIVE:
             torques[joint - 1] = tau
-        return CommandData(msg.monitor_data.measured_joint_position, tuple(torques))
+        return command(msg.monitor_data.measured_joint_position.value, torques)
 
     return policy
 
@@ -236,15 +247,15 @@ def test_full_session_with_constant_torque(tmp_path):
     active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]
     m = active[-1]
     assert m.robot_info.number_of_joints == 7
-    assert m.robot_info.drive_state == (DriveState.ACTIVE,) * 7
+    assert tuple(m.robot_info.drive_state) == (DriveState.ACTIVE,) * 7
     assert m.robot_info.control_mode == ControlMode.JOINT_IMPEDANCE
     assert m.ipo_data.client_command_mode == ClientCommandMode.TORQUE
     assert m.connection_info.send_period_ms == 1 and m.connection_info.receive_multiplier == 1
-    q = m.monitor_data.measured_joint_position
+    q = tuple(m.monitor_data.measured_joint_position.value)
     assert len(q) == 7 and q[1:] == DEFAULT_JOINT_POSITIONS[1:]
-    assert m.ipo_data.joint_position == q
-    assert m.monitor_data.commanded_torque == (5.0, 0, 0, 0, 0, 0, 0)
-    assert m.monitor_data.timestamp[0] > 1_600_000_000
+    assert tuple(m.ipo_data.joint_position.value) == q
+    assert tuple(m.monitor_data.commanded_torque.value) == (5.0, 0, 0, 0, 0, 0, 0)
+    assert m.monitor_data.timestamp.sec > 1_600_000_000
     # The robot-side dataset: the joint moved under 5 Nm exactly as the simulated joint does.
     ds = read_dataset(out)
     assert ds.experiment == "free" and ds.source == "simulation" and ds.sample_rate_hz == 1000.0
@@ -296,23 +307,23 @@ def test_silent_client_drops_the_session():
 
 
 def _offset(msg, joint=3, by=0.2):
-    q = list(msg.monitor_data.measured_joint_position)
+    q = list(msg.monitor_data.measured_joint_position.value)
     q[joint - 1] += by
-    return CommandData(tuple(q), (0.0,) * 7)
+    return command(q, (0.0,) * 7)
 
 
 def _short(msg):
-    return CommandData(msg.monitor_data.measured_joint_position, (0.0,) * 6)
+    return command(msg.monitor_data.measured_joint_position.value, (0.0,) * 6)
 
 
 def _nan(msg):
-    return CommandData(msg.monitor_data.measured_joint_position, (math.nan,) + (0.0,) * 6)
+    return command(msg.monitor_data.measured_joint_position.value, (math.nan,) + (0.0,) * 6)
 
 
 @pytest.mark.parametrize("bad, reason", [
     (_offset, "commanded position of joint 3 is 0.200 rad from the measured one (limit 0.1 rad)"),
-    (_short, "jointTorque has 6 values, expected 7"),
-    (_nan, "jointTorque has a non-finite value"),
+    (_short, "joint_torque has 6 values, expected 7"),
+    (_nan, "joint_torque has a non-finite value"),
     (lambda msg: None, "command without commandData"),
 ], ids=["inconsistent-position", "short-torques", "nan-torque", "header-only"])
 def test_bad_command_drops_the_session_and_the_client_can_come_back(bad, reason):
@@ -340,11 +351,11 @@ def test_position_mode_follows_the_commanded_position(tmp_path):
         state = msg.connection_info.session_state
         if state not in COMMANDING:
             return None
-        q = list(msg.monitor_data.measured_joint_position)
+        q = list(msg.monitor_data.measured_joint_position.value)
         if state == S.COMMANDING_ACTIVE:
             target.setdefault("q", q[0] + 0.05)
             q[0] = target["q"]
-        return CommandData(tuple(q), None)
+        return command(q, None)
 
     out = tmp_path / "pos.h5"
     with Client(policy) as client:
@@ -368,7 +379,7 @@ def test_hand_moves_the_link(tmp_path):
     assert np.ptp(q[k0:]) > 2e-3
     assert np.abs(ds["tau_ext_ref"][k0:]).max() > 0.5
     # The robot reports its external-torque estimate to the client.
-    ext = [m.monitor_data.external_torque[0] for m in client.messages
+    ext = [m.monitor_data.external_torque.value[0] for m in client.messages
            if m.connection_info.session_state == S.COMMANDING_ACTIVE]
     assert max(abs(e) for e in ext) > 0.2
 
@@ -572,6 +583,6 @@ def test_cli_stall_sends_nothing_and_keeps_the_time():
     active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]
     assert len(active) == 170
     seq = np.array([m.header.sequence_counter for m in active])
-    stamp = np.array([m.monitor_data.timestamp[0] * 10**9 + m.monitor_data.timestamp[1] for m in active])
+    stamp = np.array([m.monitor_data.timestamp.sec * 10**9 + m.monitor_data.timestamp.nanosec for m in active])
     assert np.all(np.diff(seq) == 1)
     np.testing.assert_array_equal(np.diff(stamp), np.where(np.arange(169) == 49, 31_000_000, 1_000_000))

@@ -20,10 +20,7 @@ from iiwa_ident.fri.connection import FriConnection, parse_host_port
 from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
     MONITORING_MESSAGE_ID,
-    ConnectionInfo,
     ConnectionQuality,
-    MessageHeader,
-    MonitorData,
     MonitoringMessage,
     SessionState,
     decode_command,
@@ -264,10 +261,11 @@ class TestControllerRuntime:
 
 def _monitoring(seq, state=SessionState.MONITORING_WAIT, q=0.0):
     return encode_monitoring(MonitoringMessage(
-        header=MessageHeader(MONITORING_MESSAGE_ID, seq, 0),
-        monitor_data=MonitorData(measured_joint_position=(q,) * 7, measured_torque=(0.0,) * 7,
-                                 timestamp=(100 + seq // 1000, (seq % 1000) * 1_000_000)),
-        connection_info=ConnectionInfo(state, ConnectionQuality.EXCELLENT, 1, 1)))
+        header=dict(message_identifier=MONITORING_MESSAGE_ID, sequence_counter=seq, reflected_sequence_counter=0),
+        monitor_data=dict(measured_joint_position=dict(value=(q,) * 7), measured_torque=dict(value=(0.0,) * 7),
+                          timestamp=dict(sec=100 + seq // 1000, nanosec=(seq % 1000) * 1_000_000)),
+        connection_info=dict(session_state=state, quality=ConnectionQuality.EXCELLENT, send_period_ms=1,
+                             receive_multiplier=1)))
 
 
 #: How long a test waits for a datagram on loopback: it returns as soon as one arrives; the length only
@@ -297,7 +295,7 @@ class TestFriConnection:
         answer = decode_command(robot.recv(2000))
         assert answer.header.message_identifier == COMMAND_MESSAGE_ID
         assert (answer.header.sequence_counter, answer.header.reflected_sequence_counter) == (0, 7)
-        assert answer.command_data is None
+        assert not answer.HasField("command_data")
 
     def test_commanding_answers_carry_all_joints(self, link):
         client, robot = link
@@ -305,8 +303,8 @@ class TestFriConnection:
         msg = client.receive(WAIT_S)
         client.answer(msg, [0.1] * 7, [0, 0, 0, 0, 0, 0, 2.5])
         answer = decode_command(robot.recv(2000))
-        assert answer.command_data.joint_torque == (0, 0, 0, 0, 0, 0, 2.5)
-        assert answer.command_data.joint_position == (0.1,) * 7
+        assert tuple(answer.command_data.joint_torque.value) == (0, 0, 0, 0, 0, 0, 2.5)
+        assert tuple(answer.command_data.joint_position.value) == (0.1,) * 7
         with pytest.raises(SafetyStop, match="non-finite"):
             client.answer(msg, [0.1] * 7, [math.inf] + [0.0] * 6)
         with pytest.raises(SafetyStop, match="7 joint"):

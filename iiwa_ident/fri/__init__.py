@@ -1,13 +1,18 @@
-"""KUKA Fast Robot Interface (FRI): the UDP message codec.
+"""KUKA Fast Robot Interface (FRI): the UDP messages on the protobuf library.
 
-:mod:`iiwa_ident.fri.protocol` encodes and decodes the monitoring messages
-the robot sends and the command messages a client answers with.
+:mod:`iiwa_ident.fri.protocol` decodes and encodes the monitoring messages
+the robot sends and the command messages a client answers with, and checks
+what protobuf does not (identifiers, size, required fields, joint counts,
+finite numbers); the schema is ``messages.proto``.
 """
 
 from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
     MAX_DATAGRAM_BYTES,
+    MAX_WRENCH_ELEMENTS,
     MONITORING_MESSAGE_ID,
+    N_JOINTS,
+    CartesianVector,
     ClientCommandMode,
     CommandData,
     CommandMessage,
@@ -17,6 +22,7 @@ from iiwa_ident.fri.protocol import (
     DriveState,
     FriDecodeError,
     IpoData,
+    JointValues,
     MessageHeader,
     MonitorData,
     MonitoringMessage,
@@ -25,16 +31,20 @@ from iiwa_ident.fri.protocol import (
     RobotInfo,
     SafetyState,
     SessionState,
+    TimeStamp,
     decode_command,
     decode_monitoring,
     encode_command,
     encode_monitoring,
+    message_problem,
 )
 
 __all__ = [
     "MONITORING_MESSAGE_ID",
     "COMMAND_MESSAGE_ID",
     "MAX_DATAGRAM_BYTES",
+    "MAX_WRENCH_ELEMENTS",
+    "N_JOINTS",
     "FriDecodeError",
     "SessionState",
     "ConnectionQuality",
@@ -44,6 +54,9 @@ __all__ = [
     "ControlMode",
     "ClientCommandMode",
     "OverlayType",
+    "JointValues",
+    "CartesianVector",
+    "TimeStamp",
     "MessageHeader",
     "ConnectionInfo",
     "RobotInfo",
@@ -52,6 +65,7 @@ __all__ = [
     "MonitoringMessage",
     "CommandData",
     "CommandMessage",
+    "message_problem",
     "encode_monitoring",
     "decode_monitoring",
     "encode_command",

@@ -34,10 +34,8 @@ from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
     MAX_DATAGRAM_BYTES,
-    CommandData,
     CommandMessage,
     FriDecodeError,
-    MessageHeader,
     MonitoringMessage,
     SessionState,
     decode_monitoring,
@@ -256,11 +254,12 @@ class FriConnection:
         SafetyStop
             If a commanding answer lacks a value per joint or holds a non-finite number.
         """
-        info = msg.connection_info
-        state = info.session_state if info is not None else SessionState.IDLE
+        state = msg.connection_info.session_state if msg.HasField("connection_info") else SessionState.IDLE
         if state == SessionState.IDLE or self._reply_to is None:
             return False
-        data = None
+        answer = CommandMessage(header=dict(message_identifier=COMMAND_MESSAGE_ID,
+                                            sequence_counter=self.sequence % _UINT32,
+                                            reflected_sequence_counter=msg.header.sequence_counter))
         if state in COMMANDING_STATES:
             if joint_positions is None or joint_torques is None:
                 raise SafetyStop("FRI: a commanding answer needs joint positions and torques")
@@ -269,9 +268,9 @@ class FriConnection:
                 raise SafetyStop(f"FRI: a commanding answer needs {self.n_joints} joint positions and torques")
             if not all(math.isfinite(v) for v in pos + tau):
                 raise SafetyStop("FRI: refusing to send a non-finite joint position or torque")
-            data = CommandData(joint_position=pos, joint_torque=tau)
-        header = MessageHeader(COMMAND_MESSAGE_ID, self.sequence % _UINT32, msg.header.sequence_counter)
-        self._sock.sendto(encode_command(CommandMessage(header, data)), self._reply_to)
+            answer.command_data.joint_position.value[:] = pos
+            answer.command_data.joint_torque.value[:] = tau
+        self._sock.sendto(encode_command(answer), self._reply_to)
         self.last_compute_ns = time.perf_counter_ns() - self.rx_ns
         self.sequence += 1
         self.stats.sent += 1

@@ -162,16 +162,13 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite.programs import HandGuided
 from iiwa_ident.fri.protocol import (
     MONITORING_MESSAGE_ID,
+    N_JOINTS,
     ClientCommandMode,
     CommandMessage,
-    ConnectionInfo,
     ConnectionQuality,
     ControlMode,
     DriveState,
     FriDecodeError,
-    IpoData,
-    MessageHeader,
-    MonitorData,
     MonitoringMessage,
     OperationMode,
     OverlayType,
@@ -180,6 +177,7 @@ from iiwa_ident.fri.protocol import (
     SessionState,
     decode_command,
     encode_monitoring,
+    message_problem,
 )
 from iiwa_ident.robot import Command, Measurement, joint_limits
 from iiwa_ident.sim.joint import SimulatedJoint
@@ -212,7 +210,7 @@ RESEND_S = 0.05
 #: Values of :attr:`EmulatorConfig.agent`.
 AGENTS = ("hand",)
 
-_N_JOINTS = 7
+_N_JOINTS = N_JOINTS
 _U32 = 0xFFFFFFFF
 # Sent messages remembered for latency and state look-up (a power of two).
 _RING = 4096
@@ -908,7 +906,7 @@ class _LockstepClock(_RealTimeClock):
         if addr[:2] != emu._client:
             return self.vt
         try:
-            reflected = decode_command(data).header.reflected_sequence_counter
+            reflected = decode_command(data, check=False).header.reflected_sequence_counter
         except FriDecodeError:
             return self.vt  # the cycle logic counts it as invalid
         if reflected == self.resent_seq:
@@ -1085,8 +1083,9 @@ class RobotEmulator:
         self._cmd_tau: tuple[float, ...] | None = None
         self._zero7 = (0.0,) * _N_JOINTS
         self._robot_info = RobotInfo(
-            _N_JOINTS, SafetyState.NORMAL_OPERATION, (DriveState.ACTIVE,) * _N_JOINTS,
-            cfg.operation_mode, cfg.control_mode)
+            number_of_joints=_N_JOINTS, safety_state=SafetyState.NORMAL_OPERATION,
+            drive_state=(DriveState.ACTIVE,) * _N_JOINTS, operation_mode=cfg.operation_mode,
+            control_mode=cfg.control_mode)
         self._meas = self._robot.start()
         self._hold_q = self._meas.q_m
         self._positions = self._measured_positions(self._meas)
@@ -1167,8 +1166,8 @@ class RobotEmulator:
         state = self._state
         if state == SessionState.COMMANDING_ACTIVE and answer is not None and answer[2] == state:
             cd = answer[0].command_data
-            self._cmd_pos = cd.joint_position
-            self._cmd_tau = cd.joint_torque
+            self._cmd_pos = tuple(cd.joint_position.value)
+            self._cmd_tau = tuple(cd.joint_torque.value) if cd.HasField("joint_torque") else None
         if self._restart_now:
             # This cycle's message carries the restarted simulation's first measurement.
             self._restart_now = False
@@ -1219,7 +1218,7 @@ class RobotEmulator:
                 rep.answers_foreign += 1
                 continue
             try:
-                msg = decode_command(data)
+                msg = decode_command(data, check=False)  # content: see _check_command
             except FriDecodeError:
                 rep.answers_invalid += 1
                 continue
@@ -1247,21 +1246,17 @@ class RobotEmulator:
 
     def _check_command(self, msg: CommandMessage) -> str | None:
         """What is wrong with a command in a commanding state, or None."""
-        cd = msg.command_data
-        if cd is None:
+        if not msg.HasField("command_data"):
             return "command without commandData"
-        values = [("jointPosition", cd.joint_position)]
-        if self._torque_mode:
-            values.append(("jointTorque", cd.joint_torque))
-        for name, v in values:
-            if v is None:
+        cd = msg.command_data
+        for name in ("joint_position", "joint_torque") if self._torque_mode else ("joint_position",):
+            if not cd.HasField(name):
                 return f"command without {name}"
-            if len(v) != _N_JOINTS:
-                return f"{name} has {len(v)} values, expected {_N_JOINTS}"
-            if not all(math.isfinite(x) for x in v):
-                return f"{name} has a non-finite value"
+        problem = message_problem(msg)
+        if problem:
+            return problem
         limit = self.config.max_position_error_rad
-        for i, (q_cmd, q) in enumerate(zip(cd.joint_position, self._positions)):
+        for i, (q_cmd, q) in enumerate(zip(cd.joint_position.value, self._positions)):
             if abs(q_cmd - q) > limit:
                 return (f"commanded position of joint {i + 1} is {abs(q_cmd - q):.3f} rad from the measured one "
                         f"(limit {limit:g} rad)")
@@ -1414,18 +1409,21 @@ class RobotEmulator:
         ext[j] = meas.tau_ext_fri
         sec, nsec = divmod(self._clock.stamp_ns(), 1_000_000_000)
         msg = MonitoringMessage(
-            header=MessageHeader(MONITORING_MESSAGE_ID, seq, self._client_seq or 0),
+            header=dict(message_identifier=MONITORING_MESSAGE_ID, sequence_counter=seq,
+                        reflected_sequence_counter=self._client_seq or 0),
             robot_info=self._robot_info,
-            monitor_data=MonitorData(
-                measured_joint_position=positions,
-                measured_torque=tau,
-                commanded_joint_position=self._cmd_pos if self._cmd_pos is not None else positions,
-                commanded_torque=self._cmd_tau if self._cmd_tau is not None else self._zero7,
-                external_torque=ext,
-                timestamp=(sec & _U32, nsec),
+            monitor_data=dict(
+                measured_joint_position=dict(value=positions),
+                measured_torque=dict(value=tau),
+                commanded_joint_position=dict(value=self._cmd_pos if self._cmd_pos is not None else positions),
+                commanded_torque=dict(value=self._cmd_tau if self._cmd_tau is not None else self._zero7),
+                external_torque=dict(value=ext),
+                timestamp=dict(sec=sec & _U32, nanosec=nsec),
             ),
-            connection_info=ConnectionInfo(state, self._quality, cfg.send_period_ms, 1),
-            ipo_data=IpoData(positions, cfg.client_command_mode, OverlayType.JOINT, 1.0),
+            connection_info=dict(session_state=state, quality=self._quality, send_period_ms=cfg.send_period_ms,
+                                 receive_multiplier=1),
+            ipo_data=dict(joint_position=dict(value=positions), client_command_mode=cfg.client_command_mode,
+                          overlay_type=OverlayType.JOINT, tracking_performance=1.0),
         )
         data = encode_monitoring(msg)
         slot = seq & (_RING - 1)

@@ -20,6 +20,7 @@ from iiwa_ident.fri.protocol import (
     ControlMode,
     DriveState,
     MonitoringMessage,
+    N_JOINTS,
     SafetyState,
     SessionState,
 )
@@ -27,7 +28,15 @@ from iiwa_ident.robot import Command, Measurement, RobotInterface, joint_limits
 
 __all__ = ["FriRobot", "required_settings"]
 
-_N_JOINTS = 7
+_N_JOINTS = N_JOINTS
+
+
+def _field(msg: MonitoringMessage, part: str, name: str):
+    """``msg.part.name``, or None when the robot did not send it."""
+    if not msg.HasField(part):
+        return None
+    sub = getattr(msg, part)
+    return getattr(sub, name) if sub.HasField(name) else None
 
 
 def _name(enum, value) -> str:
@@ -98,49 +107,49 @@ class FriRobot(RobotInterface):
         return out
 
     def _state(self, msg: MonitoringMessage) -> int:
-        return msg.connection_info.session_state if msg.connection_info is not None else SessionState.IDLE
+        return msg.connection_info.session_state if msg.HasField("connection_info") else SessionState.IDLE
 
     def _check_settings(self, msg: MonitoringMessage) -> None:
         """Refuse a session whose robot-side settings do not fit the program (before the first command)."""
         want_control, want_client = self._settings
-        info, ipo, conn = msg.robot_info, msg.ipo_data, msg.connection_info
         problems = []
-        if info is None or info.control_mode != want_control:
-            got = "unknown" if info is None else _name(ControlMode, info.control_mode)
+        control = _field(msg, "robot_info", "control_mode")
+        if control != want_control:
+            got = "unknown" if control is None else _name(ControlMode, control)
             problems.append(f"control mode {got} (need {want_control.name})")
-        if ipo is None or ipo.client_command_mode != want_client:
-            got = "unknown" if ipo is None else _name(ClientCommandMode, ipo.client_command_mode)
+        client = _field(msg, "ipo_data", "client_command_mode")
+        if client != want_client:
+            got = "unknown" if client is None else _name(ClientCommandMode, client)
             problems.append(f"client command mode {got} (need {want_client.name})")
-        period = conn.send_period_ms if conn is not None else None
+        period = _field(msg, "connection_info", "send_period_ms")
         if period is not None and period != round(self.sample_time_s * 1e3):
             problems.append(f"send period {period} ms (need {self.sample_time_s * 1e3:g} ms)")
-        if conn is not None and conn.receive_multiplier not in (None, 1):
-            problems.append(f"receive multiplier {conn.receive_multiplier} (need 1)")
+        multiplier = _field(msg, "connection_info", "receive_multiplier")
+        if multiplier not in (None, 1):
+            problems.append(f"receive multiplier {multiplier} (need 1)")
         if problems:
             raise IiwaIdentError("FRI: the robot runs " + ", ".join(problems) + "; change the robot application")
         self._check_health(msg)
 
     def _check_health(self, msg: MonitoringMessage) -> None:
-        info = msg.robot_info
-        if info is None:
-            return
-        if info.safety_state not in (None, SafetyState.NORMAL_OPERATION):
-            raise SafetyStop(f"FRI: robot safety state {_name(SafetyState, info.safety_state)}")
-        if info.drive_state and len(info.drive_state) >= self.joint and \
-                info.drive_state[self.joint - 1] != DriveState.ACTIVE:
-            raise SafetyStop(f"FRI: drive of joint {self.joint} is {_name(DriveState, info.drive_state[self.joint - 1])}")
+        safety = _field(msg, "robot_info", "safety_state")
+        if safety not in (None, SafetyState.NORMAL_OPERATION):
+            raise SafetyStop(f"FRI: robot safety state {_name(SafetyState, safety)}")
+        drives = msg.robot_info.drive_state
+        if drives and drives[self.joint - 1] != DriveState.ACTIVE:
+            raise SafetyStop(f"FRI: drive of joint {self.joint} is {_name(DriveState, drives[self.joint - 1])}")
 
-    def _values(self, msg: MonitoringMessage, name: str) -> tuple[float, ...]:
-        data = msg.monitor_data
-        values = getattr(data, name) if data is not None else None
-        if values is None or len(values) < _N_JOINTS:
+    def _values(self, msg: MonitoringMessage, name: str):
+        """One of the monitor data's joint arrays (the decoder checked: 7 finite values) [rad] or [Nm]."""
+        values = _field(msg, "monitor_data", name)
+        if values is None:
             raise SafetyStop(f"FRI: the robot's message lacks {name} for {_N_JOINTS} joints")
-        return values
+        return values.value
 
     @staticmethod
     def _stamp_ns(msg: MonitoringMessage) -> int | None:
-        stamp = msg.monitor_data.timestamp if msg.monitor_data is not None else None
-        return None if stamp is None else stamp[0] * 1_000_000_000 + stamp[1]
+        stamp = _field(msg, "monitor_data", "timestamp")
+        return None if stamp is None else stamp.sec * 1_000_000_000 + stamp.nanosec
 
     def _missed(self, msg: MonitoringMessage, answered: int) -> int:
         """Robot cycles between the answered message and ``msg`` that brought no message to this client.
@@ -166,10 +175,10 @@ class FriRobot(RobotInterface):
         # period, so the log is on a uniform grid, with a lost message or a stall a gap of whole cycles,
         # which is what identification needs; the time stamps carry the sender's jitter.
         t = self._cycles * self.sample_time_s
-        ext = msg.monitor_data.external_torque
+        ext = _field(msg, "monitor_data", "external_torque")
         return Measurement(t=t, q_m=self._values(msg, "measured_joint_position")[j],
                            tau_j=self._values(msg, "measured_torque")[j],
-                           tau_ext_fri=ext[j] if ext is not None and len(ext) > j else float("nan"))
+                           tau_ext_fri=ext.value[j] if ext is not None else float("nan"))
 
     def _answer(self, msg: MonitoringMessage, command: Command | None) -> None:
         """Answer ``msg``: header only while monitoring, the command (or a hold) while commanding."""
