@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from iiwa_ident.fri.logwriter import LogWriter
+from iiwa_ident.datasets import LogWriter
 
 SIGNALS = [
     "t", "q_m", "tau_j", "tau_c", "tau_r", "tau_j_filt", "tau_ext_est", "tau_add", "watchdog", "cycle_us",

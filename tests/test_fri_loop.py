@@ -27,7 +27,7 @@ from iiwa_ident.design.design_file import make_record
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.fri.emulator import EmulatorConfig, Faults, spawn_emulator
-from iiwa_ident.fri.logwriter import SHM_PREFIX
+from iiwa_ident.datasets import LOG_SHM_PREFIX as SHM_PREFIX
 from iiwa_ident.fri.protocol import ClientCommandMode, SessionState, decode_monitoring
 from iiwa_ident.fri.robot import FriRobot
 from iiwa_ident.fri.runtime import run_controller

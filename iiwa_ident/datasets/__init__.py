@@ -1,4 +1,4 @@
-"""Dataset files: the HDF5 format, importers for foreign logs, and summaries.
+"""Dataset files: the HDF5 format, its background writer for a 1 kHz loop, importers for foreign logs, summaries.
 
 Identification code reads data only through :func:`read_dataset`, which never
 exposes ground truth; :func:`read_truth` is reserved for evaluation code.
@@ -20,6 +20,8 @@ from iiwa_ident.datasets._format import (
 )
 from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv
 from iiwa_ident.datasets._info import dataset_info, format_info
+from iiwa_ident.datasets._logwriter import SHM_PREFIX as LOG_SHM_PREFIX
+from iiwa_ident.datasets._logwriter import LogStats, LogWriter
 
 __all__ = [
     "EXPERIMENTS",
@@ -38,6 +40,9 @@ __all__ = [
     "write_dataset",
     "import_columns",
     "import_csv",
+    "LogWriter",
+    "LogStats",
+    "LOG_SHM_PREFIX",
     "dataset_info",
     "format_info",
 ]

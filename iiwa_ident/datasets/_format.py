@@ -15,7 +15,7 @@ on real data, where no ground truth exists, so only evaluation code (through
 Recordings in progress
 ----------------------
 A file that is still being written by a background logger
-(:class:`iiwa_ident.fri.logwriter.LogWriter`), or whose logger was killed,
+(:class:`iiwa_ident.datasets.LogWriter`), or whose logger was killed,
 carries the root attribute ``in_progress = 1`` and a root array
 ``/rows_flushed`` (int64, shape (1,)) holding how many rows of every signal
 are known to be on disk; complete files carry neither. Such a file is

@@ -1,73 +1,16 @@
 """KUKA Fast Robot Interface (FRI): the UDP messages on the protobuf library.
 
-:mod:`iiwa_ident.fri.protocol` decodes and encodes the monitoring messages
-the robot sends and the command messages a client answers with, and checks
-what protobuf does not (identifiers, size, required fields, joint counts,
-finite numbers); the schema is ``messages.proto``.
+The public names are those of :mod:`iiwa_ident.fri.protocol`, which decodes
+and encodes the monitoring messages the robot sends and the command messages
+a client answers with, and checks what protobuf does not (identifiers, size,
+required fields, joint counts, finite numbers); the schema is
+``messages.proto``. The client (:mod:`~iiwa_ident.fri.connection`,
+:mod:`~iiwa_ident.fri.robot`), the controller runtime
+(:mod:`~iiwa_ident.fri.runtime`) and the robot emulator
+(:mod:`~iiwa_ident.fri.emulator`) are imported from their modules.
 """
 
-from iiwa_ident.fri.protocol import (
-    COMMAND_MESSAGE_ID,
-    MAX_DATAGRAM_BYTES,
-    MAX_WRENCH_ELEMENTS,
-    MONITORING_MESSAGE_ID,
-    N_JOINTS,
-    CartesianVector,
-    ClientCommandMode,
-    CommandData,
-    CommandMessage,
-    ConnectionInfo,
-    ConnectionQuality,
-    ControlMode,
-    DriveState,
-    FriDecodeError,
-    IpoData,
-    JointValues,
-    MessageHeader,
-    MonitorData,
-    MonitoringMessage,
-    OperationMode,
-    OverlayType,
-    RobotInfo,
-    SafetyState,
-    SessionState,
-    TimeStamp,
-    decode_command,
-    decode_monitoring,
-    encode_command,
-    encode_monitoring,
-    message_problem,
-)
+from iiwa_ident.fri import protocol as _protocol
+from iiwa_ident.fri.protocol import *  # noqa: F401,F403  (the names of protocol.__all__)
 
-__all__ = [
-    "MONITORING_MESSAGE_ID",
-    "COMMAND_MESSAGE_ID",
-    "MAX_DATAGRAM_BYTES",
-    "MAX_WRENCH_ELEMENTS",
-    "N_JOINTS",
-    "FriDecodeError",
-    "SessionState",
-    "ConnectionQuality",
-    "SafetyState",
-    "OperationMode",
-    "DriveState",
-    "ControlMode",
-    "ClientCommandMode",
-    "OverlayType",
-    "JointValues",
-    "CartesianVector",
-    "TimeStamp",
-    "MessageHeader",
-    "ConnectionInfo",
-    "RobotInfo",
-    "MonitorData",
-    "IpoData",
-    "MonitoringMessage",
-    "CommandData",
-    "CommandMessage",
-    "message_problem",
-    "encode_monitoring",
-    "decode_monitoring",
-    "encode_command",
-    "decode_command",
-]
+__all__ = list(_protocol.__all__)

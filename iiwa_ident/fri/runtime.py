@@ -16,7 +16,7 @@ Per cycle, for the controlled joint (:meth:`ControllerRuntime.cycle`):
 :class:`~iiwa_ident.robot.RobotInterface` (the robot through
 :class:`~iiwa_ident.fri.robot.FriRobot`, the emulator the same way, or the
 simulated joint directly), logs every cycle through the background
-:class:`~iiwa_ident.fri.logwriter.LogWriter` and stops cleanly on SIGINT
+:class:`~iiwa_ident.datasets.LogWriter` and stops cleanly on SIGINT
 and SIGTERM.
 
 Choices
@@ -53,6 +53,7 @@ from typing import Callable
 import numpy as np
 
 from iiwa_ident._realtime import no_gc_pauses, realtime_process
+from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy.config_file import ControllerConfig, controller_from_config
 from iiwa_ident.design.observer import MomentumObserver
 from iiwa_ident.design.spatial_filter import SpatialFilter
@@ -345,8 +346,6 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     -------
     RunReport
     """
-    from iiwa_ident.fri.logwriter import LogWriter  # the writer process is only needed for a run
-
     if robot.joint != config.joint:
         raise IiwaIdentError(f"the config controls joint {config.joint}, the robot interface joint {robot.joint}")
     if abs(robot.sample_time_s - config.sample_time_s) > 1e-12:

@@ -17,7 +17,7 @@ import pytest
 
 from iiwa_ident.datasets import SIGNAL_UNITS, read_dataset
 from iiwa_ident.errors import DatasetError, IiwaIdentError
-from iiwa_ident.fri.logwriter import LogStats, LogWriter
+from iiwa_ident.datasets import LogStats, LogWriter
 
 from conftest import wait_for
 
@@ -135,7 +135,7 @@ class TestRingOverflow:
 LOOP_SCRIPT = textwrap.dedent(
     """
     import sys
-    from iiwa_ident.fri.logwriter import LogWriter
+    from iiwa_ident.datasets import LogWriter
 
     log = LogWriter(sys.argv[1], ["t", "q_m", "tau_j"], experiment="free", source="robot",
                     joint=1, sample_rate_hz=1000.0, flush_interval_s=0.5).start()
