@@ -28,7 +28,8 @@ from bench_fit import TRUTH  # noqa: E402  (the same truth as the chirp benchmar
 
 from iiwa_ident.excite import Multisine, record  # noqa: E402
 from iiwa_ident.ident.bla import best_linear_approximation, fit_bla  # noqa: E402
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, cramer_rao_std  # noqa: E402
+from iiwa_ident.ident.tf_fit import cramer_rao_std
+from iiwa_ident.model import PARAMETER_NAMES
 from iiwa_ident.sim import SimulatedJoint, default_plant  # noqa: E402
 
 

@@ -45,7 +45,8 @@ import numpy as np
 
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident.joint_fit import METHODS, fit_joint
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, cramer_rao_std
+from iiwa_ident.ident.tf_fit import cramer_rao_std
+from iiwa_ident.model import PARAMETER_NAMES
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 __all__ = ["TRUTH", "run_case", "main"]

@@ -17,12 +17,13 @@ from pathlib import Path
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import deploy
 from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.controller import JointParameters, design_controller, outer_loop_margins
+from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
 from iiwa_ident.fri.emulator import EmulatorConfig, spawn_emulator
 from iiwa_ident.fri.robot import FriRobot
 from iiwa_ident.fri.runtime import run_controller
 from iiwa_ident.fri.tasks import make_task
+from iiwa_ident.model import JointParameters
 
 
 def main(seconds: float = 60.0, task: str = "sine") -> None:

@@ -13,13 +13,13 @@ from iiwa_ident.cli import app
 from iiwa_ident.deploy import read_config
 from iiwa_ident.design.controller import (
     HumanArm,
-    JointParameters,
     OuterLoopMargins,
     design_controller,
     outer_loop_margins,
 )
 from iiwa_ident.design.design_file import make_record, write_design
 from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.model import JointParameters
 
 runner = CliRunner()
 TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"

@@ -20,14 +20,15 @@ from iiwa_ident.deploy import (
     content_sha256,
     controller_from_config,
     deploy,
+    read_config,
     reference_limit,
     step_peak_gain,
-    read_config,
     write_config,
 )
-from iiwa_ident.design.controller import JointParameters, design_controller, outer_loop_margins
+from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
 from iiwa_ident.ident.model_file import RippleTable, Source, read_model
+from iiwa_ident.model import JointParameters
 
 TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"
 

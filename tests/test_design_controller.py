@@ -15,7 +15,6 @@ from iiwa_ident.design.controller import (
     AdditiveController,
     DesignError,
     HumanArm,
-    JointParameters,
     _close_on_model,
     _dc,
     arm_plant,
@@ -25,15 +24,19 @@ from iiwa_ident.design.controller import (
     exact_delay_spectral_radius,
     feedforward_transfer_function,
     kappa_max,
-    model_transfer_function,
     natural_frequency_damping,
     outer_loop_margins,
     outer_loop_matrix,
-    pade_coefficients,
     realisation,
 )
-from iiwa_ident.design.paper import PAPER_VALUES, format_reproduction, paper_reproduction, table1_parameters
+from iiwa_ident.design.paper import (
+    PAPER_VALUES,
+    format_reproduction,
+    paper_reproduction,
+    table1_parameters,
+)
 from iiwa_ident.ident.model_file import table1_model
+from iiwa_ident.model import JointParameters, pade_coefficients, transfer_function
 
 TABLE1 = JointParameters(1.03, 55.0, 18500.0, 5.6, 0.005)
 T = 1e-3
@@ -63,8 +66,8 @@ class TestPadeCoefficients:
 
 class TestModelTransferFunction:
     def test_orders_and_dc_gain(self):
-        g4 = model_transfer_function(TABLE1)
-        g2 = model_transfer_function(TABLE1, pade=False)
+        g4 = transfer_function(TABLE1)
+        g2 = transfer_function(TABLE1, delay="none")
         assert len(g4.den[0][0]) == 5 and len(g2.den[0][0]) == 3
         for g in (g4, g2):
             np.testing.assert_allclose(float(np.real(ct.dcgain(g))), 5.6 / 6.63, rtol=1e-12, atol=0)
@@ -72,7 +75,7 @@ class TestModelTransferFunction:
     def test_equals_eq4_with_pade(self):
         p = TABLE1
         c1, c2 = pade_coefficients(p.Td)
-        g = model_transfer_function(p)
+        g = transfer_function(p)
         for f in (0.5, 5.0, 23.0, 80.0, 300.0):
             s = 2j * np.pi * f
             want = ((s * s - c1 * s + c2) / (s * s + c1 * s + c2) * p.Jl * (p.bc * s + p.K)
@@ -89,7 +92,7 @@ class TestRealisation:
     def test_transfer_function_equals_pade_model(self):
         A, B, C = realisation(TABLE1)
         tf = ct.ss2tf(A, B.reshape(-1, 1), C.reshape(1, -1), 0)
-        model = model_transfer_function(TABLE1)
+        model = transfer_function(TABLE1)
         np.testing.assert_allclose(np.trim_zeros(tf.num[0][0], "f"), model.num[0][0], rtol=1e-6, atol=0)
         np.testing.assert_allclose(tf.den[0][0], model.den[0][0], rtol=1e-9, atol=0)
         for f in (0.1, 2.0, 23.2, 100.0, 400.0):
@@ -122,7 +125,7 @@ class TestBuiltinPoles:
 
     def test_are_poles_of_eq4(self):
         np.testing.assert_allclose(sorted_roots(builtin_poles(TABLE1)),
-                                   sorted_roots(model_transfer_function(TABLE1, pade=False).poles()),
+                                   sorted_roots(transfer_function(TABLE1, delay="none").poles()),
                                    rtol=1e-10, atol=0)
 
 
@@ -163,7 +166,7 @@ class TestFeedforwardTransferFunction:
 
     def test_ff_times_plant_is_prefilter(self):
         ff = feedforward_transfer_function(TABLE1, 50.0, 1.0)
-        g = model_transfer_function(TABLE1, pade=False)
+        g = transfer_function(TABLE1, delay="none")
         wf = 2 * np.pi * 50.0
         for f in (1.0, 10.0, 40.0, 200.0):
             s = 2j * np.pi * f
@@ -310,7 +313,7 @@ class TestAdditiveController:
 class TestArmPlant:
     def test_soft_arm_gives_eq4(self):
         A, B, C = arm_plant(TABLE1, HumanArm(stiffness=1e-9, damping=0.0))
-        g = model_transfer_function(TABLE1, pade=False)
+        g = transfer_function(TABLE1, delay="none")
         for f in (2.0, 23.0, 100.0):
             s = 2j * np.pi * f
             np.testing.assert_allclose(C[0] @ np.linalg.solve(s * np.eye(4) - A, B), g(s), rtol=1e-6, atol=0)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from iiwa_ident._toml import dumps_toml
-from iiwa_ident.design.controller import HumanArm, JointParameters, OuterLoopMargins, design_controller
+from iiwa_ident.design.controller import HumanArm, OuterLoopMargins, design_controller
 from iiwa_ident.design.design_file import (
     DESIGN_FORMAT,
     DesignFileError,
@@ -23,6 +23,7 @@ from iiwa_ident.design.design_file import (
     write_design,
 )
 from iiwa_ident.ident.model_file import RippleTable, table1_model, write_model
+from iiwa_ident.model import JointParameters
 
 TABLE1 = JointParameters(1.03, 55.0, 18500.0, 5.6, 0.005)
 # Margins are not recomputed on reading; fixed numbers keep these tests fast.

@@ -12,7 +12,7 @@ import pytest
 
 from iiwa_ident.deploy import deploy
 from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.controller import JointParameters, design_controller, outer_loop_margins
+from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
 from iiwa_ident.design.spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
@@ -29,6 +29,7 @@ from iiwa_ident.fri.protocol import (
 from iiwa_ident.fri.runtime import ControllerRuntime, Watchdog
 from iiwa_ident.fri.tasks import TASKS, KappaTask, TaskInput, make_task
 from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command, Measurement
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
@@ -372,9 +373,9 @@ class TestParseHostPort:
 
 class TestRealtimeProcess:
     def test_sets_and_undoes(self):
-        from iiwa_ident._realtime import realtime_process
-
         import os
+
+        from iiwa_ident._realtime import realtime_process
         affinity, policy = os.sched_getaffinity(0), os.sched_getscheduler(0)
         lines = []
         with realtime_process(say=lines.append) as line:

@@ -13,6 +13,7 @@ import math
 import control as ct
 import numpy as np
 import pytest
+from conftest import quiet, smooth_command
 from scipy.linalg import expm
 from typer.testing import CliRunner
 
@@ -23,17 +24,14 @@ from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, table1_model, write_model
 from iiwa_ident.ident.joint_fit import fit_joint, fit_model
 from iiwa_ident.ident.tf_fit import (
-    PARAMETER_NAMES,
     cramer_rao_std,
     discretize,
-    eq4_frequency_response,
     fit_transfer_function,
     initial_estimate,
     simulate_outputs,
 )
+from iiwa_ident.model import PARAMETER_NAMES, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant
-
-from conftest import quiet, smooth_command
 
 TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 REL_TOL = 0.03  # required accuracy of Jc, bc, K, Jl
@@ -92,19 +90,19 @@ def reference_outputs(params: dict[str, float], u: np.ndarray, T: float) -> np.n
 class TestEq4FrequencyResponse:
     def test_dc_gain(self):
         # At DC the link and the motor share the command: Jl / (Jc + Jl).
-        H = eq4_frequency_response(TABLE1, np.array([1e-6]))
+        H = frequency_response(TABLE1, np.array([1e-6]))
         np.testing.assert_allclose(H, TABLE1["Jl"] / (TABLE1["Jc"] + TABLE1["Jl"]), rtol=1e-6, atol=0)
 
     def test_delay_is_pure_phase(self):
         f = np.array([3.0, 30.0, 150.0])
         no_delay = dict(TABLE1, Td=0.0)
-        ratio = eq4_frequency_response(TABLE1, f) / eq4_frequency_response(no_delay, f)
+        ratio = frequency_response(TABLE1, f) / frequency_response(no_delay, f)
         np.testing.assert_allclose(ratio, np.exp(-2j * np.pi * f * TABLE1["Td"]), rtol=1e-12, atol=0)
 
     def test_high_frequency_asymptote(self):
         # |H| -> bc / (Jc w) well above the resonance.
         f = 5000.0
-        H = eq4_frequency_response(TABLE1, np.array([f]))
+        H = frequency_response(TABLE1, np.array([f]))
         np.testing.assert_allclose(abs(H), TABLE1["bc"] / (TABLE1["Jc"] * 2 * np.pi * f), rtol=1e-2, atol=0)
 
 
@@ -112,17 +110,17 @@ class TestEq4FrequencyResponse:
         f = np.array([1e-6])
         Jc, Jl = TABLE1["Jc"], TABLE1["Jl"]
         # At DC a torque on the link is shared the other way round: -Jc / (Jc + Jl) reaches tau_j.
-        np.testing.assert_allclose(eq4_frequency_response(TABLE1, f, "link"), -Jc / (Jc + Jl), rtol=1e-6, atol=0)
+        np.testing.assert_allclose(frequency_response(TABLE1, f, "link"), -Jc / (Jc + Jl), rtol=1e-6, atol=0)
         g = np.array([3.0, 30.0, 150.0])
-        np.testing.assert_allclose(eq4_frequency_response(TABLE1, g, "motor"),
-                                   eq4_frequency_response(dict(TABLE1, Td=0.0), g), rtol=1e-12, atol=0)
+        np.testing.assert_allclose(frequency_response(TABLE1, g, "motor"),
+                                   frequency_response(dict(TABLE1, Td=0.0), g), rtol=1e-12, atol=0)
         # The exact sampled model with the same input agrees well below the sampling rate (the hold's
         # half-sample lag is the difference).
         T = 1e-3
         for kind in ("link", "motor"):
             dm = discretize(TABLE1, T, kind)
             got = dm.frequency_response(np.array([0.5, 1.0, 2.0]))[0]
-            want = eq4_frequency_response(TABLE1, np.array([0.5, 1.0, 2.0]), kind)
+            want = frequency_response(TABLE1, np.array([0.5, 1.0, 2.0]), kind)
             np.testing.assert_allclose(got, want, rtol=1e-2, atol=0)
 
 

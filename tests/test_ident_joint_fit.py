@@ -12,10 +12,10 @@ import pytest
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
-from iiwa_ident.sim.plant import resonance_hz
 from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
 from iiwa_ident.ident.tf_fit import fit_transfer_function
+from iiwa_ident.model import resonance_hz
 
 _REL = 0.03
 _TD_S = 0.5e-3

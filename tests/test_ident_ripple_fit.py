@@ -7,21 +7,15 @@ import math
 import control as ct
 import numpy as np
 import pytest
+from conftest import quiet, smooth_command
 from scipy.signal import lsim
 
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident.model_file import RippleTable
-from iiwa_ident.ident.tf_fit import (
-    PARAMETER_NAMES,
-    RippleTerms,
-    discretize,
-    eq4_frequency_response,
-    fit_transfer_function,
-)
+from iiwa_ident.ident.tf_fit import RippleTerms, discretize, fit_transfer_function
+from iiwa_ident.model import PARAMETER_NAMES, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.effects import TransmissionRipple
-
-from conftest import quiet, smooth_command
 
 TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 
@@ -42,10 +36,10 @@ def test_deflection_response_has_no_static_torque_and_the_spring_far_above():
     A, B_f, _ = _continuous(TABLE1)
     C = np.array([[TABLE1["K"], 0, -TABLE1["K"], 0]])
     G = ct.ss(A, B_f[:, None], C, [[-TABLE1["K"]]])
-    np.testing.assert_allclose(eq4_frequency_response(TABLE1, f, "deflection"), G(2j * np.pi * f).ravel(),
+    np.testing.assert_allclose(frequency_response(TABLE1, f, "deflection"), G(2j * np.pi * f).ravel(),
                                rtol=1e-9, atol=1e-9)
-    assert abs(eq4_frequency_response(TABLE1, np.array([1e-4]), "deflection")[0]) < 1e-6
-    assert eq4_frequency_response(TABLE1, np.array([1e4]), "deflection")[0].real == pytest.approx(
+    assert abs(frequency_response(TABLE1, np.array([1e-4]), "deflection")[0]) < 1e-6
+    assert frequency_response(TABLE1, np.array([1e4]), "deflection")[0].real == pytest.approx(
         -TABLE1["K"], rel=1e-3)
 
 

@@ -12,13 +12,14 @@ from iiwa_ident.excite.scenarios import (
     RIPPLE_NUISANCES,
     draw_hidden_effects,
     draw_ripple_scenario,
-    hidden_effect_plant,
     draw_scenario,
+    hidden_effect_plant,
     scenario_plant,
     simulate_ripple_scenario,
     simulate_scenario,
 )
-from iiwa_ident.sim.plant import default_plant, resonance_hz
+from iiwa_ident.model import resonance_hz
+from iiwa_ident.sim.plant import default_plant
 
 
 def test_same_seed_same_scenario():

@@ -17,7 +17,6 @@ from iiwa_ident.design.controller import (
     PAPER_POLES,
     AdditiveDesign,
     HumanArm,
-    JointParameters,
     OuterLoopMargins,
     check_poles,
     design_controller,
@@ -26,10 +25,15 @@ from iiwa_ident.design.controller import (
     outer_loop_margins,
 )
 from iiwa_ident.design.design_file import make_record, write_design
+from iiwa_ident.design.paper import (
+    format_reproduction,
+    paper_reproduction,
+    table1_parameters,
+)
 from iiwa_ident.design.spatial_filter import DESIGN_BETA
-from iiwa_ident.design.paper import format_reproduction, paper_reproduction, table1_parameters
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.model import JointParameters
 
 __all__ = ["design_cmd", "parse_poles", "format_design", "design_json"]
 

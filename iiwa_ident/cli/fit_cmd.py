@@ -14,7 +14,8 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.bla import BlaFit
 from iiwa_ident.ident.joint_fit import METHODS, fit_model
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, write_model
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, FitResult
+from iiwa_ident.ident.tf_fit import FitResult
+from iiwa_ident.model import PARAMETER_NAMES
 
 __all__ = ["fit_cmd", "format_fit", "format_bla_fit"]
 

@@ -9,7 +9,7 @@ SpatialFilter, spatial_filter_response, ripple_bandpass_coefficients, gamma_weig
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
 run_observers, compare_observers, observer_lag
     The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
-JointParameters, HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
+HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
 PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius
     The additive torque controller of section V.B (:mod:`iiwa_ident.design.controller`).
 DesignRecord, FilterSettings, DesignFileError, make_record, read_design, write_design
@@ -25,7 +25,6 @@ from iiwa_ident.design.controller import (
     AdditiveDesign,
     DesignError,
     HumanArm,
-    JointParameters,
     OuterLoopMargins,
     design_controller,
     exact_delay_spectral_radius,
@@ -65,7 +64,7 @@ __all__ = [
     "MomentumObserver", "SpatialFilter", "spatial_filter_response", "ripple_bandpass_coefficients", "gamma_weight",
     "ripple_line_cut", "ExternalTorqueObserver", "BuiltinObserver", "LinkVelocityObserver", "FilteredObserver",
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",
-    "JointParameters", "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",
+    "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
     "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",

@@ -83,16 +83,20 @@ from iiwa_ident.design.controller import (
     AdditiveController,
     AdditiveDesign,
     HumanArm,
-    JointParameters,
     builtin_poles,
     design_controller,
     kappa_max,
 )
-from iiwa_ident.design.spatial_filter import DESIGN_BETA, RIPPLE_PERIOD_RAD, SpatialFilter
+from iiwa_ident.design.spatial_filter import (
+    DESIGN_BETA,
+    RIPPLE_PERIOD_RAD,
+    SpatialFilter,
+)
 from iiwa_ident.excite._runner import ClientState, _velocity_filter
 from iiwa_ident.excite.safety import LimitGuard
 from iiwa_ident.ident.correction import joint_position
 from iiwa_ident.ident.model_file import JointModel, RippleTable, table1_model
+from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command, Measurement
 from iiwa_ident.sim.agents import ImpedanceAgent
 from iiwa_ident.sim.joint import SimulatedJoint

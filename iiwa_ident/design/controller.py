@@ -113,10 +113,10 @@ from scipy.linalg import expm, matrix_balance
 from scipy.signal import cont2discrete
 
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.model import JointParameters, coefficients, pade_coefficients
 
 __all__ = [
     "DesignError",
-    "JointParameters",
     "HumanArm",
     "AdditiveDesign",
     "AdditiveController",
@@ -127,8 +127,6 @@ __all__ = [
     "SAMPLE_TIME_S",
     "DEFAULT_PREFILTER_HZ",
     "DEFAULT_PREFILTER_ZETA",
-    "pade_coefficients",
-    "model_transfer_function",
     "realisation",
     "builtin_poles",
     "natural_frequency_damping",
@@ -164,87 +162,8 @@ class DesignError(IiwaIdentError):
 
 
 # ---------------------------------------------------------------------------
-# Model
+# Model (eq (4) itself: iiwa_ident.model)
 # ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class JointParameters:
-    """Parameters of eqs (1)-(4) in SI units.
-
-    Attributes
-    ----------
-    Jc : float
-        Controlled motor inertia [kg m^2].
-    bc : float
-        Controlled motor damping [Nm s/rad].
-    K : float
-        Series-elastic stiffness [Nm/rad].
-    Jl : float
-        Link inertia [kg m^2].
-    Td : float
-        FRI input delay [s].
-    """
-
-    Jc: float
-    bc: float
-    K: float
-    Jl: float
-    Td: float
-
-    def __post_init__(self) -> None:
-        for name in ("Jc", "K", "Jl", "Td"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise DesignError(f"{name} must be positive and finite, got {v!r}")
-        if not (math.isfinite(self.bc) and self.bc >= 0):
-            raise DesignError(f"bc must be non-negative and finite, got {self.bc!r}")
-
-    @classmethod
-    def from_model(cls, model) -> "JointParameters":
-        """The parameters of a :class:`~iiwa_ident.ident.model_file.JointModel`."""
-        return cls(*(float(model.value(n)) for n in ("Jc", "bc", "K", "Jl", "Td")))
-
-    def as_dict(self) -> dict[str, float]:
-        """``{"Jc": .., "bc": .., "K": .., "Jl": .., "Td": ..}`` in SI units."""
-        return {"Jc": self.Jc, "bc": self.bc, "K": self.K, "Jl": self.Jl, "Td": self.Td}
-
-
-def pade_coefficients(Td: float) -> tuple[float, float]:
-    """``(c1, c2) = (6/Td, 12/Td^2)`` of the second-order Padé delay [1/s, 1/s^2].
-
-    1200 and 480000 for Td = 5 ms, as in section V.B.
-    """
-    return 6.0 / Td, 12.0 / Td ** 2
-
-
-def _delay_free(p: JointParameters) -> tuple[np.ndarray, np.ndarray]:
-    """Numerator and denominator of eq (4) without the delay, normalised to a monic denominator."""
-    num = np.array([p.bc / p.Jc, p.K / p.Jc])
-    den = np.array([1.0, p.bc / p.Jc, p.K * (1.0 / p.Jl + 1.0 / p.Jc)])
-    return num, den
-
-
-def _padded(p: JointParameters) -> tuple[np.ndarray, np.ndarray]:
-    """Monic numerator (4 coefficients) and denominator (5) of the Padé-delayed model, highest power first."""
-    c1, c2 = pade_coefficients(p.Td)
-    num, den = _delay_free(p)
-    return np.polymul([1.0, -c1, c2], num), np.polymul([1.0, c1, c2], den)
-
-
-def model_transfer_function(params: JointParameters, pade: bool = True) -> ct.TransferFunction:
-    """Eq (4) from ``tau_c`` to ``tau_J`` [Nm/Nm].
-
-    Parameters
-    ----------
-    params : JointParameters
-        Model parameters.
-    pade : bool
-        With the second-order Padé delay (fourth order, the design model of
-        section V.B) or without any delay (second order).
-    """
-    num, den = _padded(params) if pade else _delay_free(params)
-    return ct.tf(num, den)
-
-
 def realisation(params: JointParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Observable canonical realisation of the Padé-delayed eq (4), eqs (19)-(21).
 
@@ -258,7 +177,7 @@ def realisation(params: JointParameters) -> tuple[np.ndarray, np.ndarray, np.nda
     C : ndarray (4,)
         ``[0, 0, 0, 1]``: the fourth state is ``tau_J`` [Nm].
     """
-    num, den = _padded(params)
+    num, den = coefficients(params, delay="pade")
     a = den[1:][::-1]  # a_0 .. a_3
     b = num[::-1]  # b_0 .. b_3
     A = np.zeros((4, 4))
@@ -957,7 +876,7 @@ def exact_delay_spectral_radius(design: AdditiveDesign, params: JointParameters 
     params : JointParameters, optional
         The plant (default: the design's model).
     """
-    num, den = _delay_free(params or design.params)
+    num, den = coefficients(params or design.params)
     sys = ct.tf2ss(ct.tf(num, den))
     A, B, C = np.asarray(sys.A, float), np.asarray(sys.B, float).ravel(), np.asarray(sys.C, float).ravel()
     M = _sampled_loop(A, B, C, np.zeros_like(C), design.sample_time_s, (params or design.params).Td, design)

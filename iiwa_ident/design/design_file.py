@@ -85,21 +85,21 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident import tool_version
+from iiwa_ident._schema import TableReader
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.design.controller import (
     FEEDFORWARD_MODES,
     AdditiveDesign,
     DesignError,
     HumanArm,
-    JointParameters,
     OuterLoopMargins,
     _scaling,
     check_poles,
 )
 from iiwa_ident.design.spatial_filter import DESIGN_BETA
-from iiwa_ident._schema import TableReader
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
+from iiwa_ident.model import JointParameters, ParameterError
 
 __all__ = [
     "DESIGN_FORMAT",
@@ -332,8 +332,8 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
         if entry.get("unit", unit) != unit:
             raise r.fail(f"{key}.unit", f"expected {unit!r}, got {entry.get('unit')!r}")
     try:
-        params = JointParameters(*(values[n] for n in ("Jc", "bc", "K", "Jl", "Td")))
-    except DesignError as err:
+        params = JointParameters.from_mapping(values)
+    except ParameterError as err:
         raise r.fail("model.parameters", str(err)) from None
     model_file = r.get("model.file", required=False)
     sha = r.get("model.sha256", required=False)

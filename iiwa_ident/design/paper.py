@@ -35,7 +35,6 @@ import numpy as np
 from iiwa_ident.design.controller import (
     PAPER_OBSERVER_POLES,
     PAPER_POLES,
-    JointParameters,
     _acker,
     _scaling,
     builtin_poles,
@@ -43,6 +42,7 @@ from iiwa_ident.design.controller import (
     natural_frequency_damping,
     realisation,
 )
+from iiwa_ident.model import JointParameters
 
 __all__ = ["PAPER_VALUES", "ReproductionRow", "paper_reproduction", "format_reproduction", "table1_parameters"]
 

@@ -253,7 +253,7 @@ class BlaFit:
     def to_json(self) -> dict:
         """The ``--json`` document (SI units, ``Td`` in s)."""
         from iiwa_ident.ident.model_file import PARAMETER_UNITS
-        from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
+        from iiwa_ident.model import PARAMETER_NAMES
 
         std = np.sqrt(np.diag(self.covariance))
         corr = self.covariance / np.outer(std, std)
@@ -396,7 +396,7 @@ def fit_bla(blas: BestLinearApproximation | Sequence[BestLinearApproximation], s
     """
     from scipy.optimize import least_squares
 
-    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
+    from iiwa_ident.model import PARAMETER_NAMES
 
     blas = [blas] if isinstance(blas, BestLinearApproximation) else list(blas)
     Ts = [float(sample_time_s)] * len(blas) if np.ndim(sample_time_s) == 0 else [float(t) for t in sample_time_s]

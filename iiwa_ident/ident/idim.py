@@ -106,9 +106,14 @@ from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.lines import BACKGROUND_CELLS, block_weights, fit_sinusoid, line_ratio
-from iiwa_ident.ident.tf_fit import PARAMETER_NAMES, _check_joints, _prepare, _Record, eq4_frequency_response
-from iiwa_ident.sim.plant import resonance_hz
+from iiwa_ident.ident.lines import (
+    BACKGROUND_CELLS,
+    block_weights,
+    fit_sinusoid,
+    line_ratio,
+)
+from iiwa_ident.ident.tf_fit import _check_joints, _prepare, _Record
+from iiwa_ident.model import PARAMETER_NAMES, frequency_response, resonance_hz
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
            "STICK_VELOCITY_RAD_S", "STICK_COULOMB_NM", "STICK_MIN_SHARE", "MIN_BAND_OVER_RESONANCE", "MAX_RELATIVE_STD",
@@ -446,7 +451,7 @@ def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
     for k in (-4, -3, -2, -1, 1, 2, 3, 4):
         fk = f + k * fs
         s = 2j * np.pi * fk
-        h_tau = eq4_frequency_response(delayed, fk) * np.sinc(fk * T) * np.exp(-0.5 * s * T)
+        h_tau = frequency_response(delayed, fk) * np.sinc(fk * T) * np.exp(-0.5 * s * T)
         A_tau += h_tau
         A_q += h_tau * (1.0 / K + 1.0 / (Jl * s**2))  # eqs (2)-(3): q_m = tau_j / K + theta_l
     tau_alias = _fft.irfft(A_tau * U, N)[:n]
@@ -574,7 +579,7 @@ def _predicted_torque(p: _Prepared, prm: dict[str, float], td: float, xm: np.nda
     U = p.sp.held_delayed(p.U, td) - p.sp.spectrum(_gravity_model(xm, p.q_w))  # delayed already: as a torque added inside the robot
     D = p.sp.spectrum(link_torque)
     model = {**prm, "Td": td}  # the two inputs here have no delay of their own
-    TJ = eq4_frequency_response(model, p.sp.f, "motor") * U + eq4_frequency_response(model, p.sp.f, "link") * D
+    TJ = frequency_response(model, p.sp.f, "motor") * U + frequency_response(model, p.sp.f, "link") * D
     return p.sp.back(TJ, 1), p.sp.back(TJ, 2)
 
 

@@ -27,11 +27,28 @@ import numpy as np
 from iiwa_ident.datasets import Dataset, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
-from iiwa_ident.ident.idim import STICK_COULOMB_NM, IdimResult, LinkEffectEstimate, fit_idim
-from iiwa_ident.ident.model_file import (PARAMETER_UNITS, JointModel, Parameter, RippleTable, Source, read_model,
-                                         table1_model)
-from iiwa_ident.ident.tf_fit import (PARAMETER_NAMES, FitResult, RippleTerms, fit_transfer_function,
-                                     output_residual_rms)
+from iiwa_ident.ident.idim import (
+    STICK_COULOMB_NM,
+    IdimResult,
+    LinkEffectEstimate,
+    fit_idim,
+)
+from iiwa_ident.ident.model_file import (
+    PARAMETER_UNITS,
+    JointModel,
+    Parameter,
+    RippleTable,
+    Source,
+    read_model,
+    table1_model,
+)
+from iiwa_ident.ident.tf_fit import (
+    FitResult,
+    RippleTerms,
+    fit_transfer_function,
+    output_residual_rms,
+)
+from iiwa_ident.model import PARAMETER_NAMES
 
 __all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
 

@@ -54,6 +54,7 @@ import numpy as np
 from iiwa_ident import tool_version
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.model import PARAMETER_UNITS
 
 __all__ = [
     "ModelError",
@@ -74,7 +75,6 @@ MODEL_FORMAT = "iiwa-ident-model"
 MODEL_FORMAT_VERSION = 1
 
 #: Parameters every model has, with their SI units.
-PARAMETER_UNITS = {"Jc": "kg m^2", "bc": "Nm s/rad", "K": "Nm/rad", "Jl": "kg m^2", "Td": "s", "KI": "rad/s"}
 _POSITIVE = ("Jc", "K", "Jl", "KI")
 
 

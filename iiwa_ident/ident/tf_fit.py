@@ -95,18 +95,17 @@ from scipy.signal import lfilter
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
-from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
+from iiwa_ident.ident.model_file import RippleTable
+from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS
+from iiwa_ident.model import parameter_values as _as_values
 
 __all__ = [
-    "PARAMETER_NAMES",
     "MIN_DURATION_S",
     "MIN_COMMAND_STD_NM",
     "DiscreteModel",
     "BandQuality",
     "FitResult",
     "output_residual_rms",
-    "eq4_frequency_response",
-    "INPUTS",
     "discretize",
     "simulate_outputs",
     "initial_estimate",
@@ -117,8 +116,6 @@ __all__ = [
     "RippleTerms",
 ]
 
-#: The estimated parameters, in this order everywhere (SI units: kg m^2, Nm s/rad, Nm/rad, kg m^2, s).
-PARAMETER_NAMES: tuple[str, ...] = ("Jc", "bc", "K", "Jl", "Td")
 #: Shortest record the fit accepts [s].
 MIN_DURATION_S = 2.0
 #: Least variation of the torque command the fit accepts (std after removing the mean) [Nm].
@@ -150,23 +147,6 @@ _UPPER = (1e4, 1e6, 1e8, 1e5)
 # model
 
 
-def _as_values(params: Any) -> tuple[float, float, float, float, float]:
-    """(Jc, bc, K, Jl, Td) from a mapping, a JointModel or a sequence."""
-    if isinstance(params, JointModel):
-        return tuple(float(params.value(n)) for n in PARAMETER_NAMES)  # type: ignore[return-value]
-    if isinstance(params, dict):
-        return tuple(float(params[n]) for n in PARAMETER_NAMES)  # type: ignore[return-value]
-    vals = tuple(float(v) for v in params)
-    if len(vals) != 5:
-        raise ValueError("expected the five parameters Jc, bc, K, Jl, Td")
-    return vals  # type: ignore[return-value]
-
-
-#: Inputs of the sampled model: the FRI command (delayed by ``Td``), a torque added to the motor side's
-#: command inside the robot (its gravity model; not delayed), a torque on the link (friction, loads) [Nm],
-#: and the transmission's deflection ``f(theta_m)`` of eq (5) [rad] (the ripple; ``tau_j = K (theta_m - f -
-#: theta_l)``, so it acts on both sides of the spring and on the sensor).
-INPUTS: tuple[str, ...] = ("command", "motor", "link", "deflection", "reaction")
 
 #: Harmonics of the ripple's period whose coefficients the output-error fit estimates with the parameters.
 RIPPLE_HARMONICS = 4
@@ -216,41 +196,6 @@ class RippleTerms:
             out.append((c - c[0], -k * w * s * tau_j))
             out.append((s - s[0], k * w * c * tau_j))
         return out
-
-
-def eq4_frequency_response(params: Any, f_hz: np.ndarray | float, input: str = "command") -> np.ndarray:
-    """Eq (4): the continuous-time response of ``tau_j`` including the delay.
-
-    Parameters
-    ----------
-    params : mapping, JointModel or sequence
-        ``Jc`` [kg m^2], ``bc`` [Nm s/rad], ``K`` [Nm/rad], ``Jl`` [kg m^2],
-        ``Td`` [s].
-    f_hz : array_like
-        Frequencies [Hz] (negative ones give the conjugate).
-    input : {"command", "motor", "link", "deflection"}
-        As in :func:`discretize`: ``tau_j / tau_c`` (delayed by ``Td``), the
-        same for a torque added inside the robot (no delay), ``tau_j`` per
-        torque on the link, or per transmission deflection [Nm/rad].
-
-    Returns
-    -------
-    numpy.ndarray
-        Complex response [Nm/Nm] ([Nm/rad] for the deflection).
-    """
-    if input not in INPUTS:
-        raise ValueError(f"input must be one of {INPUTS}")
-    Jc, bc, K, Jl, Td = _as_values(params)
-    s = 2j * np.pi * np.asarray(f_hz, float)
-    delta = Jc * Jl * s**2 + Jl * bc * s + (Jc * K + Jl * K)
-    if input == "link":
-        return -K * Jc / delta
-    if input == "deflection":
-        # K d pushes the motor side, -K d the link, and the sensor reads -K d directly: the sum leaves
-        # only the inertias' share (no torque at low frequency, -K d far above the resonance).
-        return -K * Jc * Jl * s**2 / delta
-    delay = np.exp(-Td * s) if input == "command" else 1.0
-    return delay * Jl * (bc * s + K) / delta
 
 
 def _expm2(M: np.ndarray) -> np.ndarray:

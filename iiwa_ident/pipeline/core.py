@@ -228,8 +228,8 @@ def _truth_dynamics(ctx: PipelineContext) -> dict[str, float] | None:
 
 
 def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.ident.model_file import write_model
     from iiwa_ident.ident.joint_fit import fit_model
+    from iiwa_ident.ident.model_file import write_model
 
     model, result = fit_model([ctx.path("chirp")])
     model.joint = ctx.plant.joint if ctx.target == "sim" else ctx.joint
@@ -242,7 +242,7 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
 
 def _parameter_rows(ctx: PipelineContext, result: Any) -> dict[str, dict[str, Any]]:
     """A fit's parameters with std and, on the simulator, their error against the simulated plant."""
-    from iiwa_ident.ident.tf_fit import PARAMETER_NAMES
+    from iiwa_ident.model import PARAMETER_NAMES
 
     truth = _truth_dynamics(ctx)
     out: dict[str, dict[str, Any]] = {}
@@ -329,9 +329,10 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.cli.design_cmd import design_json
-    from iiwa_ident.design.controller import JointParameters, design_controller, outer_loop_margins
+    from iiwa_ident.design.controller import design_controller, outer_loop_margins
     from iiwa_ident.design.design_file import make_record, write_design
     from iiwa_ident.design.spatial_filter import DESIGN_BETA
+    from iiwa_ident.model import JointParameters
 
     model = ctx.results["model_ripple"]
     design = design_controller(JointParameters.from_model(model))

@@ -20,7 +20,8 @@ import matplotlib.pyplot as plt  # noqa: E402  (after selecting the backend)
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from iiwa_ident.ident.tf_fit import FitResult, discretize, eq4_frequency_response  # noqa: E402
+from iiwa_ident.ident.tf_fit import FitResult, discretize
+from iiwa_ident.model import frequency_response
 
 __all__ = ["bode_figure", "harmonics_figure", "fit_figure_pngs"]
 
@@ -52,7 +53,7 @@ def bode_figure(result: FitResult, index: int = 0) -> Figure:
     fine = np.geomspace(f.min(), f.max(), 600)
     dm = discretize(p, T)
     model_fine = dm.frequency_response(fine)[0]
-    eq4_fine = eq4_frequency_response(p, fine)
+    eq4_fine = frequency_response(p, fine)
 
     fig, (ax_m, ax_p, ax_c) = plt.subplots(3, 1, figsize=(8.0, 8.5), sharex=True,
                                             gridspec_kw={"height_ratios": [3, 3, 1.4]})

@@ -15,7 +15,6 @@ from iiwa_ident.sim.effects import (
     Effect,
     InputDelay,
     LinkFriction,
-    Param,
     PeriodicDisturbance,
     PositionDependentLoad,
     TorqueSensorOffset,
@@ -25,10 +24,16 @@ from iiwa_ident.sim.effects import (
     register_effect,
 )
 from iiwa_ident.sim.joint import ExternalAgent, SimTrace, SimulatedJoint
-from iiwa_ident.sim.plant import Plant, default_plant, load_plant, plant_from_dict, save_plant
+from iiwa_ident.sim.plant import (
+    Plant,
+    default_plant,
+    load_plant,
+    plant_from_dict,
+    save_plant,
+)
 
 __all__ = [
-    "EFFECTS", "Effect", "Param", "register_effect", "make_effect",
+    "EFFECTS", "Effect", "register_effect", "make_effect",
     "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "TorqueSensorOffset",
     "TorqueSensorScale", "PeriodicDisturbance", "InputDelay",
     "Plant", "default_plant", "load_plant", "plant_from_dict", "save_plant",

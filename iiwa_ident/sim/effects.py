@@ -27,16 +27,15 @@ for list parameters), so one compiled simulator serves every parameter value.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
 
 from iiwa_ident.errors import PlantError
+from iiwa_ident.model import Param
 
 __all__ = [
-    "Param",
     "Effect",
     "EFFECTS",
     "register_effect",
@@ -49,32 +48,6 @@ __all__ = [
     "PeriodicDisturbance",
     "InputDelay",
 ]
-
-
-@dataclass(frozen=True)
-class Param:
-    """A scalar effect parameter.
-
-    Attributes
-    ----------
-    name : str
-        Key in the plant file.
-    default : float
-        Value when the key is absent.
-    unit : str
-        Unit, for documentation and error messages.
-    lower, upper : float
-        Inclusive valid range.
-    doc : str
-        One line of meaning.
-    """
-
-    name: str
-    default: float
-    unit: str
-    lower: float = -math.inf
-    upper: float = math.inf
-    doc: str = ""
 
 
 def _check_number(where: str, value: Any, lower: float = -math.inf, upper: float = math.inf) -> float:

@@ -27,7 +27,6 @@ The documented default plant is ``iiwa_ident/data/default_plant.toml``.
 from __future__ import annotations
 
 import copy
-import math
 import os
 from dataclasses import dataclass, field
 from importlib import resources
@@ -36,35 +35,19 @@ from typing import Any
 
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import PlantError
+from iiwa_ident.model import JOINT_PARAMETERS, Param
 from iiwa_ident.robot import ROBOT_MODELS, JointLimits, joint_limits
-from iiwa_ident.sim.effects import Effect, Param, _check_number, make_effect
+from iiwa_ident.sim.effects import Effect, _check_number, make_effect
 
-__all__ = ["Plant", "load_plant", "default_plant", "plant_from_dict", "save_plant", "PLANT_FORMAT", "SECTIONS",
-           "resonance_hz"]
+__all__ = ["Plant", "load_plant", "default_plant", "plant_from_dict", "save_plant", "PLANT_FORMAT", "SECTIONS"]
 
 PLANT_FORMAT = "iiwa-ident-plant"
 PLANT_FORMAT_VERSION = 1
 
 
-def resonance_hz(Jc: float, K: float, Jl: float) -> float:
-    """Resonance of eq (4) without damping, ``sqrt(K (1/Jc + 1/Jl)) / (2 pi)`` [Hz].
-
-    Examples
-    --------
-    >>> round(resonance_hz(1.03, 18500.0, 5.6), 2)
-    23.21
-    """
-    return math.sqrt(K * (1.0 / Jc + 1.0 / Jl)) / (2 * math.pi)
-
 # Scalar sections of the plant file: name -> parameters (default, unit, range).
 SECTIONS: dict[str, tuple[Param, ...]] = {
-    "dynamics": (
-        Param("Jc", 1.03, "kg m^2", 1e-4, 1e4, "controlled motor inertia, eq (1)"),
-        Param("bc", 55.0, "Nm s/rad", 0.0, 1e5, "controlled motor damping, eq (1)"),
-        Param("K", 18500.0, "Nm/rad", 1.0, 1e7, "series-elastic stiffness, eq (3)"),
-        Param("Jl", 5.6, "kg m^2", 1e-4, 1e4, "link inertia, eq (2)"),
-        Param("Td", 0.005, "s", 0.0, 0.05, "FRI input delay, eq (4)"),
-    ),
+    "dynamics": JOINT_PARAMETERS,
     "internal": (
         Param("KI", 25.0, "rad/s", 0.0, 1e4, "gain of the built-in external-torque observer, eq (13)"),
         Param("slew_rate_nm_s", 20000.0, "Nm/s", 1.0, 1e7, "feasibility filter: command slew-rate limit, per cycle"),

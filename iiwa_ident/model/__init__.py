@@ -1,0 +1,47 @@
+"""The joint model of the paper, eqs (1)-(4), at the bottom of the package.
+
+One parameter vocabulary (:data:`JOINT_PARAMETERS`: paper names, SI units,
+valid ranges) used by plant files, model files, designs and every JSON
+output, and eq (4) as python-control objects and frequency responses.
+
+Public API
+----------
+Param, ParameterError, JOINT_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, JointParameters, parameter_values
+    The vocabulary (:mod:`iiwa_ident.model._parameters`).
+INPUTS, pade_coefficients, resonance_hz, coefficients, transfer_function, frequency_response
+    Eq (4) (:mod:`iiwa_ident.model._eq4`).
+"""
+
+from iiwa_ident.model._eq4 import (
+    INPUTS,
+    coefficients,
+    frequency_response,
+    pade_coefficients,
+    resonance_hz,
+    transfer_function,
+)
+from iiwa_ident.model._parameters import (
+    JOINT_PARAMETERS,
+    PARAMETER_NAMES,
+    PARAMETER_UNITS,
+    JointParameters,
+    Param,
+    ParameterError,
+    parameter_values,
+)
+
+__all__ = [
+    "Param",
+    "ParameterError",
+    "JOINT_PARAMETERS",
+    "PARAMETER_NAMES",
+    "PARAMETER_UNITS",
+    "JointParameters",
+    "parameter_values",
+    "INPUTS",
+    "pade_coefficients",
+    "resonance_hz",
+    "coefficients",
+    "transfer_function",
+    "frequency_response",
+]
