@@ -117,7 +117,7 @@ class TestFitBla:
 
 def test_sampled_response_is_the_fit_models_and_adds_the_link_terms():
     from iiwa_ident.ident.bla import sampled_response
-    from iiwa_ident.ident.tf_fit import discretize
+    from iiwa_ident.model import discretize
 
     p = {"Jc": 1.03, "bc": 55.0, "K": 18000.0, "Jl": 5.6, "Td": 0.0053}
     f = np.linspace(0.5, 400.0, 60)

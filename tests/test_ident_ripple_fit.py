@@ -12,7 +12,8 @@ from scipy.signal import lsim
 
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident.model_file import RippleTable
-from iiwa_ident.ident.tf_fit import RippleTerms, discretize, fit_transfer_function
+from iiwa_ident.ident.tf_fit import RippleTerms, fit_transfer_function
+from iiwa_ident.model import discretize
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.effects import TransmissionRipple

@@ -55,6 +55,7 @@ from scipy import signal
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.ident.model_file import JointModel
+from iiwa_ident.model import polynomials
 
 __all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",
            "command_prediction", "predict_channel"]
@@ -171,12 +172,13 @@ def _transfer_functions(p: dict[str, float], dt: float) -> dict[str, tuple[np.nd
 def _transfer_functions_of(Jc: float, bc: float, K: float, Jl: float, dt: float
                            ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     # Cached: a parameter search predicts every channel of every dataset at the same parameters.
-    den = [Jc * Jl, Jl * bc, (Jc + Jl) * K]
+    p = (Jc, bc, K, Jl, 0.0)
+    gc, den = polynomials(p, "motor")
     return {
-        "Gc": _discrete([Jl * bc, Jl * K], den, dt),
-        "Gd": _discrete([Jc * K], den, dt),
-        "S": _discrete([Jc * Jl, 0.0, 0.0], den, dt),
-        "1-Gc": _discrete([Jc * Jl, 0.0, Jc * K], den, dt),
+        "Gc": _discrete(gc, den, dt),
+        "Gd": _discrete(-polynomials(p, "link")[0], den, dt),  # the channel subtracts G_d d
+        "S": _discrete(-polynomials(p, "deflection")[0] / K, den, dt),  # per unit of tau_J's own deflection
+        "1-Gc": _discrete(np.polysub(den, gc), den, dt),
     }
 
 

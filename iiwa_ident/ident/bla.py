@@ -332,17 +332,17 @@ def sampled_response(params: dict[str, float], f_hz: np.ndarray, sample_time_s: 
     -------
     numpy.ndarray
         Shape (2, n), complex: ``tau_j / tau_c`` [Nm/Nm] and ``q_m / tau_c`` [rad/Nm]. With ``bl = kl = 0``
-        it equals :meth:`~iiwa_ident.ident.tf_fit.DiscreteModel.frequency_response`.
+        it equals :meth:`~iiwa_ident.model.DiscreteModel.frequency_response`.
     """
     from scipy.linalg import expm
 
-    from iiwa_ident.ident.tf_fit import _state_space
+    from iiwa_ident.model import state_matrices
 
     Jc, bc, K, Jl, Td = (float(params[k]) for k in ("Jc", "bc", "K", "Jl", "Td"))
     T = float(sample_time_s)
     # The chirp fit's eqs (1)-(3), state (theta_m, z, theta_l, omega_l), with the link terms added to
     # Jl omega_l' = tau_j - bl omega_l - kl theta_l.
-    A, B, C = _state_space(Jc, bc, K, Jl)
+    A, B, C = state_matrices((Jc, bc, K, Jl, 0.0))
     A[3, 2] -= float(params.get("kl", 0.0)) / Jl
     A[3, 3] -= float(params.get("bl", 0.0)) / Jl
     d = int(math.floor(Td / T + 1e-12))

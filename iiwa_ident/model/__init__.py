@@ -8,8 +8,11 @@ Public API
 ----------
 Param, ParameterError, JOINT_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, JointParameters, parameter_values
     The vocabulary (:mod:`iiwa_ident.model._parameters`).
-INPUTS, pade_coefficients, resonance_hz, coefficients, transfer_function, frequency_response
+INPUTS, pade_coefficients, resonance_hz, coefficients, transfer_function, polynomials,
+frequency_response
     Eq (4) (:mod:`iiwa_ident.model._eq4`).
+state_matrices, DiscreteModel, discretize, simulate_outputs
+    Eqs (1)-(4) as a state-space model, sampled exactly with the delay (:mod:`iiwa_ident.model._sampled`).
 """
 
 from iiwa_ident.model._eq4 import (
@@ -17,9 +20,11 @@ from iiwa_ident.model._eq4 import (
     coefficients,
     frequency_response,
     pade_coefficients,
+    polynomials,
     resonance_hz,
     transfer_function,
 )
+from iiwa_ident.model._sampled import DiscreteModel, discretize, simulate_outputs, state_matrices
 from iiwa_ident.model._parameters import (
     JOINT_PARAMETERS,
     PARAMETER_NAMES,
@@ -43,5 +48,10 @@ __all__ = [
     "resonance_hz",
     "coefficients",
     "transfer_function",
+    "polynomials",
     "frequency_response",
+    "state_matrices",
+    "DiscreteModel",
+    "discretize",
+    "simulate_outputs",
 ]

@@ -25,7 +25,7 @@ import numpy as np
 from iiwa_ident.model._parameters import JointParameters, parameter_values
 
 __all__ = ["INPUTS", "pade_coefficients", "resonance_hz", "coefficients", "transfer_function",
-           "frequency_response"]
+           "polynomials", "frequency_response"]
 
 #: Inputs of eq (4)'s family: the FRI command (delayed by ``Td``), a torque added to the motor side's
 #: command inside the robot (not delayed), a torque on the link [Nm], the transmission's deflection
@@ -98,6 +98,40 @@ def transfer_function(p: JointParameters, delay: str = "pade") -> ct.TransferFun
     return ct.tf(*coefficients(p, delay))
 
 
+def polynomials(p, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator of ``tau_J`` per input without the delay, highest power first.
+
+    The denominator is eq (4)'s ``Jc Jl s^2 + Jl bc s + (Jc + Jl) K`` for every
+    input; the numerators are ``Jl (bc s + K)`` for the command and a torque
+    added inside the robot, ``-K Jc`` for a torque on the link [Nm/Nm] and
+    ``-K Jc Jl s^2`` for a transmission deflection [Nm/rad].
+
+    Parameters
+    ----------
+    p : JointParameters, mapping, joint model or sequence
+        (:func:`~iiwa_ident.model.parameter_values`).
+    input : {"command", "motor", "link", "deflection"}
+        The input (:data:`INPUTS`).
+
+    Examples
+    --------
+    >>> num, den = polynomials(JointParameters(1.0, 50.0, 1e4, 4.0, 0.005), "link")
+    >>> num.tolist(), den.tolist()
+    ([-10000.0], [4.0, 200.0, 50000.0])
+    """
+    if input not in INPUTS[:4]:
+        raise ValueError(f"input must be one of {INPUTS[:4]}")
+    Jc, bc, K, Jl, _ = parameter_values(p)
+    den = np.array([Jc * Jl, Jl * bc, (Jc + Jl) * K])
+    if input == "link":
+        return np.array([-K * Jc]), den
+    if input == "deflection":
+        # K f pushes the motor side, -K f the link, and the sensor reads -K f directly: the sum leaves
+        # only the inertias' share (no torque at low frequency, -K f far above the resonance).
+        return np.array([-K * Jc * Jl, 0.0, 0.0]), den
+    return np.array([Jl * bc, Jl * K]), den
+
+
 def frequency_response(p, f_hz: np.ndarray | float, input: str = "command") -> np.ndarray:
     """The continuous-time response of ``tau_J`` at ``f_hz`` [Hz], the delay exact.
 
@@ -111,23 +145,16 @@ def frequency_response(p, f_hz: np.ndarray | float, input: str = "command") -> n
     input : {"command", "motor", "link", "deflection"}
         ``tau_J / tau_c`` (delayed by ``Td``), the same for a torque added
         inside the robot (no delay), ``tau_J`` per torque on the link, or per
-        transmission deflection [Nm/rad].
+        transmission deflection [Nm/rad] (:func:`polynomials`).
 
     Returns
     -------
     numpy.ndarray
         Complex response [Nm/Nm] ([Nm/rad] for the deflection).
     """
-    if input not in INPUTS[:4]:
-        raise ValueError(f"input must be one of {INPUTS[:4]}")
-    Jc, bc, K, Jl, Td = parameter_values(p)
+    num, den = polynomials(p, input)
     s = 2j * np.pi * np.asarray(f_hz, float)
-    delta = Jc * Jl * s**2 + Jl * bc * s + (Jc * K + Jl * K)
-    if input == "link":
-        return -K * Jc / delta
-    if input == "deflection":
-        # K f pushes the motor side, -K f the link, and the sensor reads -K f directly: the sum leaves
-        # only the inertias' share (no torque at low frequency, -K f far above the resonance).
-        return -K * Jc * Jl * s**2 / delta
-    delay = np.exp(-Td * s) if input == "command" else 1.0
-    return delay * Jl * (bc * s + K) / delta
+    out = np.polyval(num, s) / np.polyval(den, s)
+    if input == "command":
+        out = out * np.exp(-parameter_values(p)[4] * s)
+    return out

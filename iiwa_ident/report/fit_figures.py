@@ -20,7 +20,8 @@ import matplotlib.pyplot as plt  # noqa: E402  (after selecting the backend)
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from iiwa_ident.ident.tf_fit import FitResult, discretize
+from iiwa_ident.ident.tf_fit import FitResult
+from iiwa_ident.model import discretize
 from iiwa_ident.model import frequency_response
 
 __all__ = ["bode_figure", "harmonics_figure", "fit_figure_pngs"]

@@ -1,0 +1,226 @@
+"""Eqs (1)-(4) sampled exactly, with the fractional input delay.
+
+FRI sends ``tau_c[k]`` at ``t = kT``; the robot applies it from ``kT + Td``
+to ``(k+1)T + Td`` (zero-order hold) and reports ``tau_J[k]``, ``q_m[k]`` at
+``kT``. The sampled model is the exact discretisation of this: with
+``Td = dT + tau`` (``0 <= tau < T``, a fractional delay; modified
+z-transform)::
+
+    x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]
+    Phi    = e^{AT}
+    Gamma0 = int_0^{T-tau} e^{As} ds B
+    Gamma1 = e^{A(T-tau)} int_0^{tau} e^{As} ds B
+
+the zero-order holds over ``T - tau`` and ``tau`` taken from
+:func:`scipy.signal.cont2discrete`. Without the fractional part ``Td`` would
+come out about half a cycle off. The state splits exactly into the resonant
+pair of eq (4) and the rigid-body double integrator (a Jordan block at
+``s = 0``); each part is run as a recursive filter, the double integrator
+with the exact coefficients ``(1 - z^-1)^2`` so that it cannot drift
+numerically.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.signal import cont2discrete, lfilter
+
+from iiwa_ident.model._eq4 import INPUTS
+from iiwa_ident.model._parameters import parameter_values
+
+__all__ = ["state_matrices", "DiscreteModel", "discretize", "simulate_outputs"]
+
+
+@dataclass
+class DiscreteModel:
+    """The ZOH-sampled eq (1)-(4) model with a fractional input delay.
+
+    Each output is ``z^-d (Nr(z^-1) / Dr(z^-1) + Nj(z^-1) / (1 - z^-1)^2)``
+    applied to ``tau_c``, starting from rest.
+
+    Attributes
+    ----------
+    sample_time_s : float
+        Sample time T [s].
+    delay_samples : int
+        Whole-sample part d of the delay.
+    den_resonant : numpy.ndarray
+        ``Dr``: 1, -trace(Phi_r), det(Phi_r).
+    num_resonant, num_rigid : numpy.ndarray
+        ``Nr`` and ``Nj`` per output, shape ``(2, 4)``; output 0 is ``tau_j``
+        [Nm], output 1 is ``theta_m`` [rad].
+    feedthrough : numpy.ndarray
+        Direct path per output (``-K`` to ``tau_j`` for the deflection input,
+        else zero).
+    sampled_motion : bool
+        The input is a sampled function of the motion (the deflection, the
+        reaction), not a command held over each sample: the dynamics see its
+        mean over each sample, taken as the mean of the samples at its ends.
+    """
+
+    sample_time_s: float
+    delay_samples: int
+    den_resonant: np.ndarray
+    num_resonant: np.ndarray
+    num_rigid: np.ndarray
+    feedthrough: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    sampled_motion: bool = False
+
+    def simulate(self, tau_c: np.ndarray) -> np.ndarray:
+        """Outputs for the command ``tau_c`` [Nm] from rest: array ``(2, n)`` of ``tau_j`` [Nm], ``theta_m`` [rad].
+
+        ``tau_c`` of shape ``(n, m)`` simulates ``m`` inputs at once (outputs ``(2, n, m)``).
+        """
+        u = np.asarray(tau_c, float)
+        n = u.shape[0]
+        d = self.delay_samples
+        ud = np.zeros_like(u)
+        if d < n:
+            ud[d:] = u[:n - d]
+        uh = ud
+        if self.sampled_motion and n > 1:
+            # Held as a command, a 50 Hz ripple would lag by half a sample (9 degrees at 1 kHz).
+            up = np.concatenate([ud[:1], ud, ud[-1:], ud[-1:]])
+            uh = (13.0 * (up[1:-2] + up[2:-1]) - up[:-3] - up[3:]) / 24.0
+        out = np.empty((2,) + u.shape)
+        for i in range(2):
+            out[i] = lfilter(self.num_resonant[i], self.den_resonant, uh, axis=0)
+            if i == 1:  # tau_j does not see the rigid-body mode
+                out[i] += lfilter(self.num_rigid[i], (1.0, -2.0, 1.0), uh, axis=0)
+            if self.feedthrough[i]:
+                out[i] += self.feedthrough[i] * ud
+        return out
+
+    def frequency_response(self, f_hz: np.ndarray) -> np.ndarray:
+        """Sampled-data responses at ``f_hz`` [Hz].
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape ``(2, n)``, complex: ``tau_j / tau_c`` [Nm/Nm] and
+            ``theta_m / tau_c`` [rad/Nm], the delay included.
+        """
+        zi = np.exp(-2j * np.pi * np.asarray(f_hz, float) * self.sample_time_s)  # z^-1
+        powers = zi[None, :] ** np.arange(4)[:, None]
+        den_r = self.den_resonant @ powers[:3]
+        den_j = np.array([1.0, -2.0, 1.0]) @ powers[:3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = np.array([(self.num_resonant[i] @ powers) / den_r + self.feedthrough[i]
+                            + (0.0 if i == 0 else (self.num_rigid[i] @ powers) / den_j) for i in range(2)])
+        return out * zi[None, :] ** self.delay_samples
+
+
+def state_matrices(p, input: str = "command") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C)`` of eqs (1)-(3), state ``(theta_m, z, theta_l, omega_l)``, outputs ``(tau_J, theta_m)``.
+
+    Eq (1) integrated once: ``Jc theta_m' = (bc / K)(tau_c - tau_J) + z``,
+    ``z' = tau_c - tau_J``; eq (2): ``Jl omega_l' = tau_J``; eq (3):
+    ``tau_J = K (theta_m - theta_l)``. ``B`` is the column of ``input``
+    (:data:`~iiwa_ident.model.INPUTS`; the command's delay is not in it).
+    """
+    Jc, bc, K, Jl, _ = parameter_values(p)
+    A = np.array([[-bc / Jc, 1.0 / Jc, bc / Jc, 0.0],
+                  [-K, 0.0, K, 0.0],
+                  [0.0, 0.0, 0.0, 1.0],
+                  [K / Jl, 0.0, -K / Jl, 0.0]])
+    if input in ("command", "motor"):
+        B = np.array([bc / (K * Jc), 1.0, 0.0, 0.0])
+    elif input == "link":
+        B = np.array([0.0, 0.0, 0.0, 1.0 / Jl])
+    elif input == "deflection":
+        # tau_J gains -K f: the motor side's torque error, the integral state and the link all see it.
+        B = np.array([bc / Jc, K, 0.0, -K / Jl])
+    elif input == "reaction":
+        B = np.array([0.0, 1.0, 0.0, 0.0])
+    else:
+        raise ValueError(f"input must be one of {INPUTS}")
+    C = np.array([[K, 0.0, -K, 0.0], [1.0, 0.0, 0.0, 0.0]])
+    return A, B, C
+
+
+def discretize(params: Any, sample_time_s: float, input: str = "command") -> DiscreteModel:
+    """Exact ZOH discretisation of eqs (1)-(3) with the fractional delay ``Td``.
+
+    Parameters
+    ----------
+    params : mapping, JointModel or sequence
+        ``Jc, bc, K, Jl`` [SI] and ``Td`` [s], ``Td >= 0``.
+    sample_time_s : float
+        Sample time T [s] (the input is held over each sample).
+    input : {"command", "motor", "link", "deflection"}
+        Which input (:data:`INPUTS`): the command ``tau_c`` (delayed by
+        ``Td``), a torque added to it inside the robot, a torque on the
+        link [Nm], or the transmission's deflection ``f(theta_m)`` of
+        eq (5) [rad] (the last three without delay; the deflection's direct
+        path ``-K f`` to ``tau_j`` is :attr:`DiscreteModel.feedthrough`).
+
+    Returns
+    -------
+    DiscreteModel
+    """
+    Jc, bc, K, Jl, Td = parameter_values(params)
+    if min(Jc, K, Jl) <= 0 or bc < 0 or Td < 0:
+        raise ValueError("need Jc, K, Jl > 0 and bc, Td >= 0")
+    if input not in INPUTS:
+        raise ValueError(f"input must be one of {INPUTS}")
+    T = float(sample_time_s)
+    A, B, C = state_matrices((Jc, bc, K, Jl, Td), input)
+    if input != "command":
+        Td = 0.0
+    # Modal split: range(A^2) is the resonant pair, null(A^2) the rigid-body Jordan chain
+    # v1 (displacement, A v1 = 0) and v2 (velocity, A v2 = v1).
+    left, _, _ = np.linalg.svd(A @ A)
+    V = np.column_stack([left[:, :2], [1.0, 0.0, 1.0, 0.0], [0.0, Jc, 0.0, 1.0]])
+    Vi = np.linalg.inv(V)
+    Ar = (Vi @ A @ V)[:2, :2]
+    Bm = Vi @ B
+    Cm = C @ V
+    d = int(math.floor(Td / T + 1e-9))
+    tau = max(Td - d * T, 0.0)
+    h0 = T - tau
+
+    def resonant(h: float) -> tuple[np.ndarray, np.ndarray]:
+        """e^{Ar h} and its zero-order-hold input integral over h."""
+        if h <= 0.0:
+            return np.eye(2), np.zeros(2)
+        E, G, *_ = cont2discrete((Ar, Bm[:2, None], np.eye(2), np.zeros((2, 1))), h, method="zoh")
+        return E, G[:, 0]
+
+    E0, I0 = resonant(h0)
+    _, I1 = resonant(tau)
+    g0, g1 = I0, E0 @ I1
+    Phi = resonant(T)[0]
+    tr, det = Phi[0, 0] + Phi[1, 1], Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]
+    P = tr * np.eye(2) - Phi  # adj(zI - Phi) = zI - P for 2x2 matrices
+    num_r = np.array([[0.0, c @ g0, c @ g1 - c @ P @ g0, -(c @ P @ g1)] for c in Cm[:, :2]])
+
+    b1, b2 = Bm[2], Bm[3]
+
+    def rigid(h: float) -> np.ndarray:
+        return np.array([h * b1 + 0.5 * h * h * b2, h * b2])
+
+    gj0 = rigid(h0)
+    gj1 = np.array([[1.0, h0], [0.0, 1.0]]) @ rigid(tau)
+    num_j = []
+    for c in Cm[:, 2:]:
+        a0, a1 = c @ gj0, c @ gj1
+        s0, s1 = c[0] * T * gj0[1], c[0] * T * gj1[1]
+        num_j.append([0.0, a0, a1 - a0 + s0, s1 - a1])
+    feed = np.array([-K, 0.0]) if input == "deflection" else np.zeros(2)
+    return DiscreteModel(T, d, np.array([1.0, -tr, det]), num_r, np.array(num_j), feed,
+                         sampled_motion=input in ("deflection", "reaction"))
+
+
+def simulate_outputs(params: Any, tau_c: np.ndarray, sample_time_s: float) -> np.ndarray:
+    """``tau_j`` [Nm] and ``theta_m - theta_m(0)`` [rad] for the command ``tau_c`` [Nm], from rest.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape ``(2, len(tau_c))``.
+    """
+    return discretize(params, sample_time_s).simulate(tau_c)
