@@ -110,3 +110,29 @@ def test_invalid_parameters(field, value, message):
     values = TABLE1.as_dict() | {field: value}
     with pytest.raises(ParameterError, match=message):
         JointParameters.from_mapping(values)
+
+
+def test_zero_order_hold_references():
+    from iiwa_ident.model import delayed_hold, zoh
+
+    a, b, h = -30.0, 2.0, 1e-3
+    Phi, G = zoh(np.array([[a]]), np.array([b]), h)
+    np.testing.assert_allclose(Phi, [[np.exp(a * h)]], rtol=1e-14, atol=0)
+    np.testing.assert_allclose(G, [(np.exp(a * h) - 1.0) / a * b], rtol=1e-12, atol=0)
+    # A pure integrator with a delay of 2.3 samples: u[k-2] acts for 0.7 T, u[k-3] for 0.3 T.
+    Phi, G0, G1, d = delayed_hold(np.zeros((1, 1)), np.array([1.0]), 1e-3, 2.3e-3)
+    assert d == 2
+    np.testing.assert_allclose([Phi[0, 0], G0[0], G1[0]], [1.0, 0.7e-3, 0.3e-3], rtol=1e-9, atol=0)
+    # A whole number of samples has no fractional part.
+    _, G0, G1, d = delayed_hold(np.zeros((1, 1)), np.array([1.0]), 1e-3, 5e-3)
+    assert d == 5 and G1[0] == 0.0 and G0[0] == pytest.approx(1e-3, rel=1e-12)
+
+
+def test_sampled_model_approaches_eq4_at_low_frequency():
+    from iiwa_ident.model import discretize
+
+    f = np.array([0.5, 2.0, 8.0])
+    sampled = discretize(TABLE1, 1e-4).frequency_response(f)[0]
+    # The hold adds half a sample of delay: T/2 = 50 us, 2.5 mrad at 8 Hz.
+    exact = frequency_response(TABLE1, f) * np.exp(-1j * np.pi * f * 1e-4)
+    np.testing.assert_allclose(sampled, exact, rtol=1e-5, atol=0)

@@ -109,11 +109,11 @@ from typing import Iterable, Sequence
 
 import control as ct
 import numpy as np
-from scipy.linalg import expm, matrix_balance
+from scipy.linalg import matrix_balance
 from scipy.signal import cont2discrete
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointParameters, coefficients, pade_coefficients
+from iiwa_ident.model import JointParameters, coefficients, delayed_hold, pade_coefficients, zoh
 
 __all__ = [
     "DesignError",
@@ -264,16 +264,6 @@ def _scaling(A: np.ndarray) -> np.ndarray:
     """Diagonal ``S`` that brings the canonical form to entries of similar size."""
     w0 = abs(A[0, 3]) ** 0.25 if A[0, 3] != 0 else 1.0
     return np.diag([w0 ** 3, w0 ** 2, w0, 1.0])
-
-
-def _zoh(A: np.ndarray, B: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-order-hold discretisation of ``x' = A x + B u`` over ``T``."""
-    n = A.shape[0]
-    B = B.reshape(n, -1)
-    M = np.zeros((n + B.shape[1], n + B.shape[1]))
-    M[:n, :n], M[:n, n:] = A, B
-    E = expm(M * T)
-    return E[:n, :n], E[:n, n:]
 
 
 def _acker(A: np.ndarray, B: np.ndarray, poles: np.ndarray) -> np.ndarray:
@@ -578,7 +568,7 @@ def design_controller(params: JointParameters, poles: Sequence[complex] = PAPER_
     As, Bs, Cs, Ks = Si @ A @ S, Si @ B, C @ S, K_fsf @ S
     Kr = float(1.0 / (Cs @ np.linalg.solve(np.outer(Bs, Ks) - As, Bs)))
 
-    Ads, Bds = _zoh(As, Bs, T)
+    Ads, Bds = zoh(As, Bs, T)
     Ad, Bd = S @ Ads @ Si, S @ Bds.ravel()
     Kd, Ld = _place_scaled(Ad, Bd, C, S, np.exp(p * T), np.exp(o * T))
 
@@ -783,19 +773,6 @@ def arm_plant(params: JointParameters, arm: HumanArm) -> tuple[np.ndarray, np.nd
     return A, B, C
 
 
-def _delayed_zoh(A: np.ndarray, B: np.ndarray, T: float, delay: float):
-    """ZOH with input delay ``delay = d T + frac``: ``x+ = Phi x + G0 u[k-d] + G1 u[k-d-1]``."""
-    d = int(math.floor(delay / T + 1e-9))
-    frac = max(0.0, delay - d * T)
-    if frac < 1e-9 * T:
-        Phi, G0 = _zoh(A, B, T)
-        return Phi, G0.ravel(), np.zeros_like(B), d
-    Phi, _ = _zoh(A, B, T)
-    Pa, Ga = _zoh(A, B, T - frac)
-    _, Gb = _zoh(A, B, frac)
-    return Phi, Ga.ravel(), (Pa @ Gb).ravel(), d
-
-
 def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray, T: float, delay: float,
                   design: AdditiveDesign | None) -> np.ndarray:
     """State matrix of a ZOH plant with input delay under ``tau_c = controller(C_r x, C_j x)``.
@@ -803,7 +780,7 @@ def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray
     ``C_j x`` is the joint torque the controller measures, ``C_r x`` the
     reference ``tau_r`` (already multiplied by the outer-loop gain).
     """
-    Phi, G0, G1, d = _delayed_zoh(A, B, T, delay)
+    Phi, G0, G1, d = delayed_hold(A, B, T, delay)
     m = d + (1 if np.any(G1) else 0)  # stored past commands u[k-1] .. u[k-m]
     if design is None:
         Ac, Bc, Cc, Dc = np.zeros((0, 0)), np.zeros((0, 2)), np.zeros(0), np.array([1.0, 0.0])

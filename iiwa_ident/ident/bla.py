@@ -334,9 +334,7 @@ def sampled_response(params: dict[str, float], f_hz: np.ndarray, sample_time_s: 
         Shape (2, n), complex: ``tau_j / tau_c`` [Nm/Nm] and ``q_m / tau_c`` [rad/Nm]. With ``bl = kl = 0``
         it equals :meth:`~iiwa_ident.model.DiscreteModel.frequency_response`.
     """
-    from scipy.linalg import expm
-
-    from iiwa_ident.model import state_matrices
+    from iiwa_ident.model import delayed_hold, state_matrices
 
     Jc, bc, K, Jl, Td = (float(params[k]) for k in ("Jc", "bc", "K", "Jl", "Td"))
     T = float(sample_time_s)
@@ -345,20 +343,7 @@ def sampled_response(params: dict[str, float], f_hz: np.ndarray, sample_time_s: 
     A, B, C = state_matrices((Jc, bc, K, Jl, 0.0))
     A[3, 2] -= float(params.get("kl", 0.0)) / Jl
     A[3, 3] -= float(params.get("bl", 0.0)) / Jl
-    d = int(math.floor(Td / T + 1e-12))
-    tau = Td - d * T
-
-    def hold(h: float) -> tuple[np.ndarray, np.ndarray]:
-        """(e^{Ah}, int_0^h e^{As} ds B) from one exponential of the augmented matrix."""
-        M = np.zeros((5, 5))
-        M[:4, :4], M[:4, 4] = A * h, B * h
-        E = expm(M)
-        return E[:4, :4], E[:4, 4]
-
-    Phi, _ = hold(T)
-    E1, G_a = hold(T - tau)
-    _, G_b = hold(tau)
-    Gamma0, Gamma1 = G_a, E1 @ G_b
+    Phi, Gamma0, Gamma1, d = delayed_hold(A, B, T, Td)
     zi = np.exp(-2j * np.pi * np.asarray(f_hz, float) * T)  # z^-1
     out = np.empty((2, len(zi)), complex)
     for n, w in enumerate(zi):

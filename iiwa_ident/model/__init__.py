@@ -11,7 +11,7 @@ Param, ParameterError, JOINT_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, Joint
 INPUTS, pade_coefficients, resonance_hz, coefficients, transfer_function, polynomials,
 frequency_response
     Eq (4) (:mod:`iiwa_ident.model._eq4`).
-state_matrices, DiscreteModel, discretize, simulate_outputs
+zoh, delayed_hold, state_matrices, DiscreteModel, discretize, simulate_outputs
     Eqs (1)-(4) as a state-space model, sampled exactly with the delay (:mod:`iiwa_ident.model._sampled`).
 """
 
@@ -24,7 +24,7 @@ from iiwa_ident.model._eq4 import (
     resonance_hz,
     transfer_function,
 )
-from iiwa_ident.model._sampled import DiscreteModel, discretize, simulate_outputs, state_matrices
+from iiwa_ident.model._sampled import DiscreteModel, delayed_hold, discretize, simulate_outputs, state_matrices, zoh
 from iiwa_ident.model._parameters import (
     JOINT_PARAMETERS,
     PARAMETER_NAMES,
@@ -50,6 +50,8 @@ __all__ = [
     "transfer_function",
     "polynomials",
     "frequency_response",
+    "zoh",
+    "delayed_hold",
     "state_matrices",
     "DiscreteModel",
     "discretize",

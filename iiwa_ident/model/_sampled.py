@@ -32,7 +32,42 @@ from scipy.signal import cont2discrete, lfilter
 from iiwa_ident.model._eq4 import INPUTS
 from iiwa_ident.model._parameters import parameter_values
 
-__all__ = ["state_matrices", "DiscreteModel", "discretize", "simulate_outputs"]
+__all__ = ["zoh", "delayed_hold", "state_matrices", "DiscreteModel", "discretize", "simulate_outputs"]
+
+
+def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(e^{Ah}, int_0^h e^{As} ds B)``: ``x' = A x + B u`` with ``u`` held over ``h`` [s].
+
+    ``B`` of shape ``(n,)`` gives a vector, of shape ``(n, m)`` a matrix; ``h = 0`` the identity and zero.
+    """
+    A = np.asarray(A, float)
+    B = np.asarray(B, float)
+    Bm = B.reshape(A.shape[0], -1)
+    if h <= 0.0:
+        return np.eye(A.shape[0]), np.zeros(B.shape)
+    Phi, G, *_ = cont2discrete((A, Bm, np.eye(A.shape[0]), np.zeros((A.shape[0], Bm.shape[1]))), h, method="zoh")
+    return Phi, G.reshape(B.shape)
+
+
+def delayed_hold(A: np.ndarray, B: np.ndarray, T: float, delay: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """``x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]`` for ``x' = A x + B u(t - delay)``, ``u`` held.
+
+    ``delay = d T + tau`` with ``0 <= tau < T`` (module docstring); ``Gamma1`` is zero without a fraction.
+
+    Returns
+    -------
+    Phi, Gamma0, Gamma1 : numpy.ndarray
+    d : int
+        Whole samples of the delay.
+    """
+    d = int(math.floor(delay / T + 1e-9))
+    tau = max(delay - d * T, 0.0)
+    Phi, G = zoh(A, B, T)
+    if tau < 1e-9 * T:
+        return Phi, G, np.zeros_like(G), d
+    Pa, Ga = zoh(A, B, T - tau)
+    return Phi, Ga, Pa @ zoh(A, B, tau)[1], d
 
 
 @dataclass
@@ -179,21 +214,11 @@ def discretize(params: Any, sample_time_s: float, input: str = "command") -> Dis
     Ar = (Vi @ A @ V)[:2, :2]
     Bm = Vi @ B
     Cm = C @ V
-    d = int(math.floor(Td / T + 1e-9))
+    Phi, g0, g1, d = delayed_hold(Ar, Bm[:2], T, Td)
     tau = max(Td - d * T, 0.0)
+    if tau < 1e-9 * T:  # as delayed_hold: no fractional part
+        tau = 0.0
     h0 = T - tau
-
-    def resonant(h: float) -> tuple[np.ndarray, np.ndarray]:
-        """e^{Ar h} and its zero-order-hold input integral over h."""
-        if h <= 0.0:
-            return np.eye(2), np.zeros(2)
-        E, G, *_ = cont2discrete((Ar, Bm[:2, None], np.eye(2), np.zeros((2, 1))), h, method="zoh")
-        return E, G[:, 0]
-
-    E0, I0 = resonant(h0)
-    _, I1 = resonant(tau)
-    g0, g1 = I0, E0 @ I1
-    Phi = resonant(T)[0]
     tr, det = Phi[0, 0] + Phi[1, 1], Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]
     P = tr * np.eye(2) - Phi  # adj(zI - Phi) = zI - P for 2x2 matrices
     num_r = np.array([[0.0, c @ g0, c @ g1 - c @ P @ g0, -(c @ P @ g1)] for c in Cm[:, :2]])
