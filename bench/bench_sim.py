@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from iiwa_ident.excite import exponential_sweep
+from iiwa_ident.references import exponential_sweep
 from iiwa_ident.robot import Command
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.reference import simulate_reference

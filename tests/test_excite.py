@@ -18,9 +18,9 @@ from iiwa_ident.excite import (
     QuasiStatic,
     SineTorque,
     StepTorque,
-    exponential_sweep,
     record,
 )
+from iiwa_ident.references import exponential_sweep
 from iiwa_ident.robot import Command, joint_limits
 from iiwa_ident.sim import SimulatedJoint, default_plant
 

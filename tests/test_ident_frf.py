@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.signal import freqz, lfilter
 
-from iiwa_ident.excite import exponential_sweep, sweep_rate
+from iiwa_ident.references import exponential_sweep, sweep_rate
 from iiwa_ident.ident.frf import (
     cross_spectra,
     ess_harmonics,

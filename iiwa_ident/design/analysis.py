@@ -97,6 +97,7 @@ from iiwa_ident.excite.safety import LimitGuard
 from iiwa_ident.ident.correction import joint_position
 from iiwa_ident.ident.model_file import JointModel, RippleTable, table1_model
 from iiwa_ident.model import JointParameters
+from iiwa_ident.references import square
 from iiwa_ident.robot import Command, Measurement
 from iiwa_ident.sim.agents import ImpedanceAgent
 from iiwa_ident.sim.joint import SimulatedJoint
@@ -522,11 +523,10 @@ def step_response(controller: TorqueControl, plant: Plant | None = None, amplitu
     delay_s : float
         Delay the reference is compared at [s] (the FRI's Td).
     """
-    half = period_s / 2
-
     def ref(t: float) -> float:
-        return amplitude_nm if (t % period_s) < half else -amplitude_nm
+        return square(t, amplitude_nm, period_s)
 
+    half = period_s / 2
     duration = period_s * cycles
     agent = _holding_agent(plant, agent_stiffness, duration)
     if agent is not None:

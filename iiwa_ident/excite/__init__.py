@@ -6,7 +6,7 @@ record
     Run an experiment on a robot interface under the limit guard.
 Experiment, ClientState
     Base class of programs and the client-side state they see.
-Chirp, exponential_sweep, sweep_rate
+Chirp
     The exponential chirp (section II.B).
 Multisine, odd_multisine, odd_lines, crest_factor
     Random-phase odd multisines, periods times realisations (for the best linear approximation).
@@ -19,7 +19,7 @@ EXPERIMENTS
 """
 
 from iiwa_ident.excite._runner import ClientState, Experiment, record
-from iiwa_ident.excite.chirp import Chirp, exponential_sweep, sweep_rate
+from iiwa_ident.excite.chirp import Chirp
 from iiwa_ident.excite.multisine import Multisine, crest_factor, odd_lines, odd_multisine
 from iiwa_ident.excite.programs import ConstantVelocity, HandGuided, QuasiStatic, SineTorque, StepTorque
 from iiwa_ident.excite.safety import LimitGuard
@@ -27,6 +27,6 @@ from iiwa_ident.excite.safety import LimitGuard
 EXPERIMENTS = {cls.name: cls for cls in (Chirp, Multisine, ConstantVelocity, QuasiStatic, HandGuided, StepTorque,
                                          SineTorque)}
 
-__all__ = ["record", "Experiment", "ClientState", "Chirp", "exponential_sweep", "sweep_rate", "Multisine",
+__all__ = ["record", "Experiment", "ClientState", "Chirp", "Multisine",
            "odd_multisine", "odd_lines", "crest_factor", "ConstantVelocity",
            "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS"]

@@ -9,26 +9,14 @@ what lets the identification separate distortion from the linear part.
 
 from __future__ import annotations
 
-import math
 
-import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite._runner import ClientState, Experiment
+from iiwa_ident.references import exponential_sweep, sweep_rate
 from iiwa_ident.robot import Command, RobotInterface
 
-__all__ = ["exponential_sweep", "sweep_rate", "Chirp"]
-
-
-def sweep_rate(f0_hz: float, f1_hz: float, duration_s: float) -> float:
-    """The sweep's time constant ``L = T / ln(f1 / f0)`` [s]."""
-    return duration_s / math.log(f1_hz / f0_hz)
-
-
-def exponential_sweep(t: np.ndarray | float, f0_hz: float, f1_hz: float, duration_s: float) -> np.ndarray:
-    """Unit-amplitude exponential sine sweep at times ``t`` [s]."""
-    L = sweep_rate(f0_hz, f1_hz, duration_s)
-    return np.sin(2 * np.pi * f0_hz * L * np.expm1(np.asarray(t, float) / L))
+__all__ = ["Chirp"]
 
 
 class Chirp(Experiment):
@@ -80,8 +68,7 @@ class Chirp(Experiment):
                                  f"{robot.limits.torque_nm:g} Nm")
 
     def command(self, s: ClientState) -> Command:
-        phase = 2 * math.pi * self.f0_hz * self._L * math.expm1(s.t / self._L)
-        tau = (self.bias_nm + self.amplitude_nm * math.sin(phase)
+        tau = (self.bias_nm + self.amplitude_nm * exponential_sweep(s.t, self.f0_hz, self.f1_hz, self.duration_s)
                - self.hold_stiffness * (s.q - s.q0) - self.hold_damping * s.v)
         return Command(tau_c=tau)
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite._runner import ClientState, Experiment
+from iiwa_ident.references import sine, square
 from iiwa_ident.robot import Command, RobotInterface
 from iiwa_ident.sim.agents import ImpedanceAgent
 
@@ -322,7 +323,7 @@ class StepTorque(_TorqueReference):
         self.peak_nm = abs(amplitude_nm)
 
     def reference(self, t: float) -> float:
-        return self.amplitude_nm if (t % self.period_s) < self.period_s / 2 else -self.amplitude_nm
+        return square(t, self.amplitude_nm, self.period_s)
 
     def attrs(self) -> dict:
         return {"amplitude_nm": self.amplitude_nm, "period_s": self.period_s, "cycles": self.cycles,
@@ -350,7 +351,7 @@ class SineTorque(_TorqueReference):
         self.peak_nm = abs(amplitude_nm) + abs(bias_nm)
 
     def reference(self, t: float) -> float:
-        return self.bias_nm + self.amplitude_nm * math.sin(2 * math.pi * self.frequency_hz * t)
+        return sine(t, self.amplitude_nm, self.frequency_hz, self.bias_nm)
 
     def attrs(self) -> dict:
         return {"amplitude_nm": self.amplitude_nm, "frequency_hz": self.frequency_hz, "duration_s": self.duration_s,

@@ -14,6 +14,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.references import exponential_sweep, sine, square
 
 __all__ = ["TaskInput", "Task", "ZeroTask", "ConstantTask", "StepTask", "SineTask", "ChirpTask", "KappaTask",
            "TASKS", "make_task"]
@@ -89,7 +90,7 @@ class StepTask(Task):
     name = "step"
 
     def reference(self, s: TaskInput) -> float:
-        return self.amplitude_nm if (s.t % self.period_s) < 0.5 * self.period_s else -self.amplitude_nm
+        return square(s.t, self.amplitude_nm, self.period_s)
 
     def attrs(self) -> dict[str, float | str]:
         return {"task": self.name, "amplitude_nm": self.amplitude_nm, "period_s": self.period_s}
@@ -104,7 +105,7 @@ class SineTask(Task):
     name = "sine"
 
     def reference(self, s: TaskInput) -> float:
-        return self.amplitude_nm * math.sin(2.0 * math.pi * self.frequency_hz * s.t)
+        return sine(s.t, self.amplitude_nm, self.frequency_hz)
 
     def attrs(self) -> dict[str, float | str]:
         return {"task": self.name, "amplitude_nm": self.amplitude_nm, "frequency_hz": self.frequency_hz}
@@ -121,10 +122,7 @@ class ChirpTask(Task):
     name = "chirp"
 
     def reference(self, s: TaskInput) -> float:
-        t = s.t % self.sweep_s
-        k = math.log(self.f1_hz / self.f0_hz) / self.sweep_s
-        phase = 2.0 * math.pi * self.f0_hz * (math.exp(k * t) - 1.0) / k
-        return self.amplitude_nm * math.sin(phase)
+        return self.amplitude_nm * exponential_sweep(s.t % self.sweep_s, self.f0_hz, self.f1_hz, self.sweep_s)
 
     def attrs(self) -> dict[str, float | str]:
         return {"task": self.name, "amplitude_nm": self.amplitude_nm, "f0_hz": self.f0_hz, "f1_hz": self.f1_hz,

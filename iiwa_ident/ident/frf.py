@@ -42,6 +42,7 @@ from typing import Callable
 
 import numpy as np
 
+from iiwa_ident.references import exponential_sweep
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = [
@@ -424,12 +425,10 @@ def sweep_signal(n: int, fs: float, f0_hz: float, f1_hz: float, duration_s: floa
                  amplitude: float = 1.0) -> np.ndarray:
     """The exponential sweep ``A sin(2 pi f0 L (exp(t/L) - 1))`` at ``t = k / fs`` for ``t < duration_s``.
 
-    Samples after the sweep's end are zero. Matches
-    :func:`iiwa_ident.excite.chirp.exponential_sweep`.
+    Samples after the sweep's end are zero (:func:`iiwa_ident.references.exponential_sweep`).
     """
-    L = duration_s / math.log(f1_hz / f0_hz)
     t = np.arange(n) / fs
-    x = amplitude * np.sin(2 * np.pi * f0_hz * L * np.expm1(t / L))
+    x = amplitude * exponential_sweep(t, f0_hz, f1_hz, duration_s)
     x[t >= duration_s] = 0.0
     return x
 

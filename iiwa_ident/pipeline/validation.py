@@ -33,6 +33,7 @@ from iiwa_ident.excite import SineTorque, StepTorque, record
 from iiwa_ident.fri.robot import FriRobot
 from iiwa_ident.fri.runtime import Watchdog, run_controller
 from iiwa_ident.fri.tasks import make_task
+from iiwa_ident.references import sine, square
 from iiwa_ident.sim import Plant
 
 __all__ = ["ValidationSettings", "run_validation", "tracking_metrics", "oscillation_windows", "reference_of",
@@ -76,9 +77,9 @@ def reference_of(task: str, t: np.ndarray, amplitude_nm: float, period_s: float 
                  frequency_hz: float = 1.0) -> np.ndarray:
     """The reference torque [Nm] of a ``"step"`` or ``"sine"`` task at times ``t`` [s] (both start at t = 0)."""
     if task == "step":
-        return np.where(np.mod(t, period_s) < 0.5 * period_s, amplitude_nm, -amplitude_nm)
+        return square(np.asarray(t, float), amplitude_nm, period_s)
     if task == "sine":
-        return amplitude_nm * np.sin(2 * np.pi * frequency_hz * t)
+        return sine(np.asarray(t, float), amplitude_nm, frequency_hz)
     raise IiwaIdentError(f"validation: no reference for task {task!r}")
 
 
