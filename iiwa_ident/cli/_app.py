@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -12,7 +11,7 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["app", "fail", "finite_or_none", "json_text", "write_json"]
+__all__ = ["app", "fail", "json_text", "write_json"]
 
 class _BracketsAsWritten(typer.core.TyperCommand):
     """A command whose help shows square brackets as written.
@@ -52,11 +51,6 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
     """Print ``error: message`` on stderr and return the exit to raise."""
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(code)
-
-
-def finite_or_none(x: float) -> float | None:
-    """A number for JSON output: inf and NaN become null."""
-    return float(x) if math.isfinite(x) else None
 
 
 def json_text(doc: dict) -> str:

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, finite_or_none, write_json
+from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import sha256_file
+from iiwa_ident.deploy.config_file import config_json
 from iiwa_ident.deploy import (
-    ControllerConfig,
     DeployError,
     deploy,
     write_config,
@@ -20,7 +20,7 @@ from iiwa_ident.design.design_file import DesignRecord, read_design
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import JointModel, read_model
 
-__all__ = ["deploy_cmd", "config_json", "find_model"]
+__all__ = ["deploy_cmd", "find_model"]
 
 
 def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | None, Path | None]:
@@ -43,30 +43,6 @@ def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | No
                                   f"the design's model.sha256); redesign or restore it")
             return read_model(path), path
     return None, None
-
-
-def config_json(config: ControllerConfig, out: Path) -> dict[str, Any]:
-    """The ``--json`` summary: limits, robot-side settings, sha256 and the checks with their values."""
-    lim, r, p = config.limits, config.robot, config.provenance
-    return {
-        "config": str(out),
-        "robot_model": config.robot_model,
-        "joint": config.joint,
-        "sample_time_s": config.sample_time_s,
-        "feedforward": config.feedforward,
-        "limits": {"torque_nm": lim.torque_nm, "torque_rate_nm_s": lim.torque_rate_nm_s,
-                   "velocity_rad_s": lim.velocity_rad_s, "reference_rate_nm_s": lim.reference_rate_nm_s,
-                   "reference_nm": lim.reference_nm,
-                   "data_sheet_torque_nm": config.data_sheet_torque_nm,
-                   "data_sheet_velocity_rad_s": config.data_sheet_velocity_rad_s},
-        "robot": {"control_mode": r.control_mode, "client_command_mode": r.client_command_mode,
-                  "send_period_ms": r.send_period_ms, "receive_multiplier": r.receive_multiplier,
-                  "watchdog_timeout_s": r.watchdog_timeout_s},
-        "sha256": {"config": config.sha256, "design": p.design_sha256 or None, "model": p.model_sha256 or None,
-                   "datasets": [{"file": s.file, "sha256": s.sha256, "role": s.role} for s in p.datasets]},
-        "checks": [{"name": c.name, "value": finite_or_none(c.value), "threshold": finite_or_none(c.threshold),
-                    "comparison": c.comparison, "unit": c.unit, "passed": c.passed} for c in config.checks],
-    }
 
 
 def _positive(value: float | None, option: str) -> None:

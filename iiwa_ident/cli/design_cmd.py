@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Optional
 
 import numpy as np
 import typer
 
-from iiwa_ident.cli._app import app, fail, finite_or_none, write_json
+from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.design.controller import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
@@ -24,7 +24,7 @@ from iiwa_ident.design.controller import (
     natural_frequency_damping,
     outer_loop_margins,
 )
-from iiwa_ident.design.design_file import make_record, write_design
+from iiwa_ident.design.design_file import design_json, make_record, write_design
 from iiwa_ident.design.paper import (
     format_reproduction,
     paper_reproduction,
@@ -35,7 +35,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import read_model
 from iiwa_ident.model import JointParameters
 
-__all__ = ["design_cmd", "parse_poles", "format_design", "design_json"]
+__all__ = ["design_cmd", "parse_poles", "format_design"]
 
 
 def parse_poles(text: str, option: str) -> list[complex]:
@@ -104,31 +104,6 @@ def format_design(design: AdditiveDesign, margins: OuterLoopMargins) -> str:
     lines.append(f"  kappa_max built-in {_kappa(margins.builtin)}, additive {_kappa(margins.additive)}{ratio}"
                  f"  (paper, measured: 4.6 and stable at 15)")
     return "\n".join(lines)
-
-
-def design_json(design: AdditiveDesign, margins: OuterLoopMargins) -> dict[str, Any]:
-    """The ``--json`` content. Complex numbers as ``[re, im]``; an unbounded ``kappa_max`` is null."""
-    def pairs(z):
-        return [[float(np.real(x)), float(np.imag(x))] for x in z]
-
-    return {
-        "builtin_poles": pairs(design.builtin_poles),
-        "poles": pairs(design.poles),
-        "observer_poles": pairs(design.observer_poles),
-        "K_fsf": [float(x) for x in design.K_fsf],
-        "L": [float(x) for x in design.L],
-        "Kr": float(design.Kr),
-        "Kd": [float(x) for x in design.Kd],
-        "Ld": [float(x) for x in design.Ld],
-        "Kr_d": float(design.Kr_d),
-        "feedforward": design.feedforward,
-        "prefilter_hz": design.prefilter_hz if design.ff is not None else None,
-        "dc_gain": design.dc_gain(True),
-        "additive_poles": pairs(design.additive_poles),
-        "sample_time_s": design.sample_time_s,
-        "kappa_max": {"builtin": finite_or_none(margins.builtin), "additive": finite_or_none(margins.additive)},
-        "arm": {"stiffness": margins.arm.stiffness, "damping": margins.arm.damping, "inertia": margins.arm.inertia},
-    }
 
 
 @app.command("design")

@@ -93,6 +93,7 @@ from typing import Any
 
 import numpy as np
 
+from iiwa_ident._json import finite_or_none
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.deploy.checks import (
     Check,
@@ -120,6 +121,7 @@ __all__ = [
     "ControllerConfig",
     "config_to_dict",
     "config_from_dict",
+    "config_json",
     "content_sha256",
     "write_config",
     "read_config",
@@ -616,3 +618,27 @@ def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: 
                               model_file=record.model_file or "", model_sha256=record.model_sha256 or "",
                               datasets=datasets),
         checks=checks, tool_version=record.tool_version)
+
+
+def config_json(config: ControllerConfig, out: Path) -> dict[str, Any]:
+    """The JSON summary of a config written to ``out`` (``iiwa-ident deploy --json``, the pipeline): limits, robot-side settings, sha256 and the checks with their values."""
+    lim, r, p = config.limits, config.robot, config.provenance
+    return {
+        "config": str(out),
+        "robot_model": config.robot_model,
+        "joint": config.joint,
+        "sample_time_s": config.sample_time_s,
+        "feedforward": config.feedforward,
+        "limits": {"torque_nm": lim.torque_nm, "torque_rate_nm_s": lim.torque_rate_nm_s,
+                   "velocity_rad_s": lim.velocity_rad_s, "reference_rate_nm_s": lim.reference_rate_nm_s,
+                   "reference_nm": lim.reference_nm,
+                   "data_sheet_torque_nm": config.data_sheet_torque_nm,
+                   "data_sheet_velocity_rad_s": config.data_sheet_velocity_rad_s},
+        "robot": {"control_mode": r.control_mode, "client_command_mode": r.client_command_mode,
+                  "send_period_ms": r.send_period_ms, "receive_multiplier": r.receive_multiplier,
+                  "watchdog_timeout_s": r.watchdog_timeout_s},
+        "sha256": {"config": config.sha256, "design": p.design_sha256 or None, "model": p.model_sha256 or None,
+                   "datasets": [{"file": s.file, "sha256": s.sha256, "role": s.role} for s in p.datasets]},
+        "checks": [{"name": c.name, "value": finite_or_none(c.value), "threshold": finite_or_none(c.threshold),
+                    "comparison": c.comparison, "unit": c.unit, "passed": c.passed} for c in config.checks],
+    }

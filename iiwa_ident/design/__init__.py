@@ -2,8 +2,6 @@
 
 Public API
 ----------
-MomentumObserver
-    Eq (13) as the robot runs it (used by the simulated joint).
 SpatialFilter, spatial_filter_response, ripple_bandpass_coefficients, gamma_weight, ripple_line_cut
     The spatial filter of eqs (10)-(12) (:mod:`iiwa_ident.design.spatial_filter`).
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
@@ -39,7 +37,6 @@ from iiwa_ident.design.design_file import (
     read_design,
     write_design,
 )
-from iiwa_ident.design.observer import MomentumObserver
 from iiwa_ident.design.observers import (
     OBSERVERS,
     BuiltinObserver,
@@ -61,7 +58,7 @@ from iiwa_ident.design.spatial_filter import (
 )
 
 __all__ = [
-    "MomentumObserver", "SpatialFilter", "spatial_filter_response", "ripple_bandpass_coefficients", "gamma_weight",
+    "SpatialFilter", "spatial_filter_response", "ripple_bandpass_coefficients", "gamma_weight",
     "ripple_line_cut", "ExternalTorqueObserver", "BuiltinObserver", "LinkVelocityObserver", "FilteredObserver",
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",
     "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",

@@ -85,6 +85,7 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident import tool_version
+from iiwa_ident._json import finite_or_none
 from iiwa_ident._schema import TableReader
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.design.controller import (
@@ -112,6 +113,7 @@ __all__ = [
     "design_from_dict",
     "write_design",
     "read_design",
+    "design_json",
 ]
 
 DESIGN_FORMAT = "iiwa-ident-design"
@@ -436,3 +438,28 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
 def read_design(path: str | os.PathLike) -> DesignRecord:
     """Read and validate a design file; errors name the file and the key."""
     return design_from_dict(load_toml(path, DesignFileError), where=f"{path}: ")
+
+
+def design_json(design: AdditiveDesign, margins: OuterLoopMargins) -> dict[str, Any]:
+    """The JSON summary of a design (``iiwa-ident design --json``, the pipeline's ``design.json``). Complex numbers as ``[re, im]``; an unbounded ``kappa_max`` is null."""
+    def pairs(z):
+        return [[float(np.real(x)), float(np.imag(x))] for x in z]
+
+    return {
+        "builtin_poles": pairs(design.builtin_poles),
+        "poles": pairs(design.poles),
+        "observer_poles": pairs(design.observer_poles),
+        "K_fsf": [float(x) for x in design.K_fsf],
+        "L": [float(x) for x in design.L],
+        "Kr": float(design.Kr),
+        "Kd": [float(x) for x in design.Kd],
+        "Ld": [float(x) for x in design.Ld],
+        "Kr_d": float(design.Kr_d),
+        "feedforward": design.feedforward,
+        "prefilter_hz": design.prefilter_hz if design.ff is not None else None,
+        "dc_gain": design.dc_gain(True),
+        "additive_poles": pairs(design.additive_poles),
+        "sample_time_s": design.sample_time_s,
+        "kappa_max": {"builtin": finite_or_none(margins.builtin), "additive": finite_or_none(margins.additive)},
+        "arm": {"stiffness": margins.arm.stiffness, "damping": margins.arm.damping, "inertia": margins.arm.inertia},
+    }

@@ -39,7 +39,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.design.observer import MomentumObserver
+from iiwa_ident.model import MomentumObserver
 from iiwa_ident.design.spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.correction import joint_position, link_position

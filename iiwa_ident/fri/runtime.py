@@ -55,7 +55,7 @@ import numpy as np
 from iiwa_ident._realtime import no_gc_pauses, realtime_process
 from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy.config_file import ControllerConfig, controller_from_config
-from iiwa_ident.design.observer import MomentumObserver
+from iiwa_ident.model import MomentumObserver
 from iiwa_ident.design.spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.tasks import Task, TaskInput

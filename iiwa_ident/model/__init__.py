@@ -1,4 +1,4 @@
-"""The joint model of the paper, eqs (1)-(4), at the bottom of the package.
+"""The joint model of the paper, eqs (1)-(4) and the robot's observer, eq (13), at the bottom of the package.
 
 One parameter vocabulary (:data:`JOINT_PARAMETERS`: paper names, SI units,
 valid ranges) used by plant files, model files, designs and every JSON
@@ -13,6 +13,9 @@ frequency_response
     Eq (4) (:mod:`iiwa_ident.model._eq4`).
 zoh, delayed_hold, state_matrices, DiscreteModel, discretize, simulate_outputs
     Eqs (1)-(4) as a state-space model, sampled exactly with the delay (:mod:`iiwa_ident.model._sampled`).
+MomentumObserver
+    The robot's external-torque observer, eq (13), as the robot and the runtime run it
+    (:mod:`iiwa_ident.model._observer`).
 """
 
 from iiwa_ident.model._eq4 import (
@@ -24,6 +27,7 @@ from iiwa_ident.model._eq4 import (
     resonance_hz,
     transfer_function,
 )
+from iiwa_ident.model._observer import MomentumObserver
 from iiwa_ident.model._sampled import DiscreteModel, delayed_hold, discretize, simulate_outputs, state_matrices, zoh
 from iiwa_ident.model._parameters import (
     JOINT_PARAMETERS,
@@ -56,4 +60,5 @@ __all__ = [
     "DiscreteModel",
     "discretize",
     "simulate_outputs",
+    "MomentumObserver",
 ]

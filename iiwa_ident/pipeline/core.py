@@ -328,9 +328,8 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
 
 
 def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.cli.design_cmd import design_json
     from iiwa_ident.design.controller import design_controller, outer_loop_margins
-    from iiwa_ident.design.design_file import make_record, write_design
+    from iiwa_ident.design.design_file import design_json, make_record, write_design
     from iiwa_ident.design.spatial_filter import DESIGN_BETA
     from iiwa_ident.model import JointParameters
 
@@ -374,9 +373,9 @@ def _jsonable(x: Any) -> Any:
 
 
 def _stage_deploy(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.cli.deploy_cmd import config_json
     from iiwa_ident.datasets import sha256_file
     from iiwa_ident.deploy import deploy, write_config
+    from iiwa_ident.deploy.config_file import config_json
 
     model = ctx.results["model_ripple"]
     config = deploy(ctx.results["design"], model.robot_model or ctx.robot_model, model.joint or ctx.joint,

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from iiwa_ident.design.observer import MomentumObserver
+from iiwa_ident.model import MomentumObserver
 from iiwa_ident.robot import Command, Measurement, RobotInterface
 from iiwa_ident.sim._dynamics import INPUTS, OUTPUTS, CycleModel, output_function
 from iiwa_ident.sim.plant import Plant, default_plant
