@@ -16,6 +16,7 @@ import pytest
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.deploy import read_config
 from iiwa_ident.pipeline import FILES, STAGES, ValidationSettings, run_pipeline, run_validation
+from iiwa_ident.report.pdf import build_report
 
 from conftest import assert_not_blank, pdf_pages
 
@@ -26,7 +27,7 @@ CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 def short_run(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("pipeline")
     lines: list[str] = []
-    result = run_pipeline(workdir, target="sim", short=True, progress=lines.append)
+    result = run_pipeline(workdir, target="sim", short=True, progress=lines.append, report=build_report)
     return workdir, result, lines
 
 
@@ -105,7 +106,8 @@ class TestFailures:
 
         monkeypatch.setattr(ripple, "run", broken)
         # Skip what would run long anyway; the point is the bookkeeping.
-        result = run_pipeline(tmp_path, short=True, progress=lambda _m: None, skip=("hand_guided",))
+        result = run_pipeline(tmp_path, short=True, progress=lambda _m: None, skip=("hand_guided",),
+                              report=build_report)
         status = {s.name: s.status for s in result.stages}
         assert status["ripple"] == "failed" and status["hand_guided"] == "skipped"
         assert status["chirp"] == status["fit"] == status["constant_velocity"] == "ok"

@@ -27,7 +27,7 @@ CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("report")
-    result = run_pipeline(folder, short=True, progress=lambda _m: None, skip=("validation",), report=False)
+    result = run_pipeline(folder, short=True, progress=lambda _m: None, skip=("validation",), report=None)
     assert result.ok, [(s.name, s.error) for s in result.stages if s.status == "failed"]
     return folder
 

@@ -58,11 +58,12 @@ def pipeline_cmd(
       iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
     """
     from iiwa_ident.pipeline import format_summary, run_pipeline
+    from iiwa_ident.report.pdf import build_report
 
     try:
         result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,
                               progress=lambda m: typer.echo(m), port=port, robot_model=robot_model, joint=joint,
-                              report=not no_report, realtime=realtime,
+                              report=None if no_report else build_report, realtime=realtime,
                               skip=tuple(x.strip() for x in (skip or "").split(",") if x.strip()))
     except IiwaIdentError as err:
         raise fail(str(err))

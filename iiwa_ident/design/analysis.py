@@ -92,7 +92,7 @@ from iiwa_ident.design.spatial_filter import (
     RIPPLE_PERIOD_RAD,
     SpatialFilter,
 )
-from iiwa_ident.excite._runner import ClientState, _velocity_filter
+from iiwa_ident.excite import ClientState, velocity_filter_coefficient
 from iiwa_ident.excite.safety import LimitGuard
 from iiwa_ident.ident.correction import joint_position
 from iiwa_ident.ident.model_file import JointModel, RippleTable, table1_model
@@ -338,7 +338,7 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
     guard = LimitGuard(robot.limits)
     dt = robot.sample_time_s
     n = int(round(duration_s / dt))
-    alpha = _velocity_filter(dt)
+    alpha = velocity_filter_coefficient(dt)
     controller.reset()
     out = np.full((n, 7), np.nan)
     stopped = ""

@@ -20,7 +20,7 @@ from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite.safety import LimitGuard
 from iiwa_ident.robot import Command, Measurement, RobotInterface
 
-__all__ = ["Experiment", "ClientState", "record"]
+__all__ = ["Experiment", "ClientState", "record", "velocity_filter_coefficient"]
 
 
 @dataclass
@@ -79,8 +79,8 @@ class Experiment:
         """Refuse settings the robot cannot run safely (raise IiwaIdentError)."""
 
 
-def _velocity_filter(dt: float, cutoff_hz: float = 40.0) -> float:
-    """Coefficient of a first-order low-pass at ``cutoff_hz`` for sample time ``dt``."""
+def velocity_filter_coefficient(dt: float, cutoff_hz: float = 40.0) -> float:
+    """Coefficient of the client's first-order velocity low-pass at ``cutoff_hz`` for sample time ``dt`` [s]."""
     return 1.0 - math.exp(-2 * math.pi * cutoff_hz * dt)
 
 
@@ -118,7 +118,7 @@ def record(robot: RobotInterface, experiment: Experiment, *, record_every: int =
     guard = guard or LimitGuard(robot.limits)
     dt = robot.sample_time_s
     n = int(round(experiment.duration_s / dt))
-    alpha = _velocity_filter(dt)
+    alpha = velocity_filter_coefficient(dt)
     rows: list[tuple] = []
     stopped = ""
     meas = robot.start()

@@ -572,9 +572,9 @@ def _inputs(ctx: PipelineContext) -> dict[str, str]:
 def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | None = None,
                  robot: str | None = None, short: bool = False, progress: Callable[[str], None] = print, *,
                  port: int = 30200, robot_model: str = "iiwa14", joint: int = 1,
-                 settings: PipelineSettings | None = None, report: bool = True,
+                 settings: PipelineSettings | None = None, report: Callable[..., list] | None = None,
                  skip: tuple[str, ...] = (), realtime: bool = False) -> PipelineResult:
-    """Run every stage in order, write ``pipeline.json`` and ``report.pdf`` into ``workdir``.
+    """Run every stage in order, write ``pipeline.json`` (and with ``report``, ``report.pdf``) into ``workdir``.
 
     Parameters
     ----------
@@ -596,8 +596,11 @@ def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | N
         Local FRI port, robot model and joint under test (robot target).
     settings : PipelineSettings, optional
         Overrides ``short``.
-    report : bool
-        Also build ``report.pdf``.
+    report : callable, optional
+        Builds ``report.pdf`` at the end, called as ``report(pdf_path, workdir,
+        pipeline_json, results)`` and returning its pages
+        (:func:`iiwa_ident.report.build_report`, passed in by the caller: the
+        report reads the pipeline's files, so it sits above the pipeline).
     skip : tuple of str
         Stages not to run (recorded as skipped, as are the stages that need them).
     realtime : bool
@@ -616,7 +619,7 @@ def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | N
         For a bad argument (unknown target, missing robot address, a plant
         file that does not load); failures inside stages are recorded instead.
     """
-    from iiwa_ident.pipeline._blas import single_threaded_blas
+    from iiwa_ident._blas import single_threaded_blas
 
     with single_threaded_blas():
         return _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_model, joint, settings,
@@ -678,15 +681,13 @@ def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_mo
         status[stage.name] = rec.status
         ctx.records.append(rec)
     result = PipelineResult(workdir, ctx.records, _headline(ctx.records), None, 0.0, inputs)
-    if report:
+    if report is not None:
         progress(f"[{n}/{n}] report: PDF of every stage ...")
         t0 = time.perf_counter()
         rec = StageRecord("report", "PDF report", "ok")
         try:
-            from iiwa_ident.report.pdf import build_report
-
             result.wall_s = time.perf_counter() - t_start
-            pages = build_report(ctx.path("report"), workdir, result.as_json(), ctx.results)
+            pages = report(ctx.path("report"), workdir, result.as_json(), ctx.results)
             rec.headline = {"pages": len(pages)}
             result.report = ctx.path("report")
         except IiwaIdentError as err:

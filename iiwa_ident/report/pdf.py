@@ -454,7 +454,7 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
     if doc is None:
         doc = read_pipeline_json(workdir)
     if results is None:
-        from iiwa_ident.pipeline._blas import single_threaded_blas
+        from iiwa_ident._blas import single_threaded_blas
 
         with single_threaded_blas():
             results = load_results(workdir, doc, REPORT_STAGES if stage is None else (stage,))

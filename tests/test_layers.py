@@ -1,0 +1,92 @@
+"""The package's layers, checked from the source: every import goes down, no part reaches into another's privates.
+
+The parts of ``iiwa_ident``, bottom first (README, "Layout"). A part may import
+the parts of lower layers, never of its own layer or above, so nothing below
+the CLI imports the CLI and there are no import cycles between parts.
+Imports inside functions count. The root package's own helper modules
+(``errors``, ``_toml``, ``_schema``, ``_json``, ``_realtime``, ``_blas``) are the
+foundation every part may use; beyond those, no part imports a private
+module (``_name``) or a private name of another part.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import iiwa_ident
+
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("iiwa_ident", "errors", "_toml", "_schema", "_json", "_realtime", "_blas"),
+    ("model", "references", "robot"),
+    ("datasets",),
+    ("sim",),
+    ("excite",),
+    ("ident",),
+    ("design",),
+    ("deploy", "diagnose"),
+    ("fri",),
+    ("pipeline",),
+    ("report",),
+    ("cli",),
+)
+FOUNDATION = set(LAYERS[0])
+ROOT = Path(iiwa_ident.__file__).parent
+
+
+def _part(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "iiwa_ident"
+
+
+def _imports():
+    """(file, line, importing part, imported module, imported names) of every iiwa_ident import."""
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT.parent).with_suffix("")
+        module = ".".join(p for p in rel.parts if p != "__init__")
+        own = _part(module)
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("iiwa_ident"):
+                yield path, node.lineno, own, node.module, [a.name for a in node.names]
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("iiwa_ident"):
+                        yield path, node.lineno, own, a.name, []
+
+
+def _layer(part: str) -> int:
+    for i, layer in enumerate(LAYERS):
+        if part in layer:
+            return i
+    raise AssertionError(f"part {part!r} is in no layer: add it to LAYERS and to the README's layout")
+
+
+def test_every_import_goes_down():
+    bad = []
+    for path, line, own, module, _ in _imports():
+        target = _part(module)
+        if target == own or (own in FOUNDATION and target in FOUNDATION):
+            continue
+        if _layer(target) >= _layer(own):
+            bad.append(f"{path.relative_to(ROOT.parent)}:{line}: {own} imports {module} ({target} is not below)")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_part_reaches_into_another_parts_privates():
+    bad = []
+    for path, line, own, module, names in _imports():
+        target = _part(module)
+        if target == own or target in FOUNDATION:
+            continue
+        private_module = any(p.startswith("_") for p in module.split(".")[2:])
+        private_names = [n for n in names if n.startswith("_")]
+        if private_module or private_names:
+            bad.append(f"{path.relative_to(ROOT.parent)}:{line}: {own} imports {module} {private_names or ''}")
+    assert not bad, "\n".join(bad)
+
+
+def test_every_part_has_a_layer():
+    parts = {p.stem if p.is_file() else p.name for p in ROOT.iterdir()
+             if (p.is_dir() and (p / "__init__.py").exists()) or (p.suffix == ".py" and p.stem != "__init__")}
+    for part in parts:
+        _layer(part)
