@@ -2,7 +2,8 @@
 
 The parts of ``iiwa_ident``, bottom first (README, "Layout"). A part may import
 the parts of lower layers, never of its own layer or above, so nothing below
-the CLI imports the CLI and there are no import cycles between parts.
+the CLI imports the CLI and there are no import cycles between parts; the packages of
+:data:`PUBLIC_API` are imported only through their ``__init__``.
 Imports inside functions count. The root package's own helper modules
 (``errors``, ``_toml``, ``_schema``, ``_json``, ``_realtime``, ``_blas``) are the
 foundation every part may use; beyond those, no part imports a private
@@ -90,3 +91,17 @@ def test_every_part_has_a_layer():
              if (p.is_dir() and (p / "__init__.py").exists()) or (p.suffix == ".py" and p.stem != "__init__")}
     for part in parts:
         _layer(part)
+
+
+#: Packages whose ``__init__`` is their whole public API: other parts import them only as a package.
+#: (fri, pipeline and report are still imported by module.)
+PUBLIC_API = ("datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "model")
+
+
+def test_packages_are_imported_through_their_public_api():
+    bad = []
+    for path, line, own, module, _ in _imports():
+        parts = module.split(".")
+        if len(parts) >= 3 and parts[1] != own and parts[1] in PUBLIC_API:
+            bad.append(f"{path.relative_to(ROOT.parent)}:{line}: {own} imports {module} (use iiwa_ident.{parts[1]})")
+    assert not bad, "\n".join(bad)

@@ -10,15 +10,15 @@ import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import sha256_file
-from iiwa_ident.deploy.config_file import config_json
+from iiwa_ident.deploy import config_json
 from iiwa_ident.deploy import (
     DeployError,
     deploy,
     write_config,
 )
-from iiwa_ident.design.design_file import DesignRecord, read_design
+from iiwa_ident.design import DesignRecord, read_design
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.model_file import JointModel, read_model
+from iiwa_ident.ident import JointModel, read_model
 
 __all__ = ["deploy_cmd", "find_model"]
 

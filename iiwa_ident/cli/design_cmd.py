@@ -10,7 +10,7 @@ import numpy as np
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
-from iiwa_ident.design.controller import (
+from iiwa_ident.design import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
     PAPER_OBSERVER_POLES,
@@ -24,15 +24,15 @@ from iiwa_ident.design.controller import (
     natural_frequency_damping,
     outer_loop_margins,
 )
-from iiwa_ident.design.design_file import design_json, make_record, write_design
-from iiwa_ident.design.paper import (
+from iiwa_ident.design import design_json, make_record, write_design
+from iiwa_ident.design import (
     format_reproduction,
     paper_reproduction,
     table1_parameters,
 )
-from iiwa_ident.design.spatial_filter import DESIGN_BETA
+from iiwa_ident.design import DESIGN_BETA
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.ident import read_model
 from iiwa_ident.model import JointParameters
 
 __all__ = ["design_cmd", "parse_poles", "format_design"]

@@ -11,10 +11,11 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.bla import BlaFit
-from iiwa_ident.ident.joint_fit import METHODS, fit_model
-from iiwa_ident.ident.model_file import PARAMETER_UNITS, write_model
-from iiwa_ident.ident.tf_fit import FitResult
+from iiwa_ident.ident import BlaFit
+from iiwa_ident.ident import METHODS, fit_model
+from iiwa_ident.ident import write_model
+from iiwa_ident.model import PARAMETER_UNITS
+from iiwa_ident.ident import FitResult
 from iiwa_ident.model import PARAMETER_NAMES
 
 __all__ = ["fit_cmd", "format_fit", "format_bla_fit"]

@@ -13,7 +13,7 @@ from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import RippleTable, Source, read_model, table1_model, write_model
-from iiwa_ident.ident.ripple import PERIOD_MAX_RAD, PERIOD_MIN_RAD, RippleResult, identify_ripple
+from iiwa_ident.ident import PERIOD_MAX_RAD, PERIOD_MIN_RAD, RippleResult, identify_ripple
 
 __all__ = ["ripple_cmd", "format_ripple"]
 

@@ -9,6 +9,7 @@ the per-cycle controller from it.
 
 from iiwa_ident.deploy.checks import (
     DEFAULT_RATE_RISE_TIME_S,
+    DEFAULT_REFERENCE_RISE_TIME_S,
     MAX_SPECTRAL_RADIUS,
     MIN_KAPPA_MARGIN,
     MIN_REFERENCE_FRACTION,
@@ -17,11 +18,10 @@ from iiwa_ident.deploy.checks import (
     DeployError,
     check_design,
     default_rate_limit,
-    failed_checks,
-    step_peak_gain,
-    reference_limit,
     default_reference_rate,
-    DEFAULT_REFERENCE_RISE_TIME_S,
+    failed_checks,
+    reference_limit,
+    step_peak_gain,
 )
 from iiwa_ident.deploy.config_file import (
     CONFIG_FORMAT,
@@ -31,6 +31,7 @@ from iiwa_ident.deploy.config_file import (
     Provenance,
     RobotSettings,
     config_from_dict,
+    config_json,
     config_to_dict,
     content_sha256,
     controller_from_config,
@@ -67,4 +68,5 @@ __all__ = [
     "deploy",
     "read_config",
     "write_config",
+    "config_json",
 ]

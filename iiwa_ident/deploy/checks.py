@@ -61,8 +61,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from iiwa_ident.design.controller import SAMPLE_TIME_S, exact_delay_spectral_radius, kappa_max
-from iiwa_ident.design.design_file import DesignRecord
+from iiwa_ident.design import SAMPLE_TIME_S, exact_delay_spectral_radius, kappa_max
+from iiwa_ident.design import DesignRecord
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.robot import JointLimits
 

@@ -105,11 +105,11 @@ from iiwa_ident.deploy.checks import (
     failed_checks,
     reference_limit,
 )
-from iiwa_ident.design.controller import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
-from iiwa_ident.design.design_file import DesignRecord, FilterSettings
+from iiwa_ident.design import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
+from iiwa_ident.design import DesignRecord, FilterSettings
 from iiwa_ident._schema import TableReader
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.model_file import JointModel, RippleTable, Source
+from iiwa_ident.ident import JointModel, RippleTable, Source
 from iiwa_ident.robot import ROBOT_MODELS, joint_limits
 
 __all__ = [

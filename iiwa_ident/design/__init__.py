@@ -16,23 +16,31 @@ paper_reproduction, format_reproduction
     The paper's numbers beside the computed ones (:mod:`iiwa_ident.design.paper`).
 """
 
+from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin
 from iiwa_ident.design.controller import (
+    DEFAULT_PREFILTER_HZ,
+    FEEDFORWARD_MODES,
     PAPER_OBSERVER_POLES,
     PAPER_POLES,
+    SAMPLE_TIME_S,
     AdditiveController,
     AdditiveDesign,
     DesignError,
     HumanArm,
     OuterLoopMargins,
+    builtin_poles,
+    check_poles,
     design_controller,
     exact_delay_spectral_radius,
     kappa_max,
+    natural_frequency_damping,
     outer_loop_margins,
 )
 from iiwa_ident.design.design_file import (
     DesignFileError,
     DesignRecord,
     FilterSettings,
+    design_json,
     make_record,
     read_design,
     write_design,
@@ -44,12 +52,19 @@ from iiwa_ident.design.observers import (
     FilteredObserver,
     LinkVelocityObserver,
     compare_observers,
+    link_speed,
     make_observer,
     observer_lag,
     run_observers,
 )
-from iiwa_ident.design.paper import format_reproduction, paper_reproduction
+from iiwa_ident.design.paper import (
+    format_reproduction,
+    paper_reproduction,
+    table1_parameters,
+)
 from iiwa_ident.design.spatial_filter import (
+    DESIGN_BETA,
+    RIPPLE_PERIOD_RAD,
     SpatialFilter,
     gamma_weight,
     ripple_bandpass_coefficients,
@@ -65,4 +80,10 @@ __all__ = [
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
     "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",
+    "ClosedLoopRun", "KappaMargin",
+    "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "SAMPLE_TIME_S", "builtin_poles", "check_poles", "natural_frequency_damping",
+    "design_json",
+    "link_speed",
+    "table1_parameters",
+    "DESIGN_BETA", "RIPPLE_PERIOD_RAD",
 ]

@@ -93,15 +93,15 @@ from iiwa_ident.design.spatial_filter import (
     SpatialFilter,
 )
 from iiwa_ident.excite import ClientState, velocity_filter_coefficient
-from iiwa_ident.excite.safety import LimitGuard
-from iiwa_ident.ident.correction import joint_position
-from iiwa_ident.ident.model_file import JointModel, RippleTable, table1_model
+from iiwa_ident.excite import LimitGuard
+from iiwa_ident.ident import joint_position
+from iiwa_ident.ident import JointModel, RippleTable, table1_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.references import square
 from iiwa_ident.robot import Command, Measurement
-from iiwa_ident.sim.agents import ImpedanceAgent
-from iiwa_ident.sim.joint import SimulatedJoint
-from iiwa_ident.sim.plant import Plant, default_plant
+from iiwa_ident.sim import ImpedanceAgent
+from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.sim import Plant, default_plant
 
 __all__ = [
     "TorqueControl",
@@ -241,7 +241,7 @@ def identified_model(plant: Plant | None = None, seed: int = 1, base: JointModel
     on the plant, never the plant's own truth.
     """
     from iiwa_ident.excite import ConstantVelocity, record
-    from iiwa_ident.ident.ripple import identify_ripple
+    from iiwa_ident.ident import identify_ripple
 
     ds = record(SimulatedJoint(plant or default_plant(), seed=seed), ConstantVelocity(speeds, range_rad=range_rad))
     res = identify_ripple([ds])

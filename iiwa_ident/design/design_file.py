@@ -99,7 +99,8 @@ from iiwa_ident.design.controller import (
 )
 from iiwa_ident.design.spatial_filter import DESIGN_BETA
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.model_file import PARAMETER_UNITS, JointModel, RippleTable
+from iiwa_ident.ident import JointModel, RippleTable
+from iiwa_ident.model import PARAMETER_UNITS
 from iiwa_ident.model import JointParameters, ParameterError
 
 __all__ = [

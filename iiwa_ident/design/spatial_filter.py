@@ -72,10 +72,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from iiwa_ident.ident.ripple import find_passes
+from iiwa_ident.ident import find_passes
 
 if TYPE_CHECKING:
-    from iiwa_ident.ident.model_file import JointModel
+    from iiwa_ident.ident import JointModel
 
 __all__ = [
     "RIPPLE_PERIOD_RAD",

@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.excite.scenarios import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
-from iiwa_ident.ident.model_file import JointModel, table1_model
+from iiwa_ident.excite import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
+from iiwa_ident.ident import JointModel, table1_model
 
 __all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
            "score_case", "run_case"]
@@ -187,7 +187,7 @@ def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, f
     model = case_model(case)
     fit_error: dict[str, float] = {}
     if fit:
-        from iiwa_ident.ident.joint_fit import fit_joint
+        from iiwa_ident.ident import fit_joint
 
         result = fit_joint(data[:1])
         fit_error = {k: v / case.dynamics[k] - 1.0 for k, v in result.parameters.items()}

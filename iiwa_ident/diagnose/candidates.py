@@ -55,8 +55,8 @@ from scipy import optimize, signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.lines import line_ratio
-from iiwa_ident.ident.model_file import JointModel, RippleTable
+from iiwa_ident.ident import line_ratio
+from iiwa_ident.ident import JointModel, RippleTable
 
 __all__ = [
     "Block",
@@ -393,7 +393,7 @@ class TransmissionRippleCandidate(CandidateEffect):
 
     def _identify(self, blocks) -> float:
         """The period by section III.B's identification (0.0: none found); it does not depend on the residual."""
-        from iiwa_ident.ident.ripple import identify_ripple
+        from iiwa_ident.ident import identify_ripple
 
         ctxs = {b.ctx.index: b.ctx for b in blocks}.values()
         p = next(iter(ctxs)).params

@@ -30,7 +30,7 @@ from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, b
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.model_file import JointModel
+from iiwa_ident.ident import JointModel
 
 __all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
 

@@ -54,7 +54,7 @@ import numpy as np
 from scipy import signal
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.ident.model_file import JointModel
+from iiwa_ident.ident import JointModel
 from iiwa_ident.model import polynomials
 
 __all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",

@@ -18,15 +18,37 @@ EXPERIMENTS
     Program class by dataset experiment name.
 """
 
-from iiwa_ident.excite._runner import ClientState, Experiment, record, velocity_filter_coefficient
+from iiwa_ident.excite._runner import (
+                                         ClientState,
+                                         Experiment,
+                                         record,
+                                         velocity_filter_coefficient,
+)
 from iiwa_ident.excite.chirp import Chirp
-from iiwa_ident.excite.multisine import Multisine, crest_factor, odd_lines, odd_multisine
-from iiwa_ident.excite.programs import ConstantVelocity, HandGuided, QuasiStatic, SineTorque, StepTorque
+from iiwa_ident.excite.multisine import (
+                                         Multisine,
+                                         crest_factor,
+                                         odd_lines,
+                                         odd_multisine,
+)
+from iiwa_ident.excite.programs import (
+                                         ConstantVelocity,
+                                         HandGuided,
+                                         QuasiStatic,
+                                         SineTorque,
+                                         StepTorque,
+)
 from iiwa_ident.excite.safety import LimitGuard
 
 EXPERIMENTS = {cls.name: cls for cls in (Chirp, Multisine, ConstantVelocity, QuasiStatic, HandGuided, StepTorque,
                                          SineTorque)}
 
+from iiwa_ident.excite.scenarios import (
+                                         HiddenEffectScenario,
+                                         draw_hidden_effects,
+                                         simulate_hidden_effects,
+)
+
 __all__ = ["record", "Experiment", "ClientState", "velocity_filter_coefficient", "Chirp", "Multisine",
            "odd_multisine", "odd_lines", "crest_factor", "ConstantVelocity",
-           "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS"]
+           "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS", "HiddenEffectScenario", "draw_hidden_effects", "simulate_hidden_effects"]

@@ -24,7 +24,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite._runner import ClientState, Experiment
 from iiwa_ident.references import sine, square
 from iiwa_ident.robot import Command, RobotInterface
-from iiwa_ident.sim.agents import ImpedanceAgent
+from iiwa_ident.sim import ImpedanceAgent
 
 __all__ = ["ConstantVelocity", "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "trapezoid_profile"]
 

@@ -60,9 +60,9 @@ from iiwa_ident.excite.chirp import Chirp
 from iiwa_ident.excite.multisine import Multisine
 from iiwa_ident.excite.programs import ConstantVelocity, HandGuided
 from iiwa_ident.model import resonance_hz
-from iiwa_ident.sim.effects import make_effect
-from iiwa_ident.sim.joint import SimulatedJoint
-from iiwa_ident.sim.plant import Plant, default_plant
+from iiwa_ident.sim import make_effect
+from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.sim import Plant, default_plant
 
 __all__ = ["NUISANCES", "RIPPLE_NUISANCES", "Scenario", "RippleScenario", "draw_scenario", "scenario_plant",
            "simulate_scenario", "simulate_scenario_multisine", "draw_ripple_scenario", "simulate_ripple_scenario",

@@ -159,7 +159,7 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite.programs import HandGuided
+from iiwa_ident.excite import HandGuided
 from iiwa_ident.fri.protocol import (
     MONITORING_MESSAGE_ID,
     N_JOINTS,
@@ -180,8 +180,8 @@ from iiwa_ident.fri.protocol import (
     message_problem,
 )
 from iiwa_ident.robot import Command, Measurement, joint_limits
-from iiwa_ident.sim.joint import SimulatedJoint
-from iiwa_ident.sim.plant import Plant, default_plant
+from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.sim import Plant, default_plant
 
 __all__ = [
     "DEFAULT_JOINT_POSITIONS",

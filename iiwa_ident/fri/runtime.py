@@ -54,9 +54,9 @@ import numpy as np
 
 from iiwa_ident._realtime import no_gc_pauses, realtime_process
 from iiwa_ident.datasets import LogWriter
-from iiwa_ident.deploy.config_file import ControllerConfig, controller_from_config
+from iiwa_ident.deploy import ControllerConfig, controller_from_config
 from iiwa_ident.model import MomentumObserver
-from iiwa_ident.design.spatial_filter import SpatialFilter
+from iiwa_ident.design import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.tasks import Task, TaskInput
 from iiwa_ident.robot import Command, Measurement, RobotInterface

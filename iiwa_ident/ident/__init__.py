@@ -1,5 +1,9 @@
 """Identification: the joint model file, the transfer-function fit and the ripple identification."""
 
+from iiwa_ident.ident.bla import BlaFit
+from iiwa_ident.ident.correction import joint_position, link_position
+from iiwa_ident.ident.joint_fit import METHODS, fit_joint, fit_model
+from iiwa_ident.ident.lines import line_ratio
 from iiwa_ident.ident.model_file import (
     JointModel,
     ModelError,
@@ -11,6 +15,14 @@ from iiwa_ident.ident.model_file import (
     table1_model,
     write_model,
 )
+from iiwa_ident.ident.ripple import (
+    PERIOD_MAX_RAD,
+    PERIOD_MIN_RAD,
+    RippleResult,
+    find_passes,
+    identify_ripple,
+)
+from iiwa_ident.ident.tf_fit import FitResult
 
 __all__ = ["JointModel", "ModelError", "Parameter", "RippleTable", "Source", "model_from_dict", "read_model",
-           "table1_model", "write_model"]
+           "table1_model", "write_model", "BlaFit", "joint_position", "link_position", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult"]

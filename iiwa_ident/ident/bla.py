@@ -252,7 +252,7 @@ class BlaFit:
 
     def to_json(self) -> dict:
         """The ``--json`` document (SI units, ``Td`` in s)."""
-        from iiwa_ident.ident.model_file import PARAMETER_UNITS
+        from iiwa_ident.model import PARAMETER_UNITS
         from iiwa_ident.model import PARAMETER_NAMES
 
         std = np.sqrt(np.diag(self.covariance))

@@ -68,7 +68,6 @@ __all__ = [
     "table1_model",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
-    "PARAMETER_UNITS",
 ]
 
 MODEL_FORMAT = "iiwa-ident-model"
@@ -210,7 +209,7 @@ class JointModel:
             plant = plant.with_effects(TransmissionRipple({"period_rad": self.ripple.period_rad,
                                                           "lut": np.asarray(self.ripple.lut).tolist()}))
         if self.effects:
-            from iiwa_ident.sim.effects import make_effect
+            from iiwa_ident.sim import make_effect
 
             plant = plant.with_effects(*[make_effect(e["name"], {k: v for k, v in e.items() if k != "name"})
                                          for e in self.effects])
@@ -306,7 +305,7 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
 def _effects(raw: Any, where: str) -> list[dict[str, Any]]:
     """Validate ``[[effects]]`` tables with the simulator's own effect classes."""
     from iiwa_ident.errors import PlantError
-    from iiwa_ident.sim.effects import make_effect
+    from iiwa_ident.sim import make_effect
 
     if not isinstance(raw, list):
         raise ModelError(f"{where}effects: expected a list of [[effects]] tables")

@@ -228,8 +228,8 @@ def _truth_dynamics(ctx: PipelineContext) -> dict[str, float] | None:
 
 
 def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.ident.joint_fit import fit_model
-    from iiwa_ident.ident.model_file import write_model
+    from iiwa_ident.ident import fit_model
+    from iiwa_ident.ident import write_model
 
     model, result = fit_model([ctx.path("chirp")])
     model.joint = ctx.plant.joint if ctx.target == "sim" else ctx.joint
@@ -281,9 +281,9 @@ def _stage_hand(ctx: PipelineContext) -> dict[str, Any]:
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
     from iiwa_ident.ident import RippleTable, Source, write_model
-    from iiwa_ident.ident.joint_fit import fit_model
-    from iiwa_ident.ident.model_file import model_from_dict
-    from iiwa_ident.ident.ripple import identify_ripple
+    from iiwa_ident.ident import fit_model
+    from iiwa_ident.ident import model_from_dict
+    from iiwa_ident.ident import identify_ripple
 
     base = ctx.results["model"]
     data = [ctx.results["cv"]] + ([ctx.results["qs"]] if "qs" in ctx.results else [])
@@ -328,9 +328,9 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
 
 
 def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.design.controller import design_controller, outer_loop_margins
-    from iiwa_ident.design.design_file import design_json, make_record, write_design
-    from iiwa_ident.design.spatial_filter import DESIGN_BETA
+    from iiwa_ident.design import design_controller, outer_loop_margins
+    from iiwa_ident.design import design_json, make_record, write_design
+    from iiwa_ident.design import DESIGN_BETA
     from iiwa_ident.model import JointParameters
 
     model = ctx.results["model_ripple"]
@@ -344,7 +344,7 @@ def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
                            "kappa_ratio": _num(margins.ratio), "beta": DESIGN_BETA}
     hand = ctx.results.get("hand")
     if hand is not None and hand.has("tau_ext_ref"):
-        from iiwa_ident.design.observers import compare_observers
+        from iiwa_ident.design import compare_observers
 
         obs = compare_observers(hand, model)
         write_atomic(ctx.path("observers_json"), json.dumps(_jsonable(obs), indent=2) + "\n")
@@ -375,7 +375,7 @@ def _jsonable(x: Any) -> Any:
 def _stage_deploy(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
     from iiwa_ident.deploy import deploy, write_config
-    from iiwa_ident.deploy.config_file import config_json
+    from iiwa_ident.deploy import config_json
 
     model = ctx.results["model_ripple"]
     config = deploy(ctx.results["design"], model.robot_model or ctx.robot_model, model.joint or ctx.joint,

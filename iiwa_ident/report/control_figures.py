@@ -15,7 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin  # noqa: E402
+from iiwa_ident.design import ClosedLoopRun, KappaMargin  # noqa: E402
 
 __all__ = ["tracking_figure", "pole_figure", "kappa_figure"]
 

@@ -9,14 +9,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from iiwa_ident.datasets import Dataset  # noqa: E402
-from iiwa_ident.design.observers import compare_observers, link_speed, observer_lag, run_observers  # noqa: E402
-from iiwa_ident.design.spatial_filter import (  # noqa: E402
+from iiwa_ident.design import compare_observers, link_speed, observer_lag, run_observers  # noqa: E402
+from iiwa_ident.design import (  # noqa: E402
     RIPPLE_PERIOD_RAD,
     SpatialFilter,
     ripple_line_cut,
     spatial_filter_response,
 )
-from iiwa_ident.ident.model_file import JointModel  # noqa: E402
+from iiwa_ident.ident import JointModel  # noqa: E402
 
 __all__ = ["spatial_filter_figure", "observer_figure"]
 

@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iiwa_ident.diagnose.diagnosis import Diagnosis  # noqa: E402
+from iiwa_ident.diagnose import Diagnosis  # noqa: E402
 
 __all__ = ["residuals_figure", "evidence_figure", "gain_table_figure", "figure_set"]
 

@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (after selecting the backend)
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from iiwa_ident.ident.tf_fit import FitResult
+from iiwa_ident.ident import FitResult
 from iiwa_ident.model import discretize
 from iiwa_ident.model import frequency_response
 

@@ -152,7 +152,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
             attempt(stage, lambda key=key: out.__setitem__(key, read_dataset(p[key])))
     if want & {"fit"} and "chirp" in out and usable("fit"):
         def fit() -> None:
-            from iiwa_ident.ident.joint_fit import fit_model
+            from iiwa_ident.ident import fit_model
 
             model, result = fit_model([p["chirp"]])
             out.update(model=model, fit=result)
@@ -161,7 +161,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
         attempt("ripple", lambda: out.__setitem__("model_ripple", read_model(p["model_ripple"])))
     if want & {"ripple"} and "cv" in out and "model_ripple" in out:
         def ripple() -> None:
-            from iiwa_ident.ident.ripple import identify_ripple
+            from iiwa_ident.ident import identify_ripple
 
             m = out["model_ripple"]
             data = [out["cv"]] + ([out["qs"]] if "qs" in out else [])
@@ -169,7 +169,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
         attempt("ripple", ripple)
     if want & {"design", "validation"} and p["design"].is_file() and usable("design"):
         def design() -> None:
-            from iiwa_ident.design.design_file import read_design
+            from iiwa_ident.design import read_design
 
             out["design"] = read_design(p["design"])
         attempt("design", design)
@@ -291,8 +291,8 @@ def _ripple_pages(r: dict[str, Any]) -> list[Page]:
 def _design_pages(r: dict[str, Any]) -> list[Page]:
     import numpy as np
 
-    from iiwa_ident.design.controller import builtin_poles
-    from iiwa_ident.design.paper import format_reproduction, paper_reproduction, table1_parameters
+    from iiwa_ident.design import builtin_poles
+    from iiwa_ident.design import format_reproduction, paper_reproduction, table1_parameters
     from iiwa_ident.report.control_figures import pole_figure
     from iiwa_ident.report.design_figures import observer_figure, spatial_filter_figure
 

@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iiwa_ident.ident.ripple import RippleResult  # noqa: E402
+from iiwa_ident.ident import RippleResult  # noqa: E402
 
 __all__ = ["spatial_spectrum_figure", "lookup_table_figure", "velocity_frequency_figure"]
 

@@ -10,6 +10,7 @@ SimulatedJoint, SimTrace, ExternalAgent
     The joint as the robot presents it through FRI (:mod:`iiwa_ident.sim.joint`).
 """
 
+from iiwa_ident.sim.agents import ImpedanceAgent
 from iiwa_ident.sim.effects import (
     EFFECTS,
     Effect,
@@ -38,4 +39,5 @@ __all__ = [
     "TorqueSensorScale", "PeriodicDisturbance", "InputDelay",
     "Plant", "default_plant", "load_plant", "plant_from_dict", "save_plant",
     "SimulatedJoint", "SimTrace", "ExternalAgent",
+    "ImpedanceAgent",
 ]
