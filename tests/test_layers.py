@@ -93,9 +93,9 @@ def test_every_part_has_a_layer():
         _layer(part)
 
 
-#: Packages whose ``__init__`` is their whole public API: other parts import them only as a package.
-#: (fri, pipeline and report are still imported by module.)
-PUBLIC_API = ("datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "model")
+#: Packages whose ``__init__`` is their public API: other parts import them only as a package.
+PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "pipeline",
+              "report")
 
 
 def test_packages_are_imported_through_their_public_api():

@@ -53,9 +53,9 @@ def diagnose_cmd(
         if json_out:
             write_json(json_out, result.as_json())
         if figures:
-            from iiwa_ident.report.diagnose_figures import figure_set
-
             import matplotlib.pyplot as plt
+
+            from iiwa_ident.report import figure_set
 
             figures.mkdir(parents=True, exist_ok=True)
             for name, fig in figure_set(result).items():

@@ -12,15 +12,16 @@ import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.fri.emulator import (
+from iiwa_ident.fri import (
     AGENTS,
+    ClientCommandMode,
+    ControlMode,
     EmulatorConfig,
     EmulatorReport,
     Faults,
     RobotEmulator,
+    parse_host_port,
 )
-from iiwa_ident.fri.connection import parse_host_port
-from iiwa_ident.fri.protocol import ClientCommandMode, ControlMode
 from iiwa_ident.sim import load_plant
 
 __all__ = ["emulate_cmd", "format_summary"]

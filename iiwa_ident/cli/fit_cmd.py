@@ -11,12 +11,8 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import BlaFit
-from iiwa_ident.ident import METHODS, fit_model
-from iiwa_ident.ident import write_model
-from iiwa_ident.model import PARAMETER_UNITS
-from iiwa_ident.ident import FitResult
-from iiwa_ident.model import PARAMETER_NAMES
+from iiwa_ident.ident import METHODS, BlaFit, FitResult, fit_model, write_model
+from iiwa_ident.model import PARAMETER_NAMES, PARAMETER_UNITS
 
 __all__ = ["fit_cmd", "format_fit", "format_bla_fit"]
 
@@ -181,7 +177,7 @@ def fit_cmd(
         json_doc = json_text(result.to_json()) if json_out else None
         pngs: dict[str, bytes] = {}
         if figures is not None:
-            from iiwa_ident.report.fit_figures import fit_figure_pngs
+            from iiwa_ident.report import fit_figure_pngs
 
             pngs = fit_figure_pngs(result)
         written = [write_model(out, joint_model)]

@@ -58,7 +58,7 @@ def pipeline_cmd(
       iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
     """
     from iiwa_ident.pipeline import format_summary, run_pipeline
-    from iiwa_ident.report.pdf import build_report
+    from iiwa_ident.report import build_report
 
     try:
         result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,

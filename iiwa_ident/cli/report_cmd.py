@@ -31,7 +31,7 @@ def report_cmd(
       iiwa-ident report --workdir run1
       iiwa-ident report --workdir run1 --stage ripple --out ripple.pdf
     """
-    from iiwa_ident.report.pdf import build_report
+    from iiwa_ident.report import build_report
 
     try:
         target = out or workdir / ("report.pdf" if stage is None else f"report_{stage}.pdf")

@@ -12,8 +12,17 @@ import typer
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import RippleTable, Source, read_model, table1_model, write_model
-from iiwa_ident.ident import PERIOD_MAX_RAD, PERIOD_MIN_RAD, RippleResult, identify_ripple
+from iiwa_ident.ident import (
+    PERIOD_MAX_RAD,
+    PERIOD_MIN_RAD,
+    RippleResult,
+    RippleTable,
+    Source,
+    identify_ripple,
+    read_model,
+    table1_model,
+    write_model,
+)
 
 __all__ = ["ripple_cmd", "format_ripple"]
 
@@ -122,7 +131,7 @@ def ripple_cmd(
         if json_out:
             write_json(json_out, result.to_json())
         if figures:
-            from iiwa_ident.report.ripple_figures import (
+            from iiwa_ident.report import (
                 lookup_table_figure,
                 spatial_spectrum_figure,
                 velocity_frequency_figure,

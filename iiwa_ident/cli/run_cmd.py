@@ -10,10 +10,16 @@ import typer
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.deploy import read_config
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.fri.connection import DEFAULT_PORT, parse_host_port
-from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.fri.runtime import RunReport, Watchdog, run_controller
-from iiwa_ident.fri.tasks import TASKS, make_task
+from iiwa_ident.fri import (
+    DEFAULT_PORT,
+    TASKS,
+    FriRobot,
+    RunReport,
+    Watchdog,
+    make_task,
+    parse_host_port,
+    run_controller,
+)
 from iiwa_ident.robot import RobotInterface
 from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
 

@@ -23,8 +23,7 @@ from iiwa_ident.excite import (
     StepTorque,
     record,
 )
-from iiwa_ident.fri.connection import parse_host_port
-from iiwa_ident.fri.robot import FriRobot
+from iiwa_ident.fri import FriRobot, parse_host_port
 from iiwa_ident.robot import RobotInterface
 from iiwa_ident.sim import EFFECTS, SimulatedJoint, default_plant, load_plant
 

@@ -8,8 +8,9 @@ Stage, StageRecord, STAGES, FILES
     The stage abstraction, its outcome, the stages in order, the file names.
 format_summary, read_pipeline_json
     The closing summary; ``pipeline.json`` of a work folder.
-run_validation, ValidationSettings
-    The closed-loop validation stage on its own: both controllers through FRI.
+run_validation, ValidationSettings, reference_of, oscillation_windows
+    The closed-loop validation stage on its own: both controllers through FRI; its reference and the
+    windows it judges oscillation on.
 """
 
 from iiwa_ident.pipeline.core import (
@@ -24,7 +25,13 @@ from iiwa_ident.pipeline.core import (
     read_pipeline_json,
     run_pipeline,
 )
-from iiwa_ident.pipeline.validation import ValidationSettings, run_validation
+from iiwa_ident.pipeline.validation import (
+    ValidationSettings,
+    oscillation_windows,
+    reference_of,
+    run_validation,
+)
 
 __all__ = ["FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
-           "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation"]
+           "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation",
+           "oscillation_windows", "reference_of"]

@@ -163,8 +163,7 @@ class PipelineContext:
             from iiwa_ident.sim import SimulatedJoint
 
             return SimulatedJoint(self.plant, seed=seed)
-        from iiwa_ident.fri.connection import parse_host_port
-        from iiwa_ident.fri.robot import FriRobot
+        from iiwa_ident.fri import FriRobot, parse_host_port
 
         host, port = parse_host_port(self.robot or "", self.port)
         return FriRobot(host, self.joint, self.robot_model, port=port, mode=mode)
@@ -228,8 +227,7 @@ def _truth_dynamics(ctx: PipelineContext) -> dict[str, float] | None:
 
 
 def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.ident import fit_model
-    from iiwa_ident.ident import write_model
+    from iiwa_ident.ident import fit_model, write_model
 
     model, result = fit_model([ctx.path("chirp")])
     model.joint = ctx.plant.joint if ctx.target == "sim" else ctx.joint
@@ -280,10 +278,14 @@ def _stage_hand(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import RippleTable, Source, write_model
-    from iiwa_ident.ident import fit_model
-    from iiwa_ident.ident import model_from_dict
-    from iiwa_ident.ident import identify_ripple
+    from iiwa_ident.ident import (
+        RippleTable,
+        Source,
+        fit_model,
+        identify_ripple,
+        model_from_dict,
+        write_model,
+    )
 
     base = ctx.results["model"]
     data = [ctx.results["cv"]] + ([ctx.results["qs"]] if "qs" in ctx.results else [])
@@ -328,9 +330,14 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
 
 
 def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.design import design_controller, outer_loop_margins
-    from iiwa_ident.design import design_json, make_record, write_design
-    from iiwa_ident.design import DESIGN_BETA
+    from iiwa_ident.design import (
+        DESIGN_BETA,
+        design_controller,
+        design_json,
+        make_record,
+        outer_loop_margins,
+        write_design,
+    )
     from iiwa_ident.model import JointParameters
 
     model = ctx.results["model_ripple"]
@@ -374,8 +381,7 @@ def _jsonable(x: Any) -> Any:
 
 def _stage_deploy(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.deploy import deploy, write_config
-    from iiwa_ident.deploy import config_json
+    from iiwa_ident.deploy import config_json, deploy, write_config
 
     model = ctx.results["model_ripple"]
     config = deploy(ctx.results["design"], model.robot_model or ctx.robot_model, model.joint or ctx.joint,
@@ -389,7 +395,7 @@ def _stage_deploy(ctx: PipelineContext) -> dict[str, Any]:
 
 
 def _stage_validation(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.fri.connection import parse_host_port
+    from iiwa_ident.fri import parse_host_port
     from iiwa_ident.pipeline.validation import run_validation
 
     record = ctx.results["design"]

@@ -30,9 +30,7 @@ from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.deploy import ControllerConfig
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import SineTorque, StepTorque, record
-from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.fri.runtime import Watchdog, run_controller
-from iiwa_ident.fri.tasks import make_task
+from iiwa_ident.fri import FriRobot, Watchdog, make_task, run_controller
 from iiwa_ident.references import sine, square
 from iiwa_ident.sim import Plant
 
@@ -265,7 +263,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         additive run: the runtime's median compute time per cycle [us], the
         one figure that depends on the machine).
     """
-    from iiwa_ident.fri.emulator import EmulatorConfig, spawn_emulator
+    from iiwa_ident.fri import EmulatorConfig, spawn_emulator
 
     outdir.mkdir(parents=True, exist_ok=True)
     s = settings

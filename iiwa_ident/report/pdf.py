@@ -129,7 +129,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
     """
     from iiwa_ident.datasets import read_dataset
     from iiwa_ident.ident import read_model
-    from iiwa_ident.pipeline.core import FILES
+    from iiwa_ident.pipeline import FILES
 
     out: dict[str, Any] = {"load_errors": {}}
     p = {k: workdir / v for k, v in FILES.items()}
@@ -188,7 +188,12 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
 # --------------------------------------------------------------------------- pages
 def _title_page(workdir: Path, doc: dict[str, Any] | None, stage: str | None) -> Page:
     def draw() -> plt.Figure:
-        from iiwa_ident.pipeline.core import FILES, format_summary, PipelineResult, StageRecord
+        from iiwa_ident.pipeline import (
+            FILES,
+            PipelineResult,
+            StageRecord,
+            format_summary,
+        )
 
         lines = []
         if doc is not None:
@@ -291,8 +296,12 @@ def _ripple_pages(r: dict[str, Any]) -> list[Page]:
 def _design_pages(r: dict[str, Any]) -> list[Page]:
     import numpy as np
 
-    from iiwa_ident.design import builtin_poles
-    from iiwa_ident.design import format_reproduction, paper_reproduction, table1_parameters
+    from iiwa_ident.design import (
+        builtin_poles,
+        format_reproduction,
+        paper_reproduction,
+        table1_parameters,
+    )
     from iiwa_ident.report.control_figures import pole_figure
     from iiwa_ident.report.design_figures import observer_figure, spatial_filter_figure
 
@@ -334,8 +343,11 @@ def _design_pages(r: dict[str, Any]) -> list[Page]:
 
 
 def _validation_pages(r: dict[str, Any], workdir: Path) -> list[Page]:
-    from iiwa_ident.pipeline.core import FILES
-    from iiwa_ident.report.validation_figures import kappa_margin_figure, tracking_run_figure
+    from iiwa_ident.pipeline import FILES
+    from iiwa_ident.report.validation_figures import (
+        kappa_margin_figure,
+        tracking_run_figure,
+    )
 
     v = r["validation"]
     folder = workdir / FILES["validation_dir"]
@@ -445,7 +457,7 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
     IiwaIdentError
         If the folder does not exist or the PDF cannot be written.
     """
-    from iiwa_ident.pipeline.core import read_pipeline_json
+    from iiwa_ident.pipeline import read_pipeline_json
 
     workdir = Path(workdir)
     out = Path(out)

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from iiwa_ident.datasets import read_dataset  # noqa: E402
-from iiwa_ident.pipeline.validation import oscillation_windows, reference_of  # noqa: E402
+from iiwa_ident.pipeline import oscillation_windows, reference_of  # noqa: E402
 
 __all__ = ["tracking_run_figure", "kappa_margin_figure", "parameter_table_figure"]
 
