@@ -255,7 +255,7 @@ def observer_lag(tau: np.ndarray, K_I: float, dt: float) -> np.ndarray:
     """What eq (13) would report with a perfect velocity: ``tau`` [Nm] through its own lag.
 
     With the exact link momentum, the discrete eq (13) of
-    :class:`~iiwa_ident.design.observer.MomentumObserver` reduces to
+    :class:`~iiwa_ident.model.MomentumObserver` reduces to
     ``tau_hat_{k+1} = tau_hat_k + K_I dt (tau_k - tau_hat_k)``, ``tau_hat_0 = 0``:
     a first-order lag of time constant ``1 / K_I`` [s].
     """
