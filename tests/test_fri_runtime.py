@@ -308,7 +308,7 @@ class TestFriConnection:
         assert tuple(answer.command_data.joint_position.value) == (0.1,) * 7
         with pytest.raises(SafetyStop, match="non-finite"):
             client.answer(msg, [0.1] * 7, [math.inf] + [0.0] * 6)
-        with pytest.raises(SafetyStop, match="7 joint"):
+        with pytest.raises(SafetyStop, match="6 values, expected 7"):
             client.answer(msg, [0.1] * 6, [0.0] * 6)
         with pytest.raises(SafetyStop, match="needs joint positions"):
             client.answer(msg)

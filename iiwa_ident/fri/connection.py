@@ -24,7 +24,6 @@ half of the message headers:
 
 from __future__ import annotations
 
-import math
 import select
 import socket
 import time
@@ -130,19 +129,17 @@ class FriConnection:
         Local UDP port to listen on (KUKA's default 30200).
     bind_host : str
         Local address to bind (all interfaces by default).
-    n_joints : int
-        Joints in every commanding answer (7 on the LBR iiwa).
     spin_s : float
         How long :meth:`receive` polls before it sleeps [s] (0: always sleep).
     """
 
-    def __init__(self, robot_host: str, port: int = DEFAULT_PORT, bind_host: str = "", n_joints: int = 7,
+    def __init__(self, robot_host: str, port: int = DEFAULT_PORT, bind_host: str = "", *,
                  spin_s: float = 0.0) -> None:
         try:
             self.robot_ip = socket.gethostbyname(robot_host)
         except OSError as err:
             raise IiwaIdentError(f"robot host {robot_host!r}: {err.strerror or err}") from None
-        self.port, self.n_joints, self.spin_s = int(port), int(n_joints), float(spin_s)
+        self.port, self.spin_s = int(port), float(spin_s)
         self.stats = ConnectionStats()
         self.sequence = 0  #: the client's next sequence counter
         self._last_seq: int | None = None
@@ -252,7 +249,8 @@ class FriConnection:
         Raises
         ------
         SafetyStop
-            If a commanding answer lacks a value per joint or holds a non-finite number.
+            If a commanding answer lacks a value per joint or holds a non-finite number
+            (:func:`~iiwa_ident.fri.protocol.message_problem`).
         """
         state = msg.connection_info.session_state if msg.HasField("connection_info") else SessionState.IDLE
         if state == SessionState.IDLE or self._reply_to is None:
@@ -263,14 +261,17 @@ class FriConnection:
         if state in COMMANDING_STATES:
             if joint_positions is None or joint_torques is None:
                 raise SafetyStop("FRI: a commanding answer needs joint positions and torques")
-            pos, tau = tuple(map(float, joint_positions)), tuple(map(float, joint_torques))
-            if len(pos) != self.n_joints or len(tau) != self.n_joints:
-                raise SafetyStop(f"FRI: a commanding answer needs {self.n_joints} joint positions and torques")
-            if not all(math.isfinite(v) for v in pos + tau):
-                raise SafetyStop("FRI: refusing to send a non-finite joint position or torque")
-            answer.command_data.joint_position.value[:] = pos
-            answer.command_data.joint_torque.value[:] = tau
-        self._sock.sendto(encode_command(answer), self._reply_to)
+            try:
+                answer.command_data.joint_position.value[:] = joint_positions
+                answer.command_data.joint_torque.value[:] = joint_torques
+            except TypeError:
+                raise SafetyStop("FRI: joint positions and torques must be numbers") from None
+        try:
+            # The protocol's checks (7 values per joint array, finite numbers) are the only ones in the loop.
+            data = encode_command(answer)
+        except ValueError as err:
+            raise SafetyStop(f"FRI: refusing to send: {err}") from None
+        self._sock.sendto(data, self._reply_to)
         self.last_compute_ns = time.perf_counter_ns() - self.rx_ns
         self.sequence += 1
         self.stats.sent += 1

@@ -40,7 +40,7 @@ import math
 import re
 from enum import IntEnum
 
-from google.protobuf.message import DecodeError, EncodeError
+from google.protobuf.message import DecodeError
 
 from iiwa_ident.fri import messages_pb2 as _pb
 
@@ -158,20 +158,18 @@ def message_problem(msg: MonitoringMessage | CommandMessage) -> str | None:
     """What is wrong with the content of a message, in one line, or None.
 
     Every joint array present must hold exactly :data:`N_JOINTS` finite
-    values, the drive states (if any) one per joint, the wrench at most
-    :data:`MAX_WRENCH_ELEMENTS` finite elements, the tracking performance a
+    values, the drive states (if any) one per joint, the wrench's elements
+    finite (its size is form, checked by the decoders and encoders), the tracking performance a
     finite number, and the joint count (if given) :data:`N_JOINTS`.
     """
     if isinstance(msg, CommandMessage):
         if not msg.HasField("command_data"):
             return None
         cd = msg.command_data
-        if cd.HasField("cartesian_wrench_feed_forward"):
-            wrench = cd.cartesian_wrench_feed_forward.element[:]
-            if len(wrench) > MAX_WRENCH_ELEMENTS:
-                return f"cartesian_wrench_feed_forward has {len(wrench)} elements, at most {MAX_WRENCH_ELEMENTS}"
-            if not all(map(math.isfinite, wrench)):
-                return "cartesian_wrench_feed_forward has a non-finite value"
+        # The wrench's size is part of the form (_form_problem), checked before this.
+        if cd.HasField("cartesian_wrench_feed_forward") and not all(
+                map(math.isfinite, cd.cartesian_wrench_feed_forward.element)):
+            return "cartesian_wrench_feed_forward has a non-finite value"
         return _arrays_problem(_present(cd, _COMMAND_ARRAYS))
     arrays = _present(msg.monitor_data, _MONITOR_ARRAYS) if msg.HasField("monitor_data") else []
     if msg.HasField("ipo_data"):
@@ -196,8 +194,10 @@ def _form_problem(msg: MonitoringMessage | CommandMessage, ident: int, kind: str
     if msg.header.message_identifier != ident:
         return (f"message identifier {msg.header.message_identifier:#x} is not a {kind} message"
                 f" (expected {ident:#x})")
-    if kind == "command" and len(msg.command_data.cartesian_wrench_feed_forward.element) > MAX_WRENCH_ELEMENTS:
-        return f"cartesian_wrench_feed_forward has more than {MAX_WRENCH_ELEMENTS} elements"
+    if kind == "command":
+        n = len(msg.command_data.cartesian_wrench_feed_forward.element)
+        if n > MAX_WRENCH_ELEMENTS:
+            return f"cartesian_wrench_feed_forward has {n} elements, at most {MAX_WRENCH_ELEMENTS}"
     return None
 
 
@@ -207,7 +207,7 @@ def _form_problem(msg: MonitoringMessage | CommandMessage, ident: int, kind: str
 def _decode(data: bytes, cls, ident: int, kind: str, check: bool):
     if not isinstance(data, bytes):
         try:
-            data = bytes(data)
+            data = memoryview(data).tobytes()  # any buffer (bytearray, memoryview, numpy), never an int's zeros
         except TypeError:
             raise FriDecodeError(f"a datagram is bytes, not {type(data).__name__}") from None
     if len(data) > MAX_DATAGRAM_BYTES:
@@ -229,10 +229,7 @@ def _encode(msg, cls, ident: int, kind: str) -> bytes:
     problem = _form_problem(msg, ident, kind) or message_problem(msg)
     if problem:
         raise ValueError(f"{kind} message: {problem}")
-    try:
-        data = msg.SerializeToString()
-    except EncodeError as err:  # pragma: no cover - IsInitialized was checked
-        raise ValueError(f"{kind} message: {err}") from None
+    data = msg.SerializeToString()  # cannot fail: IsInitialized was checked
     if len(data) > MAX_DATAGRAM_BYTES:
         raise ValueError(f"{kind} message of {len(data)} bytes, more than {MAX_DATAGRAM_BYTES}")
     return data

@@ -92,7 +92,7 @@ class FriRobot(RobotInterface):
         self.port, self.bind_host = int(port), bind_host
         self.connect_timeout_s, self.message_timeout_s = float(connect_timeout_s), float(message_timeout_s)
         # Listen from now on: the robot may already be sending, and a closed port makes it judge the link poor.
-        self.connection: FriConnection | None = FriConnection(host, self.port, bind_host, _N_JOINTS)
+        self.connection: FriConnection | None = FriConnection(host, self.port, bind_host)
         self.stats = self.connection.stats  # the connection's counters, kept after it is closed
         self._msg: MonitoringMessage | None = None
         self._cycles = 0  # robot cycles since COMMANDING_ACTIVE began

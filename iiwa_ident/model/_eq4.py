@@ -69,8 +69,8 @@ def coefficients(p: JointParameters, delay: str = "none") -> tuple[np.ndarray, n
     """
     if delay not in ("pade", "none"):
         raise ValueError("delay must be 'pade' or 'none'")
-    num = np.array([p.bc / p.Jc, p.K / p.Jc])
-    den = np.array([1.0, p.bc / p.Jc, p.K * (1.0 / p.Jl + 1.0 / p.Jc)])
+    num, den = polynomials(p, "command")
+    num, den = num / den[0], den / den[0]
     if delay == "pade":
         c1, c2 = pade_coefficients(p.Td)
         num, den = np.polymul([1.0, -c1, c2], num), np.polymul([1.0, c1, c2], den)

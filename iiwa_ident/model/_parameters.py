@@ -95,12 +95,12 @@ class JointParameters:
     @classmethod
     def from_model(cls, model) -> "JointParameters":
         """The parameters of anything with ``value(name)`` (a model file's joint model)."""
-        return cls(*(float(model.value(n)) for n in PARAMETER_NAMES))
+        return cls(*parameter_values(model))
 
     @classmethod
     def from_mapping(cls, values) -> "JointParameters":
         """The parameters of a mapping ``{"Jc": .., ...}`` [SI]."""
-        return cls(*(float(values[n]) for n in PARAMETER_NAMES))
+        return cls(*parameter_values(values))
 
     def as_dict(self) -> dict[str, float]:
         """``{"Jc": .., "bc": .., "K": .., "Jl": .., "Td": ..}`` in SI units."""

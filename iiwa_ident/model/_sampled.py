@@ -49,6 +49,13 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
     return Phi, G.reshape(B.shape)
 
 
+def split_delay(delay: float, T: float) -> tuple[int, float]:
+    """``delay = d T + tau``: whole samples ``d`` and the fraction ``0 <= tau < T`` [s] (0 within 1e-9 T)."""
+    d = int(math.floor(delay / T + 1e-9))
+    tau = max(delay - d * T, 0.0)
+    return d, (0.0 if tau < 1e-9 * T else tau)
+
+
 def delayed_hold(A: np.ndarray, B: np.ndarray, T: float, delay: float
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """``x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]`` for ``x' = A x + B u(t - delay)``, ``u`` held.
@@ -61,10 +68,9 @@ def delayed_hold(A: np.ndarray, B: np.ndarray, T: float, delay: float
     d : int
         Whole samples of the delay.
     """
-    d = int(math.floor(delay / T + 1e-9))
-    tau = max(delay - d * T, 0.0)
+    d, tau = split_delay(delay, T)
     Phi, G = zoh(A, B, T)
-    if tau < 1e-9 * T:
+    if tau == 0.0:
         return Phi, G, np.zeros_like(G), d
     Pa, Ga = zoh(A, B, T - tau)
     return Phi, Ga, Pa @ zoh(A, B, tau)[1], d
@@ -215,9 +221,7 @@ def discretize(params: Any, sample_time_s: float, input: str = "command") -> Dis
     Bm = Vi @ B
     Cm = C @ V
     Phi, g0, g1, d = delayed_hold(Ar, Bm[:2], T, Td)
-    tau = max(Td - d * T, 0.0)
-    if tau < 1e-9 * T:  # as delayed_hold: no fractional part
-        tau = 0.0
+    tau = split_delay(Td, T)[1]
     h0 = T - tau
     tr, det = Phi[0, 0] + Phi[1, 1], Phi[0, 0] * Phi[1, 1] - Phi[0, 1] * Phi[1, 0]
     P = tr * np.eye(2) - Phi  # adj(zI - Phi) = zI - P for 2x2 matrices
