@@ -10,6 +10,8 @@ run_observers, compare_observers, observer_lag
 HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
 PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius
     The additive torque controller of section V.B (:mod:`iiwa_ident.design.controller`).
+ControlCycle
+    Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
 DesignRecord, FilterSettings, DesignFileError, make_record, read_design, write_design
     The design file (:mod:`iiwa_ident.design.design_file`).
 paper_reproduction, format_reproduction
@@ -36,6 +38,7 @@ from iiwa_ident.design.controller import (
     natural_frequency_damping,
     outer_loop_margins,
 )
+from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.design_file import (
     DesignFileError,
     DesignRecord,
@@ -80,7 +83,7 @@ __all__ = [
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
     "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",
-    "ClosedLoopRun", "KappaMargin",
+    "ClosedLoopRun", "KappaMargin", "ControlCycle",
     "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "SAMPLE_TIME_S", "builtin_poles", "check_poles", "natural_frequency_damping",
     "design_json",
     "link_speed",

@@ -87,6 +87,7 @@ from iiwa_ident.design.controller import (
     design_controller,
     kappa_max,
 )
+from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.spatial_filter import (
     DESIGN_BETA,
     RIPPLE_PERIOD_RAD,
@@ -173,11 +174,12 @@ class BuiltinTorqueControl(TorqueControl):
 
 
 class AdditiveTorqueControl(TorqueControl):
-    """The additive controller of section V.B on the spatially filtered joint torque.
+    """The additive controller of section V.B: the runtime's :class:`~iiwa_ident.design.cycle.ControlCycle`.
 
     Per cycle: ``theta_j`` from the motor position by eq (8) (if a ripple
     table is given, else ``q_m``), ``tau_J,filt`` by the spatial filter of
-    eqs (10)-(12) and (15), then eqs (16)-(18) give ``tau_c``.
+    eqs (10)-(12) and (15) relative to the first cycle's torque, then eqs
+    (16)-(18) give ``tau_c`` (zero in the first cycle, as on the robot).
 
     Parameters
     ----------
@@ -199,9 +201,7 @@ class AdditiveTorqueControl(TorqueControl):
                  v_min: float = 0.2, ripple: RippleTable | None = None, dt: float = 1e-3) -> None:
         self.design = design
         self.ripple = ripple
-        self.filter = SpatialFilter(period_rad, beta=beta, v_min=v_min, dt=dt)
-        self.controller = AdditiveController(design)
-        self.tau_j_filt = 0.0  #: the filtered joint torque of the last cycle [Nm]
+        self.cycle = ControlCycle(AdditiveController(design), period_rad, beta, v_min, dt, ripple)
 
     @classmethod
     def from_model(cls, model: JointModel, design: AdditiveDesign | None = None, beta: float = DEFAULT_BETA,
@@ -212,15 +212,16 @@ class AdditiveTorqueControl(TorqueControl):
         period = model.ripple.period_rad if model.ripple is not None else RIPPLE_PERIOD_RAD
         return cls(design, period, beta, v_min, model.ripple, design.sample_time_s)
 
+    @property
+    def tau_j_filt(self) -> float:
+        """The filtered joint torque of the last cycle [Nm]."""
+        return self.cycle.tau_j_filt
+
     def reset(self) -> None:
-        self.filter.reset()
-        self.controller.reset()
-        self.tau_j_filt = 0.0
+        self.cycle.reset()
 
     def command(self, tau_r: float, meas: Measurement) -> float:
-        theta = float(joint_position(meas.q_m, self.ripple))  # eq (8): the filter runs along theta_j
-        self.tau_j_filt = self.filter.step(meas.tau_j, theta)  # eq (15)
-        return self.controller.step(tau_r, self.tau_j_filt)  # eqs (16)-(18)
+        return self.cycle.step(meas, tau_r)
 
 
 def make_controller(kind: str, model: JointModel, design: AdditiveDesign | None = None,

@@ -2,14 +2,11 @@
 
 Per cycle, for the controlled joint (:meth:`ControllerRuntime.cycle`):
 
-1. position correction, eqs (8)-(9): ``theta_j = q_m - f(q_m)``,
-   ``theta_l = theta_j - tau_J / K``;
-2. spatial filter of the joint torque along ``theta_j``, eqs (10)-(12), (15);
-3. improved external-torque observer, eq (13) on the link velocity of
-   eq (9), spatially filtered, eq (14);
-4. the task's reference ``tau_r``, limited in rate and size;
-5. the additive controller, eqs (16)-(18);
-6. the watchdog / shutdown scale, then limits on torque rate and torque,
+1. eqs (8)-(15) of the one control cycle, :class:`~iiwa_ident.design.ControlCycle`
+   (position correction, spatial filter, improved observer);
+2. the task's reference ``tau_r``, limited in rate and size;
+3. the additive controller, eqs (16)-(18), again by the control cycle;
+4. the watchdog / shutdown scale, then limits on torque rate and torque,
    and a last check that the number is finite.
 
 :func:`run_controller` drives the cycle against any
@@ -21,10 +18,9 @@ and SIGTERM.
 
 Choices
 -------
-* Torque offset: the controller's model (eqs (19)-(21)) starts at rest with
-  zero torque, so the runtime regulates ``tau_J`` relative to its value at
-  the first cycle (gravity on a joint whose load does not change during the
-  run, sensor offset). For a joint whose gravity load changes with the
+* Torque offset: the control cycle regulates ``tau_J`` relative to its value
+  at the first cycle (gravity on a joint whose load does not change during
+  the run, sensor offset). For a joint whose gravity load changes with the
   motion, command that joint's gravity model on top.
 * Watchdog: when ``watchdog_cycles`` (default 3) or more robot messages in a
   row were lost, or arrived that late, the additive torque ramps to zero
@@ -55,8 +51,7 @@ import numpy as np
 from iiwa_ident._realtime import no_gc_pauses, realtime_process
 from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy import ControllerConfig, controller_from_config
-from iiwa_ident.model import MomentumObserver
-from iiwa_ident.design import SpatialFilter
+from iiwa_ident.design import ControlCycle
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.tasks import Task, TaskInput
 from iiwa_ident.robot import Command, Measurement, RobotInterface
@@ -139,25 +134,25 @@ class ControllerRuntime:
         self._tau_max, self._ref_max = lim.torque_nm, lim.reference_nm
         self._dtau_max, self._dref_max = lim.torque_rate_nm_s * self.dt, lim.reference_rate_nm_s * self.dt
         self._v_max = lim.velocity_rad_s
-        self._ripple = config.ripple
-        self._K = config.K
         f = config.filter
-        self.torque_filter = SpatialFilter(f.period_rad, beta=f.beta, v_min=f.v_min_rad_s, dt=self.dt)
-        self.observer_filter = SpatialFilter(f.period_rad, beta=f.beta, v_min=f.v_min_rad_s, dt=self.dt)
-        self.observer = MomentumObserver(config.KI, config.Jl, self.dt)
-        self.controller = controller_from_config(config)
+        self.control = ControlCycle(controller_from_config(config), f.period_rad, f.beta, f.v_min_rad_s, self.dt,
+                                    config.ripple, config.K, config.KI, config.Jl)
         self.stop_reason = ""  #: why the output is ramping out ("" while running)
         self._shutdown = 1.0  # scale of the shutdown ramp
-        self._started = False
+        self._ref_prev = 0.0
         self._input = TaskInput(0.0, 0.0, 0.0)  # updated in place each cycle
         # Last cycle's values, for the log.
-        self.tau_c = self.tau_r = self.tau_j_filt = self.tau_ext = 0.0
+        self.tau_c = self.tau_r = 0.0
 
-    # ------------------------------------------------------------------
-    def _theta(self, q_m: float, tau_j: float) -> tuple[float, float]:
-        """theta_j of eq (8) and theta_l of eq (9) [rad]."""
-        theta_j = q_m - self._ripple.at(q_m) if self._ripple is not None else q_m
-        return theta_j, theta_j - tau_j / self._K
+    @property
+    def tau_j_filt(self) -> float:
+        """The last cycle's filtered joint torque, offset removed [Nm]."""
+        return self.control.tau_j_filt
+
+    @property
+    def tau_ext(self) -> float:
+        """The last cycle's filtered external-torque estimate [Nm]."""
+        return self.control.tau_ext
 
     def request_stop(self, reason: str) -> None:
         """Ramp the additive torque out and end the run (the first reason is kept)."""
@@ -171,17 +166,8 @@ class ControllerRuntime:
 
     def _restart(self, meas: Measurement) -> None:
         """Start (or restart after a watchdog trip) from rest at this measurement."""
-        self.tau_offset = meas.tau_j
-        theta_j, theta_l = self._theta(meas.q_m, meas.tau_j)
-        self._theta_l_prev = theta_l
-        self.torque_filter.reset()
-        self.observer_filter.reset()
-        self.observer.reset()
-        self.controller.reset()
+        self.control.restart(meas)
         self._ref_prev = 0.0
-        self.torque_filter.step(0.0, theta_j)
-        self.observer_filter.step(0.0, theta_j)
-        self._started = True
 
     def cycle(self, meas: Measurement, gap_cycles: float = 1.0) -> float:
         """One cycle: measurement -> additive torque to send [Nm] (finite, within the limits).
@@ -193,24 +179,19 @@ class ControllerRuntime:
         gap_cycles : float
             Robot cycles since the previous measurement (1 when none was lost or late).
         """
-        if not self._started:
+        control = self.control
+        if not control.started:
             self._restart(meas)
             self.tau_c = 0.0
             return 0.0
-        dt = self.dt
-        theta_j, theta_l = self._theta(meas.q_m, meas.tau_j)
-        tau = meas.tau_j - self.tau_offset
-        self.tau_j_filt = self.torque_filter.step(tau, theta_j)  # eq (15)
-        v_l = (theta_l - self._theta_l_prev) / (dt * max(gap_cycles, 1.0))
-        self._theta_l_prev = theta_l
-        self.tau_ext = self.observer_filter.step(self.observer.update(v_l, tau), theta_j)  # eqs (13)-(14)
-        if abs(self.torque_filter.speed) > self._v_max:
-            self.request_stop(f"joint speed {self.torque_filter.speed:.3g} rad/s above the limit {self._v_max:.3g}")
+        control.observe(meas, gap_cycles)  # eqs (8)-(15)
+        if abs(control.speed) > self._v_max:
+            self.request_stop(f"joint speed {control.speed:.3g} rad/s above the limit {self._v_max:.3g}")
 
         if self.watchdog.update(meas.t, gap_cycles):
             self._restart(meas)
         task_in = self._input
-        task_in.t, task_in.theta_j, task_in.tau_ext = meas.t, theta_j, self.tau_ext
+        task_in.t, task_in.theta_j, task_in.tau_ext = meas.t, control.theta_j, control.tau_ext
         ref = self.task.reference(task_in)
         if not math.isfinite(ref):
             self.request_stop("the task gave a non-finite reference")
@@ -219,10 +200,10 @@ class ControllerRuntime:
         ref = min(max(ref, self._ref_prev - self._dref_max), self._ref_prev + self._dref_max)
         ref = min(max(ref, -self._ref_max), self._ref_max)
         self._ref_prev = self.tau_r = ref
-        out = self.controller.step(ref, self.tau_j_filt)  # eqs (16)-(18)
+        out = control.command(ref)  # eqs (16)-(18)
         if not math.isfinite(out):
             self.request_stop("the controller gave a non-finite torque")
-            self.controller.reset()
+            control.controller.reset()
             out = 0.0
         if self.stop_reason:
             self._shutdown = max(0.0, self._shutdown - self.watchdog.step_per_cycle)
