@@ -93,8 +93,7 @@ from iiwa_ident.design.spatial_filter import (
     RIPPLE_PERIOD_RAD,
     SpatialFilter,
 )
-from iiwa_ident.excite import ClientState, velocity_filter_coefficient
-from iiwa_ident.excite import LimitGuard
+from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
 from iiwa_ident.ident import joint_position
 from iiwa_ident.ident import JointModel, RippleTable, table1_model
 from iiwa_ident.model import JointParameters
@@ -241,7 +240,7 @@ def identified_model(plant: Plant | None = None, seed: int = 1, base: JointModel
     The table is what a user would get from :func:`~iiwa_ident.ident.ripple.identify_ripple`
     on the plant, never the plant's own truth.
     """
-    from iiwa_ident.excite import ConstantVelocity, record
+    from iiwa_ident.excite import ConstantVelocity
     from iiwa_ident.ident import identify_ripple
 
     ds = record(SimulatedJoint(plant or default_plant(), seed=seed), ConstantVelocity(speeds, range_rad=range_rad))
@@ -297,6 +296,31 @@ class ClosedLoopRun:
         return float(self.t[1] - self.t[0]) if len(self.t) > 1 else 1e-3
 
 
+class _ClosedLoop(Experiment):
+    """A torque controller under the analysis' reference and position hold, as an experiment program."""
+
+    name = "free"
+
+    def __init__(self, controller: TorqueControl, reference: Callable[[float], float], duration_s: float,
+                 hold_stiffness: float, hold_damping: float, kappa: float, agent: ImpedanceAgent | None) -> None:
+        self.controller, self.reference, self.duration_s = controller, reference, float(duration_s)
+        self.hold_stiffness, self.hold_damping, self.kappa, self._agent = hold_stiffness, hold_damping, kappa, agent
+        self.r: list[float] = []  # per cycle, beside the recorded signals
+        self.tau_r: list[float] = []
+
+    def agent(self, q0: float) -> ImpedanceAgent | None:
+        return self._agent
+
+    def command(self, s: ClientState) -> Command:
+        r = self.reference(s.t)
+        tau_r = r - self.hold_stiffness * (s.q - s.q0) - self.hold_damping * s.v
+        if self.kappa != 0.0:
+            tau_r += self.kappa * s.meas.tau_ext_ref
+        self.r.append(r)
+        self.tau_r.append(tau_r)
+        return Command(tau_c=self.controller.command(tau_r, s.meas))
+
+
 def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: Callable[[float], float],
                     duration_s: float, *, seed: int = 0, hold_stiffness: float = 30.0, hold_damping: float = 10.0,
                     kappa: float = 0.0, agent: ImpedanceAgent | None = None, model: JointModel | None = None,
@@ -304,7 +328,8 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
     """Run ``controller`` on a simulated joint for ``duration_s``.
 
     ``tau_r = r(t) - hold_stiffness (q - q0) - hold_damping v + kappa tau_ext_ref``
-    each cycle, commands pass the :class:`~iiwa_ident.excite.safety.LimitGuard`.
+    each cycle, commands pass the :class:`~iiwa_ident.excite.safety.LimitGuard`; the loop is
+    :func:`~iiwa_ident.excite.record`'s, as for every experiment (after a stop it brakes the joint).
 
     Parameters
     ----------
@@ -335,38 +360,15 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
         ``tau_j_filt`` holds the spatially filtered tau_J (eq (15)).
     """
     robot = SimulatedJoint(plant or default_plant(), seed=seed)
-    robot.set_agent(agent)
-    guard = LimitGuard(robot.limits)
-    dt = robot.sample_time_s
-    n = int(round(duration_s / dt))
-    alpha = velocity_filter_coefficient(dt)
     controller.reset()
-    out = np.full((n, 7), np.nan)
-    stopped = ""
-    meas = robot.start()
-    state = ClientState(t=0.0, q=meas.q_m, v=0.0, q0=meas.q_m, meas=meas)
-    q_prev = meas.q_m
-    k = 0
-    for k in range(n):
-        r = reference(state.t)
-        tau_r = r - hold_stiffness * (state.q - state.q0) - hold_damping * state.v
-        if kappa != 0.0:
-            tau_r += kappa * meas.tau_ext_ref
-        tau_c = controller.command(tau_r, meas)
-        cmd, reason = guard.filter(Command(tau_c=tau_c), state)
-        out[k] = (state.t, r, tau_r, cmd.tau_c, meas.tau_j, meas.q_m,
-                  np.nan if meas.tau_ext_ref is None else meas.tau_ext_ref)
-        if reason:
-            stopped = reason
-            k -= 1
-            break
-        meas = robot.step(cmd)
-        v_raw = (meas.q_m - q_prev) / dt
-        q_prev = meas.q_m
-        state = ClientState(t=meas.t, q=meas.q_m, v=state.v + alpha * (v_raw - state.v), q0=state.q0, meas=meas)
-    robot.stop()
-    out = out[:k + 1]
-    run = ClosedLoopRun(controller.kind, *out.T, stopped=stopped)
+    loop = _ClosedLoop(controller, reference, duration_s, hold_stiffness, hold_damping, kappa, agent)
+    ds = record(robot, loop, guard=LimitGuard(robot.limits))  # the one loop driver of every experiment
+    sig = ds.signals
+    n = len(sig["t"])
+    tau_ext_ref = sig.get("tau_ext_ref", np.full(n, np.nan))
+    run = ClosedLoopRun(controller.kind, sig["t"], np.array(loop.r[:n]), np.array(loop.tau_r[:n]), sig["tau_c"],
+                        sig["tau_j"], sig["q_m"], tau_ext_ref, stopped=ds.experiment_attrs.get("stopped_reason", ""))
+    dt = robot.sample_time_s
     ripple = model.ripple if model is not None else getattr(controller, "ripple", None)
     period = ripple.period_rad if ripple is not None else RIPPLE_PERIOD_RAD
     theta = np.asarray(joint_position(run.q_m, ripple), float)
