@@ -54,15 +54,15 @@ def test_the_controller_sees_the_filtered_torque_at_rest():
 
 
 def test_the_observer_finds_a_static_external_torque():
-    # Link at rest: eq (13) settles at tau_ext = -(tau_J - offset), with time constant 1/K_I.
-    K_I = 25.0
-    c = _cycle(K=PARAMS.K, K_I=K_I, J_l=PARAMS.Jl)
+    # Link at rest: eq (13) settles at tau_ext = -(tau_J - offset), with time constant 1/KI.
+    KI = 25.0
+    c = _cycle(K=PARAMS.K, KI=KI, Jl=PARAMS.Jl)
     c.step(Measurement(0.0, 0.0, 0.5, 0.0), 0.0)
     n = 400
     for k in range(1, n):
         c.observe(Measurement(k * 1e-3, 0.0, 3.5, 0.0))
-    assert c.tau_ext == pytest.approx(-3.0, abs=3.0 * np.exp(-K_I * 0.3))
-    assert _cycle().tau_ext == 0.0  # no observer without K, K_I and J_l
+    assert c.tau_ext == pytest.approx(-3.0, abs=3.0 * np.exp(-KI * 0.3))
+    assert _cycle().tau_ext == 0.0  # no observer without K, KI and Jl
 
 
 def test_restart_forgets_the_past():

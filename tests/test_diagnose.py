@@ -26,7 +26,7 @@ PAPER_RHO = 0.01963
 SINGLE = {
     "transmission_ripple": ({"period_rad": 0.02, "harmonics": [[5e-5, 0.4]]},
                             {"period_rad": 0.02, "amplitude_rad": 5e-5}),
-    "link_friction": ({"coulomb_nm": 1.5, "viscous_nms_rad": 2.0}, {"coulomb_nm": 1.5, "viscous_nms": 2.0}),
+    "link_friction": ({"coulomb_nm": 1.5, "viscous_nms_rad": 2.0}, {"coulomb_nm": 1.5, "viscous_nms_rad": 2.0}),
     "position_dependent_load": ({"amplitude_nm": 6.0, "phase_rad": 0.7, "compensated": 1.0},
                                 {"amplitude_nm": 6.0, "phase_rad": 0.7}),
     "torque_sensor_offset": ({"offset_nm": -0.8}, {"offset_nm": -0.8}),

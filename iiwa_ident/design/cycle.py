@@ -48,10 +48,10 @@ class ControlCycle:
     ripple : RippleTable, optional
         Lookup table of eq (8) (``theta_j = q_m`` without one).
     K : float, optional
-        Joint stiffness of eq (9) [Nm/rad]; with ``K_I`` and ``J_l`` it enables the observer.
-    K_I : float, optional
+        Joint stiffness of eq (9) [Nm/rad]; with ``KI`` and ``Jl`` it enables the observer.
+    KI : float, optional
         Observer gain of eq (13) [1/s].
-    J_l : float, optional
+    Jl : float, optional
         Link inertia of eq (13) [kg m^2].
 
     Examples
@@ -70,14 +70,14 @@ class ControlCycle:
 
     def __init__(self, controller: AdditiveController, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = 5.0,
                  v_min: float = 0.2, dt: float = 1e-3, ripple: RippleTable | None = None, K: float | None = None,
-                 K_I: float | None = None, J_l: float | None = None) -> None:
+                 KI: float | None = None, Jl: float | None = None) -> None:
         self.controller = controller
         self.ripple = ripple
         self.dt = float(dt)
         self.torque_filter = SpatialFilter(period_rad, beta=beta, v_min=v_min, dt=dt)
-        with_observer = K is not None and K_I is not None and J_l is not None
+        with_observer = K is not None and KI is not None and Jl is not None
         self._K = float(K) if K is not None else None
-        self.observer = MomentumObserver(K_I, J_l, dt) if with_observer else None
+        self.observer = MomentumObserver(KI, Jl, dt) if with_observer else None
         self.observer_filter = SpatialFilter(period_rad, beta=beta, v_min=v_min, dt=dt) if with_observer else None
         self.started = False
         self.tau_offset = 0.0  #: tau_J at the (re)start [Nm]

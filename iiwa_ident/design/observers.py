@@ -1,7 +1,7 @@
 """The three external-torque observers of section IV, behind one interface.
 
 All three are the momentum observer of eq (13),
-``tau_ext_hat = K_I [ J_l v - int (tau_J + tau_ext_hat) dt - J_l v(0) ]``,
+``tau_ext_hat = KI [ Jl v - int (tau_J + tau_ext_hat) dt - Jl v(0) ]``,
 and differ in the velocity ``v`` they use and in what follows:
 
 ``builtin`` (:class:`BuiltinObserver`)
@@ -18,13 +18,13 @@ Each offers :meth:`~ExternalTorqueObserver.update` (one sample, for a 1 kHz
 loop) and :meth:`~ExternalTorqueObserver.run` (a whole record, same numbers).
 The velocity needs two positions, so the first sample only stores the
 position and returns 0 (``tau_ext_hat(0) = 0``); the momentum observer
-starts at the second sample with ``p(0) = J_l v_1``, so a record that
+starts at the second sample with ``p(0) = Jl v_1``, so a record that
 starts in motion gives no start transient.
 
 :func:`compare_observers` scores the three against the F/T reference of a
 hand-guided record (Fig. 7). Eq (13) reaches the external torque only
-through its first-order lag ``K_I / (s + K_I)`` (time constant 1 / K_I =
-40 ms at K_I = 25 rad/s), an error common to the three variants and large while
+through its first-order lag ``KI / (s + KI)`` (time constant 1 / KI =
+40 ms at KI = 25 rad/s), an error common to the three variants and large while
 a hand pushes against the controlled damping; so besides the error against
 the raw reference the table gives the error against the reference passed
 through that lag, which is what the improvements of section IV can reduce.
@@ -95,9 +95,9 @@ class ExternalTorqueObserver:
         if dt <= 0:
             raise ValueError("observer: dt must be positive")
         self.model, self.dt = model, float(dt)
-        self.K, self.J_l, self.K_I = model.value("K"), model.value("Jl"), model.value("KI")
+        self.K, self.Jl, self.KI = model.value("K"), model.value("Jl"), model.value("KI")
         self.table = model.ripple
-        self._momentum = MomentumObserver(self.K_I, self.J_l, self.dt)
+        self._momentum = MomentumObserver(self.KI, self.Jl, self.dt)
         self.reset()
 
     # -- what a subclass decides ---------------------------------------------
@@ -157,7 +157,7 @@ class ExternalTorqueObserver:
         x = np.asarray(self.position(q_m, tau_j), float)
         v = np.diff(x) / self.dt
         tm = np.broadcast_to(np.asarray(tau_model, float), q_m.shape)[1:]
-        est = MomentumObserver(self.K_I, self.J_l, self.dt).filter(v, tau_j[1:], tm)
+        est = MomentumObserver(self.KI, self.Jl, self.dt).filter(v, tau_j[1:], tm)
         return self._post_batch(np.concatenate([[0.0], est]), q_m)
 
 
@@ -251,15 +251,15 @@ def run_observers(dataset: Dataset, model: JointModel, beta: float = 5.0, v_min:
     return out
 
 
-def observer_lag(tau: np.ndarray, K_I: float, dt: float) -> np.ndarray:
+def observer_lag(tau: np.ndarray, KI: float, dt: float) -> np.ndarray:
     """What eq (13) would report with a perfect velocity: ``tau`` [Nm] through its own lag.
 
     With the exact link momentum, the discrete eq (13) of
     :class:`~iiwa_ident.model.MomentumObserver` reduces to
-    ``tau_hat_{k+1} = tau_hat_k + K_I dt (tau_k - tau_hat_k)``, ``tau_hat_0 = 0``:
-    a first-order lag of time constant ``1 / K_I`` [s].
+    ``tau_hat_{k+1} = tau_hat_k + KI dt (tau_k - tau_hat_k)``, ``tau_hat_0 = 0``:
+    a first-order lag of time constant ``1 / KI`` [s].
     """
-    a = K_I * dt
+    a = KI * dt
     return lfilter([0.0, a], [1.0, -(1.0 - a)], np.asarray(tau, float))
 
 

@@ -19,8 +19,15 @@ feature library of sparse regression): it knows
   torque signature is hundredths of a Nm). The selection judges it by the
   same held-out tests as the residual channels (:mod:`~iiwa_ident.diagnose.select`).
 
-A new effect is one subclass decorated with :func:`register_candidate`;
-selection, diagnosis, report and CLI pick it up unchanged.
+The physics of every candidate but the model's own parameters is the plant
+effect of the same name (:mod:`iiwa_ident.sim.effects`): its regressors,
+the coefficients of a known effect, the values an estimate extends a model
+with and the parameters it reports. A candidate adds only what the
+diagnosis needs beyond the effect: the search for its nonlinear parameters,
+the freer shapes of its family, plausibility, and evidence of its own. A
+new effect is one plant effect and one candidate subclass decorated with
+:func:`register_candidate`; selection, diagnosis, report and CLI pick it up
+unchanged.
 
 Conventions of the reported parameters (JSON ``parameters``):
 
@@ -28,7 +35,7 @@ transmission_ripple
     ``period_rad`` rho [rad] and ``amplitude_rad``, the half peak-to-peak of
     the fitted deflection f(theta_m mod rho) [rad] (as ``iiwa-ident ripple``).
 link_friction
-    ``tau = -coulomb_nm sign(omega_l) - viscous_nms omega_l`` [Nm, Nm s/rad].
+    ``tau = -coulomb_nm sign(omega_l) - viscous_nms_rad omega_l`` [Nm, Nm s/rad].
 position_dependent_load
     ``tau = amplitude_nm sin(theta_l + phase_rad)`` acting on the link, with
     amplitude >= 0 and the phase in (-pi, pi].
@@ -55,8 +62,9 @@ from scipy import optimize, signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import line_ratio
-from iiwa_ident.ident import JointModel, RippleTable
+from iiwa_ident.ident import JointModel, RippleTable, line_ratio
+from iiwa_ident.sim import Column, Effect, EffectSignals, PeriodicDisturbance, TransmissionRipple, make_effect
+from iiwa_ident.sim import own_dataset_columns
 
 __all__ = [
     "Block",
@@ -79,10 +87,6 @@ __all__ = [
     "MODEL_PARAMETER_RELEVANT",
     "MODEL_PARAMETER_RELEVANT_TD_S",
 ]
-
-#: One column: ``(injection point, signal)`` pairs, all scaled by the same coefficient.
-Column = list[tuple[str, np.ndarray]]
-
 
 class Block:
     """One residual channel of one dataset, as the selection sees it.
@@ -181,9 +185,21 @@ class CandidateEffect:
     #: Parameters found by search rather than least squares (counted by the information criterion).
     n_nonlinear: ClassVar[int] = 0
 
+    #: Whether the candidate is the plant effect of its name (:attr:`effect`); False for the model's own parameters.
+    is_effect: ClassVar[bool] = True
+
     def __init__(self) -> None:
         self.n_datasets = 0
         self.detail: dict[str, Any] = {}
+        #: The plant effect at the current nonlinear parameters (defaults until found).
+        self.effect: Effect | None = self._default_effect() if self.is_effect else None
+
+    def _default_effect(self) -> Effect:
+        return make_effect(self.name)
+
+    def signals(self, ctx: Context) -> EffectSignals:
+        """The dataset's signals as the effects' regressors take them (the wide-band link velocity)."""
+        return EffectSignals(ctx.t, ctx.q_m, ctx.theta_l, ctx.omega_fast, ctx.tau, ctx.index, max(self.n_datasets, 1))
 
     # -- structure ---------------------------------------------------------
     def n_columns(self) -> int:
@@ -199,17 +215,17 @@ class CandidateEffect:
         return True
 
     def columns(self, ctx: Context) -> list[Column]:
-        """The effect's columns for one dataset (exactly :meth:`n_columns` of them)."""
-        raise NotImplementedError
+        """The effect's columns for one dataset (exactly :meth:`n_columns` of them): the plant effect's."""
+        return self.effect.columns(self.signals(ctx))
 
     # -- results -------------------------------------------------------------
     def parameters(self, coef: np.ndarray) -> dict[str, float]:
-        """The reported parameters (module docstring) from fitted coefficients."""
-        raise NotImplementedError
+        """The reported parameters (module docstring) from fitted coefficients: the plant effect's."""
+        return self.effect.reported(coef)
 
     def extend(self, model: JointModel, coef: np.ndarray) -> None:
-        """Add the effect with these coefficients to ``model`` (in place)."""
-        raise NotImplementedError
+        """Add the effect with these coefficients to ``model`` (in place), brought into the plant-file ranges."""
+        self._replace_effect(model, self.effect.clip(self.effect.values_from(coef)))
 
     def plausible(self, coef: np.ndarray) -> bool:
         """Whether fitted coefficients describe a physically possible effect (default: always)."""
@@ -234,8 +250,14 @@ class CandidateEffect:
         return ""
 
     def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
-        """Coefficients of an effect the model already has (plant-effect values), or None."""
-        return None
+        """Coefficients of an effect the model already has (plant-effect values), or None.
+
+        The candidate takes the effect's nonlinear parameters from ``values``.
+        """
+        if self.effect is None:
+            return None
+        self.effect = make_effect(self.name, values)
+        return self.effect.coefficients()
 
     def evidence(self, blocks: Sequence[Block]) -> EvidenceChannel | None:
         """The effect's own evidence channel at its current nonlinear parameters (after :meth:`prepare`).
@@ -285,13 +307,6 @@ def _search_1d(fn: Callable[[float], float], grid: np.ndarray) -> float:
     return float(res.x) if res.fun <= values[i] else float(grid[i])
 
 
-def _own_dataset(ctx: Context, n_datasets: int, injection: str, signals: Sequence[np.ndarray]) -> list[Column]:
-    """Columns with coefficients of each dataset's own: ``signals`` in ``ctx``'s slot, zeros in the others'
-    (recordings share no time origin, so a time-periodic or drifting effect has a phase or start of each)."""
-    zero = np.zeros_like(ctx.t)
-    return [[(injection, x if i == ctx.index else zero)] for i in range(n_datasets) for x in signals]
-
-
 def _sse_of(blocks: Sequence[Block], residuals: Sequence[np.ndarray], columns, n: int) -> float:
     Xs = block_columns(blocks, columns, n)
     return block_sse(Xs, residuals)[0]
@@ -337,6 +352,9 @@ class TransmissionRippleCandidate(CandidateEffect):
         self._found: float | None = None
         self._passes: list = []
         self._false_alarm: float | None = None
+
+    def _default_effect(self) -> Effect:
+        return TransmissionRipple.shape(TransmissionRipple.params[0].default, self.harmonics)
 
     def n_columns(self) -> int:
         return 2 * self.harmonics
@@ -413,15 +431,15 @@ class TransmissionRippleCandidate(CandidateEffect):
         return float(r.period_rad)
 
     def columns(self, ctx):
-        x = 2 * np.pi * ctx.q_m / self.period
-        return [[("deflection", fn(k * x))] for k in range(1, self.harmonics + 1) for fn in (np.cos, np.sin)]
+        return TransmissionRipple.shape(self.period, self.harmonics).columns(self.signals(ctx))
 
     free_shape = "harmonics 1-6 of the period"
 
     def free_columns(self, ctx):
-        x = 2 * np.pi * ctx.q_m / self.period
-        return self.columns(ctx) + [[("deflection", fn(k * x))] for k in range(self.harmonics + 1, 7)
-                                    for fn in (np.cos, np.sin)]
+        return TransmissionRipple.shape(self.period, 6).columns(self.signals(ctx))  # the own three first
+
+    def from_values(self, values):
+        return None  # the model's deflection is its ripple table, corrected on the motor position already
 
     def _series(self, coef: np.ndarray, bins: int = 256) -> np.ndarray:
         x = 2 * np.pi * np.arange(bins) / bins
@@ -431,8 +449,7 @@ class TransmissionRippleCandidate(CandidateEffect):
         return lut
 
     def parameters(self, coef):
-        lut = self._series(coef)
-        return {"period_rad": float(self.period), "amplitude_rad": float(np.ptp(lut) / 2)}
+        return TransmissionRipple.shape(self.period, self.harmonics).reported(coef)
 
     def extend(self, model, coef):
         lut = self._series(coef)
@@ -455,29 +472,22 @@ class TransmissionRippleCandidate(CandidateEffect):
 
 @register_candidate
 class LinkFrictionCandidate(CandidateEffect):
-    """Coulomb and viscous friction on the link: ``-F_c tanh(omega_l / v_s) - F_v omega_l``."""
+    """Coulomb and viscous friction on the link: ``-F_c tanh(omega_l / v_s) - F_v omega_l`` (the plant effect's
+    shape without its Stribeck term)."""
 
     name = "link_friction"
     summary = "link Coulomb + viscous friction"
-    smoothing_rad_s = 0.005
 
     def n_columns(self):
         return 2
-
-    def columns(self, ctx):
-        w = ctx.omega_fast
-        return [[("link", -np.tanh(w / self.smoothing_rad_s))], [("link", -w)]]
 
     free_shape = "Coulomb, viscous, breakaway at 0.01, 0.03, 0.1 and 0.3 rad/s, and quadratic drag"
 
     def free_columns(self, ctx):
         w = ctx.omega_fast
-        sign = np.tanh(w / self.smoothing_rad_s)
+        sign = np.tanh(w / self.effect.values["smoothing_rad_s"])
         return self.columns(ctx) + [[("link", -sign * np.exp(-(w / vs) ** 2))] for vs in (0.01, 0.03, 0.1, 0.3)] \
             + [[("link", -w * np.abs(w))]]
-
-    def parameters(self, coef):
-        return {"coulomb_nm": float(coef[0]), "viscous_nms": float(coef[1])}
 
     def plausible(self, coef):
         # Friction dissipates: a clearly negative level is some other misfit.
@@ -489,16 +499,6 @@ class LinkFrictionCandidate(CandidateEffect):
             return ("friction that falls with speed (negative viscous slope): breakaway (Stribeck) friction, "
                     "which the Coulomb-plus-viscous shape does not have")
         return ""
-
-    def from_values(self, values):
-        self.smoothing_rad_s = float(values.get("smoothing_rad_s", self.smoothing_rad_s))
-        return np.array([values.get("coulomb_nm", 2.0), values.get("viscous_nms_rad", 1.0)], float)
-
-    def extend(self, model, coef):
-        # The plant effect accepts non-negative levels only; a negative fit is clipped (and reported as fitted).
-        self._replace_effect(model, {"coulomb_nm": float(np.clip(coef[0], 0, 200)),
-                                     "viscous_nms_rad": float(np.clip(coef[1], 0, 500)),
-                                     "smoothing_rad_s": self.smoothing_rad_s})
 
     def evidence_axis(self, ctx):
         return ctx.omega_l, "link velocity [rad/s]"
@@ -520,38 +520,15 @@ class PositionDependentLoadCandidate(CandidateEffect):
     def n_columns(self):
         return 4
 
-    def columns(self, ctx):
-        th, tm = ctx.theta_l, ctx.q_m
-        return [[("link", np.sin(th))], [("link", np.cos(th))], [("command", np.sin(tm))], [("command", np.cos(tm))]]
-
     free_shape = "harmonics 1-3 of the link angle"
 
     def free_columns(self, ctx):
         th = ctx.theta_l
         return self.columns(ctx) + [[("link", fn(k * th))] for k in (2, 3) for fn in (np.sin, np.cos)]
 
-    def _values(self, coef) -> dict[str, float]:
-        a, b = float(coef[0]), float(coef[1])
-        amp = math.hypot(a, b)
-        phase = math.atan2(b, a)
-        norm = a * a + b * b
-        comp = 1.0 if norm == 0 or (coef[2] == 0 and coef[3] == 0) else -(a * coef[2] + b * coef[3]) / norm
-        return {"amplitude_nm": amp, "phase_rad": phase, "compensated": float(np.clip(comp, 0.0, 1.0))}
-
-    def parameters(self, coef):
-        v = self._values(coef)
-        return {"amplitude_nm": v["amplitude_nm"], "phase_rad": v["phase_rad"]}
-
-    def from_values(self, values):
-        A, ph, c = values.get("amplitude_nm", 10.0), values.get("phase_rad", 0.0), values.get("compensated", 1.0)
-        a, b = A * math.cos(ph), A * math.sin(ph)
-        return np.array([a, b, -c * a, -c * b])
-
     def extend(self, model, coef):
-        v = self._values(coef)
-        v["amplitude_nm"] = min(v["amplitude_nm"], 1000.0)
-        self._replace_effect(model, v)
-        self.detail["compensated"] = v["compensated"]
+        super().extend(model, coef)
+        self.detail["compensated"] = self.effect.values_from(coef)["compensated"]
 
     def evidence_axis(self, ctx):
         return ctx.theta_l, "link position [rad]"
@@ -569,22 +546,11 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
     def n_columns(self):
         return 1
 
-    def columns(self, ctx):
-        return [[("sensor", np.ones_like(ctx.t))]]
-
     free_shape = "an offset and a drift of its own in each dataset"
 
     def free_columns(self, ctx):
-        return self.columns(ctx) + _own_dataset(ctx, self.n_datasets, "sensor", [np.ones_like(ctx.t), ctx.t - ctx.t[0]])
-
-    def parameters(self, coef):
-        return {"offset_nm": float(coef[0])}
-
-    def from_values(self, values):
-        return np.array([values.get("offset_nm", 0.5)], float)
-
-    def extend(self, model, coef):
-        self._replace_effect(model, {"offset_nm": float(np.clip(coef[0], -50, 50))})
+        return self.columns(ctx) + own_dataset_columns(self.signals(ctx), "sensor",
+                                                       [np.ones_like(ctx.t), ctx.t - ctx.t[0]])
 
 
 @register_candidate
@@ -604,25 +570,9 @@ class TorqueSensorScaleCandidate(CandidateEffect):
     def n_columns(self):
         return 1
 
-    def columns(self, ctx):
-        return [[("reading_scale", ctx.tau)]]
-
-    def _scale(self, coef) -> float:
-        return 1.0 / (1.0 - float(coef[0]))
-
-    def parameters(self, coef):
-        return {"scale": self._scale(coef)}
-
     def plausible(self, coef):
         # A torque sensor off by more than a factor 1.5 is not a calibration error.
-        return coef[0] < 1 and 0.67 <= self._scale(coef) <= 1.5
-
-    def from_values(self, values):
-        s = float(values.get("scale", 1.02))
-        return np.array([(s - 1) / s])
-
-    def extend(self, model, coef):
-        self._replace_effect(model, {"scale": float(np.clip(self._scale(coef), 0.5, 2.0))})
+        return coef[0] < 1 and 0.67 <= self.effect.values_from(coef)["scale"] <= 1.5
 
     def evidence_axis(self, ctx):
         return ctx.tau, "measured joint torque [Nm]"
@@ -642,9 +592,16 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
     summary = "time-periodic torque-reading disturbance"
     n_nonlinear = 1
 
-    def __init__(self) -> None:
-        super().__init__()
-        self.frequency = 0.0
+    @property
+    def frequency(self) -> float:
+        """The disturbance's frequency [Hz] (the effect's)."""
+        return self.effect.values["frequency_hz"]
+
+    @frequency.setter
+    def frequency(self, f: float) -> None:
+        # Not range checked: the plant file's range is the simulator's band, a log's may be wider.
+        self.effect = PeriodicDisturbance()
+        self.effect.values["frequency_hz"] = float(f)
 
     def n_columns(self):
         return 2 * self.n_datasets
@@ -682,36 +639,14 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
         self.frequency = _search_1d(sse, f0 + np.linspace(-span, span, 13))
         return True
 
-    def _harmonic(self, ctx: Context, k: int) -> list[Column]:
-        w = 2 * np.pi * k * self.frequency * (ctx.t - ctx.t[0])
-        return _own_dataset(ctx, self.n_datasets, "sensor", [np.sin(w), np.cos(w)])
-
-    def columns(self, ctx):
-        return self._harmonic(ctx, 1)
-
     free_shape = "harmonics 1-3 of the frequency"
 
     def free_columns(self, ctx):
-        return self.columns(ctx) + self._harmonic(ctx, 2) + self._harmonic(ctx, 3)
-
-    def _amp_phase(self, coef) -> tuple[np.ndarray, np.ndarray]:
-        c = np.asarray(coef).reshape(-1, 2)
-        return np.hypot(c[:, 0], c[:, 1]), np.arctan2(c[:, 1], c[:, 0])
-
-    def parameters(self, coef):
-        amp, _ = self._amp_phase(coef)
-        amp = amp[amp > 0]
-        return {"frequency_hz": float(self.frequency), "amplitude_nm": float(np.median(amp)) if len(amp) else 0.0}
+        sig = self.signals(ctx)
+        return self.columns(ctx) + self.effect.harmonic_columns(sig, 2) + self.effect.harmonic_columns(sig, 3)
 
     def from_values(self, values):
-        self.frequency = float(values.get("frequency_hz", 50.0))
-        A, ph = float(values.get("amplitude_nm", 0.2)), float(values.get("phase_rad", 0.0))
-        return np.tile([A * math.cos(ph), A * math.sin(ph)], self.n_datasets)
-
-    def extend(self, model, coef):
-        amp, phase = self._amp_phase(coef)
-        self._replace_effect(model, {"amplitude_nm": float(np.clip(self.parameters(coef)["amplitude_nm"], 0, 50)),
-                                     "frequency_hz": float(self.frequency), "phase_rad": float(phase[0])})
+        return np.tile(super().from_values(values), self.n_datasets)
 
     def evidence_axis(self, ctx):
         period = 1.0 / self.frequency
@@ -752,6 +687,7 @@ class ModelParametersCandidate(CandidateEffect):
     name = "model_parameters"
     summary = "the model's own parameters Jc, bc, K, Jl, Td are off"
     n_nonlinear = 5
+    is_effect = False
 
     def __init__(self) -> None:
         super().__init__()

@@ -388,17 +388,17 @@ def simulate_ripple_scenario(sc: RippleScenario) -> list[Dataset]:
 #: Ranges the hidden effects of :func:`draw_hidden_effects` are drawn from (plant-effect names; SI units).
 HIDDEN_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "transmission_ripple": {"period_rad": (0.008, 0.05), "amplitude_rad": (2.5e-5, 8e-5)},
-    "link_friction": {"coulomb_nm": (0.5, 3.0), "viscous_nms": (0.5, 3.0)},
+    "link_friction": {"coulomb_nm": (0.5, 3.0), "viscous_nms_rad": (0.5, 3.0)},
     "position_dependent_load": {"amplitude_nm": (2.0, 10.0), "phase_rad": (-math.pi, math.pi)},
     "torque_sensor_offset": {"offset_nm": (0.3, 2.0)},  # either sign
     "torque_sensor_scale": {"scale": (0.03, 0.10)},  # |scale - 1|, either sign
     "periodic_disturbance": {"frequency_hz": (8.0, 90.0), "amplitude_nm": (0.1, 0.5)},
-    "input_delay": {"delay_s": (0.001, 0.003)},  # extra delay on top of the joint's Td
+    "input_delay": {"extra_s": (0.001, 0.003)},  # extra delay on top of the joint's Td
 }
 
 #: Wider ranges of the harder draws (``shapes=True``).
 HIDDEN_LARGE_RANGES: dict[str, dict[str, tuple[float, float]]] = {
-    "link_friction": {"coulomb_nm": (0.5, 6.0), "viscous_nms": (0.5, 3.0)},
+    "link_friction": {"coulomb_nm": (0.5, 6.0), "viscous_nms_rad": (0.5, 3.0)},
     "position_dependent_load": {"amplitude_nm": (2.0, 40.0), "phase_rad": (-math.pi, math.pi)},
 }
 
@@ -464,7 +464,7 @@ def draw_hidden_effects(seed: int, n_effects: int | None = None, *, shapes: bool
                 harmonics.append([float(extra.uniform(0.2, 0.5)) * A, float(extra.uniform(0, 2 * np.pi))])
             sc.hidden[name] = {"period_rad": r["period_rad"], "harmonics": harmonics}
         elif name == "link_friction":
-            sc.hidden[name] = {"coulomb_nm": r["coulomb_nm"], "viscous_nms_rad": r["viscous_nms"]}
+            sc.hidden[name] = {"coulomb_nm": r["coulomb_nm"], "viscous_nms_rad": r["viscous_nms_rad"]}
             if other:
                 sc.hidden[name].update(stribeck_nm=float(extra.uniform(0.2, 0.5)) * r["coulomb_nm"],
                                        stribeck_velocity_rad_s=float(extra.uniform(0.01, 0.1)))
@@ -486,7 +486,7 @@ def draw_hidden_effects(seed: int, n_effects: int | None = None, *, shapes: bool
                     sc.hidden[name].update({f"harmonic{k}_nm": float(extra.uniform(0.2, 0.5)) * r["amplitude_nm"],
                                             f"harmonic{k}_phase_rad": float(extra.uniform(-np.pi, np.pi))})
         elif name == "input_delay":
-            sc.hidden[name] = {"extra_s": r["delay_s"]}
+            sc.hidden[name] = {"extra_s": r["extra_s"]}
     return sc
 
 

@@ -254,18 +254,21 @@ def _smooth_basis(t: np.ndarray, knot_spacing: float) -> np.ndarray:
 
 
 def _pass_deflection(t: np.ndarray, q: np.ndarray, tau: np.ndarray, q_l: np.ndarray | None, K: float,
-                     Jl: float, f_cut: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     Jl: float | None, f_cut: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Deflection estimate, high-passed torque and nuisance basis of one pass.
 
     ``q - tau/K - theta_l`` with theta_l the measured link position (static)
     or the double integral of tau/J_l (dynamic: the link's own motion under
-    the joint torque, eq (2)); whatever is slow in time (integration
+    the joint torque, eq (2); zero when ``Jl`` is None, the link's motion
+    neglected); whatever is slow in time (integration
     constants, friction, gravity, the tracking controller) lies in the span
     of a cubic spline with knots 1/f_cut apart, which is projected out. It
     passes every period shorter than the search limit essentially untouched.
     """
     Q, _ = np.linalg.qr(_smooth_basis(t, 1.0 / f_cut))
-    if q_l is None:
+    if q_l is None and Jl is None:
+        theta_l = np.zeros_like(q)
+    elif q_l is None:
         tc = t - t[0]
         acc = (tau - tau.mean()) / Jl
         vel = np.r_[0.0, np.cumsum(0.5 * (acc[1:] + acc[:-1]) * np.diff(tc))]
@@ -305,7 +308,7 @@ def _spread_repeated_stamps(t: np.ndarray) -> np.ndarray:
 
 
 def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: float, min_speed: float,
-               min_travel: float, method: str | None = None) -> list[Pass]:
+               min_travel: float, method: str | None = None, link_motion: str = "restored") -> list[Pass]:
     """The passes of one dataset with their deflection estimates.
 
     Parameters
@@ -324,6 +327,9 @@ def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: fl
         Shortest pass kept [rad].
     method : str, optional
         Force ``"static"`` or ``"dynamic"`` (default: static for quasi_static runs).
+    link_motion : str
+        Dynamic method: ``"restored"`` (the link's own motion from the torque and ``Jl``, eq (2))
+        or ``"neglected"`` (theta_l taken as constant over the pass).
     """
     t, q, tau = _spread_repeated_stamps(dataset["t"]), dataset["q_m"], dataset["tau_j"]
     if method is None:
@@ -338,8 +344,8 @@ def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: fl
         speed = float(np.median(np.diff(q[i0:i1]) / np.diff(t[i0:i1])))
         longest = min(period_max, abs(q[i1 - 1] - q[i0]) / 2)
         f_cut = 0.5 * abs(speed) / longest
-        f, th, Q = _pass_deflection(t[i0:i1], q[i0:i1], tau[i0:i1], None if q_l is None else q_l[i0:i1], K, Jl,
-                                    f_cut)
+        f, th, Q = _pass_deflection(t[i0:i1], q[i0:i1], tau[i0:i1], None if q_l is None else q_l[i0:i1], K,
+                                    Jl if link_motion == "restored" else None, f_cut)
         out.append(Pass(index, method, speed, q[i0:i1], f, t[i0:i1], th, Q, longest))
     return out
 
@@ -798,7 +804,8 @@ class _Candidate:
     period_std: float = math.inf
     #: Why the line found is not a detection although it is significant ('' when it is one).
     not_decided: str = ""
-    link_inertia: float = math.inf
+    #: How the dynamic method treated the link's own motion: ``"restored"`` or ``"neglected"``.
+    link_motion: str = "neglected"
 
     def refine(self, harmonics: int) -> None:
         """Pick the fundamental of the harmonic family and refine its period by a grouped, weighted Fourier fit."""
@@ -828,7 +835,7 @@ class _Candidate:
         self.period_std = std if math.isfinite(std) else math.inf
 
 
-def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, period_max: float, min_speed: float,
+def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, Jl: float, period_max: float, min_speed: float,
                   min_travel: float, false_alarm: float) -> str:
     """Why ``c``'s line is a harmonic of a period beyond ``period_max`` ('' when it is not).
 
@@ -839,7 +846,7 @@ def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, period_max: 
     """
     passes: list[Pass] = []
     for i, ds in enumerate(datasets):
-        passes += deflection(ds, i, K, c.link_inertia, 3.0 * c.period, min_speed, min_travel)
+        passes += deflection(ds, i, K, Jl, 3.0 * c.period, min_speed, min_travel, link_motion=c.link_motion)
     if not passes:
         return ""
     span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
@@ -1005,20 +1012,21 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
     # jackknife error) is kept.
     if link_motion not in ("auto", "restored", "neglected"):
         raise IiwaIdentError(f"ripple: link_motion must be auto, restored or neglected, got {link_motion!r}")
-    inertias = {"auto": (Jl, math.inf), "restored": (Jl,), "neglected": (math.inf,)}[link_motion]
+    motions = ("restored", "neglected") if link_motion == "auto" else (link_motion,)
     candidates = []
-    for link_inertia in inertias:
+    for motion in motions:
         passes: list[Pass] = []
         for i, ds in enumerate(datasets):
-            passes += deflection(ds, i, K, link_inertia, period_max, min_speed, min_travel=4.0 * period_min)
+            passes += deflection(ds, i, K, Jl, period_max, min_speed, min_travel=4.0 * period_min,
+                                 link_motion=motion)
         if not passes:
             names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
             raise IiwaIdentError(f"{names}: no stretch of constant-speed motion (at least {min_speed} rad/s over "
                                  f"{4 * period_min:g} rad) to identify a position-periodic deflection from")
         dynamic = any(p.method == "dynamic" for p in passes)
-        name = ("restored" if math.isfinite(link_inertia) else "neglected") if dynamic else "measured"
+        name = motion if dynamic else "measured"
         candidates.append(_Candidate(name, passes, _line_search(passes, period_min, period_max),
-                                     link_inertia=link_inertia))
+                                     link_motion=motion))
         if not dynamic:
             break  # static passes only: the link is measured, nothing to choose
     for c in candidates:
@@ -1026,7 +1034,7 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
             c.refine(max_harmonics)
     for c in candidates:
         if c.period is not None and 2.0 * c.period > period_max:
-            beyond = _beyond_range(datasets, c, K, period_max, min_speed, 4.0 * period_min, false_alarm)
+            beyond = _beyond_range(datasets, c, K, Jl, period_max, min_speed, 4.0 * period_min, false_alarm)
             if beyond:
                 c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]

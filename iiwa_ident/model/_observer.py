@@ -1,7 +1,7 @@
 """External-torque observer of eq (13) (generalised-momentum disturbance observer).
 
-``tau_ext_hat(t) = K_I [ p(t) - int_0^t (tau_J + tau_model + tau_ext_hat) dt - p(0) ]``
-with ``p = J_l * velocity``. The robot's built-in observer feeds it the
+``tau_ext_hat(t) = KI [ p(t) - int_0^t (tau_J + tau_model + tau_ext_hat) dt - p(0) ]``
+with ``p = Jl * velocity``. The robot's built-in observer feeds it the
 motor-side velocity; ``tau_model`` is the torque the robot's own model
 assigns to the link (gravity), zero for a joint without one.
 
@@ -22,16 +22,16 @@ class MomentumObserver:
 
     Parameters
     ----------
-    K_I : float
+    KI : float
         Observer gain [rad/s] (25 on the iiwa).
-    J_l : float
+    Jl : float
         Link inertia [kg m^2].
     dt : float
         Sample time [s].
     """
 
-    def __init__(self, K_I: float, J_l: float, dt: float) -> None:
-        self.K_I, self.J_l, self.dt = float(K_I), float(J_l), float(dt)
+    def __init__(self, KI: float, Jl: float, dt: float) -> None:
+        self.KI, self.Jl, self.dt = float(KI), float(Jl), float(dt)
         self.reset()
 
     def reset(self) -> None:
@@ -41,20 +41,20 @@ class MomentumObserver:
 
     def update(self, velocity: float, tau_j: float, tau_model: float = 0.0) -> float:
         """One sample: link velocity [rad/s], joint torque [Nm], model torque [Nm] -> estimate [Nm]."""
-        p = self.J_l * velocity
+        p = self.Jl * velocity
         if self._p0 is None:
             self._p0 = p
-        tau_hat = self.K_I * (p - self._p0 - self._S)
+        tau_hat = self.KI * (p - self._p0 - self._S)
         self._S += self.dt * (tau_j + tau_model + tau_hat)
         return tau_hat
 
     def filter(self, velocity: np.ndarray, tau_j: np.ndarray, tau_model: np.ndarray | float = 0.0) -> np.ndarray:
         """The estimate for whole arrays (same result as :meth:`update` sample by sample, from reset)."""
         velocity = np.asarray(velocity, float)
-        p = self.J_l * velocity
-        a = self.K_I * (p - p[0])
+        p = self.Jl * velocity
+        a = self.KI * (p - p[0])
         drive = self.dt * (np.asarray(tau_j, float) + tau_model + a)
-        # S_{k+1} = (1 - K_I dt) S_k + drive_k, S_0 = 0  ->  S_k is the filter output delayed by one.
-        S_next = lfilter([1.0], [1.0, -(1.0 - self.K_I * self.dt)], drive)
+        # S_{k+1} = (1 - KI dt) S_k + drive_k, S_0 = 0  ->  S_k is the filter output delayed by one.
+        S_next = lfilter([1.0], [1.0, -(1.0 - self.KI * self.dt)], drive)
         S = np.concatenate([[0.0], S_next[:-1]])
-        return a - self.K_I * S
+        return a - self.KI * S

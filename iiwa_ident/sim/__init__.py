@@ -5,7 +5,8 @@ Public API
 Plant, load_plant, default_plant, save_plant, plant_from_dict
     The plant description and its TOML file format (:mod:`iiwa_ident.sim.plant`).
 Effect, EFFECTS, register_effect, make_effect and the effect classes
-    Switchable plant effects (:mod:`iiwa_ident.sim.effects`).
+    Switchable plant effects, the simulator's hooks and the estimators' regressors in one class each
+    (:mod:`iiwa_ident.sim.effects`; EffectSignals, Column, INJECTIONS, own_dataset_columns).
 SimulatedJoint, SimTrace, ExternalAgent
     The joint as the robot presents it through FRI (:mod:`iiwa_ident.sim.joint`).
 """
@@ -13,7 +14,10 @@ SimulatedJoint, SimTrace, ExternalAgent
 from iiwa_ident.sim.agents import ImpedanceAgent
 from iiwa_ident.sim.effects import (
     EFFECTS,
+    INJECTIONS,
+    Column,
     Effect,
+    EffectSignals,
     InputDelay,
     LinkFriction,
     PeriodicDisturbance,
@@ -22,6 +26,7 @@ from iiwa_ident.sim.effects import (
     TorqueSensorScale,
     TransmissionRipple,
     make_effect,
+    own_dataset_columns,
     register_effect,
 )
 from iiwa_ident.sim.joint import ExternalAgent, SimTrace, SimulatedJoint
@@ -34,7 +39,8 @@ from iiwa_ident.sim.plant import (
 )
 
 __all__ = [
-    "EFFECTS", "Effect", "register_effect", "make_effect",
+    "EFFECTS", "Effect", "register_effect", "make_effect", "EffectSignals", "Column", "INJECTIONS",
+    "own_dataset_columns",
     "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "TorqueSensorOffset",
     "TorqueSensorScale", "PeriodicDisturbance", "InputDelay",
     "Plant", "default_plant", "load_plant", "plant_from_dict", "save_plant",

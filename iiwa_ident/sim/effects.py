@@ -22,11 +22,32 @@ Hooks (all optional; the default contributes nothing):
 
 ``P`` maps each parameter name to a casadi expression (scalar, or a vector
 for list parameters), so one compiled simulator serves every parameter value.
+
+The same class supplies the estimators (the way one feature library both
+simulates and fits): the effect written as regressors that are linear in
+its coefficients, at its nonlinear parameters (period, frequency, smoothing).
+
+``columns(s)``
+    The regressor columns for measured :class:`EffectSignals`; each column
+    is a list of ``(point, signal)`` pairs sharing one coefficient, the
+    point being where the hooks act (:data:`INJECTIONS`).
+``coefficients()``
+    This effect's values as the coefficients of its columns.
+``values_from(coef)``
+    The plant-file values of the effect with these coefficients (not range
+    checked: a fit may leave the ranges; :meth:`Effect.clip` brings them in).
+``reported(coef)``
+    The parameters an estimate reports (JSON), from coefficients;
+    ``reported(coefficients())`` is what an exact estimate must report.
+
+Summing ``coef_j * column_j`` at each point gives what the hooks give for
+the effect's shape (tested for every effect).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import casadi as ca
@@ -36,6 +57,10 @@ from iiwa_ident.errors import PlantError
 from iiwa_ident.model import Param
 
 __all__ = [
+    "Column",
+    "EffectSignals",
+    "INJECTIONS",
+    "own_dataset_columns",
     "Effect",
     "EFFECTS",
     "register_effect",
@@ -48,6 +73,50 @@ __all__ = [
     "PeriodicDisturbance",
     "InputDelay",
 ]
+
+#: Points where an effect's regressors act, one per hook:
+#: ``deflection`` the deflection f(theta_m) [rad] (``deflection``), ``link`` a torque on the link [Nm]
+#: (``link_torque``), ``command`` a torque added to the internal loop's target [Nm] (the negative of
+#: ``robot_model_torque``, which the robot adds to every command), ``sensor`` an additive error of the
+#: torque reading [Nm] and ``reading_scale`` the reading times a relative error (``sensor``).
+INJECTIONS = ("deflection", "link", "command", "sensor", "reading_scale")
+
+#: One regressor column: ``(point, signal)`` pairs, all scaled by the same coefficient.
+Column = list[tuple[str, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class EffectSignals:
+    """What an effect's regressors are functions of, per sample of one dataset (SI units).
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        Time [s].
+    q_m : numpy.ndarray
+        Motor position [rad].
+    theta_l, omega_l : numpy.ndarray
+        Link position [rad] and velocity [rad/s].
+    tau_j : numpy.ndarray
+        Measured joint torque [Nm].
+    dataset, n_datasets : int
+        This dataset's index among ``n_datasets`` fitted together (time-periodic effects have a phase
+        of each: recordings share no time origin).
+    """
+
+    t: np.ndarray
+    q_m: np.ndarray
+    theta_l: np.ndarray
+    omega_l: np.ndarray
+    tau_j: np.ndarray
+    dataset: int = 0
+    n_datasets: int = 1
+
+
+def own_dataset_columns(s: EffectSignals, point: str, signals: list[np.ndarray]) -> list[Column]:
+    """Columns with coefficients of each dataset's own: ``signals`` in this dataset's slot, zeros elsewhere."""
+    zero = np.zeros_like(s.t)
+    return [[(point, x if i == s.dataset else zero)] for i in range(s.n_datasets) for x in signals]
 
 
 def _check_number(where: str, value: Any, lower: float = -math.inf, upper: float = math.inf) -> float:
@@ -127,6 +196,31 @@ class Effect:
 
     def extra_delay_s(self) -> float:
         return 0.0
+
+    # -- regressors (module docstring) -----------------------------------
+    def columns(self, s: EffectSignals) -> list[Column]:
+        """Regressor columns at this effect's nonlinear parameters ([]: not linear in anything)."""
+        return []
+
+    def coefficients(self) -> np.ndarray:
+        """This effect's values as the coefficients of :meth:`columns`."""
+        return np.zeros(0)
+
+    def values_from(self, coef: np.ndarray) -> dict[str, Any]:
+        """Plant-file values for coefficients of :meth:`columns` (not range checked)."""
+        return dict(self.values)
+
+    def reported(self, coef: np.ndarray) -> dict[str, float]:
+        """The parameters an estimate reports, from coefficients of :meth:`columns`."""
+        return {k: float(v) for k, v in self.values_from(coef).items() if isinstance(v, (int, float))}
+
+    def clip(self, values: dict[str, Any]) -> dict[str, Any]:
+        """``values`` with every scalar parameter brought into its range."""
+        out = dict(values)
+        for p in self.params:
+            if p.name in out:
+                out[p.name] = float(min(max(float(out[p.name]), p.lower), p.upper))
+        return out
 
 
 #: Registry of effect classes by plant-file name.
@@ -220,6 +314,36 @@ class TransmissionRipple(Effect):
         k = np.arange(1, self.n_harmonics + 1)
         return np.cos(k * x) @ self.cos_coef + np.sin(k * x) @ self.sin_coef
 
+    @classmethod
+    def shape(cls, period_rad: float, n_harmonics: int = 3) -> "TransmissionRipple":
+        """A zero deflection of ``n_harmonics`` harmonics at ``period_rad`` [rad]: the shape an estimate fits.
+
+        The period is not range checked (an estimate's search may leave the plant file's range).
+        """
+        effect = cls({"harmonics": [[0.0, 0.0]] * n_harmonics})
+        effect.values["period_rad"] = float(period_rad)
+        return effect
+
+    def columns(self, s):
+        x = 2 * np.pi * s.q_m / self.values["period_rad"]
+        return [[("deflection", fn(k * x))] for k in range(1, self.n_harmonics + 1) for fn in (np.cos, np.sin)]
+
+    def coefficients(self):
+        return np.column_stack([self.cos_coef, self.sin_coef]).ravel()
+
+    def values_from(self, coef):
+        c = np.asarray(coef, float).reshape(-1, 2)  # A sin(k x + phi) = A sin(phi) cos(k x) + A cos(phi) sin(k x)
+        return {"period_rad": self.values["period_rad"],
+                "harmonics": [[float(math.hypot(a, b)), float(math.atan2(a, b))] for a, b in c]}
+
+    def reported(self, coef):
+        """``period_rad`` and ``amplitude_rad``, half the peak-to-peak of the deflection."""
+        c = np.asarray(coef, float).reshape(-1, 2)
+        x = 2 * np.pi * np.arange(1024) / 1024
+        k = np.arange(1, len(c) + 1)
+        f = np.cos(np.outer(x, k)) @ c[:, 0] + np.sin(np.outer(x, k)) @ c[:, 1]
+        return {"period_rad": float(self.values["period_rad"]), "amplitude_rad": float(np.ptp(f) / 2)}
+
     def deflection(self, theta_m, P):
         omega = 2 * math.pi / P["period_rad"]
         c1, s1 = ca.cos(omega * theta_m), ca.sin(omega * theta_m)
@@ -275,6 +399,21 @@ class LinkFriction(Effect):
         level = P["coulomb_nm"] + P["stribeck_nm"] * ca.exp(-(omega_l / P["stribeck_velocity_rad_s"]) ** 2)
         return -level * ca.tanh(omega_l / P["smoothing_rad_s"]) - P["viscous_nms_rad"] * omega_l
 
+    def columns(self, s):
+        # Coulomb and viscous only: the Stribeck term's velocity scale makes it nonlinear.
+        w = s.omega_l
+        return [[("link", -np.tanh(w / self.values["smoothing_rad_s"]))], [("link", -w)]]
+
+    def coefficients(self):
+        return np.array([self.values["coulomb_nm"], self.values["viscous_nms_rad"]])
+
+    def values_from(self, coef):
+        return {"coulomb_nm": float(coef[0]), "viscous_nms_rad": float(coef[1]),
+                "smoothing_rad_s": self.values["smoothing_rad_s"]}
+
+    def reported(self, coef):
+        return {"coulomb_nm": float(coef[0]), "viscous_nms_rad": float(coef[1])}
+
 
 @register_effect
 class PositionDependentLoad(Effect):
@@ -307,6 +446,29 @@ class PositionDependentLoad(Effect):
     def robot_model_torque(self, theta_m, P):
         return P["compensated"] * (P["amplitude_nm"] * ca.sin(theta_m + P["phase_rad"]) + P["constant_nm"])
 
+    def columns(self, s):
+        # A sin(theta + phi) = A cos(phi) sin(theta) + A sin(phi) cos(theta) on the link; the robot's
+        # compensation of the known fraction c enters the loop's target with the opposite sign.
+        th, tm = s.theta_l, s.q_m
+        return [[("link", np.sin(th))], [("link", np.cos(th))], [("command", np.sin(tm))], [("command", np.cos(tm))]]
+
+    def coefficients(self):
+        A, ph, c = self.values["amplitude_nm"], self.values["phase_rad"], self.values["compensated"]
+        a, b = A * math.cos(ph), A * math.sin(ph)
+        return np.array([a, b, -c * a, -c * b])
+
+    def values_from(self, coef):
+        """Amplitude >= 0, phase in (-pi, pi], compensated fraction in [0, 1] (1 when the data do not show it)."""
+        a, b = float(coef[0]), float(coef[1])
+        norm = a * a + b * b
+        comp = 1.0 if norm == 0 or (coef[2] == 0 and coef[3] == 0) else -(a * coef[2] + b * coef[3]) / norm
+        return {"amplitude_nm": math.hypot(a, b), "phase_rad": math.atan2(b, a),
+                "compensated": float(np.clip(comp, 0.0, 1.0))}
+
+    def reported(self, coef):
+        v = self.values_from(coef)
+        return {"amplitude_nm": v["amplitude_nm"], "phase_rad": v["phase_rad"]}
+
 
 @register_effect
 class TorqueSensorOffset(Effect):
@@ -326,6 +488,15 @@ class TorqueSensorOffset(Effect):
     def sensor(self, tau, t, P):
         return tau + P["offset_nm"] + P["drift_nm_s"] * t
 
+    def columns(self, s):
+        return [[("sensor", np.ones_like(s.t))]]  # the constant offset; a drift is another shape
+
+    def coefficients(self):
+        return np.array([self.values["offset_nm"]])
+
+    def values_from(self, coef):
+        return {"offset_nm": float(coef[0])}
+
 
 @register_effect
 class TorqueSensorScale(Effect):
@@ -337,6 +508,16 @@ class TorqueSensorScale(Effect):
 
     def sensor(self, tau, t, P):
         return P["scale"] * tau
+
+    def columns(self, s):
+        # reading - tau = (s - 1) tau = ((s - 1) / s) reading: the column is the reading itself.
+        return [[("reading_scale", s.tau_j)]]
+
+    def coefficients(self):
+        return np.array([(self.values["scale"] - 1.0) / self.values["scale"]])
+
+    def values_from(self, coef):
+        return {"scale": 1.0 / (1.0 - float(coef[0]))}
 
 
 @register_effect
@@ -358,6 +539,31 @@ class PeriodicDisturbance(Effect):
         Param("harmonic3_nm", 0.0, "Nm", 0.0, 50.0, "amplitude of the third harmonic"),
         Param("harmonic3_phase_rad", 0.0, "rad", -10.0, 10.0, "phase of the third harmonic at t = 0"),
     )
+
+    def columns(self, s):
+        """The fundamental, with an amplitude and phase of each dataset's own (recordings share no time origin)."""
+        return self.harmonic_columns(s, 1)
+
+    def harmonic_columns(self, s: EffectSignals, k: int) -> list[Column]:
+        """Columns of the k-th harmonic at the effect's frequency, per dataset."""
+        w = 2 * np.pi * k * self.values["frequency_hz"] * (s.t - s.t[0])
+        return own_dataset_columns(s, "sensor", [np.sin(w), np.cos(w)])
+
+    def coefficients(self):
+        A, ph = self.values["amplitude_nm"], self.values["phase_rad"]
+        return np.array([A * math.cos(ph), A * math.sin(ph)])
+
+    def values_from(self, coef):
+        """Amplitude: the median over datasets; phase: the first dataset's."""
+        c = np.asarray(coef, float).reshape(-1, 2)
+        amp, phase = np.hypot(c[:, 0], c[:, 1]), np.arctan2(c[:, 1], c[:, 0])
+        amp = amp[amp > 0]
+        return {"amplitude_nm": float(np.median(amp)) if len(amp) else 0.0,
+                "frequency_hz": self.values["frequency_hz"], "phase_rad": float(phase[0])}
+
+    def reported(self, coef):
+        v = self.values_from(coef)
+        return {"frequency_hz": v["frequency_hz"], "amplitude_nm": v["amplitude_nm"]}
 
     def sensor(self, tau, t, P):
         w = 2 * math.pi * P["frequency_hz"] * t
