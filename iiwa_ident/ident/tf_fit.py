@@ -246,10 +246,18 @@ class _Record:
     #: The ripple's Fourier basis as ``(deflection [rad], reaction [Nm])`` pairs, one per coefficient; their
     #: coefficients are fitted with the parameters (projected out of the residual), see :class:`RippleTerms`.
     ripple_basis: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    _ripple_inputs: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
         return self.u.shape[0]
+
+    def ripple_inputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ripple basis as two input matrices (n, columns), deflection and reaction, built once."""
+        if self._ripple_inputs is None:
+            self._ripple_inputs = (np.asfortranarray(np.column_stack([d for d, _ in self.ripple_basis])),
+                                   np.asfortranarray(np.column_stack([rx for _, rx in self.ripple_basis])))
+        return self._ripple_inputs
 
 
 def _label(ds: Dataset, index: int) -> str:
@@ -538,11 +546,13 @@ class _Problem:
             self._weights.append((w_t, w_q, float(np.sum(w_t**2)), cho_factor(gram)))
 
     def _project(self, r: _Record, e_t: np.ndarray, e_q: np.ndarray, weights: tuple) -> None:
-        """Remove the weighted nuisance fits from ``e_t`` and ``e_q`` in place."""
+        """Remove the weighted nuisance fits from ``e_t`` and ``e_q`` in place (vectors, or matrices of columns)."""
         if not self.nuisance:
             return
         w_t, w_q, sum_wt2, chol = weights
-        e_t -= w_t * (float(np.sum(w_t * e_t)) / sum_wt2)
+        if e_t.ndim == 2:
+            w_t, w_q = w_t[:, None], w_q[:, None]
+        e_t -= w_t * (np.sum(w_t * e_t, axis=0) / sum_wt2)
         c = cho_solve(chol, r.drift_basis.T @ (w_q * e_q))
         e_q -= w_q * (r.drift_basis @ c)
 
@@ -570,30 +580,26 @@ class _Problem:
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The ripple coefficients fitted to the weighted residual: (coefficients, their weighted projected
         response, their response in signal units ``(2, n)``), or ``None`` where the model does not exist."""
-        cols, raw = [], []
         try:
             with np.errstate(all="ignore"):
                 if self.substeps == 1:  # the usual case: all columns through each model at once
-                    D = np.asfortranarray(np.column_stack([d for d, _ in r.ripple_basis]))
-                    RX = np.asfortranarray(np.column_stack([rx for _, rx in r.ripple_basis]))
+                    D, RX = r.ripple_inputs()
                     Y = discretize(p, r.T, "deflection").simulate(D) + discretize(p, r.T, "reaction").simulate(RX)
-                    responses = [Y[:, :, j] for j in range(Y.shape[2])]
                 else:
-                    responses = [_input_response(p, r.T, "deflection", d, self.substeps)
-                                 + _input_response(p, r.T, "reaction", rx, self.substeps) for d, rx in r.ripple_basis]
-                for y in responses:
-                    c_t, c_q = weights[0] * y[0], weights[1] * y[1]
-                    self._project(r, c_t, c_q, weights)
-                    cols.append(np.concatenate([c_t, c_q]))
-                    raw.append(y)
+                    Y = np.stack([_input_response(p, r.T, "deflection", d, self.substeps)
+                                  + _input_response(p, r.T, "reaction", rx, self.substeps)
+                                  for d, rx in r.ripple_basis], axis=2)
+                w_t, w_q = weights[0], weights[1]
+                C_t, C_q = w_t[:, None] * Y[0], w_q[:, None] * Y[1]
+                self._project(r, C_t, C_q, weights)  # every column at once
         except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
             return None
-        G = np.column_stack(cols)
+        G = np.vstack([C_t, C_q])
         if not np.all(np.isfinite(G)):
             return None
         # Normal equations: a handful of columns against two outputs of every sample.
         coef, *_ = np.linalg.lstsq(G.T @ G, G.T @ np.concatenate([e_t, e_q]), rcond=None)
-        return coef, G @ coef, np.tensordot(coef, np.array(raw), axes=1)
+        return coef, G @ coef, Y @ coef
 
     def ripple_response(self, x: np.ndarray) -> list[np.ndarray | None]:
         """Per record, the fitted ripple's output response ``(2, n)`` in signal units (``None`` without)."""
@@ -908,7 +914,7 @@ def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np
         for rec in records:
             q_m = rec.q + rec.q0
             rec.known = rec.known + ripple.known_inputs(q_m, rec.tau)
-            rec.ripple_basis = ripple.basis(q_m, rec.tau)
+            rec.ripple_basis, rec._ripple_inputs = ripple.basis(q_m, rec.tau), None
     return records
 
 
