@@ -1,4 +1,4 @@
-"""The reference signals of the toolkit, written once: square wave, sine, exponential sweep.
+"""The reference signals of the toolkit, written once: square wave, sine, exponential sweep, odd multisine.
 
 Experiments (:mod:`iiwa_ident.excite`), the FRI runtime's tasks, the
 closed-loop analysis and the pipeline's validation all draw their
@@ -22,7 +22,9 @@ import math
 
 import numpy as np
 
-__all__ = ["square", "sine", "sweep_rate", "exponential_sweep"]
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["square", "sine", "sweep_rate", "exponential_sweep", "odd_lines", "crest_factor", "odd_multisine"]
 
 _SCALAR = (int, float)
 
@@ -66,3 +68,64 @@ def exponential_sweep(t, f0_hz: float, f1_hz: float, duration_s: float):
     if isinstance(t, _SCALAR):
         return math.sin(2.0 * math.pi * f0_hz * L * math.expm1(t / L))
     return np.sin(2.0 * np.pi * f0_hz * L * np.expm1(np.asarray(t, float) / L))
+
+
+def odd_lines(n_samples: int, sample_rate_hz: float, f_lo_hz: float, f_hi_hz: float) -> np.ndarray:
+    """Odd line numbers ``k`` (frequency ``k fs / N``) within ``[f_lo, f_hi]``."""
+    df = sample_rate_hz / n_samples
+    k = np.arange(1, n_samples // 2, 2)
+    f = k * df
+    return k[(f >= f_lo_hz - 1e-9 * df) & (f <= f_hi_hz + 1e-9 * df)]
+
+
+def crest_factor(x: np.ndarray) -> float:
+    """``max |x - mean| / rms(x - mean)`` [-]."""
+    x = np.asarray(x, float) - np.mean(x)
+    return float(np.max(np.abs(x)) / np.sqrt(np.mean(x * x)))
+
+
+def odd_multisine(n_samples: int, lines: np.ndarray, rng: np.random.Generator, *,
+                  crest_iterations: int = 100) -> np.ndarray:
+    """One period of a flat-spectrum multisine on ``lines`` with random phases, crest factor reduced.
+
+    Parameters
+    ----------
+    n_samples : int
+        Samples per period N.
+    lines : array of int
+        Excited line numbers, ``0 < k < N / 2``.
+    rng : numpy.random.Generator
+        Source of the random phases.
+    crest_iterations : int
+        Clipping iterations (0: plain random phases).
+
+    Returns
+    -------
+    numpy.ndarray
+        One period, zero mean, peak 1.
+
+    Notes
+    -----
+    Clipping changes the phases only: the amplitude spectrum stays flat on
+    ``lines`` and zero elsewhere (to rounding), so every period is exactly
+    periodic and the excited lines are the only ones with power.
+    """
+    lines = np.asarray(lines, int)
+    if len(lines) == 0 or lines.min() < 1 or lines.max() >= n_samples / 2:
+        raise IiwaIdentError("multisine: no line in the band, or a line at DC or beyond Nyquist")
+    X = np.zeros(n_samples // 2 + 1, complex)
+    X[lines] = np.exp(2j * np.pi * rng.random(len(lines)))
+    x = np.fft.irfft(X, n_samples)
+    best, best_cf = x, crest_factor(x)
+    for _ in range(crest_iterations):
+        rms = np.sqrt(np.mean(x * x))
+        # Clip at a level a little below the current peak, then put the flat spectrum back.
+        level = 0.9 * np.max(np.abs(x)) if best_cf > 1.4 else 1.4 * rms
+        Y = np.fft.rfft(np.clip(x, -level, level))
+        X = np.zeros_like(X)
+        X[lines] = np.exp(1j * np.angle(Y[lines]))
+        x = np.fft.irfft(X, n_samples)
+        cf = crest_factor(x)
+        if cf < best_cf:
+            best, best_cf = x, cf
+    return best / np.max(np.abs(best))

@@ -9,7 +9,8 @@ from typer.testing import CliRunner
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite import Multisine, crest_factor, odd_lines, odd_multisine, record
+from iiwa_ident.excite import Multisine, record
+from iiwa_ident.references import crest_factor, odd_lines, odd_multisine
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 

@@ -128,7 +128,23 @@ class TestTasks:
         expected = 2.0 * scipy_chirp(t, 1.0, 10.0, 10.0, method="logarithmic", phi=-90)
         np.testing.assert_allclose(y, expected, rtol=0, atol=1e-9)
 
+    def test_multisine_is_periodic_and_on_its_odd_lines(self):
+        period, dt = 2.0, DT
+        task = make_task("multisine", 3.0, 1.0, period_s=period, f1_hz=40.0, sample_time_s=dt)
+        n = int(round(period / dt))
+        y = np.array([task.reference(TaskInput(k * dt, 0.0, 0.0)) for k in range(3 * n)])
+        np.testing.assert_array_equal(y[:n], y[n:2 * n])
+        assert np.max(np.abs(y)) == pytest.approx(3.0, rel=1e-12)
+        power = np.abs(np.fft.rfft(y[:n])) ** 2
+        k = np.arange(len(power))
+        f = k / period
+        on = (k % 2 == 1) & (f >= 1.0) & (f <= 40.0)
+        assert on.sum() == 39 and power[~on].sum() < 1e-20 * power[on].sum()
+        np.testing.assert_allclose(power[on], power[on].mean(), rtol=1e-9)  # a flat spectrum
+
     @pytest.mark.parametrize("kw, message", [
+        ({"name": "multisine", "frequency_hz": 10.0, "f1_hz": 5.0}, "must exceed"),
+        ({"name": "multisine", "frequency_hz": 600.0, "f1_hz": 700.0}, "no odd line"),
         ({"name": "dance"}, "unknown task"),
         ({"name": "sine", "frequency_hz": 0.0}, "frequency must be positive"),
         ({"name": "kappa", "kappa": -1.0}, "kappa must not be negative"),

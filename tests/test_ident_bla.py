@@ -7,7 +7,8 @@ import pytest
 from scipy.signal import freqz, lfilter
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite import Multisine, odd_lines, odd_multisine, record
+from iiwa_ident.excite import Multisine, record
+from iiwa_ident.references import odd_lines, odd_multisine
 from iiwa_ident.ident.bla import BestLinearApproximation, best_linear_approximation, bla_from_arrays
 from iiwa_ident.sim import SimulatedJoint, default_plant
 

@@ -57,12 +57,14 @@ def run_cmd(
     plant: Annotated[Optional[Path], typer.Option("--plant", help="--target sim: plant TOML.")] = None,
     task: Annotated[str, typer.Option("--task", help=f"Reference task: {' | '.join(TASKS)}.")] = "zero",
     duration: Annotated[float, typer.Option("--duration", help="Run length [s].")] = 10.0,
-    amplitude: Annotated[float, typer.Option("--amplitude", help="constant, step, sine, chirp: amplitude "
-                                             "[Nm].")] = 5.0,
-    frequency: Annotated[float, typer.Option("--frequency", help="sine: frequency; chirp: start frequency "
-                                             "[Hz].")] = 0.25,
-    period: Annotated[float, typer.Option("--period", help="step: square-wave period [s].")] = 2.0,
-    f1: Annotated[float, typer.Option("--f1", help="chirp: end frequency [Hz].")] = 50.0,
+    amplitude: Annotated[float, typer.Option("--amplitude", help="constant, step, sine, chirp: amplitude; "
+                                             "multisine: peak [Nm].")] = 5.0,
+    frequency: Annotated[float, typer.Option("--frequency", help="sine: frequency; chirp: start "
+                                             "frequency; multisine: lowest line [Hz].")] = 0.25,
+    period: Annotated[float, typer.Option("--period", help="step: square-wave period; multisine: "
+                                       "its period [s].")] = 2.0,
+    f1: Annotated[float, typer.Option("--f1", help="chirp: end frequency; multisine: highest "
+                                   "line [Hz].")] = 50.0,
     sweep: Annotated[float, typer.Option("--sweep", help="chirp: sweep duration [s].")] = 20.0,
     kappa: Annotated[float, typer.Option("--kappa", help="kappa: tau_r = kappa * tau_ext.")] = 1.0,
     watchdog_cycles: Annotated[int, typer.Option("--watchdog-cycles", help="Lost or late cycles in a row that "
@@ -96,10 +98,11 @@ def run_cmd(
       iiwa-ident run --config controller.toml --robot 127.0.0.1 --task sine --amplitude 15 --frequency 25 --log sine.h5
       iiwa-ident run --config controller.toml --robot 192.170.10.2 --task kappa --kappa 3 --log kappa.h5
       iiwa-ident run --config controller.toml --target sim --task step --amplitude 10 --log step.h5
+      iiwa-ident run --config controller.toml --target sim --task multisine --amplitude 5 --frequency 1 --f1 40 --period 2 --log ms.h5
     """
     try:
         cfg = read_config(config)
-        the_task = make_task(task, amplitude, frequency, period, f1, sweep, kappa)
+        the_task = make_task(task, amplitude, frequency, period, f1, sweep, kappa, cfg.sample_time_s)
         if not ramp_ms >= 0:
             raise IiwaIdentError("--ramp-ms must not be negative")
         if not 0 < silence < float("inf"):

@@ -63,7 +63,7 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import JointModel, RippleTable, line_ratio
-from iiwa_ident.sim import Column, Effect, EffectSignals, PeriodicDisturbance, TransmissionRipple, make_effect
+from iiwa_ident.sim import EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TransmissionRipple, make_effect
 from iiwa_ident.sim import own_dataset_columns
 
 __all__ = [
@@ -202,9 +202,12 @@ class CandidateEffect:
         return EffectSignals(ctx.t, ctx.q_m, ctx.theta_l, ctx.omega_fast, ctx.tau, ctx.index, max(self.n_datasets, 1))
 
     # -- structure ---------------------------------------------------------
+    #: Whether the effect has coefficients of each dataset's own (a phase per recording).
+    per_dataset: ClassVar[bool] = False
+
     def n_columns(self) -> int:
-        """Number of linear coefficients (after :meth:`prepare`)."""
-        raise NotImplementedError
+        """Number of linear coefficients (after :meth:`prepare`): the effect's, per dataset where it has its own."""
+        return len(self.effect.coefficients()) * (self.n_datasets if self.per_dataset else 1)
 
     def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         """Find nonlinear parameters on the current (weighted, masked) residuals.
@@ -285,6 +288,8 @@ def register_candidate(cls: type[CandidateEffect]) -> type[CandidateEffect]:
     """Class decorator adding a :class:`CandidateEffect` subclass to :data:`CANDIDATES`."""
     if not cls.name:
         raise ValueError("a candidate effect needs a name")
+    if cls.is_effect and not cls.summary:
+        cls.summary = EFFECTS[cls.name].summary
     CANDIDATES[cls.name] = cls
     return cls
 
@@ -339,7 +344,6 @@ class TransmissionRippleCandidate(CandidateEffect):
     """
 
     name = "transmission_ripple"
-    summary = "position-periodic transmission deflection, eq (5)"
     n_nonlinear = 1
     harmonics = 3
     #: Band of the evidence channel, in units of the fundamental's frequency |v| / rho.
@@ -356,8 +360,6 @@ class TransmissionRippleCandidate(CandidateEffect):
     def _default_effect(self) -> Effect:
         return TransmissionRipple.shape(TransmissionRipple.params[0].default, self.harmonics)
 
-    def n_columns(self) -> int:
-        return 2 * self.harmonics
 
     def prepare(self, blocks, residuals) -> bool:
         super().prepare(blocks, residuals)
@@ -476,10 +478,7 @@ class LinkFrictionCandidate(CandidateEffect):
     shape without its Stribeck term)."""
 
     name = "link_friction"
-    summary = "link Coulomb + viscous friction"
 
-    def n_columns(self):
-        return 2
 
     free_shape = "Coulomb, viscous, breakaway at 0.01, 0.03, 0.1 and 0.3 rad/s, and quadratic drag"
 
@@ -515,10 +514,7 @@ class PositionDependentLoadCandidate(CandidateEffect):
     """
 
     name = "position_dependent_load"
-    summary = "gravity-like load A sin(theta_l + phi)"
 
-    def n_columns(self):
-        return 4
 
     free_shape = "harmonics 1-3 of the link angle"
 
@@ -541,10 +537,7 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
     """Constant offset of the torque reading [Nm]."""
 
     name = "torque_sensor_offset"
-    summary = "torque-sensor offset"
 
-    def n_columns(self):
-        return 1
 
     free_shape = "an offset and a drift of its own in each dataset"
 
@@ -565,10 +558,7 @@ class TorqueSensorScaleCandidate(CandidateEffect):
     """
 
     name = "torque_sensor_scale"
-    summary = "torque-sensor scale error"
 
-    def n_columns(self):
-        return 1
 
     def plausible(self, coef):
         # A torque sensor off by more than a factor 1.5 is not a calibration error.
@@ -589,7 +579,6 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
     """
 
     name = "periodic_disturbance"
-    summary = "time-periodic torque-reading disturbance"
     n_nonlinear = 1
 
     @property
@@ -603,8 +592,7 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
         self.effect = PeriodicDisturbance()
         self.effect.values["frequency_hz"] = float(f)
 
-    def n_columns(self):
-        return 2 * self.n_datasets
+    per_dataset = True
 
     def prepare(self, blocks, residuals) -> bool:
         super().prepare(blocks, residuals)
@@ -694,6 +682,7 @@ class ModelParametersCandidate(CandidateEffect):
         self.refit: dict[str, float] = {}
         self._model: dict[str, float] = {}
         self._cache: dict[int, dict[str, np.ndarray]] = {}
+
 
     def n_columns(self):
         return 1

@@ -8,8 +8,9 @@ Experiment, ClientState
     Base class of programs and the client-side state they see.
 Chirp
     The exponential chirp (section II.B).
-Multisine, odd_multisine, odd_lines, crest_factor
-    Random-phase odd multisines, periods times realisations (for the best linear approximation).
+Multisine
+    Random-phase odd multisines (:func:`iiwa_ident.references.odd_multisine`), periods times realisations
+    (for the best linear approximation).
 ConstantVelocity, QuasiStatic, HandGuided, StepTorque, SineTorque
     The other programs (sections III-V).
 LimitGuard
@@ -25,12 +26,7 @@ from iiwa_ident.excite._runner import (
                                          velocity_filter_coefficient,
 )
 from iiwa_ident.excite.chirp import Chirp
-from iiwa_ident.excite.multisine import (
-                                         Multisine,
-                                         crest_factor,
-                                         odd_lines,
-                                         odd_multisine,
-)
+from iiwa_ident.excite.multisine import Multisine
 from iiwa_ident.excite.programs import (
                                          ConstantVelocity,
                                          HandGuided,
@@ -50,5 +46,5 @@ from iiwa_ident.excite.scenarios import (
 )
 
 __all__ = ["record", "Experiment", "ClientState", "velocity_filter_coefficient", "Chirp", "Multisine",
-           "odd_multisine", "odd_lines", "crest_factor", "ConstantVelocity",
+           "ConstantVelocity",
            "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS", "HiddenEffectScenario", "draw_hidden_effects", "simulate_hidden_effects"]

@@ -1,4 +1,4 @@
-"""Random-phase odd multisines and the multisine experiment.
+"""The multisine experiment (the signal itself: :func:`iiwa_ident.references.odd_multisine`).
 
 A multisine period of ``N`` samples at rate ``fs`` has its lines on the grid
 ``k fs / N``. An *odd* multisine excites only odd ``k`` within the band:
@@ -39,70 +39,10 @@ import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite._runner import ClientState, Experiment
+from iiwa_ident.references import crest_factor, odd_lines, odd_multisine
 from iiwa_ident.robot import Command, RobotInterface
 
-__all__ = ["odd_lines", "odd_multisine", "crest_factor", "Multisine"]
-
-
-def odd_lines(n_samples: int, sample_rate_hz: float, f_lo_hz: float, f_hi_hz: float) -> np.ndarray:
-    """Odd line numbers ``k`` (frequency ``k fs / N``) within ``[f_lo, f_hi]``."""
-    df = sample_rate_hz / n_samples
-    k = np.arange(1, n_samples // 2, 2)
-    f = k * df
-    return k[(f >= f_lo_hz - 1e-9 * df) & (f <= f_hi_hz + 1e-9 * df)]
-
-
-def crest_factor(x: np.ndarray) -> float:
-    """``max |x - mean| / rms(x - mean)`` [-]."""
-    x = np.asarray(x, float) - np.mean(x)
-    return float(np.max(np.abs(x)) / np.sqrt(np.mean(x * x)))
-
-
-def odd_multisine(n_samples: int, lines: np.ndarray, rng: np.random.Generator, *,
-                  crest_iterations: int = 100) -> np.ndarray:
-    """One period of a flat-spectrum multisine on ``lines`` with random phases, crest factor reduced.
-
-    Parameters
-    ----------
-    n_samples : int
-        Samples per period N.
-    lines : array of int
-        Excited line numbers, ``0 < k < N / 2``.
-    rng : numpy.random.Generator
-        Source of the random phases.
-    crest_iterations : int
-        Clipping iterations (0: plain random phases).
-
-    Returns
-    -------
-    numpy.ndarray
-        One period, zero mean, peak 1.
-
-    Notes
-    -----
-    Clipping changes the phases only: the amplitude spectrum stays flat on
-    ``lines`` and zero elsewhere (to rounding), so every period is exactly
-    periodic and the excited lines are the only ones with power.
-    """
-    lines = np.asarray(lines, int)
-    if len(lines) == 0 or lines.min() < 1 or lines.max() >= n_samples / 2:
-        raise IiwaIdentError("multisine: no line in the band, or a line at DC or beyond Nyquist")
-    X = np.zeros(n_samples // 2 + 1, complex)
-    X[lines] = np.exp(2j * np.pi * rng.random(len(lines)))
-    x = np.fft.irfft(X, n_samples)
-    best, best_cf = x, crest_factor(x)
-    for _ in range(crest_iterations):
-        rms = np.sqrt(np.mean(x * x))
-        # Clip at a level a little below the current peak, then put the flat spectrum back.
-        level = 0.9 * np.max(np.abs(x)) if best_cf > 1.4 else 1.4 * rms
-        Y = np.fft.rfft(np.clip(x, -level, level))
-        X = np.zeros_like(X)
-        X[lines] = np.exp(1j * np.angle(Y[lines]))
-        x = np.fft.irfft(X, n_samples)
-        cf = crest_factor(x)
-        if cf < best_cf:
-            best, best_cf = x, cf
-    return best / np.max(np.abs(best))
+__all__ = ["Multisine"]
 
 
 class Multisine(Experiment):

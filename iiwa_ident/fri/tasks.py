@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.references import exponential_sweep, sine, square
+from iiwa_ident.references import exponential_sweep, odd_lines, odd_multisine, sine, square
 
-__all__ = ["TaskInput", "Task", "ZeroTask", "ConstantTask", "StepTask", "SineTask", "ChirpTask", "KappaTask",
-           "TASKS", "make_task"]
+__all__ = ["TaskInput", "Task", "ZeroTask", "ConstantTask", "StepTask", "SineTask", "ChirpTask", "MultisineTask",
+           "KappaTask", "TASKS", "make_task"]
 
 
 @dataclass(slots=True)
@@ -130,6 +132,43 @@ class ChirpTask(Task):
 
 
 @dataclass
+class MultisineTask(Task):
+    """A periodic random-phase odd multisine of tau_r: flat on the odd lines of ``period_s`` [s] within
+    ``[f_lo_hz, f_hi_hz]``, peak ``amplitude_nm`` [Nm] (crest factor reduced), phases drawn from ``seed``.
+
+    The closed loop's frequency response on the robot: every period repeats exactly, so its spectrum
+    averages over periods (:mod:`iiwa_ident.excite.multisine` for the open-loop experiment). The period is
+    tabulated once at the loop's ``sample_time_s``; the cycle only looks it up.
+    """
+
+    amplitude_nm: float
+    f_lo_hz: float
+    f_hi_hz: float
+    period_s: float
+    sample_time_s: float = 1e-3
+    seed: int = 0
+    name = "multisine"
+    _table: list[float] = field(default_factory=list, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n = int(round(self.period_s / self.sample_time_s))
+        lines = odd_lines(n, 1.0 / self.sample_time_s, self.f_lo_hz, self.f_hi_hz)
+        if len(lines) == 0:
+            raise IiwaIdentError(f"task: no odd line of a {self.period_s:g} s period between {self.f_lo_hz:g} and "
+                                 f"{self.f_hi_hz:g} Hz below the Nyquist frequency")
+        x = odd_multisine(n, lines, np.random.default_rng(self.seed))
+        self._table = [float(v) for v in self.amplitude_nm * x]  # plain floats for the cycle
+
+    def reference(self, s: TaskInput) -> float:
+        table = self._table
+        return table[int(round(s.t / self.sample_time_s)) % len(table)]
+
+    def attrs(self) -> dict[str, float | str]:
+        return {"task": self.name, "amplitude_nm": self.amplitude_nm, "f_lo_hz": self.f_lo_hz,
+                "f_hi_hz": self.f_hi_hz, "period_s": self.period_s, "seed": self.seed}
+
+
+@dataclass
 class KappaTask(Task):
     """tau_r = kappa tau_ext (section V.C): the joint amplifies the torque a human applies.
 
@@ -148,7 +187,7 @@ class KappaTask(Task):
 
 
 #: Task names accepted by :func:`make_task`.
-TASKS = ("zero", "constant", "step", "sine", "chirp", "kappa")
+TASKS = ("zero", "constant", "step", "sine", "chirp", "multisine", "kappa")
 
 
 def _finite(name: str, value: float, positive: bool = False) -> float:
@@ -158,8 +197,12 @@ def _finite(name: str, value: float, positive: bool = False) -> float:
 
 
 def make_task(name: str, amplitude_nm: float = 5.0, frequency_hz: float = 0.25, period_s: float = 2.0,
-              f1_hz: float = 50.0, sweep_s: float = 20.0, kappa: float = 1.0) -> Task:
-    """The task called ``name`` with its parameters (units as in the classes); one-line errors."""
+              f1_hz: float = 50.0, sweep_s: float = 20.0, kappa: float = 1.0, sample_time_s: float = 1e-3) -> Task:
+    """The task called ``name`` with its parameters (units as in the classes); one-line errors.
+
+    The multisine's band is ``frequency_hz`` to ``f1_hz`` and its period ``period_s``, tabulated at the
+    loop's ``sample_time_s`` [s].
+    """
     amplitude_nm = _finite("amplitude", amplitude_nm)
     if name == "zero":
         return ZeroTask()
@@ -175,6 +218,12 @@ def make_task(name: str, amplitude_nm: float = 5.0, frequency_hz: float = 0.25, 
         if f1 <= f0:
             raise IiwaIdentError("task: the chirp's end frequency must exceed its start frequency")
         return ChirpTask(amplitude_nm, f0, f1, _finite("sweep duration", sweep_s, True))
+    if name == "multisine":
+        f_lo, f_hi = _finite("frequency", frequency_hz, True), _finite("f1", f1_hz, True)
+        if f_hi <= f_lo:
+            raise IiwaIdentError("task: the multisine's upper frequency (f1) must exceed its lower one")
+        return MultisineTask(amplitude_nm, f_lo, f_hi, _finite("period", period_s, True),
+                             _finite("sample time", sample_time_s, True))
     if name == "kappa":
         kappa = _finite("kappa", kappa)
         if kappa < 0:
