@@ -61,10 +61,8 @@ def run_cmd(
                                              "multisine: peak [Nm].")] = 5.0,
     frequency: Annotated[float, typer.Option("--frequency", help="sine: frequency; chirp: start "
                                              "frequency; multisine: lowest line [Hz].")] = 0.25,
-    period: Annotated[float, typer.Option("--period", help="step: square-wave period; multisine: "
-                                       "its period [s].")] = 2.0,
-    f1: Annotated[float, typer.Option("--f1", help="chirp: end frequency; multisine: highest "
-                                   "line [Hz].")] = 50.0,
+    period: Annotated[float, typer.Option("--period", help="step: square-wave period; multisine: period [s].")] = 2.0,
+    f1: Annotated[float, typer.Option("--f1", help="chirp: end frequency; multisine: highest line [Hz].")] = 50.0,
     sweep: Annotated[float, typer.Option("--sweep", help="chirp: sweep duration [s].")] = 20.0,
     kappa: Annotated[float, typer.Option("--kappa", help="kappa: tau_r = kappa * tau_ext.")] = 1.0,
     watchdog_cycles: Annotated[int, typer.Option("--watchdog-cycles", help="Lost or late cycles in a row that "
