@@ -100,7 +100,7 @@ from iiwa_ident.design.controller import (
 from iiwa_ident.design.spatial_filter import DESIGN_BETA
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import JointModel, RippleTable
-from iiwa_ident.model import PARAMETER_UNITS
+from iiwa_ident.model import PARAMETER_UNITS, RIPPLE_PERIOD_RAD
 from iiwa_ident.model import JointParameters, ParameterError
 
 __all__ = [
@@ -119,8 +119,6 @@ __all__ = [
 
 DESIGN_FORMAT = "iiwa-ident-design"
 DESIGN_FORMAT_VERSION = 1
-#: The paper's ripple period rho [rad], used for the filter when the model has no ripple table.
-PAPER_PERIOD_RAD = 0.01963
 
 
 class DesignFileError(IiwaIdentError):
@@ -143,7 +141,7 @@ class FilterSettings:
 
     beta: float = DESIGN_BETA
     v_min_rad_s: float = 0.2
-    period_rad: float = PAPER_PERIOD_RAD
+    period_rad: float = RIPPLE_PERIOD_RAD
 
 
 @dataclass
@@ -198,7 +196,7 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
     sha = None
     if model_path is not None:
         sha = hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
-    period = model.ripple.period_rad if model.ripple is not None else PAPER_PERIOD_RAD
+    period = model.ripple.period_rad if model.ripple is not None else RIPPLE_PERIOD_RAD
     return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")),
                         filter=FilterSettings(float(beta), float(v_min_rad_s), float(period)),
                         ripple=model.ripple, model_file=None if model_path is None else str(model_path),

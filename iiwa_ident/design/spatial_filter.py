@@ -73,6 +73,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from iiwa_ident.ident import find_passes
+from iiwa_ident.model import RIPPLE_PERIOD_RAD
 
 if TYPE_CHECKING:
     from iiwa_ident.ident import JointModel
@@ -88,8 +89,6 @@ __all__ = [
     "ripple_line_cut",
 ]
 
-#: The paper's ripple period rho [rad] (section III.A).
-RIPPLE_PERIOD_RAD = 0.01963
 #: beta of the filter a design deploys (observer, eq (14), and controller feedback, eq (15)) [-].
 #: The paper's 5 stays the default of :class:`SpatialFilter`; inside the torque loop it costs
 #: margin: on the simulated joint the outer-loop kappa_max of the additive controller is 20.9

@@ -54,7 +54,7 @@ import numpy as np
 from iiwa_ident import tool_version
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import PARAMETER_UNITS
+from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, PARAMETER_UNITS
 
 __all__ = [
     "ModelError",
@@ -342,7 +342,7 @@ def write_model(path: str | os.PathLike, model: JointModel) -> Path:
 
 def table1_model() -> JointModel:
     """The paper's Table I with Td = 5 ms and K_I = 25 rad/s (no uncertainties)."""
-    values = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005, "KI": 25.0}
+    values = {p.name: p.default for p in (*JOINT_PARAMETERS, OBSERVER_GAIN)}  # Table I's defaults
     return JointModel(
         parameters={k: Parameter(v, None, PARAMETER_UNITS[k]) for k, v in values.items()},
         joint=1, robot_model="iiwa14",

@@ -6,7 +6,8 @@ output, and eq (4) as python-control objects and frequency responses.
 
 Public API
 ----------
-Param, ParameterError, JOINT_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, JointParameters, parameter_values
+Param, ParameterError, JOINT_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, JointParameters, parameter_values,
+RIPPLE_PERIOD_RAD, OBSERVER_GAIN
     The vocabulary (:mod:`iiwa_ident.model._parameters`).
 INPUTS, pade_coefficients, resonance_hz, coefficients, transfer_function, polynomials,
 frequency_response
@@ -32,7 +33,9 @@ from iiwa_ident.model._sampled import DiscreteModel, delayed_hold, discretize, s
 from iiwa_ident.model._parameters import (
     JOINT_PARAMETERS,
     PARAMETER_NAMES,
+    OBSERVER_GAIN,
     PARAMETER_UNITS,
+    RIPPLE_PERIOD_RAD,
     JointParameters,
     Param,
     ParameterError,
@@ -47,6 +50,8 @@ __all__ = [
     "PARAMETER_UNITS",
     "JointParameters",
     "parameter_values",
+    "RIPPLE_PERIOD_RAD",
+    "OBSERVER_GAIN",
     "INPUTS",
     "pade_coefficients",
     "resonance_hz",

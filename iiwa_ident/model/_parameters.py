@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["Param", "ParameterError", "JOINT_PARAMETERS", "PARAMETER_NAMES", "PARAMETER_UNITS", "JointParameters",
-           "parameter_values"]
+           "parameter_values", "RIPPLE_PERIOD_RAD", "OBSERVER_GAIN"]
 
 
 class ParameterError(IiwaIdentError):
@@ -51,8 +51,14 @@ JOINT_PARAMETERS: tuple[Param, ...] = (
 )
 #: The joint model's parameters, in this order everywhere.
 PARAMETER_NAMES: tuple[str, ...] = tuple(p.name for p in JOINT_PARAMETERS)
-#: Unit of each parameter a model file may hold; ``KI`` is the gain of the robot's observer, eq (13).
-PARAMETER_UNITS: dict[str, str] = {**{p.name: p.unit for p in JOINT_PARAMETERS}, "KI": "rad/s"}
+#: The paper's period rho of the transmission deflection, eq (5) [rad] (section III.A): the default where
+#: none was identified.
+RIPPLE_PERIOD_RAD = 0.01963
+#: The gain of the robot's external-torque observer, eq (13): a model file's and a plant's parameter beside
+#: eqs (1)-(4) (the paper's iiwa: 25 rad/s).
+OBSERVER_GAIN = Param("KI", 25.0, "rad/s", 0.0, 1e4, "gain of the built-in external-torque observer, eq (13)")
+#: Unit of each parameter a model file may hold.
+PARAMETER_UNITS: dict[str, str] = {p.name: p.unit for p in (*JOINT_PARAMETERS, OBSERVER_GAIN)}
 
 
 @dataclass(frozen=True)

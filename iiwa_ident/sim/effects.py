@@ -54,7 +54,7 @@ import casadi as ca
 import numpy as np
 
 from iiwa_ident.errors import PlantError
-from iiwa_ident.model import Param
+from iiwa_ident.model import RIPPLE_PERIOD_RAD, Param
 
 __all__ = [
     "Column",
@@ -258,7 +258,7 @@ class TransmissionRipple(Effect):
 
     name = "transmission_ripple"
     summary = "position-periodic transmission deflection f(theta_m mod rho), eq (5)"
-    params = (Param("period_rad", 0.01963, "rad", 1e-4, 1.0, "period rho of the deflection"),)
+    params = (Param("period_rad", RIPPLE_PERIOD_RAD, "rad", 1e-4, 1.0, "period rho of the deflection"),)
 
     def extra_keys(self) -> tuple[str, ...]:
         return ("harmonics", "lut", "max_harmonics")

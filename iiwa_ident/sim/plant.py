@@ -35,7 +35,7 @@ from typing import Any
 
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import PlantError
-from iiwa_ident.model import JOINT_PARAMETERS, Param
+from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, Param
 from iiwa_ident.robot import ROBOT_MODELS, JointLimits, joint_limits
 from iiwa_ident.sim.effects import Effect, _check_number, make_effect
 
@@ -49,7 +49,7 @@ PLANT_FORMAT_VERSION = 1
 SECTIONS: dict[str, tuple[Param, ...]] = {
     "dynamics": JOINT_PARAMETERS,
     "internal": (
-        Param("KI", 25.0, "rad/s", 0.0, 1e4, "gain of the built-in external-torque observer, eq (13)"),
+        OBSERVER_GAIN,
         Param("slew_rate_nm_s", 20000.0, "Nm/s", 1.0, 1e7, "feasibility filter: command slew-rate limit, per cycle"),
         Param("standstill_torque_nm", 1.0, "Nm", 0.0, 100.0, "torque control suppressed below this from standstill"),
         Param("standstill_velocity_rad_s", 0.002, "rad/s", 0.0, 1.0, "speed below which the joint counts as standing"),
