@@ -443,18 +443,11 @@ class TransmissionRippleCandidate(CandidateEffect):
     def from_values(self, values):
         return None  # the model's deflection is its ripple table, corrected on the motor position already
 
-    def _series(self, coef: np.ndarray, bins: int = 256) -> np.ndarray:
-        x = 2 * np.pi * np.arange(bins) / bins
-        lut = np.zeros(bins)
-        for k in range(self.harmonics):
-            lut += coef[2 * k] * np.cos((k + 1) * x) + coef[2 * k + 1] * np.sin((k + 1) * x)
-        return lut
-
     def parameters(self, coef):
         return TransmissionRipple.shape(self.period, self.harmonics).reported(coef)
 
     def extend(self, model, coef):
-        lut = self._series(coef)
+        lut = TransmissionRipple.table(coef, 256)
         old = model.ripple
         if old is not None and abs(old.period_rad / self.period - 1) < 2e-3:
             # Same period: the correction adds to the existing table (resampled onto its bins).

@@ -336,12 +336,17 @@ class TransmissionRipple(Effect):
         return {"period_rad": self.values["period_rad"],
                 "harmonics": [[float(math.hypot(a, b)), float(math.atan2(a, b))] for a, b in c]}
 
+    @staticmethod
+    def table(coef: np.ndarray, bins: int) -> np.ndarray:
+        """The deflection [rad] of coefficients ``coef`` (cos, sin of each harmonic) at ``bins`` points of a period."""
+        c = np.asarray(coef, float).reshape(-1, 2)
+        x = 2 * np.pi * np.arange(bins) / bins
+        k = np.arange(1, len(c) + 1)
+        return np.cos(np.outer(x, k)) @ c[:, 0] + np.sin(np.outer(x, k)) @ c[:, 1]
+
     def reported(self, coef):
         """``period_rad`` and ``amplitude_rad``, half the peak-to-peak of the deflection."""
-        c = np.asarray(coef, float).reshape(-1, 2)
-        x = 2 * np.pi * np.arange(1024) / 1024
-        k = np.arange(1, len(c) + 1)
-        f = np.cos(np.outer(x, k)) @ c[:, 0] + np.sin(np.outer(x, k)) @ c[:, 1]
+        f = self.table(coef, 1024)
         return {"period_rad": float(self.values["period_rad"]), "amplitude_rad": float(np.ptp(f) / 2)}
 
     def deflection(self, theta_m, P):
