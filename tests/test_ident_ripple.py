@@ -17,7 +17,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record
 from iiwa_ident.ident import RippleTable, read_model
 from iiwa_ident.ident.correction import joint_position, link_position
-from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.ident.ripple import deflection, identify_ripple
 from iiwa_ident.sim import SimulatedJoint, TransmissionRipple, default_plant
 
 PAPER_RHO = 0.01963
@@ -314,3 +314,8 @@ class TestRippleCommand:
         assert res.exit_code == 2 and "constant-speed" in res.output and "Traceback" not in res.output
         assert not (tmp_path / "m.toml").exists()
 
+
+
+def test_an_unknown_link_motion_is_refused_in_one_line():
+    with pytest.raises(IiwaIdentError, match=r"^ripple: link_motion must be restored or neglected, got 'free'$"):
+        deflection(None, 0, 18500.0, 5.6, 0.05, 0.1, 0.1, link_motion="free")

@@ -199,8 +199,12 @@ class AdditiveTorqueControl(TorqueControl):
     def __init__(self, design: AdditiveDesign, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = DEFAULT_BETA,
                  v_min: float = 0.2, ripple: RippleTable | None = None, dt: float = 1e-3) -> None:
         self.design = design
-        self.ripple = ripple
         self.cycle = ControlCycle(AdditiveController(design), period_rad, beta, v_min, dt, ripple)
+
+    @property
+    def ripple(self) -> RippleTable | None:
+        """The lookup table of eq (8) the cycle runs along (None: theta_j = q_m)."""
+        return self.cycle.ripple
 
     @classmethod
     def from_model(cls, model: JointModel, design: AdditiveDesign | None = None, beta: float = DEFAULT_BETA,

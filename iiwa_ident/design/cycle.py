@@ -21,10 +21,10 @@ records that state and commands nothing.
 
 from __future__ import annotations
 
-from iiwa_ident.design.controller import AdditiveController, AdditiveDesign
-from iiwa_ident.design.spatial_filter import RIPPLE_PERIOD_RAD, SpatialFilter
+from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design.spatial_filter import SpatialFilter
 from iiwa_ident.ident import RippleTable
-from iiwa_ident.model import MomentumObserver
+from iiwa_ident.model import RIPPLE_PERIOD_RAD, MomentumObserver
 from iiwa_ident.robot import Measurement
 
 __all__ = ["ControlCycle"]
@@ -85,13 +85,6 @@ class ControlCycle:
         self.tau_j_filt = 0.0  #: filtered joint torque of eq (15), offset removed [Nm]
         self.tau_ext = 0.0  #: filtered external-torque estimate of eq (14) [Nm] (0 without observer)
         self._theta_l_prev = 0.0
-
-    @classmethod
-    def from_design(cls, design: AdditiveDesign, ripple: RippleTable | None = None, beta: float = 5.0,
-                    v_min: float = 0.2) -> "ControlCycle":
-        """The cycle of ``design`` with the spatial filter at ``ripple``'s period (the default one without)."""
-        period = ripple.period_rad if ripple is not None else RIPPLE_PERIOD_RAD
-        return cls(AdditiveController(design), period, beta, v_min, design.sample_time_s, ripple)
 
     @property
     def speed(self) -> float:

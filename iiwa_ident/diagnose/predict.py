@@ -56,6 +56,7 @@ from scipy import signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.ident import JointModel
 from iiwa_ident.model import polynomials
+from iiwa_ident.sim import INJECTIONS as EFFECT_POINTS
 
 __all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",
            "command_prediction", "predict_channel"]
@@ -65,7 +66,7 @@ LINK_CUTOFF_HZ = 20.0
 #: Residual channels, in report order.
 CHANNELS = ("link", "command")
 #: Injection points an effect may use.
-INJECTIONS = ("link", "sensor", "deflection", "command", "command_raw", "link_raw", "reading_scale")
+INJECTIONS = (*EFFECT_POINTS, "command_raw", "link_raw")  # the effects' points and the model's own changes
 
 _EDGE_S = 0.15  # filter and derivative edge effects of the link channel [s]
 _SETTLE_S = 0.3  # start-up transient of the command channel (robot released from standstill) [s]

@@ -331,6 +331,8 @@ def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: fl
         Dynamic method: ``"restored"`` (the link's own motion from the torque and ``Jl``, eq (2))
         or ``"neglected"`` (theta_l taken as constant over the pass).
     """
+    if link_motion not in ("restored", "neglected"):
+        raise IiwaIdentError(f"ripple: link_motion must be restored or neglected, got {link_motion!r}")
     t, q, tau = _spread_repeated_stamps(dataset["t"]), dataset["q_m"], dataset["tau_j"]
     if method is None:
         method = "static" if dataset.experiment == "quasi_static" else "dynamic"
