@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import socket
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -20,12 +21,17 @@ from iiwa_ident.fri.connection import FriConnection, parse_host_port
 from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
     MONITORING_MESSAGE_ID,
+    ClientCommandMode,
     ConnectionQuality,
+    ControlMode,
+    DriveState,
+    SafetyState,
     MonitoringMessage,
     SessionState,
     decode_command,
     encode_monitoring,
 )
+from iiwa_ident.fri.robot import FriRobot
 from iiwa_ident.fri.runtime import ControllerRuntime, Watchdog
 from iiwa_ident.fri.tasks import TASKS, KappaTask, TaskInput, make_task
 from iiwa_ident.ident.model_file import read_model
@@ -438,3 +444,72 @@ def test_report_says_when_no_log_file_was_kept(tmp_path):
     (tmp_path / "kept.h5").write_bytes(b"")
     kept = dataclasses.replace(gone, logged=200, log=str(tmp_path / "kept.h5"))
     assert "log: 200 rows in" in format_report(kept)
+
+
+# --------------------------------------------------------------------------- what FriRobot sends
+
+Q_MEASURED = (0.10, -0.20, 0.30, -0.40, 0.50, -0.60, 0.70)
+Q_IPO = (0.11, -0.19, 0.31, -0.35, 0.52, -0.58, 0.71)  # the interpolator's pose: not the measured one
+Q_COMMANDED = (0.12, -0.18, 0.32, -0.36, 0.53, -0.57, 0.72)
+
+
+def _robot_message(seq, state, mode="torque"):
+    control, client = ((ControlMode.JOINT_IMPEDANCE, ClientCommandMode.TORQUE) if mode == "torque"
+                       else (ControlMode.POSITION, ClientCommandMode.POSITION))
+    return encode_monitoring(MonitoringMessage(
+        header=dict(message_identifier=MONITORING_MESSAGE_ID, sequence_counter=seq, reflected_sequence_counter=0),
+        robot_info=dict(number_of_joints=7, safety_state=SafetyState.NORMAL_OPERATION,
+                        drive_state=(DriveState.ACTIVE,) * 7, control_mode=control),
+        monitor_data=dict(measured_joint_position=dict(value=Q_MEASURED), measured_torque=dict(value=(1.0,) * 7),
+                          commanded_joint_position=dict(value=Q_COMMANDED),
+                          timestamp=dict(sec=100, nanosec=seq * 1_000_000)),
+        connection_info=dict(session_state=state, quality=ConnectionQuality.EXCELLENT, send_period_ms=1,
+                             receive_multiplier=1),
+        ipo_data=dict(joint_position=dict(value=Q_IPO), client_command_mode=client)))
+
+
+@pytest.mark.parametrize("mode", ["torque", "position"])
+def test_fri_robot_sends_the_interpolator_s_positions(mode):
+    """KUKA's client: commanded positions while monitoring, the interpolator's (plus the overlay) while commanding."""
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    robot.settimeout(WAIT_S)
+    client = FriRobot("127.0.0.1", joint=4, port=0, mode=mode, bind_host="127.0.0.1", connect_timeout_s=WAIT_S)
+    try:
+        address = client.connection.address
+        S = SessionState
+        answers = []
+        robot.sendto(_robot_message(1, S.MONITORING_READY, mode), address)
+        robot.sendto(_robot_message(2, S.COMMANDING_WAIT, mode), address)
+        # Both are queued; start() answers the newest one and goes on waiting: answer it, then activate.
+        started = []
+        worker = threading.Thread(target=lambda: started.append(client.start()), daemon=True)
+        worker.start()
+        answers.append(decode_command(robot.recv(2000)))
+        robot.sendto(_robot_message(3, S.MONITORING_READY, mode), address)
+        answers.append(decode_command(robot.recv(2000)))
+        robot.sendto(_robot_message(4, S.COMMANDING_ACTIVE, mode), address)
+        worker.join(WAIT_S)
+        assert started and started[0].q_m == Q_MEASURED[3]
+        command = Command(tau_c=2.5) if mode == "torque" else Command(q_cmd=-0.3)
+        # step() answers message 4, then waits for message 5.
+        robot_thread = threading.Thread(target=lambda: client.step(command), daemon=True)
+        robot_thread.start()
+        answers.append(decode_command(robot.recv(2000)))
+        robot.sendto(_robot_message(5, S.COMMANDING_ACTIVE, mode), address)
+        robot_thread.join(WAIT_S)
+    finally:
+        client.stop()
+        robot.close()
+    waiting, monitoring, active = answers
+    assert tuple(waiting.command_data.joint_position.value) == Q_IPO
+    assert tuple(monitoring.command_data.joint_position.value) == Q_COMMANDED
+    assert not monitoring.command_data.HasField("joint_torque")
+    expected = list(Q_IPO)
+    torques = [0.0] * 7
+    if mode == "torque":
+        torques[3] = 2.5
+    else:
+        expected[3] = -0.3
+    assert tuple(active.command_data.joint_position.value) == tuple(expected)
+    assert tuple(active.command_data.joint_torque.value) == tuple(torques)

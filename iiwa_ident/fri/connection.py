@@ -16,10 +16,11 @@ half of the message headers:
   computed for it would only add latency.
 * The client counts its own sequence from 0, one per command sent, and
   reflects the sequence counter of the message it answers.
-* What an answer carries follows the session state: nothing in IDLE, the
-  header only in MONITORING_WAIT / MONITORING_READY, joint positions and
-  joint torques for every joint in COMMANDING_WAIT / COMMANDING_ACTIVE.
-  Non-finite numbers are never sent.
+* What an answer carries follows the session state: nothing in IDLE; in
+  MONITORING_WAIT / MONITORING_READY the header, with joint positions when
+  the caller gives them (KUKA's client sends the robot's commanded ones);
+  joint positions and joint torques for every joint in COMMANDING_WAIT /
+  COMMANDING_ACTIVE. Non-finite numbers are never sent.
 """
 
 from __future__ import annotations
@@ -244,7 +245,8 @@ class FriConnection:
         msg : MonitoringMessage
             The message being answered (its sequence counter is reflected).
         joint_positions, joint_torques : sequence of float, optional
-            One per joint [rad], [Nm]; required in the commanding states.
+            One per joint [rad], [Nm]; both required in the commanding states. In the
+            monitoring states the positions are sent when given, the torques never.
 
         Raises
         ------
@@ -266,6 +268,11 @@ class FriConnection:
                 answer.command_data.joint_torque.value[:] = joint_torques
             except TypeError:
                 raise SafetyStop("FRI: joint positions and torques must be numbers") from None
+        elif joint_positions is not None:
+            try:
+                answer.command_data.joint_position.value[:] = joint_positions
+            except TypeError:
+                raise SafetyStop("FRI: joint positions must be numbers") from None
         try:
             # The protocol's checks (7 values per joint array, finite numbers) are the only ones in the loop.
             data = encode_command(answer)

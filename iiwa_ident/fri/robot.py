@@ -4,9 +4,17 @@ Every program that runs on the simulated joint runs unchanged on
 :class:`FriRobot`: :meth:`~FriRobot.start` follows the session up to
 COMMANDING_ACTIVE and returns the first measurement; each
 :meth:`~FriRobot.step` answers the current monitoring message with the
-command and returns the measurement of the next one. The joint under test
-gets the command; the other six get zero torque and their measured
-positions (so the robot's consistency check always passes).
+command and returns the measurement of the next one.
+
+What each answer carries is what KUKA's own client (``LBRClient``) sends:
+in the monitoring states the robot's commanded joint positions; in the
+commanding states the interpolator's joint positions (``ipoData``) for every
+joint, zero torque for the six not under test, and the command for the
+joint under test (its torque in torque mode, where its position too is the
+interpolator's; its position in position mode). The joints not overlaid so
+keep the robot's own setpoint: in torque mode the joint impedance holds
+them around the interpolator's pose, which the measured positions would
+not (their spring would vanish).
 """
 
 from __future__ import annotations
@@ -181,12 +189,17 @@ class FriRobot(RobotInterface):
                            tau_ext_fri=ext.value[j] if ext is not None else float("nan"))
 
     def _answer(self, msg: MonitoringMessage, command: Command | None) -> None:
-        """Answer ``msg``: header only while monitoring, the command (or a hold) while commanding."""
+        """Answer ``msg`` as KUKA's client does (module docstring), with ``command`` when commanding is active."""
         assert self.connection is not None
         if self._state(msg) not in COMMANDING_STATES:
-            self.connection.answer(msg)
+            commanded = _field(msg, "monitor_data", "commanded_joint_position")
+            self.connection.answer(msg, None if commanded is None else commanded.value)
             return
-        positions = list(self._values(msg, "measured_joint_position"))
+        ipo = _field(msg, "ipo_data", "joint_position")
+        if ipo is None:
+            raise SafetyStop(f"FRI: the robot's message lacks the interpolator's joint positions for {_N_JOINTS} "
+                             "joints")
+        positions = list(ipo.value)
         torques = [0.0] * _N_JOINTS
         if command is not None and self._state(msg) == SessionState.COMMANDING_ACTIVE:
             if command.q_cmd is not None:
