@@ -167,7 +167,7 @@ def command(q, tau) -> CommandData:
 
 
 def torque_policy(tau: float, joint: int = 1):
-    """Header only while monitoring; measured positions and ``tau`` on ``joint`` while commanding."""
+    """Header only while monitoring; the interpolator's positions and ``tau`` on ``joint`` while commanding."""
 
     def policy(client: Client, msg):
         state = msg.connection_info.session_state
@@ -176,7 +176,7 @@ def torque_policy(tau: float, joint: int = 1):
         torques = [0.0] * 7
         if state == S.COMMANDING_ACTIVE:
             torques[joint - 1] = tau
-        return command(msg.monitor_data.measured_joint_position.value, torques)
+        return command(msg.ipo_data.joint_position.value, torques)
 
     return policy
 
@@ -253,7 +253,13 @@ def test_full_session_with_constant_torque(tmp_path):
     assert m.connection_info.send_period_ms == 1 and m.connection_info.receive_multiplier == 1
     q = tuple(m.monitor_data.measured_joint_position.value)
     assert len(q) == 7 and q[1:] == DEFAULT_JOINT_POSITIONS[1:]
-    assert tuple(m.ipo_data.joint_position.value) == q
+    # The interpolator holds the pose where commanding began while the pushed joint moves away from it.
+    start = tuple(active[0].monitor_data.measured_joint_position.value)
+    assert all(tuple(a.ipo_data.joint_position.value) == start for a in active)
+    assert q[0] != start[0]
+    assert all(a.ipo_data.tracking_performance == 1.0 for a in active)
+    others = [a for a in client.messages if a.connection_info.session_state != S.COMMANDING_ACTIVE]
+    assert others and all(a.ipo_data.tracking_performance == 0.0 for a in others)
     assert tuple(m.monitor_data.commanded_torque.value) == (5.0, 0, 0, 0, 0, 0, 0)
     assert m.monitor_data.timestamp.sec > 1_600_000_000
     # The robot-side dataset: the joint moved under 5 Nm exactly as the simulated joint does.
@@ -307,7 +313,7 @@ def test_silent_client_drops_the_session():
 
 
 def _offset(msg, joint=3, by=0.2):
-    q = list(msg.monitor_data.measured_joint_position.value)
+    q = list(msg.ipo_data.joint_position.value)
     q[joint - 1] += by
     return command(q, (0.0,) * 7)
 
@@ -321,7 +327,7 @@ def _nan(msg):
 
 
 @pytest.mark.parametrize("bad, reason", [
-    (_offset, "commanded position of joint 3 is 0.200 rad from the measured one (limit 0.1 rad)"),
+    (_offset, "commanded position of joint 3 is 0.200 rad from the interpolator's (limit 0.1 rad)"),
     (_short, "joint_torque has 6 values, expected 7"),
     (_nan, "joint_torque has a non-finite value"),
     (lambda msg: None, "command without commandData"),
@@ -365,6 +371,33 @@ def test_position_mode_follows_the_commanded_position(tmp_path):
     ds = read_dataset(out)
     assert ds.has("q_cmd") and not ds.has("tau_c")
     assert abs(ds["q_m"][-1] - target["q"]) < 0.01
+
+
+def test_joint_position_overlay_swings_about_the_interpolator_s_pose():
+    """KUKA's joint sine overlay (interpolator position + 0.04 rad sine) swings the joint by 0.04 rad, no more."""
+    amplitude, frequency = 0.04, 2.0
+
+    def policy(client: Client, msg):
+        state = msg.connection_info.session_state
+        if state not in COMMANDING:
+            return None
+        q = list(msg.ipo_data.joint_position.value)
+        if state == S.COMMANDING_ACTIVE:
+            client.active_n = getattr(client, "active_n", 0) + 1
+            q[0] += amplitude * math.sin(2 * math.pi * frequency * client.active_n * 1e-3)
+        return command(q, None)
+
+    with Client(policy) as client:
+        report = run(client, duration_s=1.0, control_mode=ControlMode.POSITION,
+                     client_command_mode=ClientCommandMode.POSITION, **FAST)
+    assert report.session_drops == [] and report.end_reason == "duration"
+    active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]
+    ipo = np.array([m.ipo_data.joint_position.value[0] for m in active])
+    q = np.array([m.monitor_data.measured_joint_position.value[0] for m in active])
+    assert np.ptp(ipo) == 0.0
+    excursion = q - ipo[0]
+    # Two periods: the position loop follows with a small lag and gain, never beyond the amplitude.
+    assert 0.035 < excursion.max() < 0.045 and -0.045 < excursion.min() < -0.035
 
 
 def test_hand_moves_the_link(tmp_path):

@@ -8,6 +8,15 @@ over UDP, so that a client runtime can be tested without a robot. It sends a
 command. The six other joints of the arm stand still at
 :attr:`EmulatorConfig.joint_positions`.
 
+The robot's own motion is a position hold: its interpolator's positions
+(``ipoData.jointPosition``, and the commanded joint positions while no
+client commands) are that pose, the simulated joint held where it stood
+when the current ``COMMANDING_ACTIVE`` phase began (or ended). A client
+overlays its command on them, as KUKA's clients do (a joint position overlay
+sends the interpolator's position plus its offset). The tracking
+performance is 1 in ``COMMANDING_ACTIVE`` and 0 in every other state, as
+KUKA documents it.
+
 Real time
 ---------
 Cycle ``k`` starts at ``t0 + k * period`` (:func:`time.perf_counter`). Between
@@ -82,7 +91,8 @@ One cycle
 Session rules
 -------------
 * ``IDLE`` for :attr:`~EmulatorConfig.idle_s`, nothing sent, then
-  ``MONITORING_WAIT``. The client answers monitoring states with a header.
+  ``MONITORING_WAIT``. The client answers monitoring states with a header
+  (KUKA's client adds the commanded joint positions).
 * ``MONITORING_WAIT`` -> ``MONITORING_READY`` once the quality has been at
   least ``GOOD`` for :attr:`~EmulatorConfig.monitoring_s` without a break.
 * ``MONITORING_READY`` -> ``MONITORING_WAIT`` when the quality falls below
@@ -95,7 +105,8 @@ Session rules
   answer to a commanding-state message lacks ``commandData``, has fewer or
   more than 7 joint positions (and, in torque mode, 7 joint torques), holds
   a non-finite value, or commands a position farther than
-  :attr:`~EmulatorConfig.max_position_error_rad` from the measured one;
+  :attr:`~EmulatorConfig.max_position_error_rad` from the interpolator's
+  (torque mode) or the measured one (position mode);
   when no new answer arrived for :attr:`~EmulatorConfig.timeout_s` worth of
   cycles ("no answer for 5.0 ms"); or when the quality is ``POOR``.
   Answers to monitoring-state messages that arrive after commanding began
@@ -352,8 +363,8 @@ class EmulatorConfig:
     timeout_s : float
         Silence in commanding states that drops the session [s].
     max_position_error_rad : float
-        Largest allowed distance of a commanded from the measured joint
-        position [rad].
+        Largest allowed distance of a commanded joint position from the
+        interpolator's (torque mode) or the measured one (position mode) [rad].
     faults : Faults
         Injected network faults.
     quality : QualityThresholds
@@ -1087,7 +1098,7 @@ class RobotEmulator:
             drive_state=(DriveState.ACTIVE,) * _N_JOINTS, operation_mode=cfg.operation_mode,
             control_mode=cfg.control_mode)
         self._meas = self._robot.start()
-        self._hold_q = self._meas.q_m
+        self._hold(self._meas.q_m)
         self._positions = self._measured_positions(self._meas)
         self._sim_k = 0  # steps since the simulation (re)started
         self._t_offset = 0.0  # recorded time of the simulation's t = 0 [s]
@@ -1256,9 +1267,13 @@ class RobotEmulator:
         if problem:
             return problem
         limit = self.config.max_position_error_rad
-        for i, (q_cmd, q) in enumerate(zip(cd.joint_position.value, self._positions)):
+        # Torque mode: the positions are the joint impedance's setpoints, which a client takes from the
+        # interpolator; position mode: the path the joints follow, which may not jump away from them.
+        reference, name = (self._ipo, "the interpolator's") if self._torque_mode else (self._positions,
+                                                                                       "the measured one")
+        for i, (q_cmd, q) in enumerate(zip(cd.joint_position.value, reference)):
             if abs(q_cmd - q) > limit:
-                return (f"commanded position of joint {i + 1} is {abs(q_cmd - q):.3f} rad from the measured one "
+                return (f"commanded position of joint {i + 1} is {abs(q_cmd - q):.3f} rad from {name} "
                         f"(limit {limit:g} rad)")
         return None
 
@@ -1323,13 +1338,14 @@ class RobotEmulator:
             self._report.commanding_s += self._active_time()
             self._robot.set_agent(None)
             # Leaving torque or position control: the robot holds where the joint is.
-            self._hold_q = self._meas.q_m
+            self._hold(self._meas.q_m)
             self._cmd_pos = self._cmd_tau = None
         if state == SessionState.COMMANDING_ACTIVE:
             if self._commanding_start is None:
                 self._restart()
             self._active_start = self._active_cycles
-            self._hold_q = self._meas.q_m
+            # The overlaid motion starts: the interpolator holds the pose the joint is at.
+            self._hold(self._meas.q_m)
             if self._hand_agent is not None:
                 self._robot.set_agent(_ShiftedAgent(self._hand_agent, self._sim_k * self._period, self._meas.q_m))
         if state == SessionState.MONITORING_WAIT:
@@ -1377,6 +1393,13 @@ class RobotEmulator:
             return Command(q_cmd=self._cmd_pos[self._j] if self._cmd_pos is not None else self._hold_q)
         return Command(tau_c=0.0) if self._torque_mode else Command(q_cmd=self._hold_q)
 
+    def _hold(self, q: float) -> None:
+        """The robot's own motion holds the simulated joint at ``q`` [rad]: the interpolator's pose."""
+        self._hold_q = q
+        pose = list(self.config.joint_positions)
+        pose[self._j] = q
+        self._ipo = tuple(float(v) for v in pose)
+
     def _measured_positions(self, meas: Measurement) -> tuple[float, ...]:
         pose = self._pose
         pose[self._j] = meas.q_m
@@ -1415,15 +1438,16 @@ class RobotEmulator:
             monitor_data=dict(
                 measured_joint_position=dict(value=positions),
                 measured_torque=dict(value=tau),
-                commanded_joint_position=dict(value=self._cmd_pos if self._cmd_pos is not None else positions),
+                commanded_joint_position=dict(value=self._cmd_pos if self._cmd_pos is not None else self._ipo),
                 commanded_torque=dict(value=self._cmd_tau if self._cmd_tau is not None else self._zero7),
                 external_torque=dict(value=ext),
                 timestamp=dict(sec=sec & _U32, nanosec=nsec),
             ),
             connection_info=dict(session_state=state, quality=self._quality, send_period_ms=cfg.send_period_ms,
                                  receive_multiplier=1),
-            ipo_data=dict(joint_position=dict(value=positions), client_command_mode=cfg.client_command_mode,
-                          overlay_type=OverlayType.JOINT, tracking_performance=1.0),
+            ipo_data=dict(joint_position=dict(value=self._ipo), client_command_mode=cfg.client_command_mode,
+                          overlay_type=OverlayType.JOINT,
+                          tracking_performance=1.0 if state == SessionState.COMMANDING_ACTIVE else 0.0),
         )
         data = encode_monitoring(msg)
         slot = seq & (_RING - 1)
