@@ -42,6 +42,7 @@ from iiwa_ident.fri.protocol import (
     ControlMode,
     DriveState,
     FriDecodeError,
+    SafetyState,
     SessionState,
     decode_monitoring,
 )
@@ -398,6 +399,34 @@ def test_joint_position_overlay_swings_about_the_interpolator_s_pose():
     excursion = q - ipo[0]
     # Two periods: the position loop follows with a small lag and gain, never beyond the amplitude.
     assert 0.035 < excursion.max() < 0.045 and -0.045 < excursion.min() < -0.035
+
+
+@pytest.mark.parametrize("tau, q0, limit", [(10.0, 2.6, "range"), (-25.0, -2.2, "speed"), (5.0, 2.85, "range")],
+                         ids=["range", "speed", "range-slow"])
+def test_safety_stop_brakes_the_joint_inside_its_range(tmp_path, tau, q0, limit):
+    """A torque client that would drive the joint out of its range (or over its speed) is stopped inside it."""
+    lim = default_plant().limits
+    out = tmp_path / "robot.h5"
+    with Client(torque_policy(tau)) as client:
+        report = run(client, duration_s=5.0, joint_positions=(q0,) + DEFAULT_JOINT_POSITIONS[1:], record=out, **FAST)
+    assert report.end_reason == "safety_stop" and report.session_drops == []
+    assert report.safety_stop.startswith("joint 1 ") and limit in report.safety_stop
+    assert report.commanding_s < 5.0
+    # The client sees the session leave COMMANDING_ACTIVE and the safety state from that message on.
+    assert client.states() == FULL_SEQUENCE[1:]
+    active = max(i for i, m in enumerate(client.messages) if m.connection_info.session_state == S.COMMANDING_ACTIVE)
+    safety = [m.robot_info.safety_state for m in client.messages]
+    assert set(safety[:active + 1]) == {SafetyState.NORMAL_OPERATION}
+    assert set(safety[active + 1:]) == {SafetyState.SAFETY_STOP_LEVEL_1}
+    q = np.array([m.monitor_data.measured_joint_position.value[0] for m in client.messages])
+    v = np.diff(q) / 1e-3
+    assert np.all(np.abs(q) < lim.position_rad)
+    assert np.all(np.abs(v[:active - 1]) <= lim.velocity_rad_s)  # the last active message shows the violation
+    assert np.all(np.abs(v[-20:]) < 0.1)  # braked (settling at a few hundredths of a rad/s) before the session closed
+    # It ends where the interpolator holds it (the end of the braking ramp).
+    assert abs(q[-1] - client.messages[-1].ipo_data.joint_position.value[0]) < 0.01
+    ds = read_dataset(out)
+    assert ds.experiment_attrs["end_reason"] == "safety_stop" and ds.experiment_attrs["safety_stop"] == report.safety_stop
 
 
 def test_hand_moves_the_link(tmp_path):

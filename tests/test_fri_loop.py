@@ -189,6 +189,20 @@ class TestRunAgainstTheEmulator:
         assert np.all(np.abs(np.diff(tau_c[k - 1:k + 21])) <= config.limits.torque_rate_nm_s * 1e-3 + 1e-9)
         assert np.all(w[k + 120:] == 1.0) and np.abs(tau_c[k + 120:]).max() > 1.0
 
+    def test_a_safety_stop_ends_the_run_with_its_reason(self, config, tmp_path):
+        # 10 Nm from near the end of joint 1's range: the robot side stops the joint inside the range, the
+        # session leaves COMMANDING_ACTIVE and the run ends on the robot's safety state.
+        port = free_port()
+        pose = (2.6, 0.5, 0.0, -1.5, 0.0, 1.0, 0.0)
+        with _emulator(port, duration_s=10.0, seed=0, joint_positions=pose) as emu:
+            rep = run_controller(config, _client(port), make_task("constant", 10.0), 8.0, tmp_path / "run.h5")
+            emu.stop()
+            emu_report = emu.join(60.0)
+        assert emu_report.end_reason == "safety_stop" and "would pass the end of its range" in emu_report.safety_stop
+        assert "SAFETY_STOP_LEVEL_1" in rep.stop_reason and rep.cycles < 8000
+        log = read_dataset(tmp_path / "run.h5")
+        assert np.abs(log["q_m"]).max() < default_plant().limits.position_rad
+
     def test_refuses_a_robot_in_the_wrong_command_mode(self, config, tmp_path):
         port = free_port()
         with _emulator(port, duration_s=1.0, client_command_mode=ClientCommandMode.POSITION) as emu:

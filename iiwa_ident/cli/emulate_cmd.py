@@ -55,6 +55,9 @@ def format_summary(report: EmulatorReport) -> str:
     if r.lockstep:
         lines.append(f"lockstep (times are virtual): messages resent to a silent client {r.resent}, client taken "
                      f"for gone {r.client_gone} times, commanding messages left unsent after that {r.unsent}")
+    if r.safety_stop:
+        lines.append(f"SAFETY STOP at {r.safety_stop_t_s:.3f} s: {r.safety_stop}; the joint braked to rest and the "
+                     "session ended")
     if r.stalled_cycles:
         lines.append(f"robot-side stalls: {r.stalled_cycles} cycles without a message")
     lines.append(f"commanding active: {r.commanding_s:.3f} s; wall time {r.wall_s:.3f} s; ended: {r.end_reason}")

@@ -117,6 +117,26 @@ Session rules
   the run ends. :meth:`RobotEmulator.stop` goes to that final ``IDLE`` at
   once.
 
+Safety
+------
+Every cycle of ``COMMANDING_ACTIVE`` the robot side checks the simulated
+joint against its robot model's data-sheet limits
+(:attr:`Plant.limits <iiwa_ident.sim.plant.Plant>`, from
+:func:`~iiwa_ident.robot.joint_limits`): the speed (from the last two
+measured positions), the joint torque, and the range, watched ahead by the
+distance the joint still covers when stopped now (the reaction, one cycle
+and the joint's input delay, at the present speed, then the braking ramp at
+:attr:`~EmulatorConfig.brake_decel_rad_s2`), so a joint driven at the end
+of its range comes to rest inside it. A violation stops the robot as its
+safety controller does: the safety state becomes ``SAFETY_STOP_LEVEL_1``,
+the joint brakes under position control along a ramp to rest (whatever the
+client sends; the interpolator holds the ramp's end), the session leaves
+``COMMANDING_ACTIVE`` for ``MONITORING_READY`` until the joint has come to
+rest (:data:`BRAKE_SETTLE_S` after the ramp), then ``IDLE``, and the run
+ends. The report names the violated limit (:attr:`EmulatorReport.safety_stop`,
+``end_reason`` ``"safety_stop"``). The six joints that stand still are not
+checked; their commanded positions only by ``max_position_error_rad``.
+
 Connection quality
 ------------------
 Judged every cycle over the last ``window`` cycles in which an answer was
@@ -218,6 +238,8 @@ DEFAULT_JOINT_POSITIONS: tuple[float, ...] = tuple(
 OVERRUN_S = 0.5e-3
 #: Lockstep: a monitoring message nobody answered is sent again after this wall time [s].
 RESEND_S = 0.05
+#: After a safety stop's braking ramp, the session stays open this long for the joint to settle [s].
+BRAKE_SETTLE_S = 0.2
 #: Values of :attr:`EmulatorConfig.agent`.
 AGENTS = ("hand",)
 
@@ -365,6 +387,9 @@ class EmulatorConfig:
     max_position_error_rad : float
         Largest allowed distance of a commanded joint position from the
         interpolator's (torque mode) or the measured one (position mode) [rad].
+    brake_decel_rad_s2 : float
+        Deceleration of the robot's safety stop [rad/s^2] (module docstring,
+        "Safety"): the braking ramp's, and the one the range is watched with.
     faults : Faults
         Injected network faults.
     quality : QualityThresholds
@@ -420,6 +445,7 @@ class EmulatorConfig:
     closing_s: float = 0.1
     timeout_s: float = 0.005
     max_position_error_rad: float = 0.1
+    brake_decel_rad_s2: float = 5.0
     faults: Faults = field(default_factory=Faults)
     quality: QualityThresholds = field(default_factory=QualityThresholds)
     agent: str | None = None
@@ -474,6 +500,7 @@ def check_config(config: EmulatorConfig) -> None:
     if config.lockstep_latency_s >= config.send_period_ms * 1e-3:
         raise IiwaIdentError(f"lockstep_latency_s must be below the send period, got {config.lockstep_latency_s!r}")
     _finite("max_position_error_rad", config.max_position_error_rad, strict=True)
+    _finite("brake_decel_rad_s2", config.brake_decel_rad_s2, strict=True)
     try:
         stalls = [(float(a), float(b)) for a, b in config.stalls]
     except (TypeError, ValueError):
@@ -656,6 +683,10 @@ class EmulatorReport:
     stalled_cycles : int
         Cycles of an injected robot-side stall (:attr:`EmulatorConfig.stalls`),
         in which no message was sent.
+    safety_stop : str
+        The limit whose violation stopped the robot ("" when none was).
+    safety_stop_t_s : float or None
+        When it did [s].
     faults : dict of str to int
         Injected faults, named as the :class:`Faults` fields: ``loss``,
         ``jitter`` (datagrams delayed), ``duplicate``, ``reorder``,
@@ -666,7 +697,7 @@ class EmulatorReport:
     wall_s : float
         Wall time of the run [s].
     end_reason : str
-        ``"duration"``, ``"stopped"`` or ``"max_wall"``.
+        ``"duration"``, ``"stopped"``, ``"max_wall"`` or ``"safety_stop"``.
     lockstep : bool
         Whether the run was in lockstep (times are then virtual).
     dataset : Path or None
@@ -701,6 +732,8 @@ class EmulatorReport:
     client_gone: int = 0
     unsent: int = 0
     stalled_cycles: int = 0
+    safety_stop: str = ""
+    safety_stop_t_s: float | None = None
     faults: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_FAULT_KINDS, 0))
     commanding_s: float = 0.0
     wall_s: float = 0.0
@@ -1100,6 +1133,11 @@ class RobotEmulator:
         self._meas = self._robot.start()
         self._hold(self._meas.q_m)
         self._positions = self._measured_positions(self._meas)
+        self._q_prev = self._meas.q_m  # the previous measurement's position, for the speed [rad]
+        self._brake: tuple[float, float, int] | None = None  # safety stop: (q, v, simulation step) at its start
+        # The robot's reaction: this cycle, then the input delay of its commands (the simulated joint's).
+        self._reaction_s = T + self._robot.delay_substeps * T / self._plant.substeps
+        self._closing_s = cfg.closing_s
         self._sim_k = 0  # steps since the simulation (re)started
         self._t_offset = 0.0  # recorded time of the simulation's t = 0 [s]
         self._commanding_start: int | None = None
@@ -1175,6 +1213,11 @@ class RobotEmulator:
             rep.quality[self._quality.name] += 1
         self._session(k, answer, error)
         state = self._state
+        if state == SessionState.COMMANDING_ACTIVE:
+            violation = self._limit_violation(self._meas)
+            if violation:
+                self._safety_stop(k, violation)
+                state = self._state
         if state == SessionState.COMMANDING_ACTIVE and answer is not None and answer[2] == state:
             cd = answer[0].command_data
             self._cmd_pos = tuple(cd.joint_position.value)
@@ -1187,6 +1230,7 @@ class RobotEmulator:
             command = self._command(state)
             if self._rows is not None:
                 self._record(self._meas, command)
+            self._q_prev = self._meas.q_m
             self._meas = meas = self._robot.step(command)
             self._sim_k += 1
         self._positions = self._measured_positions(meas)
@@ -1319,7 +1363,7 @@ class RobotEmulator:
             if not self._ending and in_state >= cfg.idle_s - 1e-9:
                 self._enter(k, SessionState.MONITORING_WAIT)
         elif self._ending:
-            if in_state >= cfg.closing_s - 1e-9:
+            if in_state >= self._closing_s - 1e-9:
                 self._enter(k, SessionState.IDLE)
         elif state == SessionState.MONITORING_WAIT:
             self._good_cycles = self._good_cycles + 1 if self._quality >= ConnectionQuality.GOOD else 0
@@ -1361,6 +1405,7 @@ class RobotEmulator:
         self._commanding_start = self._sim_k  # = rows recorded so far
         self._t_offset = self._sim_k * self._period
         self._meas = self._robot.start()
+        self._q_prev = self._meas.q_m
         self._sim_k = 0
         self._restart_now = True
         self._positions = self._measured_positions(self._meas)
@@ -1379,14 +1424,61 @@ class RobotEmulator:
 
     def _end(self, reason: str, k: int) -> None:
         """Close the session at once (stop request or wall-time limit)."""
-        self._report.end_reason = reason
+        self._report.end_reason = self._report.end_reason or reason
         self._ending = True
         if self._state != SessionState.IDLE:
             self._enter(k, SessionState.IDLE)
         else:
             self._state_k = k
 
+    # -- safety -------------------------------------------------------------
+    def _limit_violation(self, meas: Measurement) -> str:
+        """Which of the joint's limits ``meas`` violates ("" for none; module docstring, "Safety")."""
+        lim = self._plant.limits
+        n = self._plant.joint
+        q = meas.q_m
+        v = (q - self._q_prev) / self._period
+        if abs(v) > lim.velocity_rad_s:
+            return f"joint {n} speed {abs(v):.3f} rad/s above its limit {lim.velocity_rad_s:.3f} rad/s"
+        q_stop = q + v * self._reaction_s + v * abs(v) / (2.0 * self.config.brake_decel_rad_s2)
+        if abs(q_stop) > lim.position_rad:
+            return (f"joint {n} at {q:.3f} rad and {v:+.3f} rad/s would pass the end of its range "
+                    f"+-{lim.position_rad:.3f} rad")
+        if abs(meas.tau_j) > lim.torque_nm:
+            return f"joint {n} torque {meas.tau_j:.1f} Nm beyond its limit +-{lim.torque_nm:g} Nm"
+        return ""
+
+    def _safety_stop(self, k: int, reason: str) -> None:
+        """Stop the robot as its safety controller does: brake on a ramp, end the session, report why."""
+        rep = self._report
+        t = k * self._period
+        rep.safety_stop, rep.safety_stop_t_s, rep.end_reason = reason, t, "safety_stop"
+        q = self._meas.q_m
+        v = (q - self._q_prev) / self._period
+        self._brake = (q, v, self._sim_k)
+        self._robot_info = RobotInfo(
+            number_of_joints=_N_JOINTS, safety_state=SafetyState.SAFETY_STOP_LEVEL_1,
+            drive_state=(DriveState.ACTIVE,) * _N_JOINTS, operation_mode=self.config.operation_mode,
+            control_mode=self.config.control_mode)
+        if self._on_event is not None:
+            self._on_event(t, f"safety stop: {reason}")
+        self._ending = True
+        # The session closes once the joint has braked to rest (the ramp, the delay, time to settle).
+        self._closing_s = max(self.config.closing_s,
+                              abs(v) / self.config.brake_decel_rad_s2 + self._reaction_s + BRAKE_SETTLE_S)
+        self._enter(k, SessionState.MONITORING_READY)
+        self._hold(self._brake_position(math.inf))
+
+    def _brake_position(self, t: float) -> float:
+        """The braking ramp's position ``t`` [s] after the safety stop began [rad]."""
+        q, v, _ = self._brake
+        a = math.copysign(self.config.brake_decel_rad_s2, v)
+        t = min(t, abs(v) / self.config.brake_decel_rad_s2)
+        return q + v * t - 0.5 * a * t * t
+
     def _command(self, state: SessionState) -> Command:
+        if self._brake is not None:
+            return Command(q_cmd=self._brake_position((self._sim_k - self._brake[2]) * self._period))
         if state == SessionState.COMMANDING_ACTIVE:
             if self._torque_mode:
                 return Command(tau_c=self._cmd_tau[self._j] if self._cmd_tau is not None else 0.0)
@@ -1416,7 +1508,8 @@ class RobotEmulator:
         if "tau_ext_ref" in rows:
             rows["tau_ext_ref"].append(meas.tau_ext_ref)
         if self._torque_mode:
-            rows["tau_c"].append(command.tau_c)
+            # After a safety stop the robot brakes under position control: no torque is commanded.
+            rows["tau_c"].append(0.0 if command.tau_c is None else command.tau_c)
         else:
             rows["q_cmd"].append(command.q_cmd)
 
@@ -1564,6 +1657,7 @@ class RobotEmulator:
             "state": np.array([int(s) for _, s in rep.states], dtype=np.int64),
             "drop_t_s": np.array([t for t, _ in rep.session_drops], dtype=float),
             "end_reason": rep.end_reason,
+            "safety_stop": rep.safety_stop,
         }
         if cfg.duration_s is not None:
             attrs["duration_s"] = cfg.duration_s

@@ -142,7 +142,8 @@ class FriRobot(RobotInterface):
     def _check_health(self, msg: MonitoringMessage) -> None:
         safety = _field(msg, "robot_info", "safety_state")
         if safety not in (None, SafetyState.NORMAL_OPERATION):
-            raise SafetyStop(f"FRI: robot safety state {_name(SafetyState, safety)}")
+            raise SafetyStop(f"FRI: the robot stopped itself: safety state {_name(SafetyState, safety)}, "
+                             f"session {_name(SessionState, self._state(msg))} (its controller names the cause)")
         drives = msg.robot_info.drive_state
         if drives and drives[self.joint - 1] != DriveState.ACTIVE:
             raise SafetyStop(f"FRI: drive of joint {self.joint} is {_name(DriveState, drives[self.joint - 1])}")
@@ -263,6 +264,8 @@ class FriRobot(RobotInterface):
         state = self._state(msg)
         if state != SessionState.COMMANDING_ACTIVE:
             self._msg = None
+            # A safety stop ends the session too: say so rather than only that the state changed.
+            self._check_health(msg)
             raise SafetyStop(f"FRI: the robot left COMMANDING_ACTIVE (now {_name(SessionState, state)})")
         self._check_health(msg)
         self._msg = msg
