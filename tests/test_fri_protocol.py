@@ -148,6 +148,15 @@ class TestReferenceBytes:
         assert body[::9] == b"\x09" * 7
         assert struct.unpack("<" + "xd" * 7, body) == TAU
 
+    def test_wrench_packed_as_kukas_sdk_writes_it(self):
+        wrench = (1.0, 2.0, 3.0, 0.1, 0.2, 0.3)
+        out = encode_command(CommandMessage(header=header(COMMAND_MESSAGE_ID),
+                                            command_data=dict(cartesian_wrench_feed_forward=dict(element=wrench))))
+        # commandData (0x12): cartesianWrenchFeedForward (field 2, 0x12): element (field 1, 0x0a) of 48 bytes
+        assert out == CMD_HEADER + ld(2, ld(2, packed(wrench)))
+        assert decode_command(CMD_HEADER + ld(2, ld(2, unpacked(wrench)))).command_data == \
+            decode_command(out).command_data  # unpacked is read too
+
     def test_drive_states_unpacked(self):
         msg = MonitoringMessage(header=header(MONITORING_MESSAGE_ID), robot_info=dict(drive_state=(2,) * 7))
         assert encode_monitoring(msg) == MON_HEADER + ld(2, vfield(5, 2) * 7)

@@ -342,8 +342,13 @@ class TestFriConnection:
 
     def test_stale_invalid_and_foreign_datagrams_dropped(self, link):
         client, robot = link
-        robot.sendto(_monitoring(5), client.address)
-        assert client.receive(WAIT_S).header.sequence_counter == 5
+        robot.sendto(_monitoring(2), client.address)
+        assert client.receive(WAIT_S).header.sequence_counter == 2
+        robot.sendto(_monitoring(5), client.address)  # 3 and 4 never seen, but before the client answered
+        msg = client.receive(WAIT_S)
+        assert msg.header.sequence_counter == 5 and client.stats.lost == 0
+        client.answer(msg)
+        robot.recv(2000)
         robot.sendto(_monitoring(5), client.address)  # duplicate
         robot.sendto(_monitoring(4), client.address)  # reordered
         robot.sendto(b"\x0a\x02\x08", client.address)  # truncated
@@ -355,7 +360,8 @@ class TestFriConnection:
         msg = client.receive(WAIT_S)
         assert msg.header.sequence_counter == 8
         s = client.stats
-        assert (s.stale, s.invalid, s.foreign, s.lost, s.received) == (2, 1, 1, 2, 2)
+        assert (s.stale, s.invalid, s.foreign, s.lost, s.received) == (2, 1, 1, 2, 3)
+        assert s.first_answer_s is not None and s.first_answer_s > 0
 
     def test_only_the_newest_queued_message_is_answered(self, link):
         client, robot = link
@@ -513,3 +519,30 @@ def test_fri_robot_sends_the_interpolator_s_positions(mode):
         expected[3] = -0.3
     assert tuple(active.command_data.joint_position.value) == tuple(expected)
     assert tuple(active.command_data.joint_torque.value) == tuple(torques)
+
+
+def test_restoring_a_handler_installed_from_c_never_raises(monkeypatch):
+    """Python reads a handler installed from C as None, which signal.signal refuses: the default takes its place."""
+    import signal
+
+    from iiwa_ident.fri import runtime
+
+    real = signal.signal
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    installed = []
+
+    def from_c(sig, handler):
+        if handler is None:
+            raise TypeError("signal handler must be signal.SIG_IGN, signal.SIG_DFL, or a callable object")
+        installed.append((sig, handler))
+        real(sig, handler)
+        return None  # what Python reports for a handler it did not install
+
+    monkeypatch.setattr(signal, "signal", from_c)
+    try:
+        with runtime._StopSignals():
+            pass
+        assert installed[2:] == [(signal.SIGINT, signal.SIG_DFL), (signal.SIGTERM, signal.SIG_DFL)]
+    finally:
+        for sig, handler in before.items():
+            real(sig, handler)

@@ -67,6 +67,17 @@ class TestRoundTrip:
         assert attrs["lost_rows"] == 0
         assert "incomplete" not in attrs and "interrupted" not in attrs
 
+    def test_rows_appended_before_the_writer_is_ready(self, tmp_path):
+        path = tmp_path / "run.h5"
+        rows = random_rows(3000)
+        log = make_writer(path).start(wait=False)
+        for row in rows:  # at once: the ring holds them until the new interpreter has the file open
+            assert log.append(row)
+        stats = log.close()
+        assert stats.written == 3000 and stats.lost == 0
+        assert np.array_equal(read_dataset(path)["tau_j"], rows[:, SIGNALS.index("tau_j")])
+        assert log.ready()
+
     def test_complete_file_has_no_progress_markers(self, tmp_path):
         path = tmp_path / "run.h5"
         with make_writer(path) as log:
@@ -138,7 +149,7 @@ LOOP_SCRIPT = textwrap.dedent(
     from iiwa_ident.datasets import LogWriter
 
     log = LogWriter(sys.argv[1], ["t", "q_m", "tau_j"], experiment="free", source="robot",
-                    joint=1, sample_rate_hz=1000.0, flush_interval_s=0.5).start()
+                    joint=1, sample_rate_hz=1000.0, flush_interval_s=0.5).start(wait=sys.argv[4] == "wait")
     print("writer", log.writer_pid, flush=True)
     rows = int(sys.argv[2])
     for k in range(rows):  # far below the ring's capacity: nothing is lost however slow the writer
@@ -158,10 +169,11 @@ class _Loop:
     until it is killed; without, it exits without closing the log. Nothing is paced by the clock.
     """
 
-    def __init__(self, path: Path, tmp_path: Path, rows: int, hold: bool) -> None:
+    def __init__(self, path: Path, tmp_path: Path, rows: int, hold: bool, wait: bool = True) -> None:
         self.stderr = open(tmp_path / "loop.stderr", "w+")
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", LOOP_SCRIPT, str(path), str(rows), "hold" if hold else "exit"],
+            [sys.executable, "-c", LOOP_SCRIPT, str(path), str(rows), "hold" if hold else "exit",
+             "wait" if wait else "nowait"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr, cwd=REPO,
         )
         self._buffer = b""
@@ -226,12 +238,17 @@ def check_rows(ds, n_min: int) -> None:
 
 
 class TestParentKilled:
-    def test_writer_finishes_the_file(self, tmp_path):
+    @pytest.mark.parametrize("wait", [True, False], ids=["started", "ready-unread"])
+    def test_writer_finishes_the_file(self, tmp_path, wait):
+        # Without waiting for the start, the loop dies with the writer's "ready" unread in its socket: the
+        # writer then reads a reset, not an end of file, and must still finish.
         path = tmp_path / "killed.h5"
-        loop = _Loop(path, tmp_path, rows=1500, hold=True)
+        loop = _Loop(path, tmp_path, rows=1500, hold=True, wait=wait)
         try:
             loop.expect("writer")
             appended = loop.expect("running")
+            if not wait:
+                wait_for(lambda: _live(path, appended), what="the writer taking the rows")
             os.kill(loop.proc.pid, signal.SIGKILL)  # the loop only, not its writer
             loop.proc.wait(60)
             ds = wait_for_complete(path)

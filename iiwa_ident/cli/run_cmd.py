@@ -37,6 +37,8 @@ def format_report(report: RunReport) -> str:
         lines.append(f"watchdog at {t:.3f} s: {text}")
     if report.connection:
         lines.append("datagrams: " + ", ".join(f"{k} {v}" for k, v in report.connection.items()))
+    if report.first_answer_s is not None:
+        lines.append(f"first answer to the robot {report.first_answer_s * 1e3:.0f} ms after listening")
     if report.log and not Path(report.log).exists():
         # The log writer keeps no file that no dataset reader would accept (fewer than two rows).
         lines.append(f"log: {report.logged} row(s), too few for a dataset: no file written at {report.log}")

@@ -242,6 +242,7 @@ class LogWriter:
         self._shm: SharedMemory | None = None
         self._conn: multiprocessing.connection.Connection | None = None
         self._proc: multiprocessing.process.BaseProcess | None = None
+        self._starting = False  # launched, its "ready" not yet received
         self._stats: LogStats | None = None
 
     # ------------------------------------------------------------------
@@ -315,12 +316,21 @@ class LogWriter:
     # ------------------------------------------------------------------
     # start and close
 
-    def start(self) -> "LogWriter":
+    def start(self, wait: bool = True) -> "LogWriter":
         """Create the file and start the writer process.
 
-        Blocks until the writer has the file open (a fraction of a second:
-        a new interpreter imports numpy and h5py), so call it before the
-        control loop starts.
+        With ``wait`` it blocks until the writer has the file open (a new
+        interpreter imports numpy and h5py: a fraction of a second on an idle
+        machine, seconds on a loaded one), so call it before the control loop
+        starts. Without, it returns once the file and the ring exist and the
+        process is launched: rows can be appended at once (the ring holds
+        them until the writer takes them), and the writer's start is checked
+        by :meth:`ready` and at the latest by :meth:`close`.
+
+        Parameters
+        ----------
+        wait : bool
+            Wait for the writer to have the file open.
 
         Returns
         -------
@@ -342,7 +352,7 @@ class LogWriter:
         self._meta.created_utc = _format._now_utc()
         _create_skeleton(self._path, self._meta, self._names)
         try:
-            self._start_writer()
+            self._start_writer(wait)
         except BaseException:
             try:  # an empty recording that no writer will fill
                 self._path.unlink()
@@ -351,7 +361,7 @@ class LogWriter:
             raise
         return self
 
-    def _start_writer(self) -> None:
+    def _start_writer(self, wait: bool) -> None:
         """Create the ring and the writer process; wait until it has the file open."""
         nbytes = _ROWS_OFFSET + self._capacity * self._n * 8
         # Named after the process, so that a segment left by a crash (SIGKILL of both processes) can be told
@@ -389,12 +399,46 @@ class LogWriter:
         self._conn = parent_end
         self._proc = proc
         _OPEN_WRITERS.add(self)
-        reply = _receive(parent_end, _START_TIMEOUT_S)
+        self._starting = True
+        if wait:
+            self._await_start()
+
+    def ready(self, timeout_s: float = 0.0) -> bool:
+        """Whether the writer has the file open, waiting up to ``timeout_s`` [s] to know.
+
+        Raises
+        ------
+        DatasetError
+            If the writer failed to start (once; the recording is then abandoned).
+        RuntimeError
+            Before :meth:`start`.
+        """
+        if self._proc is None:
+            raise RuntimeError("LogWriter.ready() before start()")
+        if not self._starting:
+            return True
+        proc = self._proc
+        try:
+            arrived = self._conn.poll(timeout_s)
+        except (EOFError, OSError):
+            arrived = True
+        if not arrived and proc.is_alive():
+            return False
+        reply = _receive(self._conn, 0.0)
+        self._starting = False
         if reply is None or reply[0] != "ready":
             self._abort()
             if reply is not None and reply[0] == "error":
                 raise DatasetError(reply[1])
             raise DatasetError(f"{self._path}: log writer process did not start (exit code {proc.exitcode})")
+        return True
+
+    def _await_start(self) -> None:
+        """Wait for the writer to have the file open; raise DatasetError if it does not."""
+        if not self.ready(_START_TIMEOUT_S):
+            self._starting = False
+            self._abort()
+            raise DatasetError(f"{self._path}: log writer process did not start within {_START_TIMEOUT_S:g} s")
 
     def close(self, experiment_attrs: Mapping[str, Any] | None = None) -> LogStats:
         """Finish the file and stop the writer; idempotent.
@@ -433,6 +477,15 @@ class LogWriter:
         if self._proc is None:
             self._stats = LogStats(self._head, 0, self._lost, self._path)
             return self._stats
+        if self._starting:
+            try:
+                self._await_start()
+            except DatasetError:
+                try:  # an empty recording that no writer filled
+                    self._path.unlink()
+                except OSError:
+                    pass
+                raise
 
         conn = self._conn
         try:
@@ -679,7 +732,7 @@ def _writer_main(
             if conn.poll(_POLL_S):
                 try:
                     message = conn.recv()
-                except EOFError:
+                except (EOFError, OSError):  # reset, not EOF, when the loop died with a reply unread
                     parent_gone = True
                     break
                 if message[0] == "close":

@@ -100,9 +100,13 @@ class ConnectionStats:
     skipped : int
         Newer messages superseded by an even newer one before they were answered.
     lost : int
-        Gaps in the robot's sequence counter (messages never received).
+        Gaps in the robot's sequence counter (messages never received) once the
+        client has answered: what queued up or overflowed the socket before
+        the client was reading is not a loss of the session.
     sent : int
         Answers sent.
+    first_answer_s : float or None
+        Time from opening the socket to the first answer [s].
     """
 
     received: int = 0
@@ -112,6 +116,7 @@ class ConnectionStats:
     skipped: int = 0
     lost: int = 0
     sent: int = 0
+    first_answer_s: float | None = None
     last_error: str = field(default="", repr=False)
 
     def as_dict(self) -> dict[str, int]:
@@ -153,6 +158,7 @@ class FriConnection:
             self._sock.close()
             raise IiwaIdentError(f"cannot listen on UDP port {self.port}: {err.strerror or err}") from None
         self._sock.setblocking(False)
+        self._opened_ns = time.perf_counter_ns()
         self._buffer = bytearray(MAX_DATAGRAM_BYTES + 1)
         self.rx_ns = 0  #: perf_counter_ns when the newest accepted message was read from the socket
         self.last_compute_ns = 0  #: from reading a message to having sent its answer [ns]
@@ -188,7 +194,7 @@ class FriConnection:
         if self._last_seq is not None and not _newer(seq, self._last_seq):
             st.stale += 1
             return None
-        if self._last_seq is not None:
+        if self._last_seq is not None and st.sent:
             st.lost += (seq - self._last_seq) % _UINT32 - 1
         self._last_seq = seq
         self._reply_to = addr
@@ -279,7 +285,10 @@ class FriConnection:
         except ValueError as err:
             raise SafetyStop(f"FRI: refusing to send: {err}") from None
         self._sock.sendto(data, self._reply_to)
-        self.last_compute_ns = time.perf_counter_ns() - self.rx_ns
+        now = time.perf_counter_ns()
+        self.last_compute_ns = now - self.rx_ns
         self.sequence += 1
+        if not self.stats.sent:
+            self.stats.first_answer_s = (now - self._opened_ns) * 1e-9
         self.stats.sent += 1
         return True

@@ -24,7 +24,7 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1diiwa_ident/fri/messages.proto\x12\x0eiiwa_ident.fri\"\x1c\n\x0bJointValues\x12\r\n\x05value\x18\x01 \x03(\x01\"\"\n\x0f\x43\x61rtesianVector\x12\x0f\n\x07\x65lement\x18\x01 \x03(\x01\"7\n\tTimeStamp\x12\x12\n\x03sec\x18\x01 \x01(\rB\x05\xaa\x01\x02\x08\x03\x12\x16\n\x07nanosec\x18\x02 \x01(\rB\x05\xaa\x01\x02\x08\x03\"~\n\rMessageHeader\x12!\n\x12message_identifier\x18\x01 \x01(\rB\x05\xaa\x01\x02\x08\x03\x12\x1f\n\x10sequence_counter\x18\x02 \x01(\rB\x05\xaa\x01\x02\x08\x03\x12)\n\x1areflected_sequence_counter\x18\x03 \x01(\rB\x05\xaa\x01\x02\x08\x03\"\xbb\x01\n\x0e\x43onnectionInfo\x12:\n\rsession_state\x18\x01 \x01(\x0e\x32\x1c.iiwa_ident.fri.SessionStateB\x05\xaa\x01\x02\x08\x03\x12\x39\n\x07quality\x18\x02 \x01(\x0e\x32!.iiwa_ident.fri.ConnectionQualityB\x05\xaa\x01\x02\x08\x03\x12\x16\n\x0esend_period_ms\x18\x03 \x01(\r\x12\x1a\n\x12receive_multiplier\x18\x04 \x01(\r\"\xf3\x01\n\tRobotInfo\x12\x18\n\x10number_of_joints\x18\x01 \x01(\x05\x12\x31\n\x0csafety_state\x18\x02 \x01(\x0e\x32\x1b.iiwa_ident.fri.SafetyState\x12/\n\x0b\x64rive_state\x18\x05 \x03(\x0e\x32\x1a.iiwa_ident.fri.DriveState\x12\x35\n\x0eoperation_mode\x18\x06 \x01(\x0e\x32\x1d.iiwa_ident.fri.OperationMode\x12\x31\n\x0c\x63ontrol_mode\x18\x07 \x01(\x0e\x32\x1b.iiwa_ident.fri.ControlMode\"\xdb\x02\n\x0bMonitorData\x12<\n\x17measured_joint_position\x18\x01 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x34\n\x0fmeasured_torque\x18\x02 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12=\n\x18\x63ommanded_joint_position\x18\x03 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x35\n\x10\x63ommanded_torque\x18\x04 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x34\n\x0f\x65xternal_torque\x18\x05 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12,\n\ttimestamp\x18\x0f \x01(\x0b\x32\x19.iiwa_ident.fri.TimeStamp\"\xcf\x01\n\x07IpoData\x12\x33\n\x0ejoint_position\x18\x01 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12>\n\x13\x63lient_command_mode\x18\n \x01(\x0e\x32!.iiwa_ident.fri.ClientCommandMode\x12\x31\n\x0coverlay_type\x18\x0b \x01(\x0e\x32\x1b.iiwa_ident.fri.OverlayType\x12\x1c\n\x14tracking_performance\x18\x0c \x01(\x01\"\x10\n\x0eTransformation\"\x12\n\x10\x45ndOfMessageData\"\x91\x03\n\x11MonitoringMessage\x12\x34\n\x06header\x18\x01 \x01(\x0b\x32\x1d.iiwa_ident.fri.MessageHeaderB\x05\xaa\x01\x02\x08\x03\x12-\n\nrobot_info\x18\x02 \x01(\x0b\x32\x19.iiwa_ident.fri.RobotInfo\x12\x31\n\x0cmonitor_data\x18\x03 \x01(\x0b\x32\x1b.iiwa_ident.fri.MonitorData\x12\x37\n\x0f\x63onnection_info\x18\x04 \x01(\x0b\x32\x1e.iiwa_ident.fri.ConnectionInfo\x12)\n\x08ipo_data\x18\x05 \x01(\x0b\x32\x17.iiwa_ident.fri.IpoData\x12\x41\n\x19requested_transformations\x18\x06 \x03(\x0b\x32\x1e.iiwa_ident.fri.Transformation\x12=\n\x13\x65nd_of_message_data\x18\x0f \x01(\x0b\x32 .iiwa_ident.fri.EndOfMessageData\"\xbd\x01\n\x0b\x43ommandData\x12\x33\n\x0ejoint_position\x18\x01 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x46\n\x1d\x63\x61rtesian_wrench_feed_forward\x18\x02 \x01(\x0b\x32\x1f.iiwa_ident.fri.CartesianVector\x12\x31\n\x0cjoint_torque\x18\x03 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\"\xb8\x01\n\x0e\x43ommandMessage\x12\x34\n\x06header\x18\x01 \x01(\x0b\x32\x1d.iiwa_ident.fri.MessageHeaderB\x05\xaa\x01\x02\x08\x03\x12\x31\n\x0c\x63ommand_data\x18\x02 \x01(\x0b\x32\x1b.iiwa_ident.fri.CommandData\x12=\n\x13\x65nd_of_message_data\x18\x0f \x01(\x0b\x32 .iiwa_ident.fri.EndOfMessageData*\xb5\x01\n\x0cSessionState\x12\x16\n\x12SESSION_STATE_IDLE\x10\x00\x12!\n\x1dSESSION_STATE_MONITORING_WAIT\x10\x01\x12\"\n\x1eSESSION_STATE_MONITORING_READY\x10\x02\x12!\n\x1dSESSION_STATE_COMMANDING_WAIT\x10\x03\x12#\n\x1fSESSION_STATE_COMMANDING_ACTIVE\x10\x04*\x8c\x01\n\x11\x43onnectionQuality\x12\x1b\n\x17\x43ONNECTION_QUALITY_POOR\x10\x00\x12\x1b\n\x17\x43ONNECTION_QUALITY_FAIR\x10\x01\x12\x1b\n\x17\x43ONNECTION_QUALITY_GOOD\x10\x02\x12 \n\x1c\x43ONNECTION_QUALITY_EXCELLENT\x10\x03*\xa2\x01\n\x0bSafetyState\x12!\n\x1dSAFETY_STATE_NORMAL_OPERATION\x10\x00\x12$\n SAFETY_STATE_SAFETY_STOP_LEVEL_0\x10\x01\x12$\n SAFETY_STATE_SAFETY_STOP_LEVEL_1\x10\x02\x12$\n SAFETY_STATE_SAFETY_STOP_LEVEL_2\x10\x03*U\n\rOperationMode\x12\x15\n\x11OPERATION_MODE_T1\x10\x00\x12\x15\n\x11OPERATION_MODE_T2\x10\x01\x12\x16\n\x12OPERATION_MODE_AUT\x10\x02*X\n\nDriveState\x12\x13\n\x0f\x44RIVE_STATE_OFF\x10\x00\x12\x1d\n\x19\x44RIVE_STATE_TRANSITIONING\x10\x01\x12\x16\n\x12\x44RIVE_STATE_ACTIVE\x10\x02*\x8d\x01\n\x0b\x43ontrolMode\x12\x19\n\x15\x43ONTROL_MODE_POSITION\x10\x00\x12$\n CONTROL_MODE_CARTESIAN_IMPEDANCE\x10\x01\x12 \n\x1c\x43ONTROL_MODE_JOINT_IMPEDANCE\x10\x02\x12\x1b\n\x17\x43ONTROL_MODE_NO_CONTROL\x10\x03*\x99\x01\n\x11\x43lientCommandMode\x12\"\n\x1e\x43LIENT_COMMAND_MODE_NO_COMMAND\x10\x00\x12 \n\x1c\x43LIENT_COMMAND_MODE_POSITION\x10\x01\x12\x1e\n\x1a\x43LIENT_COMMAND_MODE_WRENCH\x10\x02\x12\x1e\n\x1a\x43LIENT_COMMAND_MODE_TORQUE\x10\x03*^\n\x0bOverlayType\x12\x1b\n\x17OVERLAY_TYPE_NO_OVERLAY\x10\x00\x12\x16\n\x12OVERLAY_TYPE_JOINT\x10\x01\x12\x1a\n\x16OVERLAY_TYPE_CARTESIAN\x10\x02\x42\x07\x92\x03\x04\x10\x01\x18\x02\x62\x08\x65\x64itionsp\xe8\x07')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1diiwa_ident/fri/messages.proto\x12\x0eiiwa_ident.fri\"\x1c\n\x0bJointValues\x12\r\n\x05value\x18\x01 \x03(\x01\")\n\x0f\x43\x61rtesianVector\x12\x16\n\x07\x65lement\x18\x01 \x03(\x01\x42\x05\xaa\x01\x02\x18\x01\"7\n\tTimeStamp\x12\x12\n\x03sec\x18\x01 \x01(\rB\x05\xaa\x01\x02\x08\x03\x12\x16\n\x07nanosec\x18\x02 \x01(\rB\x05\xaa\x01\x02\x08\x03\"~\n\rMessageHeader\x12!\n\x12message_identifier\x18\x01 \x01(\rB\x05\xaa\x01\x02\x08\x03\x12\x1f\n\x10sequence_counter\x18\x02 \x01(\rB\x05\xaa\x01\x02\x08\x03\x12)\n\x1areflected_sequence_counter\x18\x03 \x01(\rB\x05\xaa\x01\x02\x08\x03\"\xbb\x01\n\x0e\x43onnectionInfo\x12:\n\rsession_state\x18\x01 \x01(\x0e\x32\x1c.iiwa_ident.fri.SessionStateB\x05\xaa\x01\x02\x08\x03\x12\x39\n\x07quality\x18\x02 \x01(\x0e\x32!.iiwa_ident.fri.ConnectionQualityB\x05\xaa\x01\x02\x08\x03\x12\x16\n\x0esend_period_ms\x18\x03 \x01(\r\x12\x1a\n\x12receive_multiplier\x18\x04 \x01(\r\"\xf3\x01\n\tRobotInfo\x12\x18\n\x10number_of_joints\x18\x01 \x01(\x05\x12\x31\n\x0csafety_state\x18\x02 \x01(\x0e\x32\x1b.iiwa_ident.fri.SafetyState\x12/\n\x0b\x64rive_state\x18\x05 \x03(\x0e\x32\x1a.iiwa_ident.fri.DriveState\x12\x35\n\x0eoperation_mode\x18\x06 \x01(\x0e\x32\x1d.iiwa_ident.fri.OperationMode\x12\x31\n\x0c\x63ontrol_mode\x18\x07 \x01(\x0e\x32\x1b.iiwa_ident.fri.ControlMode\"\xdb\x02\n\x0bMonitorData\x12<\n\x17measured_joint_position\x18\x01 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x34\n\x0fmeasured_torque\x18\x02 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12=\n\x18\x63ommanded_joint_position\x18\x03 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x35\n\x10\x63ommanded_torque\x18\x04 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x34\n\x0f\x65xternal_torque\x18\x05 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12,\n\ttimestamp\x18\x0f \x01(\x0b\x32\x19.iiwa_ident.fri.TimeStamp\"\xcf\x01\n\x07IpoData\x12\x33\n\x0ejoint_position\x18\x01 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12>\n\x13\x63lient_command_mode\x18\n \x01(\x0e\x32!.iiwa_ident.fri.ClientCommandMode\x12\x31\n\x0coverlay_type\x18\x0b \x01(\x0e\x32\x1b.iiwa_ident.fri.OverlayType\x12\x1c\n\x14tracking_performance\x18\x0c \x01(\x01\"\x10\n\x0eTransformation\"\x12\n\x10\x45ndOfMessageData\"\x91\x03\n\x11MonitoringMessage\x12\x34\n\x06header\x18\x01 \x01(\x0b\x32\x1d.iiwa_ident.fri.MessageHeaderB\x05\xaa\x01\x02\x08\x03\x12-\n\nrobot_info\x18\x02 \x01(\x0b\x32\x19.iiwa_ident.fri.RobotInfo\x12\x31\n\x0cmonitor_data\x18\x03 \x01(\x0b\x32\x1b.iiwa_ident.fri.MonitorData\x12\x37\n\x0f\x63onnection_info\x18\x04 \x01(\x0b\x32\x1e.iiwa_ident.fri.ConnectionInfo\x12)\n\x08ipo_data\x18\x05 \x01(\x0b\x32\x17.iiwa_ident.fri.IpoData\x12\x41\n\x19requested_transformations\x18\x06 \x03(\x0b\x32\x1e.iiwa_ident.fri.Transformation\x12=\n\x13\x65nd_of_message_data\x18\x0f \x01(\x0b\x32 .iiwa_ident.fri.EndOfMessageData\"\xbd\x01\n\x0b\x43ommandData\x12\x33\n\x0ejoint_position\x18\x01 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\x12\x46\n\x1d\x63\x61rtesian_wrench_feed_forward\x18\x02 \x01(\x0b\x32\x1f.iiwa_ident.fri.CartesianVector\x12\x31\n\x0cjoint_torque\x18\x03 \x01(\x0b\x32\x1b.iiwa_ident.fri.JointValues\"\xb8\x01\n\x0e\x43ommandMessage\x12\x34\n\x06header\x18\x01 \x01(\x0b\x32\x1d.iiwa_ident.fri.MessageHeaderB\x05\xaa\x01\x02\x08\x03\x12\x31\n\x0c\x63ommand_data\x18\x02 \x01(\x0b\x32\x1b.iiwa_ident.fri.CommandData\x12=\n\x13\x65nd_of_message_data\x18\x0f \x01(\x0b\x32 .iiwa_ident.fri.EndOfMessageData*\xb5\x01\n\x0cSessionState\x12\x16\n\x12SESSION_STATE_IDLE\x10\x00\x12!\n\x1dSESSION_STATE_MONITORING_WAIT\x10\x01\x12\"\n\x1eSESSION_STATE_MONITORING_READY\x10\x02\x12!\n\x1dSESSION_STATE_COMMANDING_WAIT\x10\x03\x12#\n\x1fSESSION_STATE_COMMANDING_ACTIVE\x10\x04*\x8c\x01\n\x11\x43onnectionQuality\x12\x1b\n\x17\x43ONNECTION_QUALITY_POOR\x10\x00\x12\x1b\n\x17\x43ONNECTION_QUALITY_FAIR\x10\x01\x12\x1b\n\x17\x43ONNECTION_QUALITY_GOOD\x10\x02\x12 \n\x1c\x43ONNECTION_QUALITY_EXCELLENT\x10\x03*\xa2\x01\n\x0bSafetyState\x12!\n\x1dSAFETY_STATE_NORMAL_OPERATION\x10\x00\x12$\n SAFETY_STATE_SAFETY_STOP_LEVEL_0\x10\x01\x12$\n SAFETY_STATE_SAFETY_STOP_LEVEL_1\x10\x02\x12$\n SAFETY_STATE_SAFETY_STOP_LEVEL_2\x10\x03*U\n\rOperationMode\x12\x15\n\x11OPERATION_MODE_T1\x10\x00\x12\x15\n\x11OPERATION_MODE_T2\x10\x01\x12\x16\n\x12OPERATION_MODE_AUT\x10\x02*X\n\nDriveState\x12\x13\n\x0f\x44RIVE_STATE_OFF\x10\x00\x12\x1d\n\x19\x44RIVE_STATE_TRANSITIONING\x10\x01\x12\x16\n\x12\x44RIVE_STATE_ACTIVE\x10\x02*\x8d\x01\n\x0b\x43ontrolMode\x12\x19\n\x15\x43ONTROL_MODE_POSITION\x10\x00\x12$\n CONTROL_MODE_CARTESIAN_IMPEDANCE\x10\x01\x12 \n\x1c\x43ONTROL_MODE_JOINT_IMPEDANCE\x10\x02\x12\x1b\n\x17\x43ONTROL_MODE_NO_CONTROL\x10\x03*\x99\x01\n\x11\x43lientCommandMode\x12\"\n\x1e\x43LIENT_COMMAND_MODE_NO_COMMAND\x10\x00\x12 \n\x1c\x43LIENT_COMMAND_MODE_POSITION\x10\x01\x12\x1e\n\x1a\x43LIENT_COMMAND_MODE_WRENCH\x10\x02\x12\x1e\n\x1a\x43LIENT_COMMAND_MODE_TORQUE\x10\x03*^\n\x0bOverlayType\x12\x1b\n\x17OVERLAY_TYPE_NO_OVERLAY\x10\x00\x12\x16\n\x12OVERLAY_TYPE_JOINT\x10\x01\x12\x1a\n\x16OVERLAY_TYPE_CARTESIAN\x10\x02\x42\x07\x92\x03\x04\x10\x01\x18\x02\x62\x08\x65\x64itionsp\xe8\x07')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -32,6 +32,8 @@ _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'iiwa_ident.fri.messages_pb2
 if not _descriptor._USE_C_DESCRIPTORS:
   _globals['DESCRIPTOR']._loaded_options = None
   _globals['DESCRIPTOR']._serialized_options = b'\222\003\004\020\001\030\002'
+  _globals['_CARTESIANVECTOR'].fields_by_name['element']._loaded_options = None
+  _globals['_CARTESIANVECTOR'].fields_by_name['element']._serialized_options = b'\252\001\002\030\001'
   _globals['_TIMESTAMP'].fields_by_name['sec']._loaded_options = None
   _globals['_TIMESTAMP'].fields_by_name['sec']._serialized_options = b'\252\001\002\010\003'
   _globals['_TIMESTAMP'].fields_by_name['nanosec']._loaded_options = None
@@ -50,46 +52,46 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_MONITORINGMESSAGE'].fields_by_name['header']._serialized_options = b'\252\001\002\010\003'
   _globals['_COMMANDMESSAGE'].fields_by_name['header']._loaded_options = None
   _globals['_COMMANDMESSAGE'].fields_by_name['header']._serialized_options = b'\252\001\002\010\003'
-  _globals['_SESSIONSTATE']._serialized_start=2118
-  _globals['_SESSIONSTATE']._serialized_end=2299
-  _globals['_CONNECTIONQUALITY']._serialized_start=2302
-  _globals['_CONNECTIONQUALITY']._serialized_end=2442
-  _globals['_SAFETYSTATE']._serialized_start=2445
-  _globals['_SAFETYSTATE']._serialized_end=2607
-  _globals['_OPERATIONMODE']._serialized_start=2609
-  _globals['_OPERATIONMODE']._serialized_end=2694
-  _globals['_DRIVESTATE']._serialized_start=2696
-  _globals['_DRIVESTATE']._serialized_end=2784
-  _globals['_CONTROLMODE']._serialized_start=2787
-  _globals['_CONTROLMODE']._serialized_end=2928
-  _globals['_CLIENTCOMMANDMODE']._serialized_start=2931
-  _globals['_CLIENTCOMMANDMODE']._serialized_end=3084
-  _globals['_OVERLAYTYPE']._serialized_start=3086
-  _globals['_OVERLAYTYPE']._serialized_end=3180
+  _globals['_SESSIONSTATE']._serialized_start=2125
+  _globals['_SESSIONSTATE']._serialized_end=2306
+  _globals['_CONNECTIONQUALITY']._serialized_start=2309
+  _globals['_CONNECTIONQUALITY']._serialized_end=2449
+  _globals['_SAFETYSTATE']._serialized_start=2452
+  _globals['_SAFETYSTATE']._serialized_end=2614
+  _globals['_OPERATIONMODE']._serialized_start=2616
+  _globals['_OPERATIONMODE']._serialized_end=2701
+  _globals['_DRIVESTATE']._serialized_start=2703
+  _globals['_DRIVESTATE']._serialized_end=2791
+  _globals['_CONTROLMODE']._serialized_start=2794
+  _globals['_CONTROLMODE']._serialized_end=2935
+  _globals['_CLIENTCOMMANDMODE']._serialized_start=2938
+  _globals['_CLIENTCOMMANDMODE']._serialized_end=3091
+  _globals['_OVERLAYTYPE']._serialized_start=3093
+  _globals['_OVERLAYTYPE']._serialized_end=3187
   _globals['_JOINTVALUES']._serialized_start=49
   _globals['_JOINTVALUES']._serialized_end=77
   _globals['_CARTESIANVECTOR']._serialized_start=79
-  _globals['_CARTESIANVECTOR']._serialized_end=113
-  _globals['_TIMESTAMP']._serialized_start=115
-  _globals['_TIMESTAMP']._serialized_end=170
-  _globals['_MESSAGEHEADER']._serialized_start=172
-  _globals['_MESSAGEHEADER']._serialized_end=298
-  _globals['_CONNECTIONINFO']._serialized_start=301
-  _globals['_CONNECTIONINFO']._serialized_end=488
-  _globals['_ROBOTINFO']._serialized_start=491
-  _globals['_ROBOTINFO']._serialized_end=734
-  _globals['_MONITORDATA']._serialized_start=737
-  _globals['_MONITORDATA']._serialized_end=1084
-  _globals['_IPODATA']._serialized_start=1087
-  _globals['_IPODATA']._serialized_end=1294
-  _globals['_TRANSFORMATION']._serialized_start=1296
-  _globals['_TRANSFORMATION']._serialized_end=1312
-  _globals['_ENDOFMESSAGEDATA']._serialized_start=1314
-  _globals['_ENDOFMESSAGEDATA']._serialized_end=1332
-  _globals['_MONITORINGMESSAGE']._serialized_start=1335
-  _globals['_MONITORINGMESSAGE']._serialized_end=1736
-  _globals['_COMMANDDATA']._serialized_start=1739
-  _globals['_COMMANDDATA']._serialized_end=1928
-  _globals['_COMMANDMESSAGE']._serialized_start=1931
-  _globals['_COMMANDMESSAGE']._serialized_end=2115
+  _globals['_CARTESIANVECTOR']._serialized_end=120
+  _globals['_TIMESTAMP']._serialized_start=122
+  _globals['_TIMESTAMP']._serialized_end=177
+  _globals['_MESSAGEHEADER']._serialized_start=179
+  _globals['_MESSAGEHEADER']._serialized_end=305
+  _globals['_CONNECTIONINFO']._serialized_start=308
+  _globals['_CONNECTIONINFO']._serialized_end=495
+  _globals['_ROBOTINFO']._serialized_start=498
+  _globals['_ROBOTINFO']._serialized_end=741
+  _globals['_MONITORDATA']._serialized_start=744
+  _globals['_MONITORDATA']._serialized_end=1091
+  _globals['_IPODATA']._serialized_start=1094
+  _globals['_IPODATA']._serialized_end=1301
+  _globals['_TRANSFORMATION']._serialized_start=1303
+  _globals['_TRANSFORMATION']._serialized_end=1319
+  _globals['_ENDOFMESSAGEDATA']._serialized_start=1321
+  _globals['_ENDOFMESSAGEDATA']._serialized_end=1339
+  _globals['_MONITORINGMESSAGE']._serialized_start=1342
+  _globals['_MONITORINGMESSAGE']._serialized_end=1743
+  _globals['_COMMANDDATA']._serialized_start=1746
+  _globals['_COMMANDDATA']._serialized_end=1935
+  _globals['_COMMANDMESSAGE']._serialized_start=1938
+  _globals['_COMMANDMESSAGE']._serialized_end=2122
 # @@protoc_insertion_point(module_scope)

@@ -112,6 +112,7 @@ class FriRobot(RobotInterface):
                "mode": self.mode}
         if self.stats is not None:
             out["connection"] = self.stats.as_dict()
+            out["first_answer_s"] = self.stats.first_answer_s
         return out
 
     def _state(self, msg: MonitoringMessage) -> int:

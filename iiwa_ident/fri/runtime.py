@@ -243,6 +243,8 @@ class RunReport:
         Datagram counters of the FRI connection (empty on a simulated joint).
     log : str
         Log file.
+    first_answer_s : float or None
+        FRI: time from opening the socket to the first answer to the robot [s].
     """
 
     cycles: int
@@ -254,13 +256,14 @@ class RunReport:
     lost_log_rows: int = 0
     connection: dict[str, int] = field(default_factory=dict)
     log: str = ""
+    first_answer_s: float | None = None
 
     def as_dict(self) -> dict:
         """JSON-ready form."""
         return {"cycles": self.cycles, "duration_s": self.duration_s, "stop_reason": self.stop_reason,
                 "watchdog_events": [[t, e] for t, e in self.watchdog_events], "compute_us": self.compute_us,
                 "logged": self.logged, "lost_log_rows": self.lost_log_rows, "connection": self.connection,
-                "log": self.log}
+                "log": self.log, "first_answer_s": self.first_answer_s}
 
 
 def _percentiles(ns: np.ndarray) -> dict[str, float]:
@@ -289,7 +292,12 @@ class _StopSignals:
 
     def __exit__(self, *exc) -> None:
         for sig, handler in self._old.items():
-            signal.signal(sig, handler)
+            # A handler installed from C reads as None and cannot be put back from Python: the default
+            # action is the nearest; nothing here may raise over the run's real end.
+            try:
+                signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+            except (TypeError, ValueError, OSError):
+                pass
 
 
 def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
@@ -345,7 +353,9 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     k = 0
     reason = ""
     events_seen = 0
-    writer.start()
+    # The writer's process starts beside the session: the robot is answered from its first message (it
+    # may be sending already) while a new interpreter imports numpy and h5py; the ring keeps the rows.
+    writer.start(wait=False)
     try:
         with _StopSignals() as signals, no_gc_pauses(), \
                 (realtime_process(cpu, say=say) if realtime else contextlib.nullcontext()):
@@ -385,6 +395,7 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
         stats = writer.close({"stop_reason": reason or runtime.stop_reason,
                               "watchdog_events": "; ".join(f"{t:.3f} s {e}" for t, e in runtime.watchdog.events)})
     reason = reason or runtime.stop_reason
+    facts = robot.describe()
     return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, watchdog_events=list(runtime.watchdog.events),
                      compute_us=_percentiles(compute[:k]), logged=stats.written, lost_log_rows=stats.lost,
-                     connection=robot.describe().get("connection", {}), log=str(log))
+                     connection=facts.get("connection", {}), log=str(log), first_answer_s=facts.get("first_answer_s"))
