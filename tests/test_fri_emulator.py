@@ -351,32 +351,10 @@ def test_inconsistent_position_while_waiting_never_activates():
                                            S.MONITORING_WAIT]
 
 
-def test_position_mode_follows_the_commanded_position(tmp_path):
-    target = {}
-
-    def policy(client: Client, msg):
-        state = msg.connection_info.session_state
-        if state not in COMMANDING:
-            return None
-        q = list(msg.monitor_data.measured_joint_position.value)
-        if state == S.COMMANDING_ACTIVE:
-            target.setdefault("q", q[0] + 0.05)
-            q[0] = target["q"]
-        return command(q, None)
-
-    out = tmp_path / "pos.h5"
-    with Client(policy) as client:
-        report = run(client, duration_s=0.4, control_mode=ControlMode.POSITION,
-                     client_command_mode=ClientCommandMode.POSITION, record=out, **FAST)
-    assert report.session_drops == [] and report.end_reason == "duration"
-    ds = read_dataset(out)
-    assert ds.has("q_cmd") and not ds.has("tau_c")
-    assert abs(ds["q_m"][-1] - target["q"]) < 0.01
-
-
-def test_joint_position_overlay_swings_about_the_interpolator_s_pose():
-    """KUKA's joint sine overlay (interpolator position + 0.04 rad sine) swings the joint by 0.04 rad, no more."""
-    amplitude, frequency = 0.04, 2.0
+def position_overlay(offset):
+    """Header only while monitoring; the interpolator's positions while commanding, joint 1's plus
+    ``offset(n)`` [rad] in the ``n``-th COMMANDING_ACTIVE message, as KUKA's joint position overlays do."""
+    seen = {"n": 0}
 
     def policy(client: Client, msg):
         state = msg.connection_info.session_state
@@ -384,9 +362,30 @@ def test_joint_position_overlay_swings_about_the_interpolator_s_pose():
             return None
         q = list(msg.ipo_data.joint_position.value)
         if state == S.COMMANDING_ACTIVE:
-            client.active_n = getattr(client, "active_n", 0) + 1
-            q[0] += amplitude * math.sin(2 * math.pi * frequency * client.active_n * 1e-3)
+            seen["n"] += 1
+            q[0] += offset(seen["n"])
         return command(q, None)
+
+    return policy
+
+
+def test_position_mode_follows_the_commanded_position(tmp_path):
+    policy = position_overlay(lambda n: 0.05)
+    out = tmp_path / "pos.h5"
+    with Client(policy) as client:
+        report = run(client, duration_s=0.4, control_mode=ControlMode.POSITION,
+                     client_command_mode=ClientCommandMode.POSITION, record=out, **FAST)
+    assert report.session_drops == [] and report.end_reason == "duration"
+    ds = read_dataset(out)
+    assert ds.has("q_cmd") and not ds.has("tau_c")
+    active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]
+    assert abs(ds["q_m"][-1] - (active[0].ipo_data.joint_position.value[0] + 0.05)) < 0.01
+
+
+def test_joint_position_overlay_swings_about_the_interpolator_s_pose():
+    """KUKA's joint sine overlay (interpolator position + 0.04 rad sine) swings the joint by 0.04 rad, no more."""
+    amplitude, frequency = 0.04, 2.0
+    policy = position_overlay(lambda n: amplitude * math.sin(2 * math.pi * frequency * n * 1e-3))
 
     with Client(policy) as client:
         report = run(client, duration_s=1.0, control_mode=ControlMode.POSITION,

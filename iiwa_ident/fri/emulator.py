@@ -1126,10 +1126,7 @@ class RobotEmulator:
         self._cmd_pos: tuple[float, ...] | None = None
         self._cmd_tau: tuple[float, ...] | None = None
         self._zero7 = (0.0,) * _N_JOINTS
-        self._robot_info = RobotInfo(
-            number_of_joints=_N_JOINTS, safety_state=SafetyState.NORMAL_OPERATION,
-            drive_state=(DriveState.ACTIVE,) * _N_JOINTS, operation_mode=cfg.operation_mode,
-            control_mode=cfg.control_mode)
+        self._robot_info = self._info(SafetyState.NORMAL_OPERATION)
         self._meas = self._robot.start()
         self._hold(self._meas.q_m)
         self._positions = self._measured_positions(self._meas)
@@ -1146,6 +1143,12 @@ class RobotEmulator:
             self._rows: dict[str, array] | None = {name: array("d") for name in self._record_names()}
         else:
             self._rows = None
+
+    def _info(self, safety: SafetyState) -> RobotInfo:
+        """The robot info the messages carry, in safety state ``safety``."""
+        cfg = self.config
+        return RobotInfo(number_of_joints=_N_JOINTS, safety_state=safety, drive_state=(DriveState.ACTIVE,) * _N_JOINTS,
+                         operation_mode=cfg.operation_mode, control_mode=cfg.control_mode)
 
     def _record_names(self) -> list[str]:
         names = ["t", "q_m", "tau_j", "tau_ext_fri"]
@@ -1456,10 +1459,7 @@ class RobotEmulator:
         q = self._meas.q_m
         v = (q - self._q_prev) / self._period
         self._brake = (q, v, self._sim_k)
-        self._robot_info = RobotInfo(
-            number_of_joints=_N_JOINTS, safety_state=SafetyState.SAFETY_STOP_LEVEL_1,
-            drive_state=(DriveState.ACTIVE,) * _N_JOINTS, operation_mode=self.config.operation_mode,
-            control_mode=self.config.control_mode)
+        self._robot_info = self._info(SafetyState.SAFETY_STOP_LEVEL_1)
         if self._on_event is not None:
             self._on_event(t, f"safety stop: {reason}")
         self._ending = True
