@@ -8,11 +8,13 @@ import ctypes.util
 import errno
 import gc
 import os
+import signal
+import threading
 from typing import Callable, Iterator
 
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["no_gc_pauses", "realtime_process", "GRANT_HINT"]
+__all__ = ["no_gc_pauses", "realtime_process", "stop_signals", "GRANT_HINT"]
 
 #: How a user gets the rights for SCHED_FIFO and mlockall without running as root.
 GRANT_HINT = ("to grant them, add '<user> - rtprio 99' and '<user> - memlock unlimited' to "
@@ -38,6 +40,29 @@ def no_gc_pauses() -> Iterator[None]:
         gc.unfreeze()
         if enabled:
             gc.enable()
+
+
+@contextlib.contextmanager
+def stop_signals(handler: Callable[[int, object], None]) -> Iterator[None]:
+    """For the block, SIGINT and SIGTERM call ``handler(signum, frame)`` instead of ending the process.
+
+    Installed only in the main thread (Python allows no other). At the end the
+    previous handlers come back; one installed from C, which Python reads as
+    None and cannot put back, gives way to the default action, and nothing here
+    raises over the block's own end.
+    """
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, previous in old.items():
+            try:
+                signal.signal(sig, signal.SIG_DFL if previous is None else previous)
+            except (TypeError, ValueError, OSError):
+                pass
 
 
 def _libc_call(name: str) -> Callable[..., int] | None:

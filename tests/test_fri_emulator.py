@@ -599,6 +599,8 @@ def test_cli_help_has_examples():
     (("--plant", "missing.toml"), "missing.toml: no such file"),
     (("--stall", "2.0"), "--stall '2.0': expected START:LENGTH"),
     (("--stall", "2.0:-5"), "--stall '2.0:-5': expected START:LENGTH"),
+    (("--pose", "0,30,0"), "--pose '0,30,0': expected 7 comma-separated joint angles in degrees"),
+    (("--pose", "175,30,0,-90,0,60,0"), "joint_positions[0] = 3.05433 rad is outside joint 1's range"),
 ])
 def test_cli_bad_options_are_one_line_errors(args, message):
     res = invoke("emulate", *args)
@@ -631,6 +633,16 @@ def test_cli_lockstep_serves_a_client_exactly():
     assert "session drops: 0" in res.output and "late" in res.output
     assert client.states() == FULL_SEQUENCE[1:]
     assert [m.connection_info.session_state for m in client.messages].count(S.COMMANDING_ACTIVE) == 200
+
+
+def test_cli_names_a_safety_stop():
+    with Client(torque_policy(10.0)) as client:
+        res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep",
+                     "--duration", "5", "--pose", "150,30,0,-90,0,60,0")
+        client.settle()
+    assert res.exit_code == 0, res.output
+    assert "safety stop: joint 1 at " in res.output and "SAFETY STOP at " in res.output
+    assert "ended: safety_stop" in res.output
 
 
 def test_cli_stall_sends_nothing_and_keeps_the_time():

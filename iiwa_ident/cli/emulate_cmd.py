@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import math
-import signal
-import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
+from iiwa_ident._realtime import stop_signals
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import (
@@ -76,7 +75,7 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 
 
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
-            record, max_time, hand_speed, lockstep=False, stalls=()) -> EmulatorConfig:
+            record, max_time, hand_speed, lockstep=False, stalls=(), pose=None) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
     if mode not in ("torque", "position"):
         raise IiwaIdentError(f"--mode {mode!r}: must be 'torque' or 'position'")
@@ -93,7 +92,8 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         duplicate=_check_probability("--duplicate", duplicate), reorder=_check_probability("--reorder", reorder),
         corrupt=_check_probability("--corrupt", corrupt), seed=seed)
     torque = mode == "torque"
-    return EmulatorConfig(
+    extra = {} if pose is None else {"joint_positions": _pose(pose)}
+    return EmulatorConfig(**extra,
         client=parse_host_port(client, None, "--client"),
         bind=parse_host_port(bind, None, "--bind", allow_any_port=True),
         plant=load_plant(plant) if plant else None,
@@ -109,6 +109,18 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         lockstep=lockstep,
         stalls=tuple(_stall(text) for text in stalls),
     )
+
+
+def _pose(text: str) -> tuple[float, ...]:
+    """``--pose`` (7 comma-separated angles in degrees) -> the joint positions [rad]."""
+    try:
+        degrees = [float(part) for part in text.split(",")]
+    except ValueError:
+        degrees = []
+    if len(degrees) != 7 or not all(math.isfinite(d) for d in degrees):
+        raise IiwaIdentError(f"--pose {text!r}: expected 7 comma-separated joint angles in degrees "
+                             "(e.g. 0,30,0,-90,0,60,0)")
+    return tuple(math.radians(d) for d in degrees)
 
 
 def _stall(text: str) -> tuple[float, float]:
@@ -160,6 +172,8 @@ def emulate_cmd(
     stall: Annotated[Optional[list[str]], typer.Option("--stall", help="START:LENGTH: a robot-side stall "
                                                        "after START seconds of commanding, LENGTH ms without "
                                                        "a message (repeatable).")] = None,
+    pose: Annotated[Optional[str], typer.Option("--pose", help="Start pose of the 7 joints, comma-separated "
+                                                "degrees (default 0,30,0,-90,0,60,0).")] = None,
 ) -> None:
     """Emulate the robot controller's side of FRI at 1 kHz over UDP, with the simulated joint behind it.
 
@@ -171,6 +185,8 @@ def emulate_cmd(
     With --lockstep the robot side waits for each answer before its next cycle (times in the
     output are then virtual): for testing a client, not for measuring it. --stall makes the robot's
     own cycle slip: no message and no answer awaited for that long, the time stamps keep the time.
+    While commanding, the simulated joint is held to its data-sheet range, speed and torque: a
+    violation is a safety stop (the joint brakes to rest, the session ends, the limit is named).
 
     Examples:
       iiwa-ident emulate --client 127.0.0.1:30200 --duration 10
@@ -179,25 +195,19 @@ def emulate_cmd(
       iiwa-ident emulate --plant my_plant.toml --bind 127.0.0.1:30201
       iiwa-ident emulate --lockstep --duration 5 --record robot.h5
       iiwa-ident emulate --duration 10 --stall 2.0:30 --stall 6.5:200
+      iiwa-ident emulate --duration 30 --pose 160,30,0,-90,0,60,0
     """
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
-                         agent, record, max_time, hand_speed, lockstep, stall or ())
+                         agent, record, max_time, hand_speed, lockstep, stall or (), pose)
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
         raise fail(str(err))
     host, port = emulator.address
     typer.echo(f"robot side on {host}:{port}, sending to {config.client[0]}:{config.client[1]} every "
                f"{config.send_period_ms} ms ({mode} mode); Ctrl-C to stop")
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: emulator.stop())
-    try:
+    with stop_signals(lambda *_: emulator.stop()):
         report = emulator.run()
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     typer.echo(format_summary(report))
     if report.dataset is not None:
         typer.echo(f"wrote {report.dataset}")

@@ -40,7 +40,6 @@ from __future__ import annotations
 import contextlib
 import math
 import signal
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,7 +47,7 @@ from typing import Callable
 
 import numpy as np
 
-from iiwa_ident._realtime import no_gc_pauses, realtime_process
+from iiwa_ident._realtime import no_gc_pauses, realtime_process, stop_signals
 from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy import ControllerConfig, controller_from_config
 from iiwa_ident.design import ControlCycle
@@ -279,25 +278,17 @@ class _StopSignals:
 
     def __init__(self) -> None:
         self.flag = ""
-        self._old: dict[int, object] = {}
+        self._signals = stop_signals(self._handle)
 
     def __enter__(self) -> "_StopSignals":
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old[sig] = signal.signal(sig, self._handle)
+        self._signals.__enter__()
         return self
 
     def _handle(self, signum, frame) -> None:
         self.flag = signal.Signals(signum).name
 
     def __exit__(self, *exc) -> None:
-        for sig, handler in self._old.items():
-            # A handler installed from C reads as None and cannot be put back from Python: the default
-            # action is the nearest; nothing here may raise over the run's real end.
-            try:
-                signal.signal(sig, signal.SIG_DFL if handler is None else handler)
-            except (TypeError, ValueError, OSError):
-                pass
+        self._signals.__exit__(*exc)
 
 
 def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
