@@ -512,13 +512,13 @@ def test_fri_robot_sends_the_interpolator_s_positions(mode):
     assert tuple(monitoring.command_data.joint_position.value) == Q_COMMANDED
     assert not monitoring.command_data.HasField("joint_torque")
     expected = list(Q_IPO)
-    torques = [0.0] * 7
     if mode == "torque":
-        torques[3] = 2.5
-    else:
+        assert tuple(active.command_data.joint_torque.value) == (0.0, 0.0, 0.0, 2.5, 0.0, 0.0, 0.0)
+        assert tuple(waiting.command_data.joint_torque.value) == (0.0,) * 7
+    else:  # no torques in position mode, as KUKA's client
         expected[3] = -0.3
+        assert not active.command_data.HasField("joint_torque") and not waiting.command_data.HasField("joint_torque")
     assert tuple(active.command_data.joint_position.value) == tuple(expected)
-    assert tuple(active.command_data.joint_torque.value) == tuple(torques)
 
 
 def test_restoring_a_handler_installed_from_c_never_raises(monkeypatch):

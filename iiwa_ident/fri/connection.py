@@ -19,8 +19,9 @@ half of the message headers:
 * What an answer carries follows the session state: nothing in IDLE; in
   MONITORING_WAIT / MONITORING_READY the header, with joint positions when
   the caller gives them (KUKA's client sends the robot's commanded ones);
-  joint positions and joint torques for every joint in COMMANDING_WAIT /
-  COMMANDING_ACTIVE. Non-finite numbers are never sent.
+  joint positions for every joint in COMMANDING_WAIT / COMMANDING_ACTIVE,
+  and joint torques when given (torque mode). Non-finite numbers are never
+  sent.
 """
 
 from __future__ import annotations
@@ -251,8 +252,10 @@ class FriConnection:
         msg : MonitoringMessage
             The message being answered (its sequence counter is reflected).
         joint_positions, joint_torques : sequence of float, optional
-            One per joint [rad], [Nm]; both required in the commanding states. In the
-            monitoring states the positions are sent when given, the torques never.
+            One per joint [rad], [Nm]. The positions are required in the commanding
+            states and sent when given in the monitoring states; the torques are sent
+            when given in the commanding states (torque mode needs them), never while
+            monitoring.
 
         Raises
         ------
@@ -267,18 +270,17 @@ class FriConnection:
                                             sequence_counter=self.sequence % _UINT32,
                                             reflected_sequence_counter=msg.header.sequence_counter))
         if state in COMMANDING_STATES:
-            if joint_positions is None or joint_torques is None:
-                raise SafetyStop("FRI: a commanding answer needs joint positions and torques")
-            try:
+            if joint_positions is None:
+                raise SafetyStop("FRI: a commanding answer needs joint positions")
+        else:
+            joint_torques = None  # never sent while monitoring
+        try:
+            if joint_positions is not None:
                 answer.command_data.joint_position.value[:] = joint_positions
+            if joint_torques is not None:
                 answer.command_data.joint_torque.value[:] = joint_torques
-            except TypeError:
-                raise SafetyStop("FRI: joint positions and torques must be numbers") from None
-        elif joint_positions is not None:
-            try:
-                answer.command_data.joint_position.value[:] = joint_positions
-            except TypeError:
-                raise SafetyStop("FRI: joint positions must be numbers") from None
+        except TypeError:
+            raise SafetyStop("FRI: joint positions and torques must be numbers") from None
         try:
             # The protocol's checks (7 values per joint array, finite numbers) are the only ones in the loop.
             data = encode_command(answer)

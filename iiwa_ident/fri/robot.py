@@ -202,7 +202,8 @@ class FriRobot(RobotInterface):
             raise SafetyStop(f"FRI: the robot's message lacks the interpolator's joint positions for {_N_JOINTS} "
                              "joints")
         positions = list(ipo.value)
-        torques = [0.0] * _N_JOINTS
+        # Torques only in torque mode, as KUKA's client (which refuses to set them in any other mode).
+        torques = [0.0] * _N_JOINTS if self.mode == "torque" else None
         if command is not None and self._state(msg) == SessionState.COMMANDING_ACTIVE:
             if command.q_cmd is not None:
                 if self.mode != "position":
