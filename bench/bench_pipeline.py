@@ -1,15 +1,22 @@
 """Wall time of ``iiwa-ident pipeline`` on the default simulated joint (target: at most 60 s, full length).
 
-Run: ``.venv/bin/python bench/bench_pipeline.py [--short] [--runs 1] [--workdir DIR]``.
+Run: ``.venv/bin/python bench/bench_pipeline.py [--short] [--runs 1] [--workdir DIR] [--profile N]``.
 Each run starts in a fresh process, as ``iiwa-ident pipeline`` does (the
 import time counts), and prints the per-stage times and the total. The
-machine is shared: the load average is printed beside each run.
+machine is shared: the load average is printed beside each run. With
+``--profile N`` one run goes in this process under :mod:`cProfile` instead,
+and each stage's N functions of most own time are printed (the profiler
+slows pure-Python code more than compiled code: the shares, not the times,
+are the finding).
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
 import json
+import pstats
 import os
 import subprocess
 import sys
@@ -26,7 +33,12 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=1)
     parser.add_argument("--workdir", type=Path, default=None,
                         help="keep the outputs here (default: a temporary folder)")
+    parser.add_argument("--profile", type=int, default=0, metavar="N",
+                        help="profile one run in this process: each stage's N functions of most own time")
     args = parser.parse_args()
+    if args.profile:
+        profile(args.short, args.profile)
+        return
     walls = []
     for i in range(args.runs):
         with tempfile.TemporaryDirectory() as tmp:
@@ -47,6 +59,36 @@ def main() -> None:
     verdict = "" if args.short else (" (target 60 s: met)" if best <= 60 else " (target 60 s: NOT met)")
     print(f"{config} pipeline on the default plant: best {best:.1f} s, median {sorted(walls)[len(walls) // 2]:.1f} s "
           f"of {len(walls)} run(s){verdict}")
+
+
+def profile(short: bool, top: int) -> None:
+    """One pipeline run in this process, a profiler per stage (started and stopped by its progress lines)."""
+    from iiwa_ident.pipeline import run_pipeline
+    from iiwa_ident.report import build_report
+
+    current: dict[str, object] = {}
+
+    def progress(line: str) -> None:
+        # "[i/n] NAME: TITLE ..." starts a stage; "[i/n] NAME: <status> in ..." ends it.
+        name = line.split("] ", 1)[-1].split(":", 1)[0]
+        if line.endswith("..."):
+            current["name"], current["prof"] = name, cProfile.Profile()
+            current["prof"].enable()
+        elif current.get("name") == name:
+            current["prof"].disable()
+            out = io.StringIO()
+            stats = pstats.Stats(current["prof"], stream=out)
+            total = stats.total_tt
+            print(f"{line}  (profiled: {total:.1f} s)")
+            stats.sort_stats("tottime").print_stats(top)
+            rows = [r for r in out.getvalue().splitlines()
+                    if r.strip()[:1].isdigit() and "function calls" not in r]
+            for row in rows[:top]:
+                print("    " + row.strip())
+            current.clear()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run_pipeline(Path(tmp) / "pipeline", target="sim", short=short, progress=progress, report=build_report)
 
 
 if __name__ == "__main__":
