@@ -10,6 +10,7 @@ real-time loop is marked ``realtime`` (``make test-realtime``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import socket
@@ -400,16 +401,24 @@ def test_joint_position_overlay_swings_about_the_interpolator_s_pose():
     assert 0.035 < excursion.max() < 0.045 and -0.045 < excursion.min() < -0.035
 
 
-@pytest.mark.parametrize("tau, q0, limit", [(10.0, 2.6, "range"), (-25.0, -2.2, "speed"), (5.0, 2.85, "range")],
-                         ids=["range", "speed", "range-slow"])
-def test_safety_stop_brakes_the_joint_inside_its_range(tmp_path, tau, q0, limit):
-    """A torque client that would drive the joint out of its range (or over its speed) is stopped inside it."""
-    lim = default_plant().limits
+@pytest.mark.parametrize("joint, tau, q0, limit", [
+    (1, 10.0, 2.6, "range"), (1, -25.0, -2.2, "speed"), (1, 5.0, 2.85, "range"),
+    (6, 8.0, 1.75, "range"), (6, -45.0, 0.0, "torque"),  # joint 6: +-120 deg, 40 Nm (iiwa 14 data sheet)
+], ids=["range", "speed", "range-slow", "joint6-range", "joint6-torque"])
+def test_safety_stop_brakes_the_joint_inside_its_range(tmp_path, joint, tau, q0, limit):
+    """A torque client that would drive the joint out of its range (or over its speed or torque) is stopped inside it.
+
+    The limits are the joint's own, from the robot model: joint 6's range and torque are not joint 1's.
+    """
+    plant = dataclasses.replace(default_plant(), joint=joint)
+    lim = plant.limits
+    pose = list(DEFAULT_JOINT_POSITIONS)
+    pose[joint - 1] = q0
     out = tmp_path / "robot.h5"
-    with Client(torque_policy(tau)) as client:
-        report = run(client, duration_s=5.0, joint_positions=(q0,) + DEFAULT_JOINT_POSITIONS[1:], record=out, **FAST)
+    with Client(torque_policy(tau, joint)) as client:
+        report = run(client, duration_s=5.0, plant=plant, joint_positions=tuple(pose), record=out, **FAST)
     assert report.end_reason == "safety_stop" and report.session_drops == []
-    assert report.safety_stop.startswith("joint 1 ") and limit in report.safety_stop
+    assert report.safety_stop.startswith(f"joint {joint} ") and limit in report.safety_stop
     assert report.commanding_s < 5.0
     # The client sees the session leave COMMANDING_ACTIVE and the safety state from that message on.
     assert client.states() == FULL_SEQUENCE[1:]
@@ -417,13 +426,15 @@ def test_safety_stop_brakes_the_joint_inside_its_range(tmp_path, tau, q0, limit)
     safety = [m.robot_info.safety_state for m in client.messages]
     assert set(safety[:active + 1]) == {SafetyState.NORMAL_OPERATION}
     assert set(safety[active + 1:]) == {SafetyState.SAFETY_STOP_LEVEL_1}
-    q = np.array([m.monitor_data.measured_joint_position.value[0] for m in client.messages])
+    q = np.array([m.monitor_data.measured_joint_position.value[joint - 1] for m in client.messages])
+    tau_j = np.array([m.monitor_data.measured_torque.value[joint - 1] for m in client.messages])
     v = np.diff(q) / 1e-3
     assert np.all(np.abs(q) < lim.position_rad)
+    assert np.all(np.abs(tau_j[:active]) <= lim.torque_nm)  # the last active message shows any violation
     assert np.all(np.abs(v[:active - 1]) <= lim.velocity_rad_s)  # the last active message shows the violation
     assert np.all(np.abs(v[-20:]) < 0.1)  # braked (settling at a few hundredths of a rad/s) before the session closed
     # It ends where the interpolator holds it (the end of the braking ramp).
-    assert abs(q[-1] - client.messages[-1].ipo_data.joint_position.value[0]) < 0.01
+    assert abs(q[-1] - client.messages[-1].ipo_data.joint_position.value[joint - 1]) < 0.01
     ds = read_dataset(out)
     assert ds.experiment_attrs["end_reason"] == "safety_stop" and ds.experiment_attrs["safety_stop"] == report.safety_stop
 
@@ -623,11 +634,16 @@ def test_cli_runs_and_writes_report_and_record(tmp_path):
     assert ds.experiment_attrs["commanding_start_index"] == -1 and ds.n_samples > 50
 
 
+def emulate_for(client: Client, *args):
+    """``iiwa-ident emulate --lockstep`` serving ``client``; the result once the client has seen it all."""
+    res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep", *args)
+    client.settle()
+    return res
+
+
 def test_cli_lockstep_serves_a_client_exactly():
     with Client(torque_policy(2.0)) as client:
-        res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep",
-                     "--duration", "0.2", "--seed", "3")
-        client.settle()
+        res = emulate_for(client, "--duration", "0.2", "--seed", "3")
     assert res.exit_code == 0, res.output
     assert "lockstep (times are virtual)" in res.output and "ended: duration" in res.output
     assert "session drops: 0" in res.output and "late" in res.output
@@ -637,9 +653,7 @@ def test_cli_lockstep_serves_a_client_exactly():
 
 def test_cli_names_a_safety_stop():
     with Client(torque_policy(10.0)) as client:
-        res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep",
-                     "--duration", "5", "--pose", "150,30,0,-90,0,60,0")
-        client.settle()
+        res = emulate_for(client, "--duration", "5", "--pose", "150,30,0,-90,0,60,0")
     assert res.exit_code == 0, res.output
     assert "safety stop: joint 1 at " in res.output and "SAFETY STOP at " in res.output
     assert "ended: safety_stop" in res.output
@@ -648,9 +662,7 @@ def test_cli_names_a_safety_stop():
 def test_cli_stall_sends_nothing_and_keeps_the_time():
     # 30 ms from 50 ms of commanding: 30 fewer messages, the counter does not jump, the time stamps do.
     with Client(torque_policy(2.0)) as client:
-        res = invoke("emulate", "--client", f"{client.address[0]}:{client.address[1]}", "--lockstep",
-                     "--duration", "0.2", "--stall", "0.05:30")
-        client.settle()
+        res = emulate_for(client, "--duration", "0.2", "--stall", "0.05:30")
     assert res.exit_code == 0, res.output
     assert "robot-side stalls: 30 cycles without a message" in res.output and "session drops: 0" in res.output
     active = [m for m in client.messages if m.connection_info.session_state == S.COMMANDING_ACTIVE]

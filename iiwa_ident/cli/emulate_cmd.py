@@ -13,6 +13,7 @@ from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import (
     AGENTS,
+    DEFAULT_JOINT_POSITIONS,
     ClientCommandMode,
     ControlMode,
     EmulatorConfig,
@@ -92,8 +93,8 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         duplicate=_check_probability("--duplicate", duplicate), reorder=_check_probability("--reorder", reorder),
         corrupt=_check_probability("--corrupt", corrupt), seed=seed)
     torque = mode == "torque"
-    extra = {} if pose is None else {"joint_positions": _pose(pose)}
-    return EmulatorConfig(**extra,
+    return EmulatorConfig(
+        joint_positions=DEFAULT_JOINT_POSITIONS if pose is None else _pose(pose),
         client=parse_host_port(client, None, "--client"),
         bind=parse_host_port(bind, None, "--bind", allow_any_port=True),
         plant=load_plant(plant) if plant else None,

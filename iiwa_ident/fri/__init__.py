@@ -14,7 +14,8 @@ ControllerRuntime, Watchdog, RunReport, run_controller
     The deployed controller's 1 kHz cycle and run (:mod:`iiwa_ident.fri.runtime`).
 Task, TaskInput, TASKS, make_task
     What the runtime tracks (:mod:`iiwa_ident.fri.tasks`).
-EmulatorConfig, EmulatorReport, Faults, QualityThresholds, RobotEmulator, EmulatorProcess, spawn_emulator, AGENTS
+EmulatorConfig, EmulatorReport, Faults, QualityThresholds, RobotEmulator, EmulatorProcess, spawn_emulator, AGENTS,
+DEFAULT_JOINT_POSITIONS
     The robot side, for tests and runs without a robot (:mod:`iiwa_ident.fri.emulator`).
 
 The modules beyond the protocol are imported when one of their names is
@@ -33,7 +34,7 @@ _LAZY = {
     "runtime": ("ControllerRuntime", "Watchdog", "RunReport", "run_controller"),
     "tasks": ("Task", "TaskInput", "TASKS", "make_task"),
     "emulator": ("EmulatorConfig", "EmulatorReport", "Faults", "QualityThresholds", "RobotEmulator",
-                 "EmulatorProcess", "spawn_emulator", "AGENTS"),
+                 "EmulatorProcess", "spawn_emulator", "AGENTS", "DEFAULT_JOINT_POSITIONS"),
 }
 _MODULE_OF = {name: module for module, names in _LAZY.items() for name in names}
 

@@ -1131,6 +1131,7 @@ class RobotEmulator:
         self._hold(self._meas.q_m)
         self._positions = self._measured_positions(self._meas)
         self._q_prev = self._meas.q_m  # the previous measurement's position, for the speed [rad]
+        self._limits = self._plant.limits
         self._brake: tuple[float, float, int] | None = None  # safety stop: (q, v, simulation step) at its start
         # The robot's reaction: this cycle, then the input delay of its commands (the simulated joint's).
         self._reaction_s = T + self._robot.delay_substeps * T / self._plant.substeps
@@ -1217,7 +1218,7 @@ class RobotEmulator:
         self._session(k, answer, error)
         state = self._state
         if state == SessionState.COMMANDING_ACTIVE:
-            violation = self._limit_violation(self._meas)
+            violation = self._limit_violation()
             if violation:
                 self._safety_stop(k, violation)
                 state = self._state
@@ -1435,12 +1436,13 @@ class RobotEmulator:
             self._state_k = k
 
     # -- safety -------------------------------------------------------------
-    def _limit_violation(self, meas: Measurement) -> str:
-        """Which of the joint's limits ``meas`` violates ("" for none; module docstring, "Safety")."""
-        lim = self._plant.limits
+    def _limit_violation(self) -> str:
+        """Which of the joint's limits the last measurement violates ("" for none; module docstring, "Safety")."""
+        meas = self._meas
+        lim = self._limits
         n = self._plant.joint
         q = meas.q_m
-        v = (q - self._q_prev) / self._period
+        v = self._speed()
         if abs(v) > lim.velocity_rad_s:
             return f"joint {n} speed {abs(v):.3f} rad/s above its limit {lim.velocity_rad_s:.3f} rad/s"
         q_stop = q + v * self._reaction_s + v * abs(v) / (2.0 * self.config.brake_decel_rad_s2)
@@ -1451,14 +1453,17 @@ class RobotEmulator:
             return f"joint {n} torque {meas.tau_j:.1f} Nm beyond its limit +-{lim.torque_nm:g} Nm"
         return ""
 
+    def _speed(self) -> float:
+        """The joint's speed over the last cycle, from the measured positions [rad/s]."""
+        return (self._meas.q_m - self._q_prev) / self._period
+
     def _safety_stop(self, k: int, reason: str) -> None:
         """Stop the robot as its safety controller does: brake on a ramp, end the session, report why."""
         rep = self._report
         t = k * self._period
         rep.safety_stop, rep.safety_stop_t_s, rep.end_reason = reason, t, "safety_stop"
-        q = self._meas.q_m
-        v = (q - self._q_prev) / self._period
-        self._brake = (q, v, self._sim_k)
+        v = self._speed()
+        self._brake = (self._meas.q_m, v, self._sim_k)
         self._robot_info = self._info(SafetyState.SAFETY_STOP_LEVEL_1)
         if self._on_event is not None:
             self._on_event(t, f"safety stop: {reason}")

@@ -273,22 +273,14 @@ def _percentiles(ns: np.ndarray) -> dict[str, float]:
             "p99_9": float(np.percentile(us, 99.9)), "max": float(us.max())}
 
 
-class _StopSignals:
+class _StopFlag:
     """SIGINT/SIGTERM set a flag instead of raising, so the loop can ramp out and flush the log."""
 
     def __init__(self) -> None:
         self.flag = ""
-        self._signals = stop_signals(self._handle)
 
-    def __enter__(self) -> "_StopSignals":
-        self._signals.__enter__()
-        return self
-
-    def _handle(self, signum, frame) -> None:
+    def __call__(self, signum, frame) -> None:
         self.flag = signal.Signals(signum).name
-
-    def __exit__(self, *exc) -> None:
-        self._signals.__exit__(*exc)
 
 
 def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
@@ -348,7 +340,8 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     # may be sending already) while a new interpreter imports numpy and h5py; the ring keeps the rows.
     writer.start(wait=False)
     try:
-        with _StopSignals() as signals, no_gc_pauses(), \
+        signals = _StopFlag()
+        with stop_signals(signals), no_gc_pauses(), \
                 (realtime_process(cpu, say=say) if realtime else contextlib.nullcontext()):
             meas = robot.start()
             say(f"commanding: {task.name} for {duration_s:g} s")
