@@ -241,6 +241,7 @@ class _Spectral:
         f = _fft.rfftfreq(self.N, T)
         self.f = f
         self.jw = 2j * np.pi * f
+        self._hold: np.ndarray | None = None  # the hold's sinc gain, formed on first use
         self.lp = 1.0 / np.sqrt(1.0 + (f / fc) ** (2 * _ORDER))
         # A wider low-pass for the signals nonlinear regressors are computed from: the regressor
         # is filtered afterwards, like every other term (tanh(L w) is not L tanh(w)).
@@ -261,7 +262,9 @@ class _Spectral:
 
     def held_delayed(self, U: np.ndarray, delay_s: float) -> np.ndarray:
         """Spectrum of a zero-order-held command, delayed by ``delay_s``."""
-        return U * np.sinc(self.f * self.T) * np.exp(-self.jw * (delay_s + 0.5 * self.T))
+        if self._hold is None:
+            self._hold = np.sinc(self.f * self.T)
+        return U * self._hold * np.exp(-self.jw * (delay_s + 0.5 * self.T))
 
 
 @dataclass
@@ -289,6 +292,7 @@ class _Prepared:
     rl_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's link acceleration, filtered
     lines: _Lines | None = None  # spectral lines fitted as free sinusoids (see _line_search)
     line_cols: list[np.ndarray] = field(default_factory=list)  # their sin, cos through the low-pass
+    motor_static: np.ndarray | None = field(default=None, repr=False)  # see _motor_static
 
 
 @dataclass(frozen=True)
@@ -465,19 +469,70 @@ def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] 
 
     Columns: Jc, beta, then the robot model's g_m: sin q, cos q, 1, and beta g_m': q' cos q, -q' sin q.
     """
+    y, c, z = _motor_delayed(p, td, tau_hat)
+    S = _motor_static(p)
+    Phi = np.column_stack([S[:, :1], c, S[:, 1:]])
+    Z = Phi.copy()
+    Z[:, 1] = z
+    return y, Phi, Z
+
+
+def _motor_delayed(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The motor equation's parts that depend on the delay ``td``: ``y``, the beta column and its instrument."""
     Ud = p.sp.held_delayed(p.U, td)
     u, du = p.sp.back(Ud), p.sp.back(Ud, 1)
     k = p.keep
-    y = (u - p.tau_s)[k]
-    dy = (du - p.dtau_s)[k]
-    g = [c[k] for c in p.g_cols]
-    Phi = np.column_stack([p.ddq[k], -dy, g[0], g[1], np.ones(len(y)), g[2], g[3]] + [c[k] for c in p.rm_cols])
-    if p.lines is not None:
-        Phi = np.column_stack([Phi, p.lines.block(p.line_cols, k)])
-    Z = Phi.copy()
-    if tau_hat is not None:
-        Z[:, 1] = -(du[k] - tau_hat[0][k])
-    return y, Phi, Z
+    c = (p.dtau_s - du)[k]
+    z = c if tau_hat is None else (tau_hat[0] - du)[k]
+    return (u - p.tau_s)[k], c, z
+
+
+def _motor_static(p: _Prepared) -> np.ndarray:
+    """The motor equation's columns that do not depend on the delay (all but beta's), built once per prepared
+    record: Jc, the robot model's g_m and beta g_m', the ripple's reaction and the lines."""
+    if p.motor_static is None:
+        k = p.keep
+        g = [c[k] for c in p.g_cols]
+        cols = [p.ddq[k], g[0], g[1], np.ones(int(k.sum())), g[2], g[3]] + [c[k] for c in p.rm_cols]
+        S = np.column_stack(cols)
+        if p.lines is not None:
+            S = np.column_stack([S, p.lines.block(p.line_cols, k)])
+        p.motor_static = S
+    return p.motor_static
+
+
+class _DelayCost:
+    """The motor equation's IV residual sum of squares as a function of the delay, for one record.
+
+    Only beta's column and ``y`` change with the delay: the products of the other columns are formed once,
+    so each delay costs two inverse FFTs and a few matrix-vector products instead of the whole regression.
+    """
+
+    def __init__(self, p: _Prepared, tau_hat: tuple[np.ndarray, np.ndarray] | None) -> None:
+        self.p, self.tau_hat = p, tau_hat
+        self.S = _motor_static(p)
+        self.gram = self.S.T @ self.S
+        scale = np.sqrt(np.mean(self.S**2, axis=0))
+        scale[scale == 0] = 1.0
+        self.scale = scale
+
+    def __call__(self, td: float) -> float:
+        y, c, z = _motor_delayed(self.p, td, self.tau_hat)
+        S = self.S
+        m = S.shape[1]
+        St_c = S.T @ c
+        A = np.empty((m + 1, m + 1))
+        A[:m, :m] = self.gram
+        A[:m, m] = St_c
+        A[m, :m] = St_c if z is c else S.T @ z
+        A[m, m] = z @ c
+        b = np.append(S.T @ y, z @ y)
+        sc = np.append(self.scale, math.sqrt(float(np.mean(c**2))) or 1.0)
+        x, *_ = np.linalg.lstsq(A / np.outer(sc, sc), b / sc, rcond=1e-12)
+        x = x / sc
+        e = y - S @ x[:m] - c * x[m]
+        return float(e @ e)
 
 
 def _link_rows(p: _Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.ndarray] | None = None,
@@ -548,13 +603,10 @@ def _iv(y: np.ndarray, Phi: np.ndarray, Z: np.ndarray) -> np.ndarray:
 def _delay(preps: list[_Prepared], tau_hat: list | None, lo: float = 0.0, hi: float = _MAX_TD_S) -> float:
     """Delay minimising the motor equation's residual, summed over the records."""
 
+    costs_of = [_DelayCost(p, None if tau_hat is None else tau_hat[i]) for i, p in enumerate(preps)]
+
     def cost(td: float) -> float:
-        total = 0.0
-        for i, p in enumerate(preps):
-            y, Phi, Z = _motor_rows(p, td, None if tau_hat is None else tau_hat[i])
-            x = _iv(y, Phi, Z)
-            total += float(np.sum((y - Phi @ x) ** 2))
-        return total
+        return sum(c(td) for c in costs_of)
 
     # The residual's structure in Td is no finer than a period of the chirp's top frequency (4 ms or more
     # for chirps up to 250 Hz): the grid brackets the minimum, Brent's method refines it.

@@ -95,7 +95,7 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
 from iiwa_ident.ident.model_file import RippleTable
-from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
+from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, sample_means, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values
 
 __all__ = [
@@ -132,6 +132,7 @@ _MISFIT_WARN = 5.0  # warn when the model misses H1 by more than this many stand
 _REL_STD_WARN = 0.05  # warn when a parameter's relative std exceeds this
 _TD_STD_WARN_S = 0.5e-3  # ... or the delay's std exceeds this
 _MAX_TD_S = 0.05  # upper bound of the delay search [s]
+_CONVERGED_SIGMA = 0.05  # the search stops when its Gauss-Newton step is below this many std
 _COLOURED_WARN = 3.0  # warn when the sandwich std exceeds the Fisher std by this factor (median)
 # Physical bounds of Jc, bc, K, Jl [SI] for the search: far outside any joint, but finite, so that
 # the sampled model can neither overflow nor become singular.
@@ -246,17 +247,19 @@ class _Record:
     #: The ripple's Fourier basis as ``(deflection [rad], reaction [Nm])`` pairs, one per coefficient; their
     #: coefficients are fitted with the parameters (projected out of the residual), see :class:`RippleTerms`.
     ripple_basis: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    _ripple_inputs: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    _ripple_inputs: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
         return self.u.shape[0]
 
-    def ripple_inputs(self) -> tuple[np.ndarray, np.ndarray]:
-        """The ripple basis as two input matrices (n, columns), deflection and reaction, built once."""
+    def ripple_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The ripple basis as input matrices (n, columns), built once: deflection, reaction and their
+        :func:`~iiwa_ident.model.sample_means` (the inputs the sampled model sees, for every parameter set)."""
         if self._ripple_inputs is None:
-            self._ripple_inputs = (np.asfortranarray(np.column_stack([d for d, _ in self.ripple_basis])),
-                                   np.asfortranarray(np.column_stack([rx for _, rx in self.ripple_basis])))
+            D = np.asfortranarray(np.column_stack([d for d, _ in self.ripple_basis]))
+            RX = np.asfortranarray(np.column_stack([rx for _, rx in self.ripple_basis]))
+            self._ripple_inputs = (D, RX, np.asfortranarray(sample_means(D)), np.asfortranarray(sample_means(RX)))
         return self._ripple_inputs
 
 
@@ -583,8 +586,9 @@ class _Problem:
         try:
             with np.errstate(all="ignore"):
                 if self.substeps == 1:  # the usual case: all columns through each model at once
-                    D, RX = r.ripple_inputs()
-                    Y = discretize(p, r.T, "deflection").simulate(D) + discretize(p, r.T, "reaction").simulate(RX)
+                    D, RX, D_means, RX_means = r.ripple_inputs()
+                    Y = discretize(p, r.T, "deflection").simulate(D, D_means)
+                    Y += discretize(p, r.T, "reaction").simulate(RX, RX_means)
                 else:
                     Y = np.stack([_input_response(p, r.T, "deflection", d, self.substeps)
                                   + _input_response(p, r.T, "reaction", rx, self.substeps)
@@ -681,6 +685,10 @@ def _solve(problem: _Problem, x0: np.ndarray, max_iterations: int = 40) -> _Solu
 
     Written out (rather than scipy's solvers) because it needs only the 5x5
     normal equations: no factorisation of the tall Jacobian per step.
+    Converged when the Gauss-Newton step is below :data:`_CONVERGED_SIGMA`
+    standard deviations (the residual is weighted by its noise, so ``J^T J``
+    is the Fisher information): closer than that, the finite-difference
+    Jacobian's own error decides the steps, which then mostly fail.
     """
     lower = np.array([*np.log(_LOWER), 0.0])
     upper = np.array([*np.log(_UPPER), _MAX_TD_S * 1e3])
@@ -695,6 +703,13 @@ def _solve(problem: _Problem, x0: np.ndarray, max_iterations: int = 40) -> _Solu
         A = np.einsum("ki,kj->ij", J, J)
         g = np.einsum("ki,k->i", J, r)
         diag = np.maximum(np.diag(A), 1e-30)
+        try:
+            newton = np.linalg.solve(A, -g)
+            if float(newton @ A @ newton) < _CONVERGED_SIGMA**2:
+                it -= 1  # no step taken
+                break
+        except np.linalg.LinAlgError:
+            pass
         improved = False
         while lam < 1e10:
             step = np.linalg.solve(A + lam * np.diag(diag), -g)

@@ -29,7 +29,15 @@ from iiwa_ident.model._eq4 import (
     transfer_function,
 )
 from iiwa_ident.model._observer import MomentumObserver
-from iiwa_ident.model._sampled import DiscreteModel, delayed_hold, discretize, simulate_outputs, state_matrices, zoh
+from iiwa_ident.model._sampled import (
+    DiscreteModel,
+    delayed_hold,
+    discretize,
+    sample_means,
+    simulate_outputs,
+    state_matrices,
+    zoh,
+)
 from iiwa_ident.model._parameters import (
     JOINT_PARAMETERS,
     PARAMETER_NAMES,
@@ -57,6 +65,7 @@ __all__ = [
     "resonance_hz",
     "coefficients",
     "transfer_function",
+    "sample_means",
     "polynomials",
     "frequency_response",
     "zoh",

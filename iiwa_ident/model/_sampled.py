@@ -32,7 +32,7 @@ from scipy.signal import cont2discrete, lfilter
 from iiwa_ident.model._eq4 import INPUTS
 from iiwa_ident.model._parameters import parameter_values
 
-__all__ = ["zoh", "delayed_hold", "state_matrices", "DiscreteModel", "discretize", "simulate_outputs"]
+__all__ = ["zoh", "delayed_hold", "sample_means", "state_matrices", "DiscreteModel", "discretize", "simulate_outputs"]
 
 
 def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -111,22 +111,25 @@ class DiscreteModel:
     feedthrough: np.ndarray = field(default_factory=lambda: np.zeros(2))
     sampled_motion: bool = False
 
-    def simulate(self, tau_c: np.ndarray) -> np.ndarray:
+    def simulate(self, tau_c: np.ndarray, means: np.ndarray | None = None) -> np.ndarray:
         """Outputs for the command ``tau_c`` [Nm] from rest: array ``(2, n)`` of ``tau_j`` [Nm], ``theta_m`` [rad].
 
-        ``tau_c`` of shape ``(n, m)`` simulates ``m`` inputs at once (outputs ``(2, n, m)``).
+        ``tau_c`` of shape ``(n, m)`` simulates ``m`` inputs at once (outputs ``(2, n, m)``). For a
+        :attr:`sampled_motion` input (no delay), ``means`` may give :func:`sample_means` of it, computed
+        once where one input is simulated through many parameter sets (a fit).
         """
         u = np.asarray(tau_c, float)
         n = u.shape[0]
         d = self.delay_samples
-        ud = np.zeros_like(u)
-        if d < n:
-            ud[d:] = u[:n - d]
+        if d == 0:
+            ud = u
+        else:
+            ud = np.zeros_like(u)
+            if d < n:
+                ud[d:] = u[:n - d]
         uh = ud
-        if self.sampled_motion and n > 1:
-            # Held as a command, a 50 Hz ripple would lag by half a sample (9 degrees at 1 kHz).
-            up = np.concatenate([ud[:1], ud, ud[-1:], ud[-1:]])
-            uh = (13.0 * (up[1:-2] + up[2:-1]) - up[:-3] - up[3:]) / 24.0
+        if self.sampled_motion:
+            uh = sample_means(ud) if means is None or d else means
         out = np.empty((2,) + u.shape)
         for i in range(2):
             out[i] = lfilter(self.num_resonant[i], self.den_resonant, uh, axis=0)
@@ -153,6 +156,18 @@ class DiscreteModel:
             out = np.array([(self.num_resonant[i] @ powers) / den_r + self.feedthrough[i]
                             + (0.0 if i == 0 else (self.num_rigid[i] @ powers) / den_j) for i in range(2)])
         return out * zi[None, :] ** self.delay_samples
+
+
+def sample_means(u: np.ndarray) -> np.ndarray:
+    """Each sample interval's mean of a sampled smooth signal (cubic through the samples), along axis 0.
+
+    Held as a command instead, a 50 Hz ripple would lag by half a sample (9 degrees at 1 kHz).
+    """
+    u = np.asarray(u, float)
+    if u.shape[0] < 2:
+        return u
+    up = np.concatenate([u[:1], u, u[-1:], u[-1:]])
+    return (13.0 * (up[1:-2] + up[2:-1]) - up[:-3] - up[3:]) / 24.0
 
 
 def state_matrices(p, input: str = "command") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
