@@ -31,6 +31,7 @@ table f(x_i), ``x_i = i rho / N``, is that series sampled.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -471,13 +472,32 @@ def _false_alarm(t2: float, n: int, m_eff: float) -> float:
 # --------------------------------------------------------------------------- fits
 
 def _design(theta: np.ndarray, period: float, harmonics: int) -> np.ndarray:
-    x = 2 * np.pi * theta[:, None] / period * np.arange(1, harmonics + 1)
-    return np.hstack([np.cos(x), np.sin(x)])
+    """Columns ``cos(k x)`` then ``sin(k x)``, ``k = 1..harmonics``, ``x = 2 pi theta / period``.
+
+    The harmonics by complex multiplication from the fundamental (one complex exponential instead of two
+    trigonometric functions per harmonic: the period searches form these thousands of times).
+    """
+    e1 = np.exp(1j * (2 * np.pi / period) * np.asarray(theta, float))
+    out = np.empty((len(e1), 2 * harmonics))
+    z = e1
+    for k in range(harmonics):
+        if k:
+            z = z * e1
+        out[:, k] = z.real
+        out[:, harmonics + k] = z.imag
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _hann(n: int) -> np.ndarray:
+    w = np.hanning(n + 2)[1:-1]
+    w.flags.writeable = False
+    return w
 
 
 def _taper(n: int) -> np.ndarray:
-    """Hann window of n samples without its zero end points."""
-    return np.hanning(n + 2)[1:-1]
+    """Hann window of n samples without its zero end points (read-only, shared)."""
+    return _hann(int(n))
 
 
 def _group(p: Pass) -> tuple:
@@ -486,7 +506,7 @@ def _group(p: Pass) -> tuple:
 
 
 def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
-                 grouped: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
+                 grouped: bool = False, covariance: bool = True) -> tuple[np.ndarray, float, np.ndarray]:
     """Joint least squares of a Fourier series in theta and each pass's slow nuisance.
 
     By Frisch-Waugh-Lovell the nuisance is projected out of the regressors of
@@ -497,12 +517,13 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
     the dynamic method sees the ripple through speed-dependent link dynamics
     (eq (7)), which then cannot bias the common period; only the residual sum
     of squares is meaningful then. Returns the Fourier coefficients (cos then
-    sin), the weighted residual sum of squares and the coefficients' covariance.
+    sin), the weighted residual sum of squares and the coefficients' covariance (empty without
+    ``covariance``).
     """
     if grouped:
         ss = 0.0
         for g in sorted({_group(p) for p in passes}):
-            ss += _fourier_fit([p for p in passes if _group(p) == g], period, harmonics)[1]
+            ss += _fourier_fit([p for p in passes if _group(p) == g], period, harmonics, covariance=False)[1]
         return np.zeros(0), ss, np.zeros((0, 0))
     blocks, data = [], []
     for p in passes:
@@ -512,12 +533,37 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
         data.append(w * p.f)
     A = np.vstack(blocks)
     f = np.concatenate(data)
-    coef, *_ = np.linalg.lstsq(A, f, rcond=None)
+    coef = None if covariance else _normal_solve(A, f)
+    if coef is None:
+        coef, *_ = np.linalg.lstsq(A, f, rcond=None)
     resid = f - A @ coef
     ss = float(resid @ resid)
+    if not covariance:
+        return coef, ss, np.zeros((0, 0))
     dof = max(1, len(f) - A.shape[1] - sum(p.nuisance.shape[1] for p in passes))
     cov = np.linalg.pinv(A.T @ A) * ss / dof
     return coef, ss, cov
+
+
+def _normal_solve(A: np.ndarray, f: np.ndarray) -> np.ndarray | None:
+    """Least squares by the column-scaled normal equations, or ``None`` where they are ill-conditioned.
+
+    Several times faster than an SVD for these tall, nearly orthogonal Fourier columns; the residual,
+    formed from the data, is stationary in the coefficients, so its sum of squares keeps full accuracy.
+    """
+    scale = np.sqrt(np.einsum("ij,ij->j", A, A))
+    if not np.all(scale > 0):
+        return None
+    G = (A.T @ A) / np.outer(scale, scale)
+    try:
+        L = np.linalg.cholesky(G)
+    except np.linalg.LinAlgError:
+        return None
+    d = np.diag(L)
+    if d.min() < 1e-6 * d.max():  # condition number of the scaled columns above about 1e6
+        return None
+    y = np.linalg.solve(L, (A.T @ f) / scale)
+    return np.linalg.solve(L.T, y) / scale
 
 
 def _set_weights(passes: list[Pass], period: float, harmonics: int) -> None:
