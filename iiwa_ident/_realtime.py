@@ -22,6 +22,10 @@ GRANT_HINT = ("to grant them, add '<user> - rtprio 99' and '<user> - memlock unl
 
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
 
+_gc_lock = threading.Lock()
+_gc_depth = 0  # no_gc_pauses blocks open now (in any thread)
+_gc_was_enabled = True
+
 
 @contextlib.contextmanager
 def no_gc_pauses() -> Iterator[None]:
@@ -30,16 +34,25 @@ def no_gc_pauses() -> Iterator[None]:
     A full collection of a large heap (a test session, a notebook) stalls the
     interpreter for tens of milliseconds: over FRI that is a dropped session.
     The loops allocate little, so memory stays bounded for runs of minutes.
+    Blocks may overlap (loops in several threads): the first in takes the
+    collector's state, the last out gives it back.
     """
-    enabled = gc.isenabled()
-    gc.freeze()
-    gc.disable()
+    global _gc_depth, _gc_was_enabled
+    with _gc_lock:
+        if _gc_depth == 0:
+            _gc_was_enabled = gc.isenabled()
+            gc.freeze()
+            gc.disable()
+        _gc_depth += 1
     try:
         yield
     finally:
-        gc.unfreeze()
-        if enabled:
-            gc.enable()
+        with _gc_lock:
+            _gc_depth -= 1
+            if _gc_depth == 0:
+                gc.unfreeze()
+                if _gc_was_enabled:
+                    gc.enable()
 
 
 @contextlib.contextmanager

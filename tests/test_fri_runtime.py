@@ -546,3 +546,37 @@ def test_restoring_a_handler_installed_from_c_never_raises(monkeypatch):
     finally:
         for sig, handler in before.items():
             real(sig, handler)
+
+
+def test_overlapping_no_gc_blocks_give_the_collector_back_once_all_have_ended():
+    """Two loops in two threads (the lockstep validation's parallel runs): the collector stays off while
+    either runs and comes back on only when both have ended, in whichever order they end."""
+    import gc
+    import threading
+
+    from iiwa_ident._realtime import no_gc_pauses
+
+    assert gc.isenabled()
+    first_in, second_in, first_may_end, first_out = (threading.Event() for _ in range(4))
+    seen = {}
+
+    def first():
+        with no_gc_pauses():
+            first_in.set()
+            first_may_end.wait(10)
+        first_out.set()
+
+    t = threading.Thread(target=first)
+    t.start()
+    try:
+        assert first_in.wait(10)
+        with no_gc_pauses():  # the second starts while the first runs ...
+            second_in.set()
+            first_may_end.set()  # ... and the first ends before it
+            assert first_out.wait(10)
+            seen["after_first_ended"] = gc.isenabled()
+        seen["after_both"] = gc.isenabled()
+    finally:
+        first_may_end.set()
+        t.join(10)
+    assert seen == {"after_first_ended": False, "after_both": True}

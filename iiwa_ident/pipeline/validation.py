@@ -15,9 +15,12 @@ assume the F/T torque, without the estimate's 40 ms lag).
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 import socket
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -247,7 +250,8 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     lockstep : bool
         Sim target: the emulator runs in lockstep (it waits for each answer,
         on a virtual clock; :mod:`iiwa_ident.fri.emulator`), so the figures
-        are exactly repeatable and do not depend on the machine's load. False:
+        are exactly repeatable and do not depend on the machine's load; the
+        runs, each with its own emulator, then go two at a time. False:
         in real time, as the robot would; a loaded machine then shows up as
         late answers, watchdog trips and lost sessions.
 
@@ -272,7 +276,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     compute_us: dict[str, float] = {}
 
     @contextmanager
-    def robot_side(what: str, seed: int, **kw: Any) -> Iterator[tuple[str, int]]:
+    def robot_side(what: str, seed: int, reports: list, **kw: Any) -> Iterator[tuple[str, int]]:
         """The address of the robot side for one run: the robot, or an emulator of its own."""
         if target != "sim":
             yield robot  # type: ignore[misc]
@@ -284,48 +288,61 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
                 yield "127.0.0.1", port
             finally:
                 emu.stop()
-                emulator_reports.append(_emulator_summary(what, emu.join(30.0)))
+                reports.append(_emulator_summary(what, emu.join(30.0)))
 
-    def tracking() -> None:
-        plan = [
-            ("step", {"amplitude_nm": s.step_nm, "period_s": s.step_period_s},
-             StepTorque(s.step_nm, s.step_period_s, s.step_cycles),
-             make_task("step", s.step_nm, period_s=s.step_period_s), s.step_period_s * s.step_cycles),
-            ("sine", {"amplitude_nm": s.sine_nm, "frequency_hz": s.sine_hz},
-             SineTorque(s.sine_nm, s.sine_hz, s.sine_s), make_task("sine", s.sine_nm, s.sine_hz), s.sine_s),
-        ]
-        for task, params, experiment, rt_task, duration in plan:
-            for kind in ("builtin", "additive"):
-                path = outdir / f"{kind}_{task}.h5"
-                t_run = time.perf_counter()
-                row: dict[str, Any] = {"name": f"{kind}_{task}", "controller": kind, "task": task,
-                                       "file": str(path.name), "duration_s": duration, **params}
-                # A session the loaded machine lost (late messages) says nothing about the controller: retry once.
-                for attempt in (1, 2):
-                    with robot_side(row["name"], 11) as (host, port):
-                        ds, rep = _tracking_run(kind, host, port, config, experiment, rt_task, duration, path,
-                                                trip_cycles, lockstep)
-                    if kind == "builtin":
-                        row["stop_reason"] = ds.experiment_attrs.get("stopped_reason", "duration")
-                        t = np.asarray(ds["t"], float)
-                        t = t - t[0]
-                        ref = reference_of(task, t, params["amplitude_nm"], params.get("period_s", 1.0),
-                                           params.get("frequency_hz", 1.0))
-                    else:
-                        row["stop_reason"] = rep.stop_reason
-                        row["watchdog_events"] = len(rep.watchdog_events)
-                        compute_us[row["name"]] = rep.compute_us.get("median", math.nan)
-                        t = np.asarray(ds["t"], float)
-                        t = t - t[0]
-                        ref = np.asarray(ds["tau_r"], float)
-                    row["attempts"] = attempt
-                    if not _lost_session(row["stop_reason"]):
-                        break
-                row.update(tracking_metrics(t, np.asarray(ds["tau_j"], float), ref, task, delay_s,
-                                            params["amplitude_nm"], params.get("period_s", 1.0)))
-                runs.append(row)
-                say(f"  {kind} {task}: {duration:g} s through FRI, {row['stop_reason']}, peak error "
-                    f"{row['peak_error_nm']:.1f} Nm ({time.perf_counter() - t_run:.1f} s)")
+    def tracking_run(task: str, params: dict, experiment, rt_task, duration: float, kind: str
+                     ) -> tuple[dict[str, Any], list, float | None]:
+        """One tracking run: its row, the emulator's reports and the runtime's median compute time [us]."""
+        path = outdir / f"{kind}_{task}.h5"
+        t_run = time.perf_counter()
+        reports: list[dict[str, Any]] = []
+        compute = None
+        row: dict[str, Any] = {"name": f"{kind}_{task}", "controller": kind, "task": task,
+                               "file": str(path.name), "duration_s": duration, **params}
+        # A session the loaded machine lost (late messages) says nothing about the controller: retry once.
+        for attempt in (1, 2):
+            with robot_side(row["name"], 11, reports) as (host, port):
+                ds, rep = _tracking_run(kind, host, port, config, experiment, rt_task, duration, path,
+                                        trip_cycles, lockstep)
+            if kind == "builtin":
+                row["stop_reason"] = ds.experiment_attrs.get("stopped_reason", "duration")
+                t = np.asarray(ds["t"], float)
+                t = t - t[0]
+                ref = reference_of(task, t, params["amplitude_nm"], params.get("period_s", 1.0),
+                                   params.get("frequency_hz", 1.0))
+            else:
+                row["stop_reason"] = rep.stop_reason
+                row["watchdog_events"] = len(rep.watchdog_events)
+                compute = rep.compute_us.get("median", math.nan)
+                t = np.asarray(ds["t"], float)
+                t = t - t[0]
+                ref = np.asarray(ds["tau_r"], float)
+            row["attempts"] = attempt
+            if not _lost_session(row["stop_reason"]):
+                break
+        row.update(tracking_metrics(t, np.asarray(ds["tau_j"], float), ref, task, delay_s,
+                                    params["amplitude_nm"], params.get("period_s", 1.0)))
+        say(f"  {kind} {task}: {duration:g} s through FRI, {row['stop_reason']}, peak error "
+            f"{row['peak_error_nm']:.1f} Nm ({time.perf_counter() - t_run:.1f} s)")
+        return row, reports, compute
+
+    def kappa_run() -> tuple[dict[str, Any], list, None]:
+        t_run = time.perf_counter()
+        path = outdir / "additive_kappa.h5"
+        reports: list[dict[str, Any]] = []
+        for attempt in (1, 2):  # as above: a session lost to the machine's load is run again once
+            with robot_side("additive_kappa", 12, reports, agent="hand") as (host, port):
+                rep = _additive_run(host, port, config, make_task("kappa", kappa=kappa_live), s.kappa_s,
+                                    path, trip_cycles, lockstep)
+            if not _lost_session(rep.stop_reason):
+                break
+        live = _judge_kappa(path, rep.stop_reason, kappa_live, s.kappa_window_s)
+        live["watchdog_events"] = len(rep.watchdog_events)
+        live["attempts"] = attempt
+        say(f"  additive kappa = {kappa_live:.1f} with a human arm: {s.kappa_s:g} s through FRI, "
+            f"{live['verdict']}, {rep.stop_reason} "
+            f"({time.perf_counter() - t_run:.1f} s)")
+        return live, reports, None
 
     # In real time the emulator shares this machine with the client: on a loaded VM it is late now and then,
     # which the default watchdog (3 cycles) reads as a lost link. In lockstep no cycle is late.
@@ -337,24 +354,33 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     emulator_reports: list[dict[str, Any]] = []
     if target != "sim" and robot is None:
         raise IiwaIdentError("validation on the robot needs the robot's address")
-    tracking()
-    if target == "sim":
-        if s.kappa_s > 0:
-            t_run = time.perf_counter()
-            path = outdir / "additive_kappa.h5"
-            for attempt in (1, 2):  # as above: a session lost to the machine's load is run again once
-                with robot_side("additive_kappa", 12, agent="hand") as (host, port):
-                    rep = _additive_run(host, port, config, make_task("kappa", kappa=kappa_live), s.kappa_s,
-                                        path, trip_cycles, lockstep)
-                if not _lost_session(rep.stop_reason):
-                    break
-            kappa_row["live"] = live = _judge_kappa(path, rep.stop_reason, kappa_live, s.kappa_window_s)
-            live["watchdog_events"] = len(rep.watchdog_events)
-            live["attempts"] = attempt
-            say(f"  additive kappa = {kappa_live:.1f} with a human arm: {s.kappa_s:g} s through FRI, "
-                f"{live['verdict']}, {rep.stop_reason} "
-                f"({time.perf_counter() - t_run:.1f} s)")
-    else:
+    plan = [
+        ("step", {"amplitude_nm": s.step_nm, "period_s": s.step_period_s},
+         StepTorque(s.step_nm, s.step_period_s, s.step_cycles),
+         make_task("step", s.step_nm, period_s=s.step_period_s), s.step_period_s * s.step_cycles),
+        ("sine", {"amplitude_nm": s.sine_nm, "frequency_hz": s.sine_hz},
+         SineTorque(s.sine_nm, s.sine_hz, s.sine_s), make_task("sine", s.sine_nm, s.sine_hz), s.sine_s),
+    ]
+    jobs: list[Callable[[], tuple[dict[str, Any], list, float | None]]] = [
+        functools.partial(tracking_run, *item, kind) for item in plan for kind in ("builtin", "additive")]
+    if target == "sim" and s.kappa_s > 0:
+        jobs.append(kappa_run)
+    if lockstep:
+        # Each run has its own emulator process on a virtual clock: independent, so two at a time (one per
+        # core; this process mostly waits for the emulators' answers).
+        with ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+            results = list(pool.map(lambda job: job(), jobs))
+    else:  # the robot, or real time: one run at a time, as on the robot
+        results = [job() for job in jobs]
+    for job, (row, reports, compute) in zip(jobs, results):
+        emulator_reports.extend(reports)
+        if job is kappa_run:
+            kappa_row["live"] = row
+            continue
+        runs.append(row)
+        if compute is not None:
+            compute_us[row["name"]] = compute
+    if target != "sim":
         kappa_row["live_skipped"] = ("needs a person holding the joint: run 'iiwa-ident run --task kappa' "
                                      f"with kappa below {ka:.1f}")
     by = {r["name"]: r for r in runs}
