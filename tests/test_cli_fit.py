@@ -198,3 +198,30 @@ class TestFitMultisine:
         res = runner.invoke(app, ["fit", str(multisine), "--out", str(tmp_path / "m.toml"), *extra])
         assert res.exit_code == 2 and message in res.output
         assert len(res.output.strip().splitlines()) == 1
+
+
+def test_the_analysis_commands_run_with_one_blas_thread(monkeypatch):
+    """fit, ripple, diagnose, design, deploy and report run inside single_threaded_blas; the others do not."""
+    import contextlib
+
+    import typer
+
+    import iiwa_ident._blas as blas
+    from iiwa_ident.cli._app import ANALYSIS_COMMANDS
+
+    entered = []
+
+    @contextlib.contextmanager
+    def spy():
+        entered.append(True)
+        yield
+
+    monkeypatch.setattr(blas, "single_threaded_blas", spy)
+    group = typer.main.get_command(app)
+    for name, command in group.commands.items():
+        entered.clear()
+        monkeypatch.setattr(command, "callback", lambda *a, **k: None)
+        ctx = command.make_context(name, [], resilient_parsing=True)
+        command.invoke(ctx)
+        assert entered == ([True] if name in ANALYSIS_COMMANDS else []), name
+    assert set(ANALYSIS_COMMANDS) <= set(group.commands)

@@ -85,7 +85,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.interpolate import BSpline, CubicSpline
@@ -206,15 +206,26 @@ def _input_response(params: Any, T: float, kind: str, signal: np.ndarray, subste
     return discretize(params, T / substeps, kind).simulate(fine)[:, ::substeps]
 
 
-def _simulate_record(params: Any, rec: "_Record", substeps: int = 1) -> np.ndarray:
-    """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN."""
+def _simulate_record(params: Any, rec: "_Record", substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
+    """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN.
+
+    ``known``: the known torques' response at ``params`` when the caller has it (:func:`_known_response`).
+    """
     try:
         with np.errstate(all="ignore"):
             y = simulate_outputs(params, rec.u, rec.T)
-            for kind, signal in rec.known:
-                y = y + _input_response(params, rec.T, kind, signal, substeps)
+            y += _known_response(params, rec, substeps) if known is None else known
     except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
         return np.full((2, rec.n), np.nan)
+    return y
+
+
+def _known_response(params: Any, rec: "_Record", substeps: int = 1) -> np.ndarray | float:
+    """The outputs ``(2, n)`` of a record's known torques (0.0 without): no delay in them, so ``Td`` does
+    not enter."""
+    y: np.ndarray | float = 0.0
+    for kind, signal in rec.known:
+        y = y + _input_response(params, rec.T, kind, signal, substeps)
     return y
 
 
@@ -547,6 +558,7 @@ class _Problem:
             gram = (Bw.T @ Bw).toarray()
             gram += 1e-12 * np.trace(gram) / len(gram) * np.eye(len(gram))
             self._weights.append((w_t, w_q, float(np.sum(w_t**2)), cho_factor(gram)))
+        self._responses: dict[tuple[int, str], tuple[tuple, Any]] = {}
 
     def _project(self, r: _Record, e_t: np.ndarray, e_q: np.ndarray, weights: tuple) -> None:
         """Remove the weighted nuisance fits from ``e_t`` and ``e_q`` in place (vectors, or matrices of columns)."""
@@ -563,15 +575,15 @@ class _Problem:
         self.n_evaluations += 1
         parts = []
         p = self.x_to_params(x)
-        for r, weights in zip(self.records, self._weights):
-            y = _simulate_record(p, r, self.substeps)
+        for i, (r, weights) in enumerate(zip(self.records, self._weights)):
+            y = _simulate_record(p, r, self.substeps, self._delay_free(i, p, "known"))
             if not np.all(np.isfinite(y)):  # no model there: a cost no step can accept
                 return np.full(2 * sum(rec.n for rec in self.records), 1e150)
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
             if r.ripple_basis:
-                fitted = self._ripple_fit(p, r, weights, e_t, e_q)
+                fitted = self._ripple_fit(p, r, weights, e_t, e_q, i)
                 if fitted is None:
                     return np.full(2 * sum(rec.n for rec in self.records), 1e150)
                 e_t -= fitted[1][:r.n]
@@ -579,10 +591,45 @@ class _Problem:
             parts.extend((e_t, e_q))
         return np.concatenate(parts)
 
-    def _ripple_fit(self, p: Sequence[float], r: _Record, weights: tuple, e_t: np.ndarray, e_q: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def _delay_free(self, i: int, p: Sequence[float], what: str, make: Callable[[], Any] | None = None) -> Any:
+        """Record ``i``'s responses to the inputs without delay (``"known"`` torques, ``"ripple"`` columns)
+        at ``p``: they do not depend on ``Td``, so the Jacobian's ``Td`` column and the steps that move only
+        ``Td`` reuse them. One entry per record and kind; emptied when the weights change."""
+        key = (i, what, self.substeps, tuple(p[:4]))
+        hit = self._responses.get((i, what))
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        if make is None:
+            if what != "known":
+                return None
+            try:
+                with np.errstate(all="ignore"):
+                    value = _known_response(p, self.records[i], self.substeps)
+            except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
+                return None
+        else:
+            value = make()
+        self._responses[(i, what)] = (key, value)
+        return value
+
+    def _ripple_fit(self, p: Sequence[float], r: _Record, weights: tuple, e_t: np.ndarray, e_q: np.ndarray,
+                    i: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The ripple coefficients fitted to the weighted residual: (coefficients, their weighted projected
-        response, their response in signal units ``(2, n)``), or ``None`` where the model does not exist."""
+        response, their response in signal units ``(2, n)``), or ``None`` where the model does not exist.
+        ``i``: the record's index, to reuse its columns' responses where only ``Td`` changed."""
+        columns = self._ripple_columns(p, r, weights) if i is None else \
+            self._delay_free(i, p, "ripple", lambda: self._ripple_columns(p, r, weights))
+        if columns is None:
+            return None
+        C_t, C_q, gram, Y = columns
+        # Normal equations: a handful of columns against two outputs of every sample.
+        coef, *_ = np.linalg.lstsq(gram, C_t.T @ e_t + C_q.T @ e_q, rcond=None)
+        return coef, np.concatenate([C_t @ coef, C_q @ coef]), Y @ coef
+
+    def _ripple_columns(self, p: Sequence[float], r: _Record, weights: tuple
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The ripple columns' weighted, projected responses (tau_j, q_m), their Gram matrix and their
+        response in signal units ``(2, n, columns)``; ``None`` where the model does not exist."""
         try:
             with np.errstate(all="ignore"):
                 if self.substeps == 1:  # the usual case: all columns through each model at once
@@ -598,12 +645,9 @@ class _Problem:
                 self._project(r, C_t, C_q, weights)  # every column at once
         except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
             return None
-        G = np.vstack([C_t, C_q])
-        if not np.all(np.isfinite(G)):
+        if not (np.all(np.isfinite(C_t)) and np.all(np.isfinite(C_q))):
             return None
-        # Normal equations: a handful of columns against two outputs of every sample.
-        coef, *_ = np.linalg.lstsq(G.T @ G, G.T @ np.concatenate([e_t, e_q]), rcond=None)
-        return coef, G @ coef, Y @ coef
+        return C_t, C_q, C_t.T @ C_t + C_q.T @ C_q, Y
 
     def ripple_response(self, x: np.ndarray) -> list[np.ndarray | None]:
         """Per record, the fitted ripple's output response ``(2, n)`` in signal units (``None`` without)."""
