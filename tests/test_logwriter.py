@@ -78,6 +78,26 @@ class TestRoundTrip:
         assert np.array_equal(read_dataset(path)["tau_j"], rows[:, SIGNALS.index("tau_j")])
         assert log.ready()
 
+    def test_a_reader_holding_the_file_as_the_writer_starts(self, tmp_path):
+        """A reader (``info``, a live view) that has the new file open when the writer comes to open it:
+        HDF5's lock refuses the writer until the reader lets go; the writer tries again and every row
+        arrives (before, the writer gave up and the run's log was lost)."""
+        path = tmp_path / "run.h5"
+        rows = random_rows(2000)
+        log = make_writer(path).start(wait=False)
+        reader = h5py.File(path, "r")  # the writer's new interpreter is still importing numpy and h5py
+        try:
+            for row in rows[:1000]:
+                assert log.append(row)
+            assert not log.ready(timeout_s=0.5)  # it cannot open the file while the reader has it
+        finally:
+            reader.close()
+        for row in rows[1000:]:
+            assert log.append(row)
+        stats = log.close()
+        assert stats.written == 2000 and stats.lost == 0
+        assert np.array_equal(read_dataset(path)["tau_j"], rows[:, SIGNALS.index("tau_j")])
+
     def test_complete_file_has_no_progress_markers(self, tmp_path):
         path = tmp_path / "run.h5"
         with make_writer(path) as log:

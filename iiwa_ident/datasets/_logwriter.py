@@ -640,7 +640,7 @@ class _Sink:
         self.flushed = 0
         self.h5: h5py.File | None = None
         try:
-            self.h5 = h5py.File(path, "r+", libver="latest")
+            self.h5 = _open_for_append(path)
             self.dsets = [self.h5["signals"][name] for name in names]
             self.progress = self.h5[_format._ROWS_FLUSHED]
             self.h5.swmr_mode = True
@@ -689,6 +689,24 @@ class _Sink:
         self.close_file()
         self.rows = None
         self.hdr.release()
+
+
+#: How long the writer retries opening its file while a reader holds the file's lock [s].
+_OPEN_RETRY_S = 10.0
+
+
+def _open_for_append(path: str) -> h5py.File:
+    """Open the skeleton for writing; while a reader has it open (``iiwa-ident info``, a live view polling
+    the log just as the run starts) HDF5's file lock refuses the writer: that reader holds it for
+    milliseconds, so the open is tried again rather than the recording given up."""
+    deadline = time.monotonic() + _OPEN_RETRY_S
+    while True:
+        try:
+            return h5py.File(path, "r+", libver="latest")
+        except OSError as err:
+            if "lock" not in str(err) or time.monotonic() > deadline:
+                raise
+        time.sleep(0.01)
 
 
 def _writer_main(
