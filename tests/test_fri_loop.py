@@ -318,8 +318,8 @@ class TestRunCommand:
     def test_kill_9_leaves_a_readable_log(self, config_file, tmp_path):
         port = free_port()
         log = tmp_path / "run.h5"
-        # The guard: the robot takes the killed client for gone after 5 s. With 0.5 s the test failed on a
-        # loaded machine (100 rows never reached the log): a stall of the live client ended its session.
+        # The guard: the robot takes the killed client for gone after 5 s, long enough that a stall of a
+        # loaded machine does not end the live client's session before the kill.
         with _emulator(port, duration_s=1200.0, lockstep_guard_s=5.0) as emu:
             proc = _start_run(config_file, port, log, 1000, "--task", "zero")
             flushed = wait_for(lambda: _rows(log) >= 100 and _rows(log), FIRST_FLUSH_S,

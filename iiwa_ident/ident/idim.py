@@ -241,7 +241,7 @@ class _Spectral:
         f = _fft.rfftfreq(self.N, T)
         self.f = f
         self.jw = 2j * np.pi * f
-        self._hold: np.ndarray | None = None  # the hold's sinc gain, formed on first use
+        self.hold = np.sinc(f * T)  # the zero-order hold's gain
         self.lp = 1.0 / np.sqrt(1.0 + (f / fc) ** (2 * _ORDER))
         # A wider low-pass for the signals nonlinear regressors are computed from: the regressor
         # is filtered afterwards, like every other term (tanh(L w) is not L tanh(w)).
@@ -262,9 +262,7 @@ class _Spectral:
 
     def held_delayed(self, U: np.ndarray, delay_s: float) -> np.ndarray:
         """Spectrum of a zero-order-held command, delayed by ``delay_s``."""
-        if self._hold is None:
-            self._hold = np.sinc(self.f * self.T)
-        return U * self._hold * np.exp(-self.jw * (delay_s + 0.5 * self.T))
+        return U * self.hold * np.exp(-self.jw * (delay_s + 0.5 * self.T))
 
 
 @dataclass
@@ -513,9 +511,7 @@ class _DelayCost:
         self.p, self.tau_hat = p, tau_hat
         self.S = _motor_static(p)
         self.gram = self.S.T @ self.S
-        scale = np.sqrt(np.mean(self.S**2, axis=0))
-        scale[scale == 0] = 1.0
-        self.scale = scale
+        self.scale = _column_scale(self.S)
 
     def __call__(self, td: float) -> float:
         y, c, z = _motor_delayed(self.p, td, self.tau_hat)
@@ -527,10 +523,7 @@ class _DelayCost:
         A[:m, m] = St_c
         A[m, :m] = St_c if z is c else S.T @ z
         A[m, m] = z @ c
-        b = np.append(S.T @ y, z @ y)
-        sc = np.append(self.scale, math.sqrt(float(np.mean(c**2))) or 1.0)
-        x, *_ = np.linalg.lstsq(A / np.outer(sc, sc), b / sc, rcond=1e-12)
-        x = x / sc
+        x = _iv_solve(A, np.append(S.T @ y, z @ y), np.append(self.scale, _column_scale(c[:, None])))
         e = y - S @ x[:m] - c * x[m]
         return float(e @ e)
 
@@ -592,11 +585,19 @@ def _stick_masks(preps: list[_Prepared], K: float) -> list[np.ndarray] | None:
 
 def _iv(y: np.ndarray, Phi: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """IV estimate ``(Z^T Phi)^-1 Z^T y`` with column scaling (LS when ``Z is Phi``)."""
+    return _iv_solve(Z.T @ Phi, Z.T @ y, _column_scale(Phi))
+
+
+def _column_scale(Phi: np.ndarray) -> np.ndarray:
+    """RMS of each column (1 for a zero column): the IV solve's scaling."""
     scale = np.sqrt(np.mean(Phi**2, axis=0))
     scale[scale == 0] = 1.0
-    A = (Z / scale).T @ (Phi / scale)
-    b = (Z / scale).T @ y
-    x, *_ = np.linalg.lstsq(A, b, rcond=1e-12)
+    return scale
+
+
+def _iv_solve(ZtPhi: np.ndarray, Zty: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The IV estimate from its products ``Z^T Phi`` and ``Z^T y``, solved with the columns scaled to unit RMS."""
+    x, *_ = np.linalg.lstsq(ZtPhi / np.outer(scale, scale), Zty / scale, rcond=1e-12)
     return x / scale
 
 

@@ -489,15 +489,11 @@ def _design(theta: np.ndarray, period: float, harmonics: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=256)
-def _hann(n: int) -> np.ndarray:
+def _taper(n: int) -> np.ndarray:
+    """Hann window of n samples without its zero end points (read-only: one array per length, shared)."""
     w = np.hanning(n + 2)[1:-1]
     w.flags.writeable = False
     return w
-
-
-def _taper(n: int) -> np.ndarray:
-    """Hann window of n samples without its zero end points (read-only, shared)."""
-    return _hann(int(n))
 
 
 def _group(p: Pass) -> tuple:
@@ -506,7 +502,7 @@ def _group(p: Pass) -> tuple:
 
 
 def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
-                 grouped: bool = False, covariance: bool = True) -> tuple[np.ndarray, float, np.ndarray]:
+                 grouped: bool = False, ss_only: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
     """Joint least squares of a Fourier series in theta and each pass's slow nuisance.
 
     By Frisch-Waugh-Lovell the nuisance is projected out of the regressors of
@@ -517,13 +513,14 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
     the dynamic method sees the ripple through speed-dependent link dynamics
     (eq (7)), which then cannot bias the common period; only the residual sum
     of squares is meaningful then. Returns the Fourier coefficients (cos then
-    sin), the weighted residual sum of squares and the coefficients' covariance (empty without
-    ``covariance``).
+    sin), the weighted residual sum of squares and the coefficients' covariance. With ``ss_only``
+    (the period searches' cost) the covariance is left empty and the normal equations solve it
+    (:func:`_normal_solve`).
     """
     if grouped:
         ss = 0.0
         for g in sorted({_group(p) for p in passes}):
-            ss += _fourier_fit([p for p in passes if _group(p) == g], period, harmonics, covariance=False)[1]
+            ss += _fourier_fit([p for p in passes if _group(p) == g], period, harmonics, ss_only=True)[1]
         return np.zeros(0), ss, np.zeros((0, 0))
     blocks, data = [], []
     for p in passes:
@@ -533,12 +530,12 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
         data.append(w * p.f)
     A = np.vstack(blocks)
     f = np.concatenate(data)
-    coef = None if covariance else _normal_solve(A, f)
+    coef = _normal_solve(A, f) if ss_only else None
     if coef is None:
         coef, *_ = np.linalg.lstsq(A, f, rcond=None)
     resid = f - A @ coef
     ss = float(resid @ resid)
-    if not covariance:
+    if ss_only:
         return coef, ss, np.zeros((0, 0))
     dof = max(1, len(f) - A.shape[1] - sum(p.nuisance.shape[1] for p in passes))
     cov = np.linalg.pinv(A.T @ A) * ss / dof

@@ -211,22 +211,24 @@ def _simulate_record(params: Any, rec: "_Record", substeps: int = 1, known: np.n
 
     ``known``: the known torques' response at ``params`` when the caller has it (:func:`_known_response`).
     """
+    return _outputs(rec, lambda: simulate_outputs(params, rec.u, rec.T)) \
+        + (_known_response(params, rec, substeps) if known is None else known)
+
+
+def _known_response(params: Any, rec: "_Record", substeps: int = 1) -> np.ndarray:
+    """The outputs ``(2, n)`` of a record's known torques (zero without; NaN for a non-physical ``params``):
+    no delay in them, so ``Td`` does not enter."""
+    return _outputs(rec, lambda: sum((_input_response(params, rec.T, kind, signal, substeps)
+                                      for kind, signal in rec.known), np.zeros((2, rec.n))))
+
+
+def _outputs(rec: "_Record", simulate: Callable[[], np.ndarray]) -> np.ndarray:
+    """``simulate()``, or NaN outputs ``(2, n)`` where the parameters describe no model."""
     try:
         with np.errstate(all="ignore"):
-            y = simulate_outputs(params, rec.u, rec.T)
-            y += _known_response(params, rec, substeps) if known is None else known
+            return simulate()
     except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
         return np.full((2, rec.n), np.nan)
-    return y
-
-
-def _known_response(params: Any, rec: "_Record", substeps: int = 1) -> np.ndarray | float:
-    """The outputs ``(2, n)`` of a record's known torques (0.0 without): no delay in them, so ``Td`` does
-    not enter."""
-    y: np.ndarray | float = 0.0
-    for kind, signal in rec.known:
-        y = y + _input_response(params, rec.T, kind, signal, substeps)
-    return y
 
 
 # --------------------------------------------------------------------------
@@ -576,14 +578,14 @@ class _Problem:
         parts = []
         p = self.x_to_params(x)
         for i, (r, weights) in enumerate(zip(self.records, self._weights)):
-            y = _simulate_record(p, r, self.substeps, self._delay_free(i, p, "known"))
+            y = self._outputs(i, p)
             if not np.all(np.isfinite(y)):  # no model there: a cost no step can accept
                 return np.full(2 * sum(rec.n for rec in self.records), 1e150)
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
             if r.ripple_basis:
-                fitted = self._ripple_fit(p, r, weights, e_t, e_q, i)
+                fitted = self._ripple_fit(p, i, e_t, e_q)
                 if fitted is None:
                     return np.full(2 * sum(rec.n for rec in self.records), 1e150)
                 e_t -= fitted[1][:r.n]
@@ -591,34 +593,29 @@ class _Problem:
             parts.extend((e_t, e_q))
         return np.concatenate(parts)
 
-    def _delay_free(self, i: int, p: Sequence[float], what: str, make: Callable[[], Any] | None = None) -> Any:
-        """Record ``i``'s responses to the inputs without delay (``"known"`` torques, ``"ripple"`` columns)
-        at ``p``: they do not depend on ``Td``, so the Jacobian's ``Td`` column and the steps that move only
-        ``Td`` reuse them. One entry per record and kind; emptied when the weights change."""
-        key = (i, what, self.substeps, tuple(p[:4]))
-        hit = self._responses.get((i, what))
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        if make is None:
-            if what != "known":
-                return None
-            try:
-                with np.errstate(all="ignore"):
-                    value = _known_response(p, self.records[i], self.substeps)
-            except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
-                return None
-        else:
-            value = make()
-        self._responses[(i, what)] = (key, value)
-        return value
+    def _outputs(self, i: int, p: Sequence[float]) -> np.ndarray:
+        """Record ``i``'s model outputs ``(2, n)`` for its command and known torques at ``p``."""
+        r = self.records[i]
+        known = self._delay_free(i, p, "known", lambda: _known_response(p, r, self.substeps))
+        return _simulate_record(p, r, self.substeps, known)
 
-    def _ripple_fit(self, p: Sequence[float], r: _Record, weights: tuple, e_t: np.ndarray, e_q: np.ndarray,
-                    i: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """The ripple coefficients fitted to the weighted residual: (coefficients, their weighted projected
-        response, their response in signal units ``(2, n)``), or ``None`` where the model does not exist.
-        ``i``: the record's index, to reuse its columns' responses where only ``Td`` changed."""
-        columns = self._ripple_columns(p, r, weights) if i is None else \
-            self._delay_free(i, p, "ripple", lambda: self._ripple_columns(p, r, weights))
+    def _delay_free(self, i: int, p: Sequence[float], what: str, make: Callable[[], Any]) -> Any:
+        """``make()``: record ``i``'s response to inputs without delay (``what``: the known torques, the
+        ripple's columns) at ``p``. It does not depend on ``Td``, so the Jacobian's ``Td`` column and the
+        steps that move only ``Td`` reuse it. One entry per record and kind; emptied when the weights change."""
+        key = (self.substeps, tuple(p[:4]))
+        hit = self._responses.get((i, what))
+        if hit is None or hit[0] != key:
+            hit = self._responses[(i, what)] = (key, make())
+        return hit[1]
+
+    def _ripple_fit(self, p: Sequence[float], i: int, e_t: np.ndarray, e_q: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Record ``i``'s ripple coefficients fitted to its weighted residual: (coefficients, their weighted
+        projected response, their response in signal units ``(2, n)``), or ``None`` where the model does
+        not exist."""
+        r, weights = self.records[i], self._weights[i]
+        columns = self._delay_free(i, p, "ripple", lambda: self._ripple_columns(p, r, weights))
         if columns is None:
             return None
         C_t, C_q, gram, Y = columns
@@ -653,14 +650,14 @@ class _Problem:
         """Per record, the fitted ripple's output response ``(2, n)`` in signal units (``None`` without)."""
         p = self.x_to_params(x)
         out: list[np.ndarray | None] = []
-        for r, weights in zip(self.records, self._weights):
+        for i, (r, weights) in enumerate(zip(self.records, self._weights)):
             if not r.ripple_basis:
                 out.append(None)
                 continue
-            y = _simulate_record(p, r)
+            y = self._outputs(i, p)
             e_t, e_q = weights[0] * (r.tau - y[0]), weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
-            fitted = self._ripple_fit(p, r, weights, e_t, e_q)
+            fitted = self._ripple_fit(p, i, e_t, e_q)
             out.append(None if fitted is None else fitted[2])
         return out
 
