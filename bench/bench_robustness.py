@@ -37,9 +37,13 @@ Run: ``.venv/bin/python bench/bench_robustness.py coverage [--draws 100] [--firs
 random size, half of them in a shape the candidates do not have, on a joint within 30 % of Table I; chirp,
 constant-velocity and hand-guided runs), each diagnosed against the true eq (4) and against the chirp's fit;
 prints the share named exactly (target 90 %), the share with a false-positive effect (target at most 5 %) and
-found, missed and false per hidden effect and shape.
+found, missed and false per hidden effect and shape. Then the user's protocol (``fit`` the 10 s chirp, the fit's
+effects included, then ``diagnose`` the other runs against that model), scored on the final model's effects, on
+both data paths: the project's simulator and a joint simulated apart from it (:mod:`iiwa_ident.diagnose.apart`);
+targets 95 % exact, at most 2 % false positives, ``model_parameters`` named wrongly in at most 1 %.
 
-Run: ``.venv/bin/python bench/bench_robustness.py diagnose [--draws 100] [--first 0] [--jobs 2] [--verbose]``.
+Run: ``.venv/bin/python bench/bench_robustness.py diagnose [--draws 100] [--first 0] [--jobs 2] [--verbose]
+[--protocol all|user]``.
 """
 
 from __future__ import annotations
@@ -64,7 +68,7 @@ from iiwa_ident.excite.scenarios import (
     simulate_scenario_multisine,
 )
 
-__all__ = ["run_draw", "run_ripple_draw", "run_diagnose_draw", "main"]
+__all__ = ["run_draw", "run_ripple_draw", "run_diagnose_draw", "run_user_draw", "main"]
 
 #: Relative period error counted as a hit, and the 95 % interval's half-width in std.
 RIPPLE_REL_TOL = 1e-3
@@ -319,22 +323,87 @@ def run_diagnose_draw(seed: int, fit: bool) -> dict:
     return out
 
 
-def _diagnose(args: argparse.Namespace) -> int:
+def run_user_draw(seed: int, apart: bool) -> dict:
+    """One case under the user's protocol (:func:`iiwa_ident.diagnose.benchmark.run_user_case`); its score, or
+    its refusal or traceback."""
+    from iiwa_ident.diagnose.benchmark import run_user_case
+
+    out: dict = {"seed": seed, "apart": apart}
+    res = _guarded(lambda: run_user_case(seed, apart=apart), out)
+    if res is not None:
+        out.update(res, status="hit" if res["names_ok"] else "wrong")
+    return out
+
+
+def _cases(run, seeds: list[int], flag: bool, jobs: int) -> tuple[list[dict], list[dict], float]:
+    """``run(seed, flag)`` for every seed (in ``jobs`` processes): all rows, the scored ones, wall time [s]."""
+    t0 = time.perf_counter()
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs) as pool:
+            rows = list(pool.map(run, seeds, [flag] * len(seeds)))
+    else:
+        rows = [run(s, flag) for s in seeds]
+    return rows, [r for r in rows if r["status"] in ("hit", "wrong")], time.perf_counter() - t0
+
+
+def _by_hidden(done: list[dict], absorbed) -> None:
+    """Found, missed (or absorbed by the fit) per hidden effect and shape, and what was named besides it."""
     from collections import Counter
 
+    by: dict[str, Counter] = {}
+    for r in done:
+        for h in r["hidden"] or ["(none)"]:
+            c = by.setdefault(h, Counter())
+            shape = "other" if h in r.get("reshaped", []) else "own"
+            if h in absorbed:
+                c["absorbed"] += 1
+            else:
+                c[f"{shape} {'missed' if h in r['missed'] else 'found'}"] += 1
+            for f in r["false"]:
+                c[f"+{f}"] += 1
+    for name, c in sorted(by.items()):
+        print(f"    {name:<26} " + ", ".join(f"{k}: {v}" for k, v in sorted(c.items())))
+
+
+def _user(args: argparse.Namespace, seeds: list[int]) -> None:
+    from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
+
+
+    for apart in (False, True):
+        rows, done, wall = _cases(run_user_draw, seeds, apart, args.jobs)
+        n = len(rows)
+        path = "a joint simulated apart" if apart else "the project's simulator"
+        print(f"user's protocol (fit, then diagnose against the fitted model) on {path}: {n} cases (seeds "
+              f"{seeds[0]}-{seeds[-1]}), {wall:.0f} s; refused {sum(r['status'] == 'refused' for r in rows)}, "
+              f"traceback {sum(r['status'] == 'traceback' for r in rows)}")
+        exact = sum(r["names_ok"] for r in done)
+        false = sum(bool(r["false"]) for r in done)
+        wrong_mp = sum(any(b.startswith("model_parameters") for b in r["bad_parameters"]) for r in done)
+        print(f"  final model has exactly the hidden effects: {exact}/{n} = {100 * exact / n:.1f} %  (target 95 %); "
+              f"with parameters in tolerance too: {sum(r['hit'] for r in done)}")
+        print(f"  a false-positive effect: {false}/{n} = {100 * false / n:.1f} %  (target at most 2 %); "
+              f"misses: {sum(len(r['missed']) for r in done)}; model_parameters moved away from the truth: "
+              f"{wrong_mp}/{n} = {100 * wrong_mp / n:.1f} %  (target at most 1 %); "
+              f"replacements: {sum(len(r['replaced']) for r in done)}")
+        _by_hidden(done, ABSORBED_BY_FIT)
+        if args.verbose:
+            for r in rows:
+                if r["status"] != "hit":
+                    print(f"  {r['status']} seed {r['seed']}: hidden {r.get('hidden')} (other shape "
+                          f"{r.get('reshaped')}), fit {r.get('fitted')}, named {sorted(r.get('named', {}))}, "
+                          f"replaced {r.get('replaced')}, suspects {r.get('suspects')} {r.get('message', '')}")
+
+
+def _diagnose(args: argparse.Namespace) -> int:
     from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
 
     seeds = list(range(args.first, args.first + args.draws))
+    if args.protocol == "user":
+        _user(args, seeds)
+        return 0
     for fit in (False, True):
-        t0 = time.perf_counter()
-        if args.jobs > 1:
-            with ProcessPoolExecutor(args.jobs) as pool:
-                rows = list(pool.map(run_diagnose_draw, seeds, [fit] * len(seeds)))
-        else:
-            rows = [run_diagnose_draw(s, fit) for s in seeds]
-        wall = time.perf_counter() - t0
+        rows, done, wall = _cases(run_diagnose_draw, seeds, fit, args.jobs)
         n = len(rows)
-        done = [r for r in rows if r["status"] in ("hit", "wrong")]
         print(f"diagnosis against {'the chirp fit' if fit else 'the true eq (4)'}: {n} cases (seeds "
               f"{seeds[0]}-{seeds[-1]}), {wall:.0f} s; refused {sum(r['status'] == 'refused' for r in rows)}, "
               f"traceback {sum(r['status'] == 'traceback' for r in rows)}")
@@ -346,19 +415,7 @@ def _diagnose(args: argparse.Namespace) -> int:
               f"misses: {sum(len(r['missed']) for r in done)} of {sum(len(r['hidden']) for r in done)} hidden")
         print("  by hidden effect (own shape / other shape): found, missed (absorbed: in the fit's parameters); "
               "+ named besides it")
-        by: dict[str, Counter] = {}
-        for r in done:
-            for h in r["hidden"] or ["(none)"]:
-                c = by.setdefault(h, Counter())
-                shape = "other" if h in r.get("reshaped", []) else "own"
-                if fit and h in ABSORBED_BY_FIT:
-                    c["absorbed"] += 1
-                else:
-                    c[f"{shape} {'missed' if h in r['missed'] else 'found'}"] += 1
-                for f in r["false"]:
-                    c[f"+{f}"] += 1
-        for name, c in sorted(by.items()):
-            print(f"    {name:<26} " + ", ".join(f"{k}: {v}" for k, v in sorted(c.items())))
+        _by_hidden(done, ABSORBED_BY_FIT if fit else ())
         if args.verbose:
             for r in rows:
                 if r["status"] != "hit":
@@ -366,6 +423,7 @@ def _diagnose(args: argparse.Namespace) -> int:
                           f"{r.get('reshaped')}), named {sorted(r.get('named', {}))} {r.get('message', '')}"
                           + (" fit error " + ", ".join(f"{k} {100 * v:+.2f} %" for k, v in r["fit_error"].items())
                              if r.get("fit_error") else ""))
+    _user(args, seeds)
     return 0
 
 
@@ -393,6 +451,8 @@ def main(argv: list[str] | None = None) -> int:
     dg.add_argument("--first", type=int, default=0, help="first seed")
     dg.add_argument("--jobs", type=int, default=2)
     dg.add_argument("--verbose", action="store_true", help="list every case not named exactly")
+    dg.add_argument("--protocol", default="all", choices=("all", "user"),
+                    help="all protocols, or only the user's (fit, then diagnose) on both data paths")
     args = parser.parse_args(argv)
     return {"fit": _fit, "ripple": _ripple, "coverage": _coverage, "diagnose": _diagnose}[args.what](args)
 

@@ -23,9 +23,13 @@ of the true eq (4).
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
@@ -33,7 +37,7 @@ from iiwa_ident.ident import JointModel, table1_model
 from iiwa_ident.sim import make_effect
 
 __all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
-           "score_case", "run_case"]
+           "score_case", "run_case", "final_effects", "user_protocol", "run_user_case"]
 
 #: Tolerances per parameter: ``(relative, absolute)``; a value passes within either.
 TOLERANCES: dict[str, dict[str, tuple[float, float]]] = {
@@ -191,3 +195,71 @@ def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, f
                explained=d.explained, suspects=[x["name"] for x in d.suspects], fit_error=fit_error,
                gains={e.name: e.gain_pct for e in d.effects})
     return out
+
+
+def final_effects(model: JointModel, named: dict[str, dict[str, float]] | None = None) -> dict[str, dict[str, float]]:
+    """The effects a model carries, in the candidates' reported parameters: its ``[[effects]]``, its ripple table
+    (period and half peak-to-peak) and ``named`` (what a diagnosis named besides, e.g. ``model_parameters``)."""
+    out: dict[str, dict[str, float]] = {}
+    for entry in model.effects:
+        effect = make_effect(entry["name"], {k: v for k, v in entry.items() if k != "name"})
+        out[entry["name"]] = effect.reported(effect.coefficients())
+    if model.ripple is not None:
+        out["transmission_ripple"] = {"period_rad": model.ripple.period_rad,
+                                      "amplitude_rad": float(np.ptp(model.ripple.lut) / 2)}
+    for name, params in (named or {}).items():
+        if name not in out:
+            out[name] = params
+    return out
+
+
+def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[str, Any]:
+    """What a user does: ``fit`` the chirp (``datasets[0]``, written to ``folder``), then ``diagnose`` the
+    other runs against the fitted model; the final model's effects (:func:`final_effects` of the extended
+    model) with what the fit and the diagnosis said."""
+    from iiwa_ident.datasets import write_dataset
+    from iiwa_ident.diagnose.diagnosis import diagnose
+    from iiwa_ident.ident import fit_model
+
+    paths = []
+    for i, ds in enumerate(datasets):
+        paths.append(write_dataset(Path(folder) / f"{i}_{ds.experiment}.h5", ds))
+    t0 = time.perf_counter()
+    model, result = fit_model(paths[:1])
+    t1 = time.perf_counter()
+    from iiwa_ident.datasets import read_dataset
+
+    d = diagnose([read_dataset(p) for p in paths[1:]], model)
+    t2 = time.perf_counter()
+    named = {e.name: e.parameters for e in d.effects}
+    return {"final": final_effects(d.extended, named), "fitted": sorted(final_effects(model)),
+            "fit_parameters": dict(result.parameters), "named": named,
+            "replaced": [f"{r['old']} -> {r['new']}" for r in getattr(d, "replaced", [])],
+            "gains": {e.name: e.gain_pct for e in d.effects}, "suspects": [x["name"] for x in d.suspects],
+            "fit_s": t1 - t0, "diagnose_s": t2 - t1}
+
+
+def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
+    """One case under the user's protocol (:func:`user_protocol`), scored on the final model's effects.
+
+    ``apart``: the case of the second data path (:mod:`iiwa_ident.diagnose.apart`), otherwise the project
+    simulator's harder draw (:func:`draw_case` with ``shapes``); the chirp is 10 s long on both.
+    """
+    import tempfile
+
+    if apart:
+        from iiwa_ident.diagnose.apart import draw_apart_case, simulate_apart_case
+
+        ac = draw_apart_case(seed)
+        case = Case(seed, dict(ac.effects), dict(ac.expected), dict(ac.dynamics), list(ac.reshaped))
+        data = simulate_apart_case(ac)
+    else:
+        case = draw_case(seed, shapes=True)
+        data = simulate_case(case, chirp_s=10.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = user_protocol(data, tmp)
+    fit_error = {k: out["fit_parameters"][k] / case.dynamics[k] - 1.0 for k in case.dynamics}
+    score = score_case(case, out["final"], fit_error)
+    score.update(out, seed=seed, hidden=sorted(case.expected), expected=case.expected, reshaped=case.reshaped,
+                 fit_error=fit_error)
+    return score

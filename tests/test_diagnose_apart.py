@@ -1,0 +1,50 @@
+"""The diagnosis after a fit, on joints simulated apart from the project's simulator (the user's protocol)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from iiwa_ident.diagnose.apart import ApartCase, draw_apart_case, simulate_apart_case
+from iiwa_ident.diagnose.benchmark import final_effects
+from iiwa_ident.diagnose.predict import build_context
+from iiwa_ident.ident import table1_model
+
+
+def _model(dynamics):
+    m = table1_model()
+    for k, v in dynamics.items():
+        m.parameters[k].value = v
+    return m
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(x ** 2)))
+
+
+class TestSecondDataPath:
+    def test_without_effects_eq4_predicts_it_to_the_noise(self):
+        # Written apart from eq (4)'s code: with the true parameters, the command channel's residual is the
+        # torque noise (0.025 Nm RMS, coloured) and the link channel's below it (low-passed).
+        dyn = {"Jc": 0.9, "bc": 60.0, "K": 16000.0, "Jl": 4.0, "Td": 0.0046}
+        for i, ds in enumerate(simulate_apart_case(ApartCase(5, dyn))):
+            ctx = build_context(ds, _model(dyn), i)
+            assert _rms(ctx.residual["command"][ctx.masks["command"]]) == pytest.approx(0.025, rel=0.2)
+            assert _rms(ctx.residual["link"][ctx.masks["link"]]) < 0.025
+
+    def test_draws_are_seeded_and_cover_every_family(self):
+        cases = [draw_apart_case(s) for s in range(60)]
+        assert draw_apart_case(7).expected == draw_apart_case(7).expected
+        assert {len(c.expected) for c in cases} == {0, 1, 2}
+        assert len({n for c in cases for n in c.expected}) == 7
+        assert sum(bool(c.reshaped) for c in cases) > 10
+
+    def test_final_effects_reads_the_model_file(self):
+        m = table1_model()
+        m.effects = [{"name": "torque_sensor_offset", "offset_nm": 1.5},
+                     {"name": "position_dependent_load", "amplitude_nm": 4.0, "phase_rad": 0.5, "compensated": 1.0}]
+        out = final_effects(m, {"model_parameters": {"Td_s": 0.005}})
+        assert out["torque_sensor_offset"] == {"offset_nm": pytest.approx(1.5)}
+        assert out["position_dependent_load"]["amplitude_nm"] == pytest.approx(4.0)
+        assert out["position_dependent_load"]["phase_rad"] == pytest.approx(0.5)
+        assert set(out) == {"torque_sensor_offset", "position_dependent_load", "model_parameters"}
