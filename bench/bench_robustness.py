@@ -43,7 +43,7 @@ both data paths: the project's simulator and a joint simulated apart from it (:m
 targets 95 % exact, at most 2 % false positives, ``model_parameters`` named wrongly in at most 1 %.
 
 Run: ``.venv/bin/python bench/bench_robustness.py diagnose [--draws 100] [--first 0] [--jobs 2] [--verbose]
-[--protocol all|user]``.
+[--protocol all|user] [--path both|project|apart]``.
 """
 
 from __future__ import annotations
@@ -369,7 +369,7 @@ def _user(args: argparse.Namespace, seeds: list[int]) -> None:
     from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
 
 
-    for apart in (False, True):
+    for apart in {"both": (False, True), "project": (False,), "apart": (True,)}[args.path]:
         rows, done, wall = _cases(run_user_draw, seeds, apart, args.jobs)
         n = len(rows)
         path = "a joint simulated apart" if apart else "the project's simulator"
@@ -452,7 +452,9 @@ def main(argv: list[str] | None = None) -> int:
     dg.add_argument("--jobs", type=int, default=2)
     dg.add_argument("--verbose", action="store_true", help="list every case not named exactly")
     dg.add_argument("--protocol", default="all", choices=("all", "user"),
-                    help="all protocols, or only the user's (fit, then diagnose) on both data paths")
+                    help="all protocols, or only the user's (fit, then diagnose)")
+    dg.add_argument("--path", default="both", choices=("both", "project", "apart"),
+                    help="data paths of the user's protocol: the project's simulator, the joint simulated apart")
     args = parser.parse_args(argv)
     return {"fit": _fit, "ripple": _ripple, "coverage": _coverage, "diagnose": _diagnose}[args.what](args)
 

@@ -5,10 +5,10 @@ simulator (:mod:`iiwa_ident.sim`), whose effects are the very ones the candidate
 only there is judged on its own assumptions. This module writes the joint once more, from the paper's
 equations, with its own integrator, its own effects in other shapes and its own experiments:
 
-* eq (1) realised on the joint position ``theta_j`` (``theta_j = w + (b_c / K) v``, ``v' = e / J_c``,
-  ``w' = v``, ``e = u - tau_s``), the motor position from eq (5) ``theta_m = theta_j + f(theta_m)`` by
-  fixed-point iteration, eqs (2)-(3) on the link; classical Runge-Kutta with five steps per cycle and the
-  delay rounded to a step;
+* eq (1) realised on the motor position the internal controller moves (``theta_m = w + (b_c / K) v``,
+  ``v' = e / J_c``, ``w' = v``, ``e = u - tau_s``), the joint position behind the transmission from eq (5),
+  eqs (2)-(3) on the link (the deflection's reaction on the motor is left out); classical Runge-Kutta with
+  five steps per cycle and the delay rounded to a step;
 * friction ``F_c (2/pi) atan(omega / v_s) + F_v omega`` (and a breakaway term ``F_s exp(-|omega| / v_b)``
   in the other shape), a gravity load ``A cos(theta_l + psi)`` that the robot compensates (with a second
   harmonic it does not know, in the other shape), an offset (drifting linearly in the other shape), a sensor
@@ -148,14 +148,12 @@ class _Joint:
         self.scale = fx.get("torque_sensor_scale", {"scale": 1.0})["scale"]
         self.hum = fx.get("periodic_disturbance")
 
-    def theta_m(self, theta_j: float) -> float:
+    def theta_j(self, theta_m: float) -> float:
+        """Eq (5): the joint position behind the transmission."""
         if self.ripple is None:
-            return theta_j
+            return theta_m
         w, terms = self.ripple
-        th = theta_j
-        for _ in range(4):  # f' is a few per cent: the fixed point converges at once
-            th = theta_j + sum(a * math.sin(k * w * th + p) for k, a, p in terms)
-        return th
+        return theta_m - sum(a * math.sin(k * w * theta_m + p) for k, a, p in terms)
 
     def link_torque(self, th: float, om: float) -> float:
         out = 0.0
@@ -168,11 +166,12 @@ class _Joint:
                 + self.load["harmonic2_nm"] * math.sin(2 * th + self.load["harmonic2_rad"])
         return out
 
-    def compensation(self, theta_j: float) -> float:
-        """What the robot adds to the loop's target: its model of the gravity load (not the harmonic)."""
+    def compensation(self, theta_m: float) -> float:
+        """What the robot adds to the loop's target: its model of the gravity load (not the harmonic), on the
+        motor position it measures."""
         if self.load is None:
             return 0.0
-        return -self.load["amplitude_nm"] * math.cos(theta_j + self.load["psi_rad"])
+        return -self.load["amplitude_nm"] * math.cos(theta_m + self.load["psi_rad"])
 
     def reading(self, tau_j: float, t: float) -> float:
         out = self.scale * tau_j + self.offset["offset_nm"] + self.offset["drift_nm_s"] * t
@@ -185,9 +184,10 @@ class _Joint:
     def rhs(self, x: list[float], t: float, tau_cmd: float, ext: tuple[float, float, float, float]
             ) -> list[float]:
         w, v, th, om = x
-        theta_j = w + self.bc / self.K * v
+        theta_m = w + self.bc / self.K * v
+        theta_j = self.theta_j(theta_m)
         tau_j = self.K * (theta_j - th)
-        e = tau_cmd + self.compensation(theta_j) - self.reading(tau_j, t)
+        e = tau_cmd + self.compensation(theta_m) - self.reading(tau_j, t)
         kh, dh, qh, vh = ext
         tau_ext = kh * (qh - th) + dh * (vh - om)
         return [v, e / self.Jc, om,
@@ -201,7 +201,7 @@ def _simulate(case: ApartCase, client, hand, n: int, seed: int, preroll: int = 5
     rng = np.random.default_rng([seed, 7])
     h = _T / _STEPS
     lag = int(round(j.delay / h))
-    # At rest at theta = 0: the spring holds the load, the robot's compensation the motor.
+    # At rest with the link at 0: the spring holds the load (the pre-roll settles the rest).
     tau0 = -j.link_torque(0.0, 0.0)
     x = [tau0 / j.K, 0.0, 0.0, 0.0]
     total = preroll + n
@@ -211,10 +211,10 @@ def _simulate(case: ApartCase, client, hand, n: int, seed: int, preroll: int = 5
     pending = [0.0] * (lag + _STEPS)  # substep commands in flight
     for k in range(total):
         t = (k - preroll) * _T
-        theta_j = x[0] + j.bc / j.K * x[1]
-        tau_j = j.K * (theta_j - x[2])
+        theta_m = x[0] + j.bc / j.K * x[1]
+        tau_j = j.K * (j.theta_j(theta_m) - x[2])
         ext = hand(t) if hand is not None else (0.0, 0.0, 0.0, 0.0)
-        rows[k] = (j.theta_m(theta_j), j.reading(tau_j, t), x[2], ext[0] * (ext[2] - x[2]) + ext[1] * (ext[3] - x[3]),
+        rows[k] = (theta_m, j.reading(tau_j, t), x[2], ext[0] * (ext[2] - x[2]) + ext[1] * (ext[3] - x[3]),
                    t)
         q = round(rows[k, 0] / _TICK) * _TICK
         q0 = q if q0 is None else q0
