@@ -48,3 +48,22 @@ class TestSecondDataPath:
         assert out["position_dependent_load"]["amplitude_nm"] == pytest.approx(4.0)
         assert out["position_dependent_load"]["phase_rad"] == pytest.approx(0.5)
         assert set(out) == {"torque_sensor_offset", "position_dependent_load", "model_parameters"}
+
+
+def _protocol(effects, tmp_path, dyn=None):
+    from iiwa_ident.diagnose.benchmark import user_protocol
+
+    case = ApartCase(11, dyn or {"Jc": 1.1, "bc": 50.0, "K": 20000.0, "Jl": 5.0, "Td": 0.005}, effects)
+    return user_protocol(simulate_apart_case(case), tmp_path)
+
+
+class TestUserProtocol:
+    def test_a_load_fitted_as_an_offset_is_replaced(self, tmp_path):
+        # A 12 Nm gravity load, 8 Nm at the chirp's pose where the link hardly moves: the chirp's fit takes
+        # it for a sensor offset; the runs where the link moves contradict the offset and name the load.
+        load = {"amplitude_nm": 12.0, "psi_rad": 0.84, "harmonic2_nm": 0.0, "harmonic2_rad": 0.0}
+        out = _protocol({"position_dependent_load": load}, tmp_path)
+        assert "torque_sensor_offset" in out["fitted"]
+        assert out["replaced"] == ["torque_sensor_offset -> position_dependent_load"]
+        assert set(out["final"]) == {"position_dependent_load"}
+        assert out["final"]["position_dependent_load"]["amplitude_nm"] == pytest.approx(12.0, rel=0.1)

@@ -86,6 +86,7 @@ __all__ = [
     "MODEL_PARAMETER_TD_S",
     "MODEL_PARAMETER_RELEVANT",
     "MODEL_PARAMETER_RELEVANT_TD_S",
+    "MIN_GAIN_MODEL",
 ]
 
 class Block:
@@ -188,9 +189,14 @@ class CandidateEffect:
     #: Whether the candidate is the plant effect of its name (:attr:`effect`); False for the model's own parameters.
     is_effect: ClassVar[bool] = True
 
+    #: Least held-out gain for the effect to be named, beyond the selection's own (:data:`~iiwa_ident.diagnose.select.MIN_GAIN`).
+    min_gain: ClassVar[float] = 0.0
+
     def __init__(self) -> None:
         self.n_datasets = 0
         self.detail: dict[str, Any] = {}
+        #: Coefficients of the same effect the model already has (its columns then fit a correction), or None.
+        self.base_coef: np.ndarray | None = None
         #: The plant effect at the current nonlinear parameters (defaults until found).
         self.effect: Effect | None = self._default_effect() if self.is_effect else None
 
@@ -519,6 +525,16 @@ class PositionDependentLoadCandidate(CandidateEffect):
         super().extend(model, coef)
         self.detail["compensated"] = self.effect.values_from(coef)["compensated"]
 
+    def plausible(self, coef):
+        # The robot compensates a fraction c in [0, 1] of the load it knows: its columns carry -c times the
+        # link's. Far more there than on the link is a constant or a slope of the command channel, not a load.
+        a, b = np.asarray(coef[:2], float), np.asarray(coef[2:4], float)
+        norm = float(np.hypot(*a))
+        if norm == 0.0:
+            return not np.any(b)
+        c = -float(a @ b) / norm ** 2
+        return -0.2 <= c <= 1.2 and float(np.hypot(*(b + c * a))) <= 0.2 * norm
+
     def evidence_axis(self, ctx):
         return ctx.theta_l, "link position [rad]"
 
@@ -641,6 +657,9 @@ MODEL_PARAMETER_TD_S = 0.01
 #: robustness target of ``fit``: 3 % of Jc, bc, K, Jl and 0.5 ms of Td). Smaller corrections are what
 #: the named effects' shape errors leave behind, not a wrong model.
 MODEL_PARAMETER_RELEVANT = 0.03
+#: Least held-out reduction of the residual for ``model_parameters`` to be named: a refit of eq (4) absorbs
+#: a few per cent of any misfit, which is no evidence that the parameters are off.
+MIN_GAIN_MODEL = 0.10
 MODEL_PARAMETER_RELEVANT_TD_S = 5e-4
 _MODEL_KEYS = ("Jc", "bc", "K", "Jl", "Td")
 _MODEL_JSON = {"Jc": "Jc_kgm2", "bc": "bc_nms_rad", "K": "K_nm_rad", "Jl": "Jl_kgm2", "Td": "Td_s"}
@@ -668,6 +687,7 @@ class ModelParametersCandidate(CandidateEffect):
     name = "model_parameters"
     summary = "the model's own parameters Jc, bc, K, Jl, Td are off"
     n_nonlinear = 5
+    min_gain = MIN_GAIN_MODEL
     is_effect = False
 
     def __init__(self) -> None:

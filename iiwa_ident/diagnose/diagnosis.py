@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -118,6 +119,12 @@ class Diagnosis:
     #: decide between them): not named, not in the extended model; each with ``name``, ``or_shape_of``,
     #: ``gain_pct`` (its held-out gain when named) and ``gain_beyond_pct`` (beyond the other's freer shape).
     ambiguous: list[dict[str, Any]] = field(default_factory=list)
+    #: Effects of the given model that the data contradict, each replaced by what the data name in its place:
+    #: ``old`` (its name), ``new`` (the effects named in its place), ``gain_pct`` (held-out RMS gain of the
+    #: model without it over the model with it, both with what the data name), ``old_parameters`` and
+    #: ``or_shape_of`` (the named effect whose other shape makes it redundant, or None when the data predict
+    #: better without it). Not in the extended model.
+    replaced: list[dict[str, Any]] = field(default_factory=list)
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
@@ -154,6 +161,7 @@ class Diagnosis:
             "effects": [e.as_json() for e in self.effects],
             "suspects": self.suspects,
             "ambiguous": self.ambiguous,
+            "replaced": self.replaced,
             "model_out": self.model_out,
             "datasets": list(datasets.values()),
             "tried": [{"step": s.step, "name": s.name, "gain": s.gain, "delta_bic": s.delta_bic,
@@ -163,6 +171,12 @@ class Diagnosis:
     def summary(self) -> str:
         """Readable summary for the terminal."""
         lines = []
+        for r in self.replaced:
+            old = ", ".join(f"{k} = {v:.6g}" for k, v in r["old_parameters"].items())
+            why = (f"is part of {r['or_shape_of']} in another shape: beyond that shape it adds nothing on held-out "
+                   f"data" if r["or_shape_of"] else f"is contradicted by the data: without it the held-out RMS is "
+                   f"{r['gain_pct']:.1f} % lower")
+            lines.append(f"replaced: {r['old']} -> {' + '.join(r['new'])} (the model's {r['old']}, {old}, {why})")
         if self.explained:
             lines.append("the model explains the data: no candidate effect reduces the held-out residual enough")
         elif self.effects:
@@ -198,6 +212,16 @@ class Diagnosis:
         return "\n".join(lines)
 
 
+def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
+    """What an effect with coefficients ``coef`` adds to each residual channel of ``ctx`` [Nm], full length."""
+    out: dict[str, np.ndarray] = {}
+    for col, c in zip(cand.columns(ctx), coef):
+        for injection, phi in col:
+            for ch, v in channel_columns(ctx, injection, phi).items():
+                out[ch] = out.get(ch, 0.0) + c * v
+    return out
+
+
 def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tuple[CandidateEffect, np.ndarray]]:
     """Subtract the model's own extra effects from the residuals; return them by name with coefficients."""
     known = {}
@@ -211,10 +235,8 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
         if coef is None:
             continue
         for ctx in contexts:
-            for col, c in zip(cand.columns(ctx), coef):
-                for injection, phi in col:
-                    for ch, v in channel_columns(ctx, injection, phi).items():
-                        ctx.residual[ch] = ctx.residual[ch] - c * v
+            for ch, v in _contribution(cand, coef, ctx).items():
+                ctx.residual[ch] = ctx.residual[ch] - v
         known[name] = (cand, coef)
     return known
 
@@ -272,6 +294,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     joints = {ds.joint for ds in datasets}
     if len(joints) > 1:
         raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
+    original = model
     work = copy.deepcopy(model)
     # A model with an extra-delay effect predicts with the total delay.
     extra = sum(float(e.get("extra_s", 0.0)) for e in work.effects if e.get("name") == "input_delay")
@@ -282,23 +305,64 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     if not blocks:
         names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
         raise IiwaIdentError(f"{names}: nothing to compare (too short, or contact without a measured external torque)")
-    ys = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
+    ys = ys0 = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
     names = list(candidates) if candidates is not None else list(CANDIDATES)
+    sel, effects, extended, after, ambiguous = _named(names, work, model, known, blocks, ys, selection_options)
+    replaced = []
+    for name in list(known):
+        # The model without one of its effects, judged like the model: when the data name other effects in
+        # its place and predict the held-out data better, the effect is contradicted and replaced.
+        cand, coef = known[name]
+        back = {ctx.index: _contribution(cand, coef, ctx) for ctx in contexts}
+        ys_b = [y + back[b.ctx.index].get(b.channel, np.zeros_like(b.ctx.t))[b.mask] * b.weight
+                for y, b in zip(ys, blocks)]
+        others = {k: v for k, v in known.items() if k != name}
+        without = copy.deepcopy(model)
+        without.effects = [e for e in without.effects if e.get("name") != name]
+        trial = _named(names, work, without, others, blocks, ys_b, selection_options)
+        if any(c.name == name for c in trial[0].selected):
+            continue  # the data name it again: it stands (corrected at most)
+        sse, sse_b = _sse(after, range(len(after))), _sse(trial[3], range(len(trial[3])))
+        shape_of = _redundant_beside(cand, sel, effects, blocks, ys_b)
+        if not trial[1] or (sse_b > (1.0 - MIN_GAIN) * sse and shape_of is None):
+            continue
+        better = sse_b <= (1.0 - MIN_GAIN) * sse
+        named_before = {e.name for e in effects}
+        new = [shape_of] if shape_of is not None and not better else \
+            [e.name for e in trial[1] if e.name not in named_before] or [e.name for e in trial[1]]
+        replaced.append({"old": name, "new": new, "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
+                         "old_parameters": cand.parameters(coef),
+                         "or_shape_of": None if better else shape_of})
+        sel, effects, extended, after, ambiguous = trial
+        known, model, ys = others, without, ys_b
+        for ctx in contexts:
+            for ch, v in back[ctx.index].items():
+                ctx.residual[ch] = ctx.residual[ch] + v
+    before = cv_residuals([np.zeros((len(y), 0)) for y in ys0], ys0)
+    channels = []
+    for b, rb, ra in zip(blocks, before, after):
+        channels.append(ChannelReport(b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]),
+                                      _rms([ra / b.weight])))
+    suspects = _suspects(sel)
+    if replaced:
+        extended.description += " | replaced: " + ", ".join(f"{r['old']} -> {' + '.join(r['new'])}"
+                                                              for r in replaced)
+    return Diagnosis(explained=not effects and not suspects and not ambiguous and not replaced, effects=effects,
+                     channels=channels, model=original, extended=extended, replaced=replaced, contexts=contexts, blocks=blocks, selection=sel,
+                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous)
+
+
+def _named(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
+           ys: list[np.ndarray], selection_options: dict[str, Any]
+           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray], list[dict[str, Any]]]:
+    """:func:`_selected`, named again without the effects another one's shape makes ambiguous; and those."""
     sel, effects, extended, after = _selected(names, work, model, known, blocks, ys, selection_options)
     ambiguous = _ambiguous(sel, effects, blocks, ys)
     if ambiguous:
         # Named again without them: the others' coefficients and gains must not lean on them.
         left = [n for n in names if n not in {a["name"] for a in ambiguous}]
         sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options)
-    before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
-    channels = []
-    for b, rb, ra in zip(blocks, before, after):
-        channels.append(ChannelReport(b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]),
-                                      _rms([ra / b.weight])))
-    suspects = _suspects(sel)
-    return Diagnosis(explained=not effects and not suspects and not ambiguous, effects=effects, channels=channels,
-                     model=model, extended=extended, contexts=contexts, blocks=blocks, selection=sel,
-                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous)
+    return sel, effects, extended, after, ambiguous
 
 
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
@@ -310,6 +374,8 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
     for c in cands:
         if hasattr(c, "base_table"):
             c.base_table = work.ripple
+        if c.name in known:
+            c.base_coef = known[c.name][1]
     sel = select_effects(blocks, ys, cands, **selection_options)
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
     after = cv_residuals(sel.columns(blocks), ys) if sel.selected else list(before)
@@ -394,6 +460,37 @@ def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block],
     return out
 
 
+def _redundant_beside(known: CandidateEffect, sel: Selection, effects: list[EffectReport], blocks: list[Block],
+                      ys: list[np.ndarray]) -> str | None:
+    """The named effect in another shape of its family whose freer shape makes an effect of the model redundant
+    (as :func:`_ambiguous` judges two named effects), or None.
+
+    ``ys``: the residual without the model's effect. A sensor offset fitted to a chirp whose link hardly moved is
+    a load's value at that position; when the load named on moving runs is not a plain sinusoid, a constant
+    still helps the sinusoid over a short travel, yet adds nothing beyond the load's freer shape.
+    """
+    reports = {e.name: e for e in effects}
+    own = block_columns(blocks, known.columns, known.n_columns())
+    acts = [i for i, X in enumerate(own) if np.any(X)]
+    if not acts:
+        return None
+    base = sel.columns(blocks)
+    r0, r1 = cv_residuals(base, ys), cv_residuals([np.hstack([a, b]) for a, b in zip(base, own)], ys)
+    gain_own = 1.0 - _sse(r1, acts) / _sse(r0, acts) if _sse(r0, acts) > 0 else 0.0
+    for first in sel.selected:
+        n = len(first.free_columns(blocks[0].ctx))
+        if n == 0 or reports[first.name].detail.get("shape_left_pct", 0.0) < OTHER_SHAPE_LEFT_PCT:
+            continue
+        free = [np.hstack([a, b]) for a, b in zip(base, block_columns(blocks, first.free_columns, n))]
+        without = cv_residuals(free, ys)
+        with_it = cv_residuals([np.hstack([a, b]) for a, b in zip(free, own)], ys)
+        sse_without = _sse(without, acts)
+        beyond = 1.0 - _sse(with_it, acts) / sse_without if sse_without > 0 else 0.0
+        if beyond < MIN_GAIN and beyond < _REDUNDANT_SHARE * max(gain_own, 0.0):
+            return first.name
+    return None
+
+
 def _shape_fit(cand: CandidateEffect, blocks: list[Block], ys: list[np.ndarray], sel: Selection,
                without: list[np.ndarray], after: list[np.ndarray], acts: list[int]) -> dict[str, Any]:
     """How well the candidate's shape fits, against a freer shape of its family
@@ -435,6 +532,8 @@ def _suspects(sel: Selection) -> list[dict[str, Any]]:
             failed = "its fitted parameters are not physically possible"
         elif s.irrelevant:
             failed = "the change it describes is below the identification's accuracy"
+        elif s.negligible:
+            failed = "it is below the noise of the residual"
         elif s.delta_bic >= 0:
             failed = "the information criterion does not favour it"
         else:

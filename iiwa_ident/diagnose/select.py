@@ -26,6 +26,17 @@ the already selected ones and keeps the best if all of these hold:
 ``relevant``    the change the effect describes matters (:meth:`CandidateEffect.relevant`:
                 a refit of the model's own parameters by less than the
                 identification's accuracy on real joints is not a finding);
+``material``    the effect itself, with its total coefficients (a correction
+                of an effect the model has included), is larger than the
+                noise: its RMS on the residual channels it acts on at least
+                :data:`NOISE_FACTOR` times the noise floor of what is left
+                there with it (:func:`noise_floor`: the white part of the
+                residual, from its sample-to-sample differences). A few
+                hundredths of a Nm that a held-out test still favours are what
+                the other effects' small errors leave, not an effect of their
+                own. Judged in the whole band only, where a slow misfit finds
+                such a proxy; the fast band and an effect's own evidence
+                channel leave the slow part out;
 ``confidence``  a one-sided t-test on the relative held-out SSE reductions
                 per (block, segment) (:data:`SEGMENTS` contiguous held-out
                 segments per block), over the blocks the effect acts on, gives
@@ -71,7 +82,7 @@ from scipy import signal, stats
 
 from iiwa_ident.diagnose.candidates import Block, CandidateEffect, EvidenceChannel, block_columns
 
-__all__ = ["FOLDS", "MIN_GAIN", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS", "MIN_GAIN_OTHER_SHAPE", "Step",
+__all__ = ["FOLDS", "MIN_GAIN", "NOISE_FACTOR", "noise_floor", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS", "MIN_GAIN_OTHER_SHAPE", "Step",
            "Selection", "cv_residuals", "select_effects"]
 
 #: Number of contiguous folds per block.
@@ -87,6 +98,8 @@ MAX_EFFECTS = 4
 #: Least held-out reduction for an effect whose fit is not physically possible to be named as its family in
 #: another shape (a large effect must be named, not hidden by the shape of its candidate).
 MIN_GAIN_OTHER_SHAPE = 0.5
+#: Least ratio of an effect's RMS on the residual channels to their noise floor for it to be named.
+NOISE_FACTOR = 2.0
 #: Lower edge of the fast band [Hz].
 FAST_BAND_HZ = 3.0
 #: Bands an effect is judged in, in order of precedence.
@@ -162,6 +175,8 @@ class Step:
     implausible: bool = False
     #: Passed the tests, but the change it describes is too small to matter (:meth:`CandidateEffect.relevant`).
     irrelevant: bool = False
+    #: Passed the tests, but the effect is below the noise (see ``material`` in the module docstring).
+    negligible: bool = False
     #: How the effect's fit departs from its candidate's shape, when it was named in another shape.
     other_shape: str = ""
 
@@ -203,6 +218,27 @@ class Selection:
             for i, X in enumerate(block_columns(blocks, cand.columns, cand.n_columns())):
                 mats[i].append(X)
         return [np.hstack(m) for m in mats]
+
+
+def noise_floor(residuals: Sequence[np.ndarray]) -> float:
+    """White noise [Nm RMS] of residuals: their sample-to-sample differences over sqrt(2), robustly (the median
+    absolute difference), the largest over the residuals given."""
+    out = 0.0
+    for r in residuals:
+        if len(r) > 2:
+            out = max(out, float(np.median(np.abs(np.diff(r)))) / (0.6745 * math.sqrt(2.0)))
+    return out
+
+
+def _material(blocks: Sequence[Block], Xc: list[np.ndarray], total: np.ndarray, left: list[np.ndarray]) -> bool:
+    """Whether an effect's RMS [Nm] on the blocks it acts on reaches :data:`NOISE_FACTOR` times the noise floor
+    of what is left there with it (``left``: weighted in-sample residuals per block)."""
+    acts = [i for i, X in enumerate(Xc) if np.any(X)]
+    if not acts:
+        return False
+    parts = [Xc[i] @ total / blocks[i].weight for i in acts]
+    rms = float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))
+    return rms >= NOISE_FACTOR * noise_floor([left[i] / blocks[i].weight for i in acts])
 
 
 def _band_filters(blocks: Sequence[Block]) -> list:
@@ -322,16 +358,24 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                 sel.steps.append(record)
                 if band == _OWN and not agrees:
                     continue
-                if record.gain >= min_gain and record.delta_bic < 0 and record.confidence >= min_confidence:
+                if record.gain >= max(min_gain, cand.min_gain) and record.delta_bic < 0 and \
+                        record.confidence >= min_confidence:
                     # The effect's own fit (on the residual channels) must be physically possible (a negative
                     # friction is a symptom of something else).
                     if fit is None:
-                        fit = np.linalg.lstsq(np.vstack([np.hstack([a, b]) for a, b in zip(cur_X, Xc)]),
-                                              np.concatenate(ys), rcond=None)[0][-cand.n_columns():]
-                    plausible = cand.plausible(fit)
-                    note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(fit)
+                        joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
+                        coef_all = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
+                        left = [y - X @ coef_all for y, X in zip(ys, joint)]
+                        fit = coef_all[-cand.n_columns():]
+                        base = cand.base_coef
+                        total = fit + base if base is not None and len(base) == len(fit) else fit
+                    plausible = cand.plausible(total)
+                    note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(total)
                     if plausible and not cand.relevant(fit):
                         record.irrelevant = True
+                    elif (plausible or note) and band == "full" and cand.is_effect and \
+                            not _material(blocks, Xc, total, left):
+                        record.negligible = True
                     elif plausible or note:
                         record.other_shape = note
                         passed[band].append((cand, Xc, record))
