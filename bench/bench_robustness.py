@@ -388,10 +388,11 @@ def _user(args: argparse.Namespace, seeds: list[int]) -> None:
         _by_hidden(done, ABSORBED_BY_FIT)
         if args.verbose:
             for r in rows:
-                if r["status"] != "hit":
+                if r["status"] != "hit" or r.get("bad_parameters"):
                     print(f"  {r['status']} seed {r['seed']}: hidden {r.get('hidden')} (other shape "
                           f"{r.get('reshaped')}), fit {r.get('fitted')}, named {sorted(r.get('named', {}))}, "
-                          f"replaced {r.get('replaced')}, suspects {r.get('suspects')} {r.get('message', '')}")
+                          f"replaced {r.get('replaced')}, suspects {r.get('suspects')}, parameters out of "
+                          f"tolerance {r.get('bad_parameters')} {r.get('message', '')}")
 
 
 def _diagnose(args: argparse.Namespace) -> int:

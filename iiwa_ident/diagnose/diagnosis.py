@@ -308,31 +308,42 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     ys = ys0 = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
     names = list(candidates) if candidates is not None else list(CANDIDATES)
     sel, effects, extended, after, ambiguous = _named(names, work, model, known, blocks, ys, selection_options)
-    replaced = []
-    for name in list(known):
-        # The model without one of its effects, judged like the model: when the data name other effects in
-        # its place and predict the held-out data better, the effect is contradicted and replaced.
-        cand, coef = known[name]
-        back = {ctx.index: _contribution(cand, coef, ctx) for ctx in contexts}
+    replaced: list[dict[str, Any]] = []
+    # The model without one of its effects (then without all of them: a fit can take one effect for two
+    # others), judged like the model: when the data then predict the held-out runs better, or a named
+    # effect's other shape makes the effect redundant, that outcome is kept; each effect left out is
+    # replaced by what the data name in its place, or refitted where they name it again.
+    drops = [[n] for n in known] + ([list(known)] if len(known) > 1 else [])
+    for drop in drops:
+        if not drop or any(n not in known for n in drop):
+            continue
+        back = {ctx.index: {} for ctx in contexts}
+        for n in drop:
+            for ctx in contexts:
+                for ch, v in _contribution(*known[n], ctx).items():
+                    back[ctx.index][ch] = back[ctx.index].get(ch, 0.0) + v
         ys_b = [y + back[b.ctx.index].get(b.channel, np.zeros_like(b.ctx.t))[b.mask] * b.weight
                 for y, b in zip(ys, blocks)]
-        others = {k: v for k, v in known.items() if k != name}
+        others = {k: v for k, v in known.items() if k not in drop}
         without = copy.deepcopy(model)
-        without.effects = [e for e in without.effects if e.get("name") != name]
+        without.effects = [e for e in without.effects if e.get("name") not in drop]
         trial = _named(names, work, without, others, blocks, ys_b, selection_options)
-        if any(c.name == name for c in trial[0].selected):
-            continue  # the data name it again: it stands (corrected at most)
+        renamed = {c.name for c in trial[0].selected} & set(drop)
         sse, sse_b = _sse(after, range(len(after))), _sse(trial[3], range(len(trial[3])))
-        shape_of = _redundant_beside(cand, sel, effects, blocks, ys_b)
-        if not trial[1] or (sse_b > (1.0 - MIN_GAIN) * sse and shape_of is None):
-            continue
         better = sse_b <= (1.0 - MIN_GAIN) * sse
+        shape_of = None if renamed or len(drop) > 1 else \
+            _redundant_beside(known[drop[0]][0], sel, effects, blocks, ys_b)
+        if not trial[1] or not (better or shape_of):
+            continue
         named_before = {e.name for e in effects}
         new = [shape_of] if shape_of is not None and not better else \
             [e.name for e in trial[1] if e.name not in named_before] or [e.name for e in trial[1]]
-        replaced.append({"old": name, "new": new, "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
-                         "old_parameters": cand.parameters(coef),
-                         "or_shape_of": None if better else shape_of})
+        for n in drop:
+            if n not in renamed:
+                replaced.append({"old": n, "new": [x for x in new if x != n],
+                                 "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
+                                 "old_parameters": known[n][0].parameters(known[n][1]),
+                                 "or_shape_of": None if better else shape_of})
         sel, effects, extended, after, ambiguous = trial
         known, model, ys = others, without, ys_b
         for ctx in contexts:
