@@ -67,3 +67,45 @@ class TestUserProtocol:
         assert out["replaced"] == ["torque_sensor_offset -> position_dependent_load"]
         assert set(out["final"]) == {"position_dependent_load"}
         assert out["final"]["position_dependent_load"]["amplitude_nm"] == pytest.approx(12.0, rel=0.1)
+
+    def test_a_friction_the_fit_modelled_calls_for_nothing_more(self, tmp_path):
+        # The fit's friction is right: a refit of eq (4) that gains a few per cent held out is no finding.
+        fr = {"coulomb_nm": 2.0, "viscous_nms_rad": 1.5, "smoothing_rad_s": 0.004, "breakaway_nm": 0.0,
+              "breakaway_rad_s": 0.05}
+        out = _protocol({"link_friction": fr}, tmp_path)
+        assert "link_friction" in out["fitted"]
+        assert "model_parameters" not in out["named"]
+        assert set(out["final"]) == {"link_friction"}
+        assert out["final"]["link_friction"]["coulomb_nm"] == pytest.approx(2.0, rel=0.2)
+
+    def test_an_offset_the_fit_modelled_calls_for_nothing_more(self, tmp_path):
+        # The fit's offset is right: no load of a few ten-thousandths of a Nm may take the credit for what a
+        # constant does in the command channel, and the offset stays as fitted.
+        out = _protocol({"torque_sensor_offset": {"offset_nm": 1.2, "drift_nm_s": 0.0}}, tmp_path)
+        assert out["named"] == {} and out["replaced"] == []
+        assert out["final"] == {"torque_sensor_offset": {"offset_nm": pytest.approx(1.2, abs=0.05)}}
+
+
+class TestWhatAFindingSays:
+    def test_a_load_is_compensated_by_a_fraction_of_itself(self):
+        from iiwa_ident.diagnose.candidates import PositionDependentLoadCandidate
+
+        load = PositionDependentLoadCandidate()
+        assert load.plausible(np.array([3.0, 1.0, -3.0, -1.0]))  # fully compensated
+        assert load.plausible(np.array([3.0, 1.0, 0.0, 0.0]))  # an unknown payload
+        # A 0.0002 Nm load whose compensation columns carry a Nm: a constant of the command channel.
+        assert not load.plausible(np.array([0.0002, 0.0, -1.0, 0.3]))
+        assert not load.plausible(np.array([3.0, 1.0, 3.0, 1.0]))  # compensation of the wrong sign
+
+    def test_an_effect_below_the_noise_is_not_named(self):
+        from iiwa_ident.diagnose import diagnose
+        from iiwa_ident.diagnose.select import NOISE_FACTOR
+
+        dyn = {"Jc": 1.0, "bc": 55.0, "K": 18000.0, "Jl": 5.5, "Td": 0.005}
+        tiny = ApartCase(3, dyn, {"torque_sensor_offset": {"offset_nm": 0.02, "drift_nm_s": 0.0}})
+        d = diagnose(simulate_apart_case(tiny)[1:], _model(dyn))
+        assert d.effect("torque_sensor_offset") is None
+        assert NOISE_FACTOR * 0.025 > 0.02  # the torque noise is 0.025 Nm RMS
+        real = ApartCase(3, dyn, {"torque_sensor_offset": {"offset_nm": 0.3, "drift_nm_s": 0.0}})
+        d = diagnose(simulate_apart_case(real)[1:], _model(dyn))
+        assert d.effect("torque_sensor_offset").parameters["offset_nm"] == pytest.approx(0.3, abs=0.03)
