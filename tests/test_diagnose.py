@@ -262,7 +262,9 @@ class TestCli:
         assert set(e) >= {"name", "confidence", "parameters", "rms_before", "rms_after", "gain_pct"}
         assert e["name"] == "torque_sensor_offset" and abs(e["parameters"]["offset_nm"] + 0.8) < 0.05
         ext = read_model(tmp / "ext.toml")
-        assert ext.effects == [{"name": "torque_sensor_offset", "offset_nm": pytest.approx(-0.8, abs=0.05)}]
+        # Torque-commanded runs tell where the loop sees the offset: here all of it (none on the log only).
+        assert ext.effects == [{"name": "torque_sensor_offset", "offset_nm": pytest.approx(-0.8, abs=0.05),
+                                "logged_nm": pytest.approx(0.0, abs=0.05)}]
         trace = SimulatedJoint(ext.to_plant(), seed=1).run_open_loop(tau_c=np.full(300, 2.0))
         assert np.all(np.isfinite(trace.measured["tau_j"]))
         figs = {p.name for p in (tmp / "fig").iterdir()}

@@ -44,7 +44,7 @@ class TestSecondDataPath:
         m.effects = [{"name": "torque_sensor_offset", "offset_nm": 1.5},
                      {"name": "position_dependent_load", "amplitude_nm": 4.0, "phase_rad": 0.5, "compensated": 1.0}]
         out = final_effects(m, {"model_parameters": {"Td_s": 0.005}})
-        assert out["torque_sensor_offset"] == {"offset_nm": pytest.approx(1.5)}
+        assert out["torque_sensor_offset"] == {"offset_nm": pytest.approx(1.5), "logged_nm": 0.0}
         assert out["position_dependent_load"]["amplitude_nm"] == pytest.approx(4.0)
         assert out["position_dependent_load"]["phase_rad"] == pytest.approx(0.5)
         assert set(out) == {"torque_sensor_offset", "position_dependent_load", "model_parameters"}
@@ -83,7 +83,18 @@ class TestUserProtocol:
         # constant does in the command channel, and the offset stays as fitted.
         out = _protocol({"torque_sensor_offset": {"offset_nm": 1.2, "drift_nm_s": 0.0}}, tmp_path)
         assert out["named"] == {} and out["replaced"] == []
-        assert out["final"] == {"torque_sensor_offset": {"offset_nm": pytest.approx(1.2, abs=0.05)}}
+        assert set(out["final"]) == {"torque_sensor_offset"}
+        assert out["final"]["torque_sensor_offset"]["offset_nm"] == pytest.approx(1.2, abs=0.05)
+
+    def test_an_offset_the_loop_does_not_see_leaves_no_command_residual(self, tmp_path):
+        # On the logged reading only, a correct offset in the model used to leave most of itself in the torque
+        # response to the command (1 Nm of 1.2 Nm: the model's offset acted through the loop, 1 - G_c of it).
+        out = _protocol({"torque_sensor_offset": {"offset_nm": 1.2, "drift_nm_s": 0.0, "in_loop": False}}, tmp_path)
+        assert set(out["final"]) == {"torque_sensor_offset"}
+        final = out["final"]["torque_sensor_offset"]
+        assert final["offset_nm"] == pytest.approx(1.2, abs=0.05)
+        assert final["logged_nm"] == pytest.approx(1.2, abs=0.05)
+        assert max(out["rms_after"]["command"]) < 0.04  # the torque noise is 0.025 Nm RMS
 
 
 class TestWhatAFindingSays:

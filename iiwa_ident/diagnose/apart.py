@@ -11,9 +11,10 @@ equations, with its own integrator, its own effects in other shapes and its own 
   five steps per cycle and the delay rounded to a step;
 * friction ``F_c (2/pi) atan(omega / v_s) + F_v omega`` (and a breakaway term ``F_s exp(-|omega| / v_b)``
   in the other shape), a gravity load ``A cos(theta_l + psi)`` that the robot compensates (with a second
-  harmonic it does not know, in the other shape), an offset (drifting linearly in the other shape), a sensor
-  scale, a hum (with harmonics in the other shape), a ripple of harmonics 1, 2 (and 4 in the other shape),
-  an extra delay;
+  harmonic it does not know, in the other shape), an offset of the reading the loop regulates or, in half
+  the draws, of the logged reading only (drifting linearly in the other shape), a sensor scale, a hum
+  (with harmonics in the other shape), a ripple of harmonics 1, 2 (and 4 in the other shape), an extra
+  delay;
 * a linear-sweep chirp under a weak position hold, trapezoidal constant-velocity runs tracked by a
   client PD with feed-forward, and a hand that guides the link through its own impedance; the torque
   noise coloured (first-order autoregressive), the encoder quantised, a pre-roll under the client's
@@ -110,14 +111,16 @@ def draw_apart_case(seed: int, n_effects: int | None = None) -> ApartCase:
             exp = {"amplitude_nm": e["amplitude_nm"], "phase_rad": phase}
         elif name == "torque_sensor_offset":
             e = {"offset_nm": float(rng.uniform(0.3, 2.5)) * float(rng.choice([-1, 1])),
-                 "drift_nm_s": float(rng.uniform(0.004, 0.012)) * float(rng.choice([-1, 1])) if other else 0.0}
+                 "drift_nm_s": float(rng.uniform(0.004, 0.012)) * float(rng.choice([-1, 1])) if other else 0.0,
+                 "in_loop": bool(rng.uniform() < 0.5)}
             exp = {"offset_nm": e["offset_nm"]}
         elif name == "torque_sensor_scale":
             e = {"scale": 1.0 + float(rng.uniform(0.03, 0.1)) * float(rng.choice([-1, 1]))}
             exp = {"scale": e["scale"]}
         elif name == "periodic_disturbance":
             a = float(rng.uniform(0.1, 0.5))
-            e = {"frequency_hz": float(rng.uniform(8.0, 90.0)), "amplitudes": [a], "phase_rad": float(rng.uniform(0, 6))}
+            e = {"frequency_hz": float(rng.uniform(8.0, 90.0)), "amplitudes": [a],
+                 "phase_rad": float(rng.uniform(0, 6))}
             if other:
                 e["amplitudes"] += [float(rng.uniform(0.2, 0.4)) * a, float(rng.uniform(0.2, 0.4)) * a]
             exp = {"frequency_hz": e["frequency_hz"], "amplitude_nm": a}
@@ -144,7 +147,10 @@ class _Joint:
                                                                                              r["phases"])) if a])
         self.fr = fx.get("link_friction")
         self.load = fx.get("position_dependent_load")
-        self.offset = fx.get("torque_sensor_offset", {"offset_nm": 0.0, "drift_nm_s": 0.0})
+        self.offset = dict(fx.get("torque_sensor_offset", {"offset_nm": 0.0, "drift_nm_s": 0.0}))
+        # An offset the loop does not see is in the logged reading only.
+        self.logged = 0.0 if self.offset.get("in_loop", True) else self.offset.pop("offset_nm")
+        self.offset.setdefault("offset_nm", 0.0)
         self.scale = fx.get("torque_sensor_scale", {"scale": 1.0})["scale"]
         self.hum = fx.get("periodic_disturbance")
 
@@ -214,7 +220,7 @@ def _simulate(case: ApartCase, client, hand, n: int, seed: int, preroll: int = 5
         theta_m = x[0] + j.bc / j.K * x[1]
         tau_j = j.K * (j.theta_j(theta_m) - x[2])
         ext = hand(t) if hand is not None else (0.0, 0.0, 0.0, 0.0)
-        rows[k] = (theta_m, j.reading(tau_j, t), x[2], ext[0] * (ext[2] - x[2]) + ext[1] * (ext[3] - x[3]),
+        rows[k] = (theta_m, j.reading(tau_j, t) + j.logged, x[2], ext[0] * (ext[2] - x[2]) + ext[1] * (ext[3] - x[3]),
                    t)
         q = round(rows[k, 0] / _TICK) * _TICK
         q0 = q if q0 is None else q0
@@ -300,7 +306,8 @@ def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0) -> list[Dataset]
                        {"velocity_rad_s": np.array(speeds), "range_rad": travel, "mode": "torque"}))
     rng = np.random.default_rng([case.seed, 3])
     lines = [(2 * math.pi * float(f), float(p), a) for f, p, a in
-             zip(np.array([0.2, 0.37, 0.6]) * rng.uniform(0.9, 1.1, 3), rng.uniform(0, 2 * np.pi, 3), (0.2, 0.08, 0.04))]
+             zip(np.array([0.2, 0.37, 0.6]) * rng.uniform(0.9, 1.1, 3), rng.uniform(0, 2 * np.pi, 3),
+                 (0.2, 0.08, 0.04))]
 
     def hand(t):
         if t < 0:

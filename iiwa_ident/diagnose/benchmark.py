@@ -44,7 +44,7 @@ TOLERANCES: dict[str, dict[str, tuple[float, float]]] = {
     "transmission_ripple": {"period_rad": (2e-3, 0.0), "amplitude_rad": (0.25, 0.0)},
     "link_friction": {"coulomb_nm": (0.2, 0.1), "viscous_nms_rad": (0.25, 0.2)},
     "position_dependent_load": {"amplitude_nm": (0.15, 0.3), "phase_rad": (0.0, 0.15)},
-    "torque_sensor_offset": {"offset_nm": (0.1, 0.05)},
+    "torque_sensor_offset": {"offset_nm": (0.1, 0.05), "logged_nm": (0.1, 0.05)},
     "torque_sensor_scale": {"scale": (0.0, 0.01)},
     "periodic_disturbance": {"frequency_hz": (0.005, 0.0), "amplitude_nm": (0.2, 0.02)},
     # A hidden extra input delay is the model's Td being off: named as model_parameters with the total delay.
@@ -232,7 +232,10 @@ def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[st
     d = diagnose([read_dataset(p) for p in paths[1:]], model)
     t2 = time.perf_counter()
     named = {e.name: e.parameters for e in d.effects}
-    return {"final": final_effects(d.extended, named), "fitted": sorted(final_effects(model)),
+    rms_after: dict[str, list[float]] = {}
+    for c in d.channels:
+        rms_after.setdefault(c.channel, []).append(c.rms_after)
+    return {"final": final_effects(d.extended, named), "rms_after": rms_after, "fitted": sorted(final_effects(model)),
             "fit_parameters": dict(result.parameters), "named": named,
             "replaced": [f"{r['old']} -> {' + '.join(r['new'])}" for r in d.replaced],
             "gains": {e.name: e.gain_pct for e in d.effects}, "suspects": [x["name"] for x in d.suspects],

@@ -40,7 +40,8 @@ position_dependent_load
     ``tau = amplitude_nm sin(theta_l + phase_rad)`` acting on the link, with
     amplitude >= 0 and the phase in (-pi, pi].
 torque_sensor_offset, torque_sensor_scale
-    ``reading = scale * tau_J + offset_nm``.
+    ``reading = scale * tau_J + offset_nm``; ``logged_nm`` the part of the offset the internal
+    loop does not see (in the logged reading only).
 periodic_disturbance
     ``amplitude_nm sin(2 pi frequency_hz t + phase)`` on the torque reading
     (the amplitude is the median over datasets; the phase is per dataset).
@@ -189,7 +190,8 @@ class CandidateEffect:
     #: Whether the candidate is the plant effect of its name (:attr:`effect`); False for the model's own parameters.
     is_effect: ClassVar[bool] = True
 
-    #: Least held-out gain for the effect to be named, beyond the selection's own (:data:`~iiwa_ident.diagnose.select.MIN_GAIN`).
+    #: Least held-out gain for the effect to be named, beyond the selection's own
+    #: (:data:`~iiwa_ident.diagnose.select.MIN_GAIN`).
     min_gain: ClassVar[float] = 0.0
 
     def __init__(self) -> None:
@@ -547,6 +549,20 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
 
     name = "torque_sensor_offset"
 
+    def __init__(self) -> None:
+        super().__init__()
+        self._split = True
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        # Where the loop sees the offset and where it does not differ only in the torque response to a
+        # command: without one, the whole offset is taken as the loop's (the second column left empty).
+        self._split = any(b.channel == "command" for b in blocks)
+        return True
+
+    def columns(self, ctx):
+        cols = super().columns(ctx)
+        return cols if self._split else [cols[0], [("logged", np.zeros_like(ctx.t))]]
 
     free_shape = "an offset and a drift of its own in each dataset"
 

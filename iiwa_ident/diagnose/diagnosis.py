@@ -359,7 +359,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         extended.description += " | replaced: " + ", ".join(f"{r['old']} -> {' + '.join(r['new'])}"
                                                               for r in replaced)
     return Diagnosis(explained=not effects and not suspects and not ambiguous and not replaced, effects=effects,
-                     channels=channels, model=original, extended=extended, replaced=replaced, contexts=contexts, blocks=blocks, selection=sel,
+                     channels=channels, model=original, extended=extended, replaced=replaced, contexts=contexts,
+                     blocks=blocks, selection=sel,
                      heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous)
 
 

@@ -33,7 +33,8 @@ A candidate effect injects signals at one of the physical points below;
 never needs to know the channels' equations:
 
 ``link``        a torque acting on the link [Nm] (friction, loads)
-``sensor``      an additive error of the torque reading [Nm]
+``sensor``      an additive error of the torque reading the internal loop regulates [Nm]
+``logged``      an additive error of the logged torque reading only [Nm]
 ``deflection``  an added transmission deflection f(theta_m) [rad], eq (5)
 ``command``     a torque added to the internal loop's target [Nm] (the robot's own compensation)
 ``command_raw`` a change of the command channel's prediction itself [Nm] (the model's own parameters)
@@ -304,7 +305,7 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
         if injection == "link":
             # tau_J = Jl theta_l'' - tau_ext - d: an unmodelled link torque d appears as -d.
             out["link"] = -ctx.lowpass(phi)
-        elif injection == "sensor":
+        elif injection in ("sensor", "logged"):
             lp = ctx.lowpass(phi)
             col = lp
             if ctx.link_from_eq9:  # eq (9) uses the reading: theta_l errs by -phi/K
@@ -322,7 +323,9 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
         if injection == "link":
             out["command"] = -ctx.tf("Gd", phi)
         elif injection in ("sensor", "reading_scale"):
-            out["command"] = ctx.tf("1-Gc", phi)
+            out["command"] = ctx.tf("1-Gc", phi)  # the loop drives the true torque away by what it senses
+        elif injection == "logged":
+            out["command"] = phi
         elif injection == "deflection":
             out["command"] = -p["K"] * ctx.tf("S", phi)
         elif injection == "command":

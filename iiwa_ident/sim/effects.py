@@ -78,8 +78,10 @@ __all__ = [
 #: ``deflection`` the deflection f(theta_m) [rad] (``deflection``), ``link`` a torque on the link [Nm]
 #: (``link_torque``), ``command`` a torque added to the internal loop's target [Nm] (the negative of
 #: ``robot_model_torque``, which the robot adds to every command), ``sensor`` an additive error of the
-#: torque reading [Nm] and ``reading_scale`` the reading times a relative error (``sensor``).
-INJECTIONS = ("deflection", "link", "command", "sensor", "reading_scale")
+#: torque reading the internal loop regulates [Nm], ``reading_scale`` the reading times a relative error
+#: (``sensor``) and ``logged`` an additive error of the logged reading only, which the loop does not see [Nm]
+#: (``logged_offset``).
+INJECTIONS = ("deflection", "link", "command", "sensor", "reading_scale", "logged")
 
 #: One regressor column: ``(point, signal)`` pairs, all scaled by the same coefficient.
 Column = list[tuple[str, np.ndarray]]
@@ -193,6 +195,10 @@ class Effect:
 
     def sensor(self, tau: ca.SX, t: ca.SX, P: dict[str, ca.SX]) -> ca.SX:
         return tau
+
+    def logged_offset(self) -> float:
+        """A constant error of the logged torque reading that the internal loop does not see [Nm]."""
+        return 0.0
 
     def extra_delay_s(self) -> float:
         return 0.0
@@ -477,30 +483,42 @@ class PositionDependentLoad(Effect):
 
 @register_effect
 class TorqueSensorOffset(Effect):
-    """Offset of the joint torque sensor [Nm]: ``offset + drift t``.
+    """Offset of the joint torque sensor [Nm]: ``offset + drift t`` in the reading the internal torque loop
+    regulates, and ``logged`` in the logged reading only.
 
-    The drift (default 0; thermal, over minutes) is a shape the
+    Where a robot's loop takes its feedback is not published: an offset the loop sees shows in the torque
+    response to a command as ``(1 - G_c)`` of itself (the loop drives the true torque away by it); one on
+    the logged reading only shows whole. The drift (default 0; thermal, over minutes) is a shape the
     identification does not fit: it assumes a constant offset.
     """
 
     name = "torque_sensor_offset"
     summary = "torque-sensor offset"
     params = (
-        Param("offset_nm", 0.5, "Nm", -50.0, 50.0, "added to the reading"),
+        Param("offset_nm", 0.5, "Nm", -50.0, 50.0, "added to the reading the internal loop regulates"),
         Param("drift_nm_s", 0.0, "Nm/s", -1.0, 1.0, "slow drift of the offset"),
+        Param("logged_nm", 0.0, "Nm", -50.0, 50.0, "added to the logged reading only"),
     )
 
     def sensor(self, tau, t, P):
         return tau + P["offset_nm"] + P["drift_nm_s"] * t
 
+    def logged_offset(self):
+        return float(self.values["logged_nm"])
+
     def columns(self, s):
-        return [[("sensor", np.ones_like(s.t))]]  # the constant offset; a drift is another shape
+        # The constant offset where the loop sees it and where it does not; a drift is another shape.
+        return [[("sensor", np.ones_like(s.t))], [("logged", np.ones_like(s.t))]]
 
     def coefficients(self):
-        return np.array([self.values["offset_nm"]])
+        return np.array([self.values["offset_nm"], self.values["logged_nm"]])
 
     def values_from(self, coef):
-        return {"offset_nm": float(coef[0])}
+        return {"offset_nm": float(coef[0]), "logged_nm": float(coef[1])}
+
+    def reported(self, coef):
+        """``offset_nm``: the whole offset of the logged reading; ``logged_nm``: the part the loop does not see."""
+        return {"offset_nm": float(coef[0] + coef[1]), "logged_nm": float(coef[1])}
 
 
 @register_effect

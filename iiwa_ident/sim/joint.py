@@ -81,6 +81,8 @@ class SimulatedJoint(RobotInterface):
         self.delay_substeps = int(round(delay / h))
         self.seed = seed
         self.q0 = float(q0)
+        # A constant error of the logged reading that the internal loop does not see [Nm].
+        self._logged_nm = sum(e.logged_offset() for e in self.plant.effects)
         self.agent: ExternalAgent | None = None
         self._started = False
 
@@ -156,7 +158,7 @@ class SimulatedJoint(RobotInterface):
         q_m = np.round(theta_m / tick) * tick if tick > 0 else theta_m.copy()
         out = {
             "q_m": q_m,
-            "tau_j": y[:, _Y["tau_s"]] + s["tau_noise_nm"] * noise[:, 0],
+            "tau_j": y[:, _Y["tau_s"]] + self._logged_nm + s["tau_noise_nm"] * noise[:, 0],
         }
         if self.plant.link_encoder:
             out["q_l_ref"] = y[:, _Y["theta_l"]] + s["link_encoder_noise_rad"] * noise[:, 1]
