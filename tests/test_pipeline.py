@@ -52,6 +52,12 @@ class TestShortPipeline:
         assert logs == ["additive_kappa.h5", "additive_sine.h5", "additive_step.h5", "builtin_sine.h5",
                         "builtin_step.h5"]
 
+    def test_the_diagnosis_of_the_simulated_joint_names_nothing(self, short_run):
+        # The default plant's only effect is the ripple, which the ripple stage put into the model.
+        workdir, _, _ = short_run
+        doc = json.loads((workdir / FILES["diagnose_json"]).read_text())
+        assert doc["effects"] == [] and doc["replaced"] == [] and doc["ambiguous"] == []
+
     def test_pipeline_json_has_the_stages_and_headline(self, short_run):
         workdir, result, _ = short_run
         doc = json.loads((workdir / "pipeline.json").read_text())
