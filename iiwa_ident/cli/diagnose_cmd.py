@@ -30,8 +30,11 @@ def diagnose_cmd(
     model_parameters (the model's own Jc, bc, K, Jl and Td refitted together,
     e.g. an extra input delay or Table I on another joint). An effect is named
     only when it lowers the held-out residual
-    (blocked cross-validation, BIC, t-test confidence); on data the model
-    explains, nothing is named.
+    (blocked cross-validation, BIC, t-test confidence) and is at least twice
+    the residual's noise; on data the model explains, nothing is named. Each
+    effect the model already carries (e.g. from fit) is tested too: one the
+    data contradict is replaced ("replaced: torque_sensor_offset ->
+    position_dependent_load") and left out of the extended model.
 
     Example:
       iiwa-ident diagnose --model model.toml --json diagnose.json --out model_ext.toml chirp.h5 cv.h5 hand.h5

@@ -431,6 +431,7 @@ def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
             "effects": [{"name": e.name, "gain_pct": e.gain_pct, "confidence": e.confidence} for e in result.effects],
             "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
                           for a in result.ambiguous],
+            "replaced": [{"old": r["old"], "new": r["new"]} for r in result.replaced],
             "channels": [{"dataset": c.dataset, "channel": c.channel, "gain_pct": c.gain_pct} for c in result.channels]}
 
 
@@ -484,6 +485,7 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
         out["named_effects"] = h["effects"]
         out["model_explained"] = h["explained"]
         out["ambiguous_effects"] = h.get("ambiguous", [])
+        out["replaced_effects"] = h.get("replaced", [])
     return out
 
 
@@ -533,7 +535,10 @@ def format_summary(result: PipelineResult) -> str:
                          f"{row['additive_peak_error_nm']:.1f} Nm (RMS {row['builtin_rms_error_nm']:.1f} against "
                          f"{row['additive_rms_error_nm']:.1f} Nm)")
     if "named_effects" in h:
-        if not h["named_effects"]:
+        for r in h.get("replaced_effects", []):
+            lines.append(f"diagnosis: the model's {r['old']} contradicted by the data, replaced by "
+                         f"{' + '.join(r['new'])}")
+        if not h["named_effects"] and not h.get("replaced_effects"):
             lines.append("diagnosis: the model explains the data, no effect named" if h["model_explained"] else
                          "diagnosis: the model does not explain the data, but no effect passed every test "
                          "(diagnose.json: suspects)")
