@@ -27,8 +27,8 @@ the already selected ones and keeps the best if all of these hold:
                 a refit of the model's own parameters by less than the
                 identification's accuracy on real joints is not a finding);
 ``material``    the effect itself, with its total coefficients (a correction
-                of an effect the model has included), is larger than the
-                noise: its RMS on the residual channels it acts on at least
+                of an effect the model has included; for ``model_parameters``
+                the change of the predictions), is larger than the noise: its RMS on the residual channels it acts on at least
                 :data:`NOISE_FACTOR` times the noise floor of what is left
                 there with it (:func:`noise_floor`: the white part of the
                 residual, from its sample-to-sample differences). A few
@@ -373,8 +373,7 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                     note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(total)
                     if plausible and not cand.relevant(fit):
                         record.irrelevant = True
-                    elif (plausible or note) and band == "full" and cand.is_effect and \
-                            not _material(blocks, Xc, total, left):
+                    elif (plausible or note) and band == "full" and not _material(blocks, Xc, total, left):
                         record.negligible = True
                     elif plausible or note:
                         record.other_shape = note
