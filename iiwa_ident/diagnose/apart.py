@@ -147,10 +147,11 @@ class _Joint:
                                                                                              r["phases"])) if a])
         self.fr = fx.get("link_friction")
         self.load = fx.get("position_dependent_load")
-        self.offset = dict(fx.get("torque_sensor_offset", {"offset_nm": 0.0, "drift_nm_s": 0.0}))
+        off = fx.get("torque_sensor_offset", {})
         # An offset the loop does not see is in the logged reading only.
-        self.logged = 0.0 if self.offset.get("in_loop", True) else self.offset.pop("offset_nm")
-        self.offset.setdefault("offset_nm", 0.0)
+        in_loop = off.get("in_loop", True)
+        self.offset_nm, self.drift_nm_s = off.get("offset_nm", 0.0) * in_loop, off.get("drift_nm_s", 0.0)
+        self.logged = 0.0 if in_loop else off["offset_nm"]
         self.scale = fx.get("torque_sensor_scale", {"scale": 1.0})["scale"]
         self.hum = fx.get("periodic_disturbance")
 
@@ -180,7 +181,7 @@ class _Joint:
         return -self.load["amplitude_nm"] * math.cos(theta_m + self.load["psi_rad"])
 
     def reading(self, tau_j: float, t: float) -> float:
-        out = self.scale * tau_j + self.offset["offset_nm"] + self.offset["drift_nm_s"] * t
+        out = self.scale * tau_j + self.offset_nm + self.drift_nm_s * t
         if self.hum is not None:
             w = 2 * math.pi * self.hum["frequency_hz"]
             out += sum(a * math.sin((k + 1) * (w * t + self.hum["phase_rad"]))

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset
+from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.excite import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
-from iiwa_ident.ident import JointModel, table1_model
+from iiwa_ident.ident import JointModel, fit_model, table1_model
 from iiwa_ident.sim import make_effect
 
 __all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
@@ -217,9 +218,7 @@ def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[st
     """What a user does: ``fit`` the chirp (``datasets[0]``, written to ``folder``), then ``diagnose`` the
     other runs against the fitted model; the final model's effects (:func:`final_effects` of the extended
     model) with what the fit and the diagnosis said."""
-    from iiwa_ident.datasets import write_dataset
     from iiwa_ident.diagnose.diagnosis import diagnose
-    from iiwa_ident.ident import fit_model
 
     paths = []
     for i, ds in enumerate(datasets):
@@ -227,8 +226,6 @@ def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[st
     t0 = time.perf_counter()
     model, result = fit_model(paths[:1])
     t1 = time.perf_counter()
-    from iiwa_ident.datasets import read_dataset
-
     d = diagnose([read_dataset(p) for p in paths[1:]], model)
     t2 = time.perf_counter()
     named = {e.name: e.parameters for e in d.effects}
@@ -248,8 +245,6 @@ def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
     ``apart``: the case of the second data path (:mod:`iiwa_ident.diagnose.apart`), otherwise the project
     simulator's harder draw (:func:`draw_case` with ``shapes``); the chirp is 10 s long on both.
     """
-    import tempfile
-
     if apart:
         from iiwa_ident.diagnose.apart import draw_apart_case, simulate_apart_case
 

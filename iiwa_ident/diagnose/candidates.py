@@ -549,9 +549,7 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
 
     name = "torque_sensor_offset"
 
-    def __init__(self) -> None:
-        super().__init__()
-        self._split = True
+    _split = True  # both columns, until prepare() finds no command channel
 
     def prepare(self, blocks, residuals) -> bool:
         super().prepare(blocks, residuals)
@@ -673,10 +671,10 @@ MODEL_PARAMETER_TD_S = 0.01
 #: robustness target of ``fit``: 3 % of Jc, bc, K, Jl and 0.5 ms of Td). Smaller corrections are what
 #: the named effects' shape errors leave behind, not a wrong model.
 MODEL_PARAMETER_RELEVANT = 0.03
+MODEL_PARAMETER_RELEVANT_TD_S = 5e-4
 #: Least held-out reduction of the residual for ``model_parameters`` to be named: a refit of eq (4) absorbs
 #: a few per cent of any misfit, which is no evidence that the parameters are off.
 MIN_GAIN_MODEL = 0.10
-MODEL_PARAMETER_RELEVANT_TD_S = 5e-4
 _MODEL_KEYS = ("Jc", "bc", "K", "Jl", "Td")
 _MODEL_JSON = {"Jc": "Jc_kgm2", "bc": "bc_nms_rad", "K": "K_nm_rad", "Jl": "Jl_kgm2", "Td": "Td_s"}
 

@@ -130,13 +130,8 @@ class Diagnosis:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
         total = np.zeros_like(ctx.t)
         for cand, sl in zip(self.selection.selected, self.selection.slices):
-            if only is not None and cand.name != only:
-                continue
-            for col, c in zip(cand.columns(ctx), self.selection.coef[sl]):
-                for injection, phi in col:
-                    v = channel_columns(ctx, injection, phi).get(channel)
-                    if v is not None:
-                        total += c * v
+            if only is None or cand.name == only:
+                total = total + _contribution(cand, self.selection.coef[sl], ctx).get(channel, 0.0)
         return total
 
     def residual_after(self, ctx: Context, channel: str) -> np.ndarray:
@@ -313,11 +308,12 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     # others), judged like the model: when the data then predict the held-out runs better, or a named
     # effect's other shape makes the effect redundant, that outcome is kept; each effect left out is
     # replaced by what the data name in its place, or refitted where they name it again.
-    drops = [[n] for n in known] + ([list(known)] if len(known) > 1 else [])
-    for drop in drops:
-        if not drop or any(n not in known for n in drop):
+    for drop in [[n] for n in known] + [None]:
+        if drop is None:  # all the effects the model still has, when more than one is left
+            drop = list(known) if len(known) > 1 else []
+        if not drop:
             continue
-        back = {ctx.index: {} for ctx in contexts}
+        back: dict[int, dict[str, np.ndarray]] = {ctx.index: {} for ctx in contexts}
         for n in drop:
             for ctx in contexts:
                 for ch, v in _contribution(*known[n], ctx).items():

@@ -28,7 +28,8 @@ the already selected ones and keeps the best if all of these hold:
                 identification's accuracy on real joints is not a finding);
 ``material``    the effect itself, with its total coefficients (a correction
                 of an effect the model has included; for ``model_parameters``
-                the change of the predictions), is larger than the noise: its RMS on the residual channels it acts on at least
+                the change of the predictions), is larger than the noise: its
+                RMS on the residual channels it acts on at least
                 :data:`NOISE_FACTOR` times the noise floor of what is left
                 there with it (:func:`noise_floor`: the white part of the
                 residual, from its sample-to-sample differences). A few
@@ -82,8 +83,8 @@ from scipy import signal, stats
 
 from iiwa_ident.diagnose.candidates import Block, CandidateEffect, EvidenceChannel, block_columns
 
-__all__ = ["FOLDS", "MIN_GAIN", "NOISE_FACTOR", "noise_floor", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS", "MIN_GAIN_OTHER_SHAPE", "Step",
-           "Selection", "cv_residuals", "select_effects"]
+__all__ = ["FOLDS", "MIN_GAIN", "NOISE_FACTOR", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS",
+           "MIN_GAIN_OTHER_SHAPE", "Step", "Selection", "noise_floor", "cv_residuals", "select_effects"]
 
 #: Number of contiguous folds per block.
 FOLDS = 5
