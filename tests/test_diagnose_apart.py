@@ -119,3 +119,49 @@ class TestWhatAFindingSays:
         real = ApartCase(3, dyn, {"torque_sensor_offset": {"offset_nm": 0.3, "drift_nm_s": 0.0}})
         d = diagnose(simulate_apart_case(real)[1:], _model(dyn))
         assert d.effect("torque_sensor_offset").parameters["offset_nm"] == pytest.approx(0.3, abs=0.03)
+
+
+class TestTheModelsOwnEffects:
+    dyn = {"Jc": 1.0, "bc": 55.0, "K": 18000.0, "Jl": 5.5, "Td": 0.005}
+    load = {"amplitude_nm": 20.0, "psi_rad": 0.6, "harmonic2_nm": 0.0, "harmonic2_rad": 0.0}
+
+    def _diagnose(self, effects, model_effects):
+        from iiwa_ident.diagnose import diagnose
+
+        model = _model(self.dyn)
+        model.effects = model_effects
+        return diagnose(simulate_apart_case(ApartCase(4, self.dyn, effects))[1:], model)
+
+    def test_an_effect_no_named_effect_needs_is_dropped(self):
+        # A 0.4 Nm offset of the model beside a 20 Nm load the data name: the model without it predicts the
+        # held-out runs no worse (here 0.4 % better, below the 3 % that contradicts an effect) and names
+        # nothing else; the simpler model is kept.
+        d = self._diagnose({"position_dependent_load": self.load},
+                           [{"name": "torque_sensor_offset", "offset_nm": -0.4}])
+        assert [r["old"] for r in d.replaced] == ["torque_sensor_offset"]
+        assert d.replaced[0]["gain_pct"] < 3.0
+        assert [e.name for e in d.effects] == ["position_dependent_load"]
+        assert not any(e.get("name") == "torque_sensor_offset" for e in d.extended.effects)
+
+    def test_an_offset_beside_a_load_over_a_short_travel_is_undecided(self):
+        # Over 0.6 rad a constant is nearly a combination of the load's harmonics: both are named (the simpler
+        # explanation) and the offset is reported as undecided against the load's other shape.
+        d = self._diagnose({"position_dependent_load": self.load,
+                            "torque_sensor_offset": {"offset_nm": 1.0, "drift_nm_s": 0.0}}, [])
+        assert {e.name for e in d.effects} == {"position_dependent_load", "torque_sensor_offset"}
+        assert d.effect("torque_sensor_offset").parameters["offset_nm"] == pytest.approx(1.0, abs=0.05)
+        assert [(u["name"], u["or_shape_of"]) for u in d.undecided] == \
+            [("torque_sensor_offset", "position_dependent_load")]
+        assert "undecided: torque_sensor_offset" in d.summary()
+        assert d.as_json()["undecided"][0]["name"] == "torque_sensor_offset"
+
+    def test_a_right_offset_stays_when_the_gain_is_elsewhere(self):
+        # The project simulator's harder draw 86: a Stribeck friction and a 0.93 Nm offset, both fitted from
+        # the chirp. Without the offset the diagnosis names a 1.1 Nm load and a sensor scale that gain 10 %
+        # held out; the same two with the offset kept gain as much, so the offset is not replaced.
+        from iiwa_ident.diagnose.benchmark import run_user_case
+
+        out = run_user_case(86)
+        assert out["replaced"] == []
+        assert set(out["final"]) == {"link_friction", "torque_sensor_offset"}
+        assert out["final"]["torque_sensor_offset"]["offset_nm"] == pytest.approx(0.93, abs=0.05)

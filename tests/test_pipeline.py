@@ -56,18 +56,21 @@ class TestShortPipeline:
         # The default plant's only effect is the ripple, which the ripple stage put into the model.
         workdir, _, _ = short_run
         doc = json.loads((workdir / FILES["diagnose_json"]).read_text())
-        assert doc["effects"] == [] and doc["replaced"] == [] and doc["ambiguous"] == []
+        assert doc["effects"] == [] and doc["replaced"] == [] and doc["ambiguous"] == [] and doc["undecided"] == []
 
     def test_summary_says_what_the_diagnosis_replaced(self, tmp_path):
         from iiwa_ident.pipeline.core import PipelineResult, format_summary
 
         h = {"named_effects": [{"name": "position_dependent_load", "gain_pct": 98.0, "confidence": 1.0}],
              "model_explained": False, "ambiguous_effects": [],
-             "replaced_effects": [{"old": "torque_sensor_offset", "new": ["position_dependent_load"]}]}
+             "replaced_effects": [{"old": "torque_sensor_offset", "new": ["position_dependent_load"]}],
+             "undecided_effects": [{"name": "torque_sensor_offset", "or_shape_of": "position_dependent_load"}]}
         text = format_summary(PipelineResult(tmp_path, [], h, None, 1.0))
         assert ("diagnosis: the model's torque_sensor_offset contradicted by the data, replaced by "
                 "position_dependent_load") in text
         assert "position_dependent_load named, held-out residual 98.0 % lower" in text
+        assert ("diagnosis: torque_sensor_offset kept, but another shape of position_dependent_load predicts the "
+                "data as well") in text
 
     def test_pipeline_json_has_the_stages_and_headline(self, short_run):
         workdir, result, _ = short_run
@@ -77,7 +80,7 @@ class TestShortPipeline:
         assert all(s["duration_s"] > 0 for s in doc["stages"])
         h = doc["headline"]
         for key in ("fit", "rho_rad", "kappa_linear", "observer_improvement", "tracking", "kappa_live",
-                    "named_effects", "replaced_effects"):
+                    "named_effects", "replaced_effects", "undecided_effects"):
             assert key in h, key
         # Short experiments still identify the default plant closely.
         assert abs(h["rho_rad"] - 0.01963) < 1e-4

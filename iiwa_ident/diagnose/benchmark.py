@@ -235,6 +235,7 @@ def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[st
     return {"final": final_effects(d.extended, named), "rms_after": rms_after, "fitted": sorted(final_effects(model)),
             "fit_parameters": dict(result.parameters), "named": named,
             "replaced": [f"{r['old']} -> {' + '.join(r['new'])}" for r in d.replaced],
+            "undecided": [u["name"] for u in d.undecided],
             "gains": {e.name: e.gain_pct for e in d.effects}, "suspects": [x["name"] for x in d.suspects],
             "fit_s": t1 - t0, "diagnose_s": t2 - t1}
 

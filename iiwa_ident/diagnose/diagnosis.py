@@ -125,6 +125,9 @@ class Diagnosis:
     #: ``or_shape_of`` (the named effect whose other shape makes it redundant, or None when the data predict
     #: better without it). Not in the extended model.
     replaced: list[dict[str, Any]] = field(default_factory=list)
+    #: Named effects that a named effect's freer shape could also explain, without evidence of that shape:
+    #: kept (the simpler explanation), each with the keys of ``ambiguous``; more travel of the link decides.
+    undecided: list[dict[str, Any]] = field(default_factory=list)
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
@@ -157,6 +160,7 @@ class Diagnosis:
             "suspects": self.suspects,
             "ambiguous": self.ambiguous,
             "replaced": self.replaced,
+            "undecided": self.undecided,
             "model_out": self.model_out,
             "datasets": list(datasets.values()),
             "tried": [{"step": s.step, "name": s.name, "gain": s.gain, "delta_bic": s.delta_bic,
@@ -191,6 +195,10 @@ class Diagnosis:
             lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
                          f"{x['gain_beyond_pct']:.1f} %)")
+        for x in self.undecided:
+            lines.append(f"  undecided: {x['name']} or {x['or_shape_of']} in {x['free_shape']}: both predict the "
+                         f"held-out data alike (beyond that shape it gains {x['gain_beyond_pct']:.1f} %); kept as the "
+                         f"simpler explanation, a longer travel of the link decides")
         if self.suspects:
             lines.append("the model does not explain the data: " + ("besides, " if self.effects else "")
                          + "these would remove a large part of the residual but failed a test (not named):")
@@ -302,7 +310,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         raise IiwaIdentError(f"{names}: nothing to compare (too short, or contact without a measured external torque)")
     ys = ys0 = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
     names = list(candidates) if candidates is not None else list(CANDIDATES)
-    sel, effects, extended, after, ambiguous = _named(names, work, model, known, blocks, ys, selection_options)
+    sel, effects, extended, after, ambiguous, undecided = _named(names, work, model, known, blocks, ys,
+                                                                 selection_options)
     replaced: list[dict[str, Any]] = []
     # The model without one of its effects (then without all of them: a fit can take one effect for two
     # others), judged like the model: when the data then predict the held-out runs better, or a named
@@ -325,8 +334,16 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         without.effects = [e for e in without.effects if e.get("name") not in drop]
         trial = _named(names, work, without, others, blocks, ys_b, selection_options)
         renamed = {c.name for c in trial[0].selected} & set(drop)
-        sse, sse_b = _sse(after, range(len(after))), _sse(trial[3], range(len(trial[3])))
-        better = sse_b <= (1.0 - MIN_GAIN) * sse
+        sse_b, sse = _sse(trial[3], range(len(trial[3]))), _sse(after, range(len(after)))
+        if not renamed >= set(drop) and trial[0].selected:
+            # An effect left out: the gain must come from leaving it out, not from what the trial names besides
+            # (those effects fitted with it kept are the reference too).
+            keep = cv_residuals(trial[0].columns(blocks), ys)
+            sse = min(sse, _sse(keep, range(len(keep))))
+        # Better held out; or not worse with no effect the model's selection did not name anyway (the dropped
+        # effect is not needed beside them).
+        better = sse_b <= (1.0 - MIN_GAIN) * sse or \
+            (sse_b <= sse and {c.name for c in trial[0].selected} <= {c.name for c in sel.selected})
         shape_of = None if renamed or len(drop) > 1 else \
             _redundant_beside(known[drop[0]][0], sel, effects, blocks, ys_b)
         if not trial[1] or not (better or shape_of):
@@ -340,7 +357,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
                                  "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
                                  "old_parameters": known[n][0].parameters(known[n][1]),
                                  "or_shape_of": None if better else shape_of})
-        sel, effects, extended, after, ambiguous = trial
+        sel, effects, extended, after, ambiguous, undecided = trial
         known, model, ys = others, without, ys_b
         for ctx in contexts:
             for ch, v in back[ctx.index].items():
@@ -357,20 +374,24 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     return Diagnosis(explained=not effects and not suspects and not ambiguous and not replaced, effects=effects,
                      channels=channels, model=original, extended=extended, replaced=replaced, contexts=contexts,
                      blocks=blocks, selection=sel,
-                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous)
+                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous,
+                     undecided=undecided)
 
 
 def _named(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
            ys: list[np.ndarray], selection_options: dict[str, Any]
-           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray], list[dict[str, Any]]]:
-    """:func:`_selected`, named again without the effects another one's shape makes ambiguous; and those."""
+           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray], list[dict[str, Any]],
+                      list[dict[str, Any]]]:
+    """:func:`_selected`, named again without the effects another one's shape makes ambiguous; those, and the
+    undecided ones (:func:`_ambiguous`)."""
     sel, effects, extended, after = _selected(names, work, model, known, blocks, ys, selection_options)
-    ambiguous = _ambiguous(sel, effects, blocks, ys)
+    ambiguous, undecided = _ambiguous(sel, effects, blocks, ys)
     if ambiguous:
         # Named again without them: the others' coefficients and gains must not lean on them.
         left = [n for n in names if n not in {a["name"] for a in ambiguous}]
         sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options)
-    return sel, effects, extended, after, ambiguous
+        undecided = _ambiguous(sel, effects, blocks, ys)[1]
+    return sel, effects, extended, after, ambiguous, undecided
 
 
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
@@ -425,8 +446,8 @@ def _sse(parts: list[np.ndarray], idx: list[int]) -> float:
 
 
 def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block], ys: list[np.ndarray]
-               ) -> list[dict[str, Any]]:
-    """Named effects that another named effect's freer shape makes redundant.
+               ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Named effects that another named effect's freer shape makes redundant: ambiguous, and undecided.
 
     A named effect in another shape of its family (``shape_left_pct`` at least
     :data:`OTHER_SHAPE_LEFT_PCT`) leaves a remainder that a second effect may remove: over
@@ -435,24 +456,27 @@ def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block],
     offset next to a load is nearly a load in another shape. When the second effect gains less than the
     selection's least gain beyond the first one's freer shape (:meth:`CandidateEffect.free_columns`; held
     out, on the blocks it acts on) and keeps less than a quarter of its own gain, the data do not decide
-    between the two: it is reported, not named. An effect named on its own evidence channel (the ripple's
-    deflection) is not judged by the residual channels.
+    between the two: it is *ambiguous*, reported, not named. An effect named on its own evidence channel
+    (the ripple's deflection) is not judged by the residual channels.
 
     Without the evidence of another shape the simpler explanation stands: a freer shape (six columns for a
     load) can stand for a small offset (one) over a short travel too, and then would have swallowed real
-    offsets next to sinusoidal loads.
+    offsets next to sinusoidal loads. Such a second effect is *undecided*: named and kept in the model (the
+    simpler explanation), and reported as one the data could also explain by the first's other shape.
     """
     reports = {e.name: e for e in effects}
-    out = []
+    ambiguous: list[dict[str, Any]] = []
+    undecided: list[dict[str, Any]] = []
     for first in sel.selected:
         n = len(first.free_columns(blocks[0].ctx))
-        if n == 0 or any(a["name"] == first.name for a in out) or \
-                reports[first.name].detail.get("shape_left_pct", 0.0) < OTHER_SHAPE_LEFT_PCT:
+        if n == 0 or any(a["name"] == first.name for a in ambiguous):
             continue
+        other_shape = reports[first.name].detail.get("shape_left_pct", 0.0) >= OTHER_SHAPE_LEFT_PCT
         free = block_columns(blocks, first.free_columns, n)
         with_it = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks), free)], ys)
         for second in sel.selected:
-            if second is first or any(a["name"] == second.name for a in out) or sel.band[second.name] not in BANDS:
+            if second is first or any(a["name"] == second.name for a in ambiguous + undecided) or \
+                    sel.band[second.name] not in BANDS:
                 continue  # (an effect named on its own evidence channel is not judged by the residual's)
             acts = _acting(second, blocks)
             if not acts:
@@ -463,9 +487,10 @@ def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block],
             beyond = 1.0 - sse_with / sse_without if sse_without > 0 else 0.0
             # Redundant: beyond the freer shape it gains too little, and most of what it gained is gone.
             if beyond < MIN_GAIN and 100.0 * beyond < _REDUNDANT_SHARE * reports[second.name].gain_pct:
-                out.append({"name": second.name, "or_shape_of": first.name, "gain_pct": reports[second.name].gain_pct,
-                            "gain_beyond_pct": 100.0 * beyond, "free_shape": first.free_shape})
-    return out
+                (ambiguous if other_shape else undecided).append(
+                    {"name": second.name, "or_shape_of": first.name, "gain_pct": reports[second.name].gain_pct,
+                     "gain_beyond_pct": 100.0 * beyond, "free_shape": first.free_shape})
+    return ambiguous, undecided
 
 
 def _redundant_beside(known: CandidateEffect, sel: Selection, effects: list[EffectReport], blocks: list[Block],

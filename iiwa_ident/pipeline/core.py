@@ -432,6 +432,7 @@ def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
             "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
                           for a in result.ambiguous],
             "replaced": [{"old": r["old"], "new": r["new"]} for r in result.replaced],
+            "undecided": [{"name": u["name"], "or_shape_of": u["or_shape_of"]} for u in result.undecided],
             "channels": [{"dataset": c.dataset, "channel": c.channel, "gain_pct": c.gain_pct} for c in result.channels]}
 
 
@@ -486,6 +487,7 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
         out["model_explained"] = h["explained"]
         out["ambiguous_effects"] = h.get("ambiguous", [])
         out["replaced_effects"] = h.get("replaced", [])
+        out["undecided_effects"] = h.get("undecided", [])
     return out
 
 
@@ -544,6 +546,9 @@ def format_summary(result: PipelineResult) -> str:
                          "(diagnose.json: suspects)")
         for e in h["named_effects"]:
             lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
+        for u in h.get("undecided_effects", []):
+            lines.append(f"diagnosis: {u['name']} kept, but another shape of {u['or_shape_of']} predicts the data as "
+                         f"well (a longer travel of the link decides)")
         for a in h.get("ambiguous_effects", []):
             lines.append(f"diagnosis: {a['name']} not named: the data do not tell it from another shape of "
                          f"{a['or_shape_of']} ({a['gain_pct']:.1f} % lower with it)")

@@ -116,6 +116,11 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     # Not named: the data do not decide between it and another shape of a named effect (its gain as named).
     rows += [[f"({a['name']} or {a['or_shape_of']}'s shape)", "ambiguous", "", "", f"{a['gain_pct']:.1f}"]
              for a in d.ambiguous]
+    # Named, but the other shape of a named effect would predict as well (kept as the simpler explanation).
+    undecided = {u["name"]: u["or_shape_of"] for u in d.undecided}
+    for row in rows[:len(d.effects)]:
+        if row[0] in undecided:
+            row[0] = f"{row[0]} (or {undecided[row[0]]}'s shape: undecided)"
     rows += [[f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}", f"{c.gain_pct:.1f}"]
              for c in d.channels]
     fig, ax = plt.subplots(figsize=(9, 0.6 + 0.3 * (len(rows) + 1)))
@@ -127,6 +132,8 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     verdict = "model explains the data: nothing named" if d.explained else f"{len(d.effects)} effect(s) named"
     if d.ambiguous:
         verdict += f", {len(d.ambiguous)} ambiguous"
+    if d.undecided:
+        verdict += f", {len(d.undecided)} undecided"
     ax.set_title(f"Held-out gain of the named effects ({verdict})", fontsize=10)
     return fig
 
