@@ -238,6 +238,11 @@ class CandidateEffect:
         """Add the effect with these coefficients to ``model`` (in place), brought into the plant-file ranges."""
         self._replace_effect(model, self.effect.clip(self.effect.values_from(coef)))
 
+    def total(self, coef: np.ndarray) -> np.ndarray:
+        """Fitted coefficients (a correction where the model has the effect) with the model's own values added."""
+        base = self.base_coef
+        return coef + base if base is not None and len(base) == len(coef) else coef
+
     def plausible(self, coef: np.ndarray) -> bool:
         """Whether fitted coefficients describe a physically possible effect (default: always)."""
         return True

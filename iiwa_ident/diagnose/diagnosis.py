@@ -337,9 +337,12 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         sse_b, sse = _sse(trial[3], range(len(trial[3]))), _sse(after, range(len(after)))
         if not renamed >= set(drop) and trial[0].selected:
             # An effect left out: the gain must come from leaving it out, not from what the trial names besides
-            # (those effects fitted with it kept are the reference too).
-            keep = cv_residuals(trial[0].columns(blocks), ys)
-            sse = min(sse, _sse(keep, range(len(keep))))
+            # (those effects fitted with it kept are the reference too, where they are physically possible).
+            cols = trial[0].columns(blocks)
+            coef = np.linalg.lstsq(np.vstack(cols), np.concatenate(ys), rcond=None)[0]
+            if all(c.plausible(c.total(coef[sl])) for c, sl in zip(trial[0].selected, trial[0].slices)):
+                keep = cv_residuals(cols, ys)
+                sse = min(sse, _sse(keep, range(len(keep))))
         # Better held out; or not worse with no effect the model's selection did not name anyway (the dropped
         # effect is not needed beside them).
         better = sse_b <= (1.0 - MIN_GAIN) * sse or \
@@ -418,7 +421,7 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         acts = _acting(cand, blocks)
         rb = _rms([without[i] / blocks[i].weight for i in acts])
         ra = _rms([after[i] / blocks[i].weight for i in acts])
-        total = coef + known[cand.name][1] if cand.name in known and len(known[cand.name][1]) == len(coef) else coef
+        total = cand.total(coef)
         cand.extend(extended, total)
         params = cand.parameters(total)
         shape = _shape_fit(cand, blocks, ys, sel, without, after, acts)

@@ -368,8 +368,7 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                         coef_all = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
                         left = [y - X @ coef_all for y, X in zip(ys, joint)]
                         fit = coef_all[-cand.n_columns():]
-                        base = cand.base_coef
-                        total = fit + base if base is not None and len(base) == len(fit) else fit
+                        total = cand.total(fit)
                     plausible = cand.plausible(total)
                     note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(total)
                     if plausible and not cand.relevant(fit):
