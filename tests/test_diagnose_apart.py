@@ -140,6 +140,12 @@ class TestTheModelsOwnEffects:
                            [{"name": "torque_sensor_offset", "offset_nm": -0.4}])
         assert [r["old"] for r in d.replaced] == ["torque_sensor_offset"]
         assert d.replaced[0]["gain_pct"] < 3.0
+        from iiwa_ident.report.diagnose_figures import gain_table_figure
+
+        fig = gain_table_figure(d)
+        cells = [c.get_text().get_text() for c in fig.axes[0].tables[0].get_celld().values()]
+        assert "(replaced: torque_sensor_offset -> position_dependent_load)" in cells
+        assert "1 of the model's replaced" in fig.axes[0].get_title()
         assert [e.name for e in d.effects] == ["position_dependent_load"]
         assert not any(e.get("name") == "torque_sensor_offset" for e in d.extended.effects)
 
@@ -154,6 +160,12 @@ class TestTheModelsOwnEffects:
             [("torque_sensor_offset", "position_dependent_load")]
         assert "undecided: torque_sensor_offset" in d.summary()
         assert d.as_json()["undecided"][0]["name"] == "torque_sensor_offset"
+        from iiwa_ident.report.diagnose_figures import gain_table_figure
+
+        fig = gain_table_figure(d)
+        cells = [c.get_text().get_text() for c in fig.axes[0].tables[0].get_celld().values()]
+        assert "torque_sensor_offset (or position_dependent_load's shape: undecided)" in cells
+        assert "1 undecided" in fig.axes[0].get_title()
 
     def test_a_right_offset_stays_when_the_gain_is_elsewhere(self):
         # The project simulator's harder draw 86: a Stribeck friction and a 0.93 Nm offset, both fitted from

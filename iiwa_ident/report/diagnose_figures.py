@@ -121,6 +121,9 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     for row in rows[:len(d.effects)]:
         if row[0] in undecided:
             row[0] = f"{row[0]} (or {undecided[row[0]]}'s shape: undecided)"
+    # The model's own effects the data contradicted (left out of the extended model), with their gain.
+    rows += [[f"(replaced: {r['old']} -> {' + '.join(r['new']) or 'nothing'})", "replaced", "", "",
+              f"{r['gain_pct']:.1f}"] for r in d.replaced]
     rows += [[f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}", f"{c.gain_pct:.1f}"]
              for c in d.channels]
     fig, ax = plt.subplots(figsize=(9, 0.6 + 0.3 * (len(rows) + 1)))
@@ -134,6 +137,8 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
         verdict += f", {len(d.ambiguous)} ambiguous"
     if d.undecided:
         verdict += f", {len(d.undecided)} undecided"
+    if d.replaced:
+        verdict += f", {len(d.replaced)} of the model's replaced"
     ax.set_title(f"Held-out gain of the named effects ({verdict})", fontsize=10)
     return fig
 
