@@ -121,7 +121,8 @@ class Diagnosis:
     ambiguous: list[dict[str, Any]] = field(default_factory=list)
     #: Effects of the given model that the data contradict, each replaced by what the data name in its place:
     #: ``old`` (its name), ``new`` (the effects named in its place), ``gain_pct`` (held-out RMS gain of the
-    #: model without it over the model with it, both with what the data name), ``old_parameters`` and
+    #: model without it over the model with it, both with what the data name; or over the effects named
+    #: without it fitted with it kept, where that is better and physically possible), ``old_parameters`` and
     #: ``or_shape_of`` (the named effect whose other shape makes it redundant, or None when the data predict
     #: better without it). Not in the extended model.
     replaced: list[dict[str, Any]] = field(default_factory=list)
