@@ -348,19 +348,19 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         # effect is not needed beside them).
         better = sse_b <= (1.0 - MIN_GAIN) * sse or \
             (sse_b <= sse and {c.name for c in trial[0].selected} <= {c.name for c in sel.selected})
-        shape_of = None if renamed or len(drop) > 1 else \
+        shape_of = None if better or renamed or len(drop) > 1 else \
             _redundant_beside(known[drop[0]][0], sel, effects, blocks, ys_b)
         if not trial[1] or not (better or shape_of):
             continue
         named_before = {e.name for e in effects}
-        new = [shape_of] if shape_of is not None and not better else \
+        new = [shape_of] if shape_of is not None else \
             [e.name for e in trial[1] if e.name not in named_before] or [e.name for e in trial[1]]
         for n in drop:
             if n not in renamed:
                 replaced.append({"old": n, "new": [x for x in new if x != n],
                                  "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
                                  "old_parameters": known[n][0].parameters(known[n][1]),
-                                 "or_shape_of": None if better else shape_of})
+                                 "or_shape_of": shape_of})
         sel, effects, extended, after, ambiguous, undecided = trial
         known, model, ys = others, without, ys_b
         for ctx in contexts:
@@ -449,6 +449,18 @@ def _sse(parts: list[np.ndarray], idx: list[int]) -> float:
     return sum(float(np.sum(parts[i] ** 2)) for i in idx)
 
 
+def _gain(with_it: list[np.ndarray], without: list[np.ndarray], acts: list[int]) -> float:
+    """Relative reduction of the held-out sum of squares on the blocks ``acts`` from ``without`` to ``with_it``."""
+    sse_without = _sse(without, acts)
+    return 1.0 - _sse(with_it, acts) / sse_without if sse_without > 0 else 0.0
+
+
+def _redundant(beyond: float, gain: float) -> bool:
+    """Whether an effect is redundant beside another's freer shape: beyond that shape it gains (``beyond``) less
+    than the selection's least gain and less than :data:`_REDUNDANT_SHARE` of its own ``gain`` (fractions)."""
+    return beyond < MIN_GAIN and beyond < _REDUNDANT_SHARE * gain
+
+
 def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block], ys: list[np.ndarray]
                ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Named effects that another named effect's freer shape makes redundant: ambiguous, and undecided.
@@ -487,10 +499,8 @@ def _ambiguous(sel: Selection, effects: list[EffectReport], blocks: list[Block],
                 continue
             without = cv_residuals([np.hstack([a, b]) for a, b in zip(sel.columns(blocks, skip=second.name), free)],
                                    ys)
-            sse_with, sse_without = _sse(with_it, acts), _sse(without, acts)
-            beyond = 1.0 - sse_with / sse_without if sse_without > 0 else 0.0
-            # Redundant: beyond the freer shape it gains too little, and most of what it gained is gone.
-            if beyond < MIN_GAIN and 100.0 * beyond < _REDUNDANT_SHARE * reports[second.name].gain_pct:
+            beyond = _gain(with_it, without, acts)
+            if _redundant(beyond, reports[second.name].gain_pct / 100.0):
                 (ambiguous if other_shape else undecided).append(
                     {"name": second.name, "or_shape_of": first.name, "gain_pct": reports[second.name].gain_pct,
                      "gain_beyond_pct": 100.0 * beyond, "free_shape": first.free_shape})
@@ -512,18 +522,14 @@ def _redundant_beside(known: CandidateEffect, sel: Selection, effects: list[Effe
     if not acts:
         return None
     base = sel.columns(blocks)
-    r0, r1 = cv_residuals(base, ys), cv_residuals([np.hstack([a, b]) for a, b in zip(base, own)], ys)
-    gain_own = 1.0 - _sse(r1, acts) / _sse(r0, acts) if _sse(r0, acts) > 0 else 0.0
+    gain_own = _gain(cv_residuals([np.hstack([a, b]) for a, b in zip(base, own)], ys), cv_residuals(base, ys), acts)
     for first in sel.selected:
         n = len(first.free_columns(blocks[0].ctx))
         if n == 0 or reports[first.name].detail.get("shape_left_pct", 0.0) < OTHER_SHAPE_LEFT_PCT:
             continue
         free = [np.hstack([a, b]) for a, b in zip(base, block_columns(blocks, first.free_columns, n))]
-        without = cv_residuals(free, ys)
-        with_it = cv_residuals([np.hstack([a, b]) for a, b in zip(free, own)], ys)
-        sse_without = _sse(without, acts)
-        beyond = 1.0 - _sse(with_it, acts) / sse_without if sse_without > 0 else 0.0
-        if beyond < MIN_GAIN and beyond < _REDUNDANT_SHARE * max(gain_own, 0.0):
+        beyond = _gain(cv_residuals([np.hstack([a, b]) for a, b in zip(free, own)], ys), cv_residuals(free, ys), acts)
+        if _redundant(beyond, max(gain_own, 0.0)):
             return first.name
     return None
 

@@ -111,16 +111,13 @@ def evidence_figure(d: Diagnosis, name: str) -> plt.Figure:
 
 def gain_table_figure(d: Diagnosis) -> plt.Figure:
     """Table of held-out residual RMS before and after, per effect and per dataset channel."""
-    rows = [[e.name, f"{e.confidence:.4f}", f"{e.rms_before:.4f}", f"{e.rms_after:.4f}", f"{e.gain_pct:.1f}"]
-            for e in d.effects]
+    # An undecided effect is named, but the other shape of a named effect would predict as well.
+    undecided = {u["name"]: f" (or {u['or_shape_of']}'s shape: undecided)" for u in d.undecided}
+    rows = [[e.name + undecided.get(e.name, ""), f"{e.confidence:.4f}", f"{e.rms_before:.4f}", f"{e.rms_after:.4f}",
+             f"{e.gain_pct:.1f}"] for e in d.effects]
     # Not named: the data do not decide between it and another shape of a named effect (its gain as named).
     rows += [[f"({a['name']} or {a['or_shape_of']}'s shape)", "ambiguous", "", "", f"{a['gain_pct']:.1f}"]
              for a in d.ambiguous]
-    # Named, but the other shape of a named effect would predict as well (kept as the simpler explanation).
-    undecided = {u["name"]: u["or_shape_of"] for u in d.undecided}
-    for row in rows[:len(d.effects)]:
-        if row[0] in undecided:
-            row[0] = f"{row[0]} (or {undecided[row[0]]}'s shape: undecided)"
     # The model's own effects the data contradicted (left out of the extended model), with their gain.
     rows += [[f"(replaced: {r['old']} -> {' + '.join(r['new']) or 'nothing'})", "replaced", "", "",
               f"{r['gain_pct']:.1f}"] for r in d.replaced]
