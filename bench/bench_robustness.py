@@ -368,14 +368,14 @@ def _by_hidden(done: list[dict], absorbed) -> None:
 def _user(args: argparse.Namespace, seeds: list[int]) -> None:
     from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
 
-
     for apart in {"both": (False, True), "project": (False,), "apart": (True,)}[args.path]:
         rows, done, wall = _cases(run_user_draw, seeds, apart, args.jobs)
         n = len(rows)
         path = "a joint simulated apart" if apart else "the project's simulator"
         print(f"user's protocol (fit, then diagnose against the fitted model) on {path}: {n} cases (seeds "
               f"{seeds[0]}-{seeds[-1]}), {wall:.0f} s; refused {sum(r['status'] == 'refused' for r in rows)}, "
-              f"traceback {sum(r['status'] == 'traceback' for r in rows)}")
+              f"traceback {sum(r['status'] == 'traceback' for r in rows)}; chirp recorded again at twice the "
+              f"amplitude after a refused fit: {sum(bool(r.get('rerecorded')) for r in done)}")
         exact = sum(r["names_ok"] for r in done)
         false = sum(bool(r["false"]) for r in done)
         wrong_mp = sum(any(b.startswith("model_parameters") for b in r["bad_parameters"]) for r in done)

@@ -191,6 +191,22 @@ class TestTheModelsOwnEffects:
         assert out["replaced"] == ["torque_sensor_offset -> position_dependent_load"]
         assert set(out["final"]) == {"position_dependent_load"}
 
+    def test_a_refused_chirp_is_recorded_again_stronger(self):
+        # The second path's draw 54: a link friction holds the link under the 8 Nm chirp, and the fit refuses
+        # (bc not determined); the user records the chirp again at 16 Nm, as the refusal advises, and the fit
+        # of that one models the friction the diagnosis then keeps.
+        from iiwa_ident.diagnose.apart import draw_apart_case, simulate_apart_case
+        from iiwa_ident.diagnose.benchmark import run_user_case
+        from iiwa_ident.errors import IiwaIdentError
+        from iiwa_ident.ident import fit_joint
+
+        with pytest.raises(IiwaIdentError, match="bc: not determined.*stronger or longer chirp"):
+            fit_joint(simulate_apart_case(draw_apart_case(54))[:1])
+        out = run_user_case(54, apart=True)
+        assert out["rerecorded"]
+        assert out["fitted"] == ["link_friction"]
+        assert out["names_ok"]
+
 
 class TestScoring:
     def test_model_parameters_is_judged_against_what_a_scaled_sensor_determines(self):

@@ -35,7 +35,9 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 
-__all__ = ["ApartCase", "draw_apart_case", "simulate_apart_case"]
+__all__ = ["ApartCase", "CHIRP_AMPLITUDE_NM", "draw_apart_case", "simulate_apart_case"]
+
+CHIRP_AMPLITUDE_NM = 8.0  # the chirp's torque amplitude [Nm], unless a refused fit asks for a stronger one
 
 _T = 1e-3  # robot cycle [s]
 _STEPS = 5  # Runge-Kutta steps per cycle
@@ -282,10 +284,12 @@ def _trapezoids(speeds: tuple[float, ...], travel: float, accel: float) -> tuple
     return np.array(out_q), np.array(out_v), np.array(out_a)
 
 
-def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0) -> list[Dataset]:
-    """The case's chirp, constant-velocity run and hand-guided run (see the module docstring)."""
+def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0, amplitude_nm: float = CHIRP_AMPLITUDE_NM
+                        ) -> list[Dataset]:
+    """The case's chirp (``amplitude_nm``), constant-velocity run and hand-guided run (see the module
+    docstring)."""
     s = case.seed * 10
-    f0, f1, amp, bias, kh, dh = 0.5, 120.0, 8.0, 2.0, 40.0, 12.0
+    f0, f1, amp, bias, kh, dh = 0.5, 120.0, amplitude_nm, 2.0, 40.0, 12.0
 
     def chirp(k, q, v, q0):
         t = max(k, 0) * _T

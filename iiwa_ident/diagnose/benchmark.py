@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
+from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
 from iiwa_ident.ident import JointModel, fit_model, table1_model
 from iiwa_ident.sim import make_effect
@@ -250,19 +251,36 @@ def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
     ``apart``: the case of the second data path (:mod:`iiwa_ident.diagnose.apart`), otherwise the project
     simulator's harder draw (:func:`draw_case` with ``shapes``); the chirp is 10 s long on both.
     """
+    rerecorded = False
     if apart:
-        from iiwa_ident.diagnose.apart import draw_apart_case, simulate_apart_case
+        from iiwa_ident.diagnose.apart import CHIRP_AMPLITUDE_NM, draw_apart_case, simulate_apart_case
 
         ac = draw_apart_case(seed)
         case = Case(seed, dict(ac.effects), dict(ac.expected), dict(ac.dynamics), list(ac.reshaped))
         data = simulate_apart_case(ac)
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                out = user_protocol(data, tmp)
+        except IiwaIdentError as err:
+            if not _fit_refusal(err):
+                raise
+            # As the refusal advises: the chirp again at twice the amplitude, once.
+            data, rerecorded = simulate_apart_case(ac, amplitude_nm=2.0 * CHIRP_AMPLITUDE_NM), True
+            with tempfile.TemporaryDirectory() as tmp:
+                out = user_protocol(data, tmp)
     else:
         case = draw_case(seed, shapes=True)
         data = simulate_case(case, chirp_s=10.0)
-    with tempfile.TemporaryDirectory() as tmp:
-        out = user_protocol(data, tmp)
+        with tempfile.TemporaryDirectory() as tmp:
+            out = user_protocol(data, tmp)
     fit_error = {k: out["fit_parameters"][k] / case.dynamics[k] - 1.0 for k in case.dynamics}
     score = score_case(case, out["final"], fit_error)
     score.update(out, seed=seed, hidden=sorted(case.expected), expected=case.expected, reshaped=case.reshaped,
-                 fit_error=fit_error)
+                 fit_error=fit_error, rerecorded=rerecorded)
     return score
+
+
+def _fit_refusal(err: IiwaIdentError) -> bool:
+    """Whether ``fit`` refused the chirp for a parameter the data do not determine (a user records it again,
+    stronger), rather than for a band that misses the resonance or a bad file."""
+    return "not determined by the data" in str(err) or "excitation too weak" in str(err)

@@ -904,7 +904,8 @@ def _identified(res: IdimResult, records: list[_Record]) -> IdimResult:
     for k in PARAMETER_NAMES[:4]:
         if not res.std[k] <= MAX_RELATIVE_STD * abs(prm[k]):
             raise IiwaIdentError(f"{k}: not determined by the data in the band {rec.f_lo:.3g}-{rec.f_hi:.3g} Hz "
-                                 f"(std {res.std[k]:.3g} against the value {prm[k]:.3g})")
+                                 f"(std {res.std[k]:.3g} against the value {prm[k]:.3g}); a stronger or longer chirp may "
+                                 f"determine it")
     return res
 
 
