@@ -20,6 +20,7 @@ import iiwa_ident
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("iiwa_ident", "errors", "_toml", "_schema", "_json", "_realtime", "_blas"),
     ("model", "references", "robot"),
+    ("description",),
     ("datasets",),
     ("sim",),
     ("excite",),

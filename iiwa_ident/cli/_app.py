@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -11,7 +12,7 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["app", "fail", "json_text", "write_json"]
+__all__ = ["app", "fail", "json_text", "write_json", "parse_pose"]
 
 class _BracketsAsWritten(typer.core.TyperCommand):
     """A command whose help shows square brackets as written.
@@ -82,6 +83,18 @@ def write_json(path: Path, doc: dict) -> Path:
     write_atomic(path, json_text(doc))
     typer.echo(f"wrote {path}")
     return path
+
+
+def parse_pose(text: str, option: str) -> tuple[float, ...]:
+    """A pose option (7 comma-separated joint angles in degrees) -> the joint positions [rad]."""
+    try:
+        degrees = [float(part) for part in text.split(",")]
+    except ValueError:
+        degrees = []
+    if len(degrees) != 7 or not all(math.isfinite(d) for d in degrees):
+        raise IiwaIdentError(f"{option} {text!r}: expected 7 comma-separated joint angles in degrees "
+                             "(e.g. 0,30,0,-90,0,60,0)")
+    return tuple(math.radians(d) for d in degrees)
 
 
 def run_app(argv: list[str] | None = None) -> None:

@@ -9,7 +9,7 @@ from typing import Annotated, Optional
 import typer
 
 from iiwa_ident._realtime import stop_signals
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, parse_pose, write_json
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import (
     AGENTS,
@@ -94,7 +94,7 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         corrupt=_check_probability("--corrupt", corrupt), seed=seed)
     torque = mode == "torque"
     return EmulatorConfig(
-        joint_positions=DEFAULT_JOINT_POSITIONS if pose is None else _pose(pose),
+        joint_positions=DEFAULT_JOINT_POSITIONS if pose is None else parse_pose(pose, "--pose"),
         client=parse_host_port(client, None, "--client"),
         bind=parse_host_port(bind, None, "--bind", allow_any_port=True),
         plant=load_plant(plant) if plant else None,
@@ -110,18 +110,6 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         lockstep=lockstep,
         stalls=tuple(_stall(text) for text in stalls),
     )
-
-
-def _pose(text: str) -> tuple[float, ...]:
-    """``--pose`` (7 comma-separated angles in degrees) -> the joint positions [rad]."""
-    try:
-        degrees = [float(part) for part in text.split(",")]
-    except ValueError:
-        degrees = []
-    if len(degrees) != 7 or not all(math.isfinite(d) for d in degrees):
-        raise IiwaIdentError(f"--pose {text!r}: expected 7 comma-separated joint angles in degrees "
-                             "(e.g. 0,30,0,-90,0,60,0)")
-    return tuple(math.radians(d) for d in degrees)
 
 
 def _stall(text: str) -> tuple[float, float]:

@@ -313,7 +313,24 @@ def _experiment_attrs_problem(attrs: Any) -> str | None:
         value_problem = _attr_value_problem(value)
         if value_problem:
             return f"experiment attribute {key!r} {value_problem}"
+    pose = attrs.get("pose_rad")
+    if pose is not None and (np.ndim(pose) != 1 or len(pose) != 7 or not np.all(np.isfinite(np.asarray(pose, float)))):
+        return "experiment attribute 'pose_rad' must be the 7 joint positions [rad]"
+    robot = attrs.get("robot_model")
+    if robot is not None and not isinstance(robot, str):
+        return "experiment attribute 'robot_model' must be a string"
     return None
+
+
+def dataset_pose(dataset: Dataset) -> tuple[str | None, tuple[float, ...] | None]:
+    """The robot model (``iiwa14``, ``iiwa7``) and the 7 joint positions [rad] the run was recorded at (the
+    other joints' medians; the moving joint's own entry is its median too), each None where the dataset does
+    not say (experiment attributes ``robot_model`` and ``pose_rad``)."""
+    attrs = dataset.experiment_attrs
+    pose = attrs.get("pose_rad")
+    robot = attrs.get("robot_model")
+    return (str(robot) if robot is not None else None,
+            None if pose is None else tuple(float(x) for x in np.asarray(pose, float)))
 
 
 def validate_dataset(dataset: Dataset, where: str) -> None:

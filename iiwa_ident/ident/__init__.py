@@ -12,6 +12,7 @@ from iiwa_ident.ident.model_file import (
     Source,
     model_from_dict,
     read_model,
+    PARAMETER_ORIGINS,
     table1_model,
     write_model,
 )
@@ -22,7 +23,9 @@ from iiwa_ident.ident.ripple import (
     find_passes,
     identify_ripple,
 )
+from iiwa_ident.ident.starting_model import LOAD_NEGLIGIBLE_NM, starting_model
 from iiwa_ident.ident.tf_fit import FitResult
 
-__all__ = ["JointModel", "ModelError", "Parameter", "RippleTable", "Source", "model_from_dict", "read_model",
-           "table1_model", "write_model", "BlaFit", "joint_position", "link_position", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult"]
+__all__ = ["JointModel", "ModelError", "PARAMETER_ORIGINS", "Parameter", "RippleTable", "Source", "model_from_dict", "read_model",
+           "table1_model", "write_model", "BlaFit", "joint_position", "link_position", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult",
+           "starting_model", "LOAD_NEGLIGIBLE_NM"]

@@ -10,7 +10,10 @@
     robot_model = "iiwa14"
     description = "..."
 
-    [parameters]                 # SI units; std absent = not estimated
+    pose_rad = [0.0, ...]        # optional: the 7 joint positions the model holds at (the others')
+
+    [parameters]                 # SI units; std absent = not estimated; origin optional:
+                                 # "measured", "description" (the rigid-body description) or "borrowed"
     Jc = { value = 1.03, std = 0.004, unit = "kg m^2" }
     bc = { value = 55.0, std = 0.3, unit = "Nm s/rad" }
     K  = { value = 18500.0, std = 40.0, unit = "Nm/rad" }
@@ -66,6 +69,7 @@ __all__ = [
     "write_model",
     "model_from_dict",
     "table1_model",
+    "PARAMETER_ORIGINS",
     "MODEL_FORMAT",
     "MODEL_FORMAT_VERSION",
 ]
@@ -81,13 +85,19 @@ class ModelError(IiwaIdentError):
     """A model file is missing, unreadable or invalid."""
 
 
+#: Where a parameter's value comes from, when a model file says so.
+PARAMETER_ORIGINS = ("measured", "description", "borrowed")
+
+
 @dataclass
 class Parameter:
-    """A model parameter: value, standard deviation (None: not estimated), unit."""
+    """A model parameter: value, standard deviation (None: not estimated), unit, and where the value comes
+    from (:data:`PARAMETER_ORIGINS`; None: not stated)."""
 
     value: float
     std: float | None = None
     unit: str = ""
+    origin: str | None = None
 
 
 @dataclass
@@ -160,6 +170,8 @@ class JointModel:
     joint: int | None = None
     robot_model: str | None = None
     description: str = ""
+    #: The 7 joint positions the model holds at [rad] (a starting model from the rigid-body description).
+    pose_rad: list[float] | None = None
     tool_version: str = field(default_factory=tool_version)
     created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
@@ -180,8 +192,11 @@ class JointModel:
             out["robot_model"] = self.robot_model
         if self.description:
             out["description"] = self.description
+        if self.pose_rad is not None:
+            out["pose_rad"] = [float(x) for x in self.pose_rad]
         out["parameters"] = {
-            name: {k: v for k, v in (("value", p.value), ("std", p.std), ("unit", p.unit)) if v is not None}
+            name: {k: v for k, v in (("value", p.value), ("std", p.std), ("unit", p.unit), ("origin", p.origin))
+                   if v is not None}
             for name, p in self.parameters.items()
         }
         if self.correlation is not None:
@@ -232,7 +247,7 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     if data.get("format_version") != MODEL_FORMAT_VERSION:
         raise ModelError(f"{where}format_version: unsupported version {data.get('format_version')!r} (this tool reads 1)")
     known = {"format", "format_version", "tool_version", "created_utc", "joint", "robot_model", "description",
-             "parameters", "correlation", "ripple", "fit", "sources", "effects"}
+             "parameters", "correlation", "ripple", "fit", "sources", "effects", "pose_rad"}
     for key in data:
         if key not in known:
             raise ModelError(f"{where}{key}: unknown key")
@@ -259,7 +274,11 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
         unit = entry.get("unit", PARAMETER_UNITS.get(name, ""))
         if name in PARAMETER_UNITS and unit != PARAMETER_UNITS[name]:
             raise ModelError(f"{where}parameters.{name}.unit: expected {PARAMETER_UNITS[name]!r}, got {unit!r}")
-        params[name] = Parameter(value, std, unit)
+        origin = entry.get("origin")
+        if origin is not None and origin not in PARAMETER_ORIGINS:
+            raise ModelError(f"{where}parameters.{name}.origin: expected one of {', '.join(PARAMETER_ORIGINS)}, "
+                             f"got {origin!r}")
+        params[name] = Parameter(value, std, unit, origin)
 
     names, corr = [], None
     if "correlation" in data:
@@ -296,9 +315,15 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     joint = data.get("joint")
     if joint is not None and (isinstance(joint, bool) or not isinstance(joint, int) or not 1 <= joint <= 7):
         raise ModelError(f"{where}joint: expected an integer 1..7")
+    pose = data.get("pose_rad")
+    if pose is not None:
+        if not isinstance(pose, list) or len(pose) != 7:
+            raise ModelError(f"{where}pose_rad: expected the 7 joint positions [rad]")
+        pose = [_number(f"{where}pose_rad[{i}]", v) for i, v in enumerate(pose)]
     return JointModel(parameters=params, correlation_names=names, correlation=corr, ripple=ripple,
                       fit=dict(data.get("fit", {})), sources=sources, effects=effects, joint=joint,
                       robot_model=data.get("robot_model"), description=str(data.get("description", "")),
+                      pose_rad=pose,
                       tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")))
 
 

@@ -1,0 +1,192 @@
+"""The arm's mass matrix and gravity torques, computed by MuJoCo from the published figures.
+
+MuJoCo (``mujoco``, DeepMind's rigid-body engine) does the recursive dynamics; this module only writes the
+figures of :mod:`._figures` as an MJCF model and reads back ``M(q)`` and the bias force at rest.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from iiwa_ident.description._figures import ARM_LINKS, FLANGE_M, JOINT_TURNS_RPY, SOURCES
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.robot import JointLimits, joint_limits
+
+__all__ = ["ROBOTS", "GRAVITY_M_S2", "JointDescription", "mass_matrix", "gravity_torques", "link_inertia",
+           "gravity_torque", "gravity_sinusoid", "describe_joint", "check_pose"]
+
+#: The arms described.
+ROBOTS: tuple[str, ...] = tuple(sorted(ARM_LINKS))
+
+#: Standard gravity [m/s^2], downwards along the base's z axis (the arm standing on the floor).
+GRAVITY_M_S2 = 9.80665
+
+
+def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+def _mjcf(robot: str) -> str:
+    """The arm as an MJCF document: nested bodies, one hinge about each body's z axis."""
+    def num(xs) -> str:
+        return " ".join(f"{x:.17g}" for x in xs)
+
+    body = '<site name="flange" pos="0 0 %r"/>' % FLANGE_M
+    for i in reversed(range(7)):
+        link, rpy = ARM_LINKS[robot][i], JOINT_TURNS_RPY[i]
+        lim = joint_limits(robot, i + 1)
+        body = (f'<body name="link{i + 1}" pos="{num(link.origin_m)}" quat="{num(_quaternion(*rpy))}">'
+                f'<joint name="joint{i + 1}" type="hinge" axis="0 0 1" limited="true" '
+                f'range="{-lim.position_rad!r} {lim.position_rad!r}"/>'
+                f'<inertial pos="{num(link.com_m)}" mass="{link.mass_kg!r}" diaginertia="{num(link.inertia_kgm2)}"/>'
+                f'{body}</body>')
+    return (f'<mujoco model="{robot}"><compiler angle="radian"/>'
+            f'<option gravity="0 0 {-GRAVITY_M_S2!r}"/><worldbody>{body}</worldbody></mujoco>')
+
+
+@functools.lru_cache(maxsize=None)
+def _model(robot: str):
+    if robot not in ARM_LINKS:
+        raise IiwaIdentError(f"no rigid-body description of robot {robot!r} (described: {', '.join(ROBOTS)})")
+    import mujoco  # imported here: the engine's load is paid only by the commands that need it
+
+    return mujoco.MjModel.from_xml_string(_mjcf(robot))
+
+
+def check_pose(q: Sequence[float] | np.ndarray, robot: str | None = None) -> np.ndarray:
+    """``q`` as 7 joint positions [rad], or a one-line refusal (wrong length, not finite, beyond a limit of
+    ``robot``)."""
+    arr = np.asarray(q, dtype=float).reshape(-1)
+    if arr.shape != (7,) or not np.all(np.isfinite(arr)):
+        raise IiwaIdentError(f"a pose is 7 finite joint positions in rad, got {np.asarray(q).tolist()}")
+    if robot is not None:
+        for j, x in enumerate(arr, start=1):
+            lim = joint_limits(robot, j).position_rad
+            if abs(x) > lim + 1e-9:
+                raise IiwaIdentError(f"pose: joint {j} at {x:.4g} rad is beyond the {robot}'s limit of "
+                                     f"{lim:.4g} rad")
+    return arr
+
+
+def _state(robot: str, q: Sequence[float] | np.ndarray):
+    import mujoco
+
+    model = _model(robot)
+    data = mujoco.MjData(model)
+    data.qpos[:] = check_pose(q)
+    mujoco.mj_forward(model, data)
+    return mujoco, model, data
+
+
+def mass_matrix(robot: str, q: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The arm's joint-space mass matrix ``M(q)`` [kg m^2], 7 x 7, links only (no rotor inertia).
+
+    Examples
+    --------
+    >>> from iiwa_ident.description import mass_matrix
+    >>> M = mass_matrix("iiwa14", [0.0] * 7)
+    >>> bool(abs(M[6, 6] - 0.001) < 1e-12)  # link 7 turns about its own centre of mass
+    True
+    """
+    mujoco, model, data = _state(robot, q)
+    out = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, out)
+    return out
+
+
+def gravity_torques(robot: str, q: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The joint torques ``g(q)`` [Nm] that hold the arm at rest at ``q`` against gravity, 7 values."""
+    _, _, data = _state(robot, q)
+    return np.array(data.qfrc_bias, dtype=float)
+
+
+def _joint(joint: int) -> int:
+    if not 1 <= int(joint) <= 7:
+        raise IiwaIdentError(f"joint must be 1..7, got {joint}")
+    return int(joint) - 1
+
+
+def link_inertia(robot: str, joint: int, q: Sequence[float] | np.ndarray) -> float:
+    """The inertia ``Jl`` [kg m^2] that ``joint`` (1-7) moves at pose ``q``: the diagonal entry of ``M(q)``.
+
+    It depends only on the joints beyond ``joint`` (the ones it carries), not on its own position.
+    """
+    return float(mass_matrix(robot, q)[_joint(joint), _joint(joint)])
+
+
+def gravity_torque(robot: str, joint: int, q: Sequence[float] | np.ndarray) -> float:
+    """The gravity torque [Nm] on ``joint`` (1-7) at pose ``q`` (the torque that holds it)."""
+    return float(gravity_torques(robot, q)[_joint(joint)])
+
+
+def gravity_sinusoid(robot: str, joint: int, pose: Sequence[float] | np.ndarray) -> tuple[float, float]:
+    """``(A, phi)``: with the other joints held at ``pose``, the gravity torque on ``joint`` is
+    ``A sin(q_j + phi)`` [Nm] over the joint's own position ``q_j`` [rad], ``A >= 0``.
+
+    It is exactly a sinusoid: the centre of mass the joint carries turns about the joint's axis, and the
+    torque of a fixed force about that axis is linear in the turn's cosine and sine.
+    """
+    j = _joint(joint)
+    q = check_pose(pose).copy()
+    q[j] = 0.0
+    g0 = gravity_torque(robot, joint, q)   # A sin(phi)
+    q[j] = math.pi / 2
+    g90 = gravity_torque(robot, joint, q)  # A cos(phi)
+    return math.hypot(g0, g90), math.atan2(g0, g90)
+
+
+@dataclass(frozen=True)
+class JointDescription:
+    """What the description says about one joint at one pose of the others.
+
+    Attributes
+    ----------
+    robot, joint : str, int
+        The arm (``iiwa14``, ``iiwa7``) and the joint (1-7).
+    pose_rad : tuple of float
+        The 7 joint positions it is taken at (the joint's own one does not matter) [rad].
+    Jl_kgm2 : float
+        The link-side inertia the joint moves [kg m^2].
+    gravity_nm, gravity_phase_rad : float
+        The gravity torque ``gravity_nm sin(q_j + gravity_phase_rad)`` [Nm, rad].
+    limits : JointLimits
+        The data sheet's limits.
+    source : str
+        Where the figures come from.
+    """
+
+    robot: str
+    joint: int
+    pose_rad: tuple[float, ...]
+    Jl_kgm2: float
+    gravity_nm: float
+    gravity_phase_rad: float
+    limits: JointLimits
+    source: str
+
+
+def describe_joint(robot: str, joint: int, pose: Sequence[float] | np.ndarray | None = None) -> JointDescription:
+    """The description of ``joint`` of ``robot`` with the other joints at ``pose`` (default: all at zero, the
+    arm straight up).
+
+    Examples
+    --------
+    >>> from iiwa_ident.description import describe_joint
+    >>> d = describe_joint("iiwa14", 1)
+    >>> round(d.gravity_nm, 9)  # joint 1's axis is vertical: gravity exerts no torque about it
+    0.0
+    """
+    q = check_pose(np.zeros(7) if pose is None else pose, robot)
+    amp, phase = gravity_sinusoid(robot, joint, q)
+    return JointDescription(robot, int(joint), tuple(float(x) for x in q), link_inertia(robot, joint, q), amp,
+                            phase, joint_limits(robot, joint), SOURCES[robot])

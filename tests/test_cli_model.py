@@ -1,0 +1,91 @@
+"""The ``model`` subcommand: a joint's starting model from the rigid-body description."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from iiwa_ident.cli import app
+from iiwa_ident.datasets import Dataset, write_dataset
+from iiwa_ident.description import describe_joint
+from iiwa_ident.ident import read_model, starting_model, table1_model
+from iiwa_ident.sim import make_effect
+
+
+def invoke(*args: str):
+    return CliRunner().invoke(app, list(args))
+
+
+def _one_line_error(result, fragment: str) -> None:
+    assert result.exit_code == 2, (result.stdout, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0], result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_starting_model_takes_the_link_side_from_the_description():
+    pose = [0.2, 0.5, -0.3, 0.8, 0.1, -0.4, 0.0]
+    m = starting_model("iiwa14", 4, pose)
+    d = describe_joint("iiwa14", 4, pose)
+    assert m.joint == 4 and m.robot_model == "iiwa14" and m.pose_rad == pytest.approx(pose)
+    assert m.value("Jl") == pytest.approx(d.Jl_kgm2, rel=1e-12)
+    assert m.parameters["Jl"].origin == "description"
+    t1 = table1_model()
+    for k in ("Jc", "bc", "K", "Td", "KI"):
+        assert m.value(k) == t1.value(k) and m.parameters[k].origin == "borrowed"
+    # The load effect is gravity's torque on the link: the joint holds its negative, the description's value.
+    (load,) = m.effects
+    effect = make_effect(load["name"], {k: v for k, v in load.items() if k != "name"})
+    for q4 in (-1.0, 0.3, 1.2):
+        held = d.gravity_nm * math.sin(q4 + d.gravity_phase_rad)
+        tau = effect.values["amplitude_nm"] * math.sin(q4 + effect.values["phase_rad"])
+        assert -tau == pytest.approx(held, abs=1e-9)
+    assert load["compensated"] == 1.0
+
+
+def test_a_vertical_axis_carries_no_load():
+    assert starting_model("iiwa14", 1).effects == []
+    assert starting_model("iiwa7", 7).effects == []
+
+
+def test_model_command_writes_a_file_that_says_where_each_value_comes_from(tmp_path):
+    out = tmp_path / "j6.toml"
+    r = invoke("model", "--robot", "iiwa14", "--joint", "6", "--out", str(out))
+    assert r.exit_code == 0, r.stderr
+    assert "iiwa14 joint 6: Jl" in r.stdout and "borrowed from Table I" in r.stdout
+    m = read_model(out)
+    assert m.joint == 6 and m.parameters["Jl"].origin == "description" and m.parameters["K"].origin == "borrowed"
+    assert m.value("Jl") == pytest.approx(describe_joint("iiwa14", 6).Jl_kgm2)
+    text = out.read_text()
+    assert 'origin = "description"' in text and "pose_rad" in text
+
+
+def test_model_command_takes_robot_joint_and_pose_from_a_dataset(tmp_path):
+    rng = np.random.default_rng(3)
+    pose = [0.0, 0.4, 0.0, -0.6, 0.0, 0.3, 0.0]
+    n = 200
+    ds = Dataset({"t": np.arange(n) * 1e-3, "q_m": rng.normal(0, 0.01, n), "tau_j": rng.normal(0, 1, n)},
+                 "constant_velocity", "import", 4, 1000.0, {"robot_model": "iiwa7", "pose_rad": np.array(pose)})
+    path = write_dataset(tmp_path / "run.h5", ds)
+    out = tmp_path / "m.toml"
+    r = invoke("model", "--data", str(path), "--out", str(out))
+    assert r.exit_code == 0, r.stderr
+    m = read_model(out)
+    assert (m.robot_model, m.joint) == ("iiwa7", 4)
+    assert m.value("Jl") == pytest.approx(describe_joint("iiwa7", 4, pose).Jl_kgm2)
+    _one_line_error(invoke("model", "--data", str(path), "--joint", "2", "--out", str(out)), "not --joint 2")
+    _one_line_error(invoke("model", "--data", str(path), "--robot", "iiwa14", "--out", str(out)),
+                    "not --robot iiwa14")
+
+
+def test_model_command_refusals(tmp_path):
+    out = str(tmp_path / "m.toml")
+    _one_line_error(invoke("model", "--out", out), "give --joint N or --data")
+    _one_line_error(invoke("model", "--joint", "2", "--pose", "0,1,2", "--out", out), "expected 7 comma-separated")
+    _one_line_error(invoke("model", "--joint", "2", "--pose", "0,130,0,0,0,0,0", "--out", out), "beyond the iiwa14's limit")
+    _one_line_error(invoke("model", "--joint", "9", "--out", out), "joint must be 1..7")
+    _one_line_error(invoke("model", "--robot", "ur5", "--joint", "2", "--out", out), "unknown robot model")
+    assert not (tmp_path / "m.toml").exists()
