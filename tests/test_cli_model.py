@@ -89,3 +89,76 @@ def test_model_command_refusals(tmp_path):
     _one_line_error(invoke("model", "--joint", "9", "--out", out), "joint must be 1..7")
     _one_line_error(invoke("model", "--robot", "ur5", "--joint", "2", "--out", out), "unknown robot model")
     assert not (tmp_path / "m.toml").exists()
+
+
+REAL = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared/data/real/iiwa14-constant-velocity"
+
+
+def _import_real(tmp_path, joint_dir: int, joint: int):
+    d = REAL / f"joint{joint_dir}" / "vel_p3"
+    if not d.is_dir():
+        pytest.skip(f"real iiwa 14 logs not found at {d}")
+    out = tmp_path / f"j{joint}.h5"
+    r = invoke("import", "--joint", str(joint), "--experiment", "constant_velocity",
+               "--columns", f"t={d / 'cur_traj_time_s.txt'}", "--columns", f"q_m={d / 'joint_position_measured.txt'}",
+               "--columns", f"tau_j={d / 'joint_torque_measured.txt'}", "--out", str(out))
+    assert r.exit_code == 0, r.stderr
+    return out, r
+
+
+def test_import_keeps_the_pose_and_warns_when_another_joint_moved(tmp_path):
+    from iiwa_ident.datasets import dataset_pose, read_dataset
+
+    path, r = _import_real(tmp_path, 2, 2)
+    robot, pose = dataset_pose(read_dataset(path))
+    assert robot == "iiwa14" and len(pose) == 7 and max(abs(x) for x in pose) < 0.05  # straight up
+    assert "warning" not in r.stderr
+    wrong, r = _import_real(tmp_path, 2, 3)
+    assert "warning:" in r.stderr and "joint 3 moved" in r.stderr and "--joint 2" in r.stderr
+    info = invoke("info", str(wrong))
+    assert "warning: joint 3 moved" in info.stdout
+
+
+def test_diagnose_and_ripple_start_from_the_joints_own_model(tmp_path):
+    path, _ = _import_real(tmp_path, 2, 2)
+    r = invoke("diagnose", str(path), "--out", str(tmp_path / "ext.toml"))
+    assert r.exit_code == 0, r.stderr
+    assert "starting model of iiwa14 joint 2" in r.stdout
+    ext = read_model(tmp_path / "ext.toml")
+    assert ext.joint == 2 and ext.value("Jl") == pytest.approx(describe_joint("iiwa14", 2).Jl_kgm2, rel=1e-3)
+    r = invoke("ripple", str(path), "--out", str(tmp_path / "rip.toml"))
+    assert r.exit_code == 0, r.stderr
+    rip = read_model(tmp_path / "rip.toml")
+    assert rip.joint == 2 and rip.parameters["Jl"].origin == "description"
+    # A model of another joint is refused, by both.
+    j1 = tmp_path / "j1.toml"
+    assert invoke("model", "--joint", "1", "--out", str(j1)).exit_code == 0
+    for cmd in ("diagnose", "ripple"):
+        _one_line_error(invoke(cmd, str(path), "--model", str(j1)), "a model of joint 1 on data of joint 2")
+
+
+def test_dataset_model_refusals():
+    from iiwa_ident.errors import IiwaIdentError
+    from iiwa_ident.ident import dataset_model
+
+    def ds(joint, pose, robot="iiwa14"):
+        n = 50
+        attrs = {"robot_model": robot} if pose is None else {"robot_model": robot, "pose_rad": np.array(pose)}
+        return Dataset({"t": np.arange(n) * 1e-3, "q_m": np.zeros(n), "tau_j": np.zeros(n)}, "constant_velocity",
+                       "import", joint, 1000.0, attrs)
+
+    zero = [0.0] * 7
+    tilted = [0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0]
+    with pytest.raises(IiwaIdentError, match="does not say the other joints' positions"):
+        dataset_model([ds(2, None)])
+    with pytest.raises(IiwaIdentError, match="different poses .joint 4 differs by 28.6 deg"):
+        dataset_model([ds(2, zero), ds(2, tilted)])
+    with pytest.raises(IiwaIdentError, match="different robots"):
+        dataset_model([ds(2, zero), ds(2, zero, "iiwa7")])
+    with pytest.raises(IiwaIdentError, match="a run of joint 3 among runs of joint 2"):
+        dataset_model([ds(2, zero), ds(3, zero)])
+    # The joint's own position differs between runs: that is the same pose.
+    own = [0.0, 0.7, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert dataset_model([ds(2, zero), ds(2, own)]).joint == 2
+    borrowed = dataset_model([ds(5, None)], borrow=True)
+    assert borrowed.joint == 5 and all(p.origin == "borrowed" for p in borrowed.parameters.values())

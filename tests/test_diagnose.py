@@ -15,7 +15,7 @@ from iiwa_ident.diagnose import CANDIDATES, CandidateEffect, build_context, diag
 from iiwa_ident.diagnose.benchmark import Case, case_model, score_case, simulate_case
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, record
-from iiwa_ident.ident import ModelError, model_from_dict, read_model, table1_model, write_model
+from iiwa_ident.ident import ModelError, dataset_model, model_from_dict, read_model, table1_model, write_model
 from iiwa_ident.sim import SimulatedJoint
 from iiwa_ident.sim.effects import make_effect
 
@@ -197,9 +197,13 @@ class TestExtendedModel:
 
 
 class TestRealLogs:
+    def test_a_model_of_another_joint_is_refused(self):
+        with pytest.raises(IiwaIdentError, match="a model of joint 1 on data of joint 2"):
+            diagnose([_real(2)], table1_model())
+
     def test_joint2_ripple_named_with_the_papers_period(self):
-        # 200 Hz, position-controlled, gravity and friction present, a Table I model (of another joint).
-        d = diagnose([_real(2)], table1_model())
+        # 200 Hz, position-controlled, gravity and friction present, the description's starting model.
+        d = diagnose([_real(2)], dataset_model([_real(2)]))
         ripple = d.effect("transmission_ripple")
         assert ripple is not None
         assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3
@@ -210,7 +214,7 @@ class TestRealLogs:
     def test_joint4_ripple_named_on_its_deflection_evidence(self):
         # Position-controlled: the ripple's torque signature is hundredths of a Nm (too small for the torque
         # channels to name it), its deflection in q_m is plain; the candidate's own evidence channel names it.
-        d = diagnose([_real(4)], table1_model())
+        d = diagnose([_real(4)], dataset_model([_real(4)]))
         ripple = d.effect("transmission_ripple")
         assert ripple is not None
         assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3

@@ -13,9 +13,11 @@ import typer
 from iiwa_ident.cli._app import app, fail
 from iiwa_ident.datasets import (
     dataset_info,
+    dataset_pose,
     format_info,
     import_columns,
     import_csv,
+    moving_joint_problem,
     read_dataset,
     write_dataset,
 )
@@ -103,8 +105,11 @@ def import_cmd(
     ] = None,
     column: Annotated[
         Optional[int],
-        typer.Option("--column", help="0-based column of multi-column files; default joint-1."),
+        typer.Option("--column", help="0-based column of multi-column files; default: the joint's (joint - 1)."),
     ] = None,
+    robot: Annotated[
+        str, typer.Option("--robot", help="The arm the log is of: iiwa14 or iiwa7 (kept in the dataset).")
+    ] = "iiwa14",
     scale: Annotated[
         Optional[list[str]],
         typer.Option("--scale", metavar="SIGNAL=FACTOR", help="Multiply a signal, e.g. tau_j=-1 (repeatable)."),
@@ -154,7 +159,7 @@ def import_cmd(
                 raise IiwaIdentError("--column applies to --columns files, not to --csv")
             datasets = import_csv(
                 csv_file, csv_map, joint=joint, experiment=experiment,
-                sample_rate_hz=rate, scale=factors, split_runs=split_runs,
+                sample_rate_hz=rate, scale=factors, split_runs=split_runs, robot_model=robot,
             )
         elif column_files:
             if csv_map:
@@ -162,7 +167,7 @@ def import_cmd(
             datasets = import_columns(
                 {name: Path(p) for name, p in column_files.items()},
                 joint=joint, experiment=experiment, sample_rate_hz=rate,
-                column=column, scale=factors, split_runs=split_runs,
+                column=column, scale=factors, split_runs=split_runs, robot_model=robot,
             )
         else:
             raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE or --csv FILE --map SIGNAL=COLUMN")
@@ -188,11 +193,16 @@ def import_cmd(
     except IiwaIdentError as err:
         raise fail(str(err)) from None
     for path, dataset in zip(written, datasets):
+        robot_model, pose = dataset_pose(dataset)
         typer.echo(
-            f"wrote {path}: {dataset.experiment}, joint {dataset.joint}, "
+            f"wrote {path}: {dataset.experiment}, {robot_model} joint {dataset.joint}, "
             f"{dataset.n_samples} samples at {dataset.sample_rate_hz:.6g} Hz "
             f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
+            + ("" if pose is None else "; pose " + ", ".join(f"{math.degrees(x):.1f}" for x in pose) + " deg")
         )
+        problem = moving_joint_problem(dataset)
+        if problem:
+            typer.echo(f"warning: {path}: {problem}", err=True)
 
 
 @app.command("info")

@@ -10,7 +10,7 @@ import typer
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import Source, read_model, write_model
+from iiwa_ident.ident import Source, check_model_matches, dataset_model, read_model, write_model
 
 __all__ = ["diagnose_cmd"]
 
@@ -18,7 +18,9 @@ __all__ = ["diagnose_cmd"]
 @app.command("diagnose")
 def diagnose_cmd(
     data: Annotated[list[Path], typer.Argument(help="Datasets of one joint (any experiment, torque or position mode).")],
-    model: Annotated[Path, typer.Option("--model", help="Model file to check (e.g. from fit or ripple).")],
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file to check (e.g. from fit or ripple; "
+                                                                  "default: the joint's starting model from the "
+                                                                  "robot's description at the datasets' pose).")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Extended model file to write.")] = None,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the diagnosis as JSON.")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for PNG figures.")] = None,
@@ -36,14 +38,23 @@ def diagnose_cmd(
     data contradict is replaced ("replaced: torque_sensor_offset ->
     position_dependent_load") and left out of the extended model.
 
+    Without --model, the joint's starting model: Jl and the gravity load from the
+    robot's description at the pose the datasets were recorded at (see
+    `iiwa-ident model`).
+
     Example:
       iiwa-ident diagnose --model model.toml --json diagnose.json --out model_ext.toml chirp.h5 cv.h5 hand.h5
     """
     from iiwa_ident.diagnose import diagnose
 
     try:
-        base = read_model(model)
         datasets = [read_dataset(p) for p in data]
+        if model is not None:
+            base = read_model(model)
+            check_model_matches(base, datasets, f"{model}: ")
+        else:
+            base = dataset_model(datasets)
+            typer.echo(f"model: {base.description}")
         result = diagnose(datasets, base)
         typer.echo(result.summary())
         if out:

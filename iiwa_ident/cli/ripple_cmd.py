@@ -18,9 +18,10 @@ from iiwa_ident.ident import (
     RippleResult,
     RippleTable,
     Source,
+    check_model_matches,
+    dataset_model,
     identify_ripple,
     read_model,
-    table1_model,
     write_model,
 )
 
@@ -84,7 +85,9 @@ def format_ripple(r: RippleResult) -> str:
 @app.command("ripple")
 def ripple_cmd(
     data: Annotated[list[Path], typer.Argument(help="Constant-velocity and/or quasi-static datasets of one joint.")],
-    model: Annotated[Optional[Path], typer.Option("--model", help="Model file for K and Jl (default: Table I).")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="Model file for K and Jl (default: the joint's "
+                                                                  "starting model from the robot's description at "
+                                                                  "the datasets' pose, else Table I borrowed).")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Model file to write, with the ripple table.")] = None,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the result as JSON.")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for PNG figures.")] = None,
@@ -109,8 +112,12 @@ def ripple_cmd(
       iiwa-ident ripple cv.h5 --model model.toml --out model_ripple.toml --json ripple.json
     """
     try:
-        base = read_model(model) if model else table1_model()
         datasets = [read_dataset(p) for p in data]
+        if model is not None:
+            base = read_model(model)
+            check_model_matches(base, datasets, f"{model}: ")
+        else:
+            base = dataset_model(datasets, borrow=True)
         result = identify_ripple(datasets, K=base.value("K"), Jl=base.value("Jl"), period_min=period_min,
                                  period_max=period_max, bins=bins, link_motion=link_motion)
         typer.echo(format_ripple(result))

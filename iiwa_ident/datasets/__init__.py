@@ -19,7 +19,7 @@ from iiwa_ident.datasets._format import (
     validate_dataset,
     write_dataset,
 )
-from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv
+from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv, moving_joint_problem
 from iiwa_ident.datasets._info import dataset_info, format_info
 from iiwa_ident.datasets._logwriter import SHM_PREFIX as LOG_SHM_PREFIX
 from iiwa_ident.datasets._logwriter import LogStats, LogWriter
@@ -42,6 +42,7 @@ __all__ = [
     "write_dataset",
     "import_columns",
     "import_csv",
+    "moving_joint_problem",
     "LogWriter",
     "LogStats",
     "LOG_SHM_PREFIX",

@@ -27,8 +27,9 @@ from iiwa_ident.datasets._format import (
     validate_dataset,
 )
 from iiwa_ident.errors import DatasetError
+from iiwa_ident.robot import ROBOT_MODELS
 
-__all__ = ["MIN_RATE_HZ", "MAX_RATE_HZ", "import_columns", "import_csv"]
+__all__ = ["MIN_RATE_HZ", "MAX_RATE_HZ", "import_columns", "import_csv", "moving_joint_problem"]
 
 #: FRI runs at 200 Hz to 1 kHz; other rates mean a wrong time column or
 #: a wrong unit, so they are refused. A 2 % tolerance absorbs clock jitter
@@ -59,6 +60,11 @@ def _check_metadata(joint: int, experiment: str) -> None:
         raise DatasetError(problem)
 
 
+def _check_robot(robot_model: str | None) -> None:
+    if robot_model is not None and robot_model not in ROBOT_MODELS:
+        raise DatasetError(f"unknown robot model {robot_model!r} (known: {', '.join(ROBOT_MODELS)})")
+
+
 def _check_scale(scale: Mapping[str, float] | None, names: list[str]) -> dict[str, float]:
     scale = dict(scale or {})
     for name, factor in scale.items():
@@ -86,13 +92,14 @@ def _read_text(path: Path, kind: str) -> str:
         raise DatasetError(f"{path}: cannot read: {err.strerror or err}") from err
 
 
-def _read_column_file(path: Path, column: int | None) -> np.ndarray:
-    """Read one column of a whitespace-separated numeric text file.
+def _read_column_file(path: Path, column: int | None, every: bool = False) -> np.ndarray:
+    """Read one column of a whitespace-separated numeric text file (``every``: all its columns, rows x columns).
 
     Blank lines and lines starting with ``#`` are skipped. A file with a single
     column is used whatever ``column`` says (a time file, for example).
     """
     text = _read_text(path, "a column file")
+    rows: list[list[float]] = []
 
     values: list[float] = []
     n_cols: int | None = None
@@ -112,6 +119,8 @@ def _read_column_file(path: Path, column: int | None) -> np.ndarray:
         elif len(tokens) != n_cols:
             raise DatasetError(f"{path}, line {lineno}: expected {n_cols} columns, found {len(tokens)}")
         # Every field is parsed, not just the used one: garbage anywhere means a corrupt log.
+        if every:
+            rows.append([])
         for col, token in enumerate(tokens):
             try:
                 value = float(token)
@@ -121,11 +130,13 @@ def _read_column_file(path: Path, column: int | None) -> np.ndarray:
                 ) from None
             if col == use:
                 values.append(value)
+            if every:
+                rows[-1].append(value)
         if not math.isfinite(values[-1]):
             raise DatasetError(f"{path}, line {lineno}: non-finite value {values[-1]}")
     if not values:
         raise DatasetError(f"{path}: no data rows")
-    return np.asarray(values, dtype=np.float64)
+    return np.asarray(rows if every else values, dtype=np.float64)
 
 
 def _assemble(
@@ -137,12 +148,16 @@ def _assemble(
     scale: dict[str, float],
     where: str,
     split_runs: bool = False,
+    robot_model: str | None = None,
+    positions: np.ndarray | None = None,
 ) -> Dataset | list[Dataset]:
     """Scale, add or check time, check the rate and build the dataset.
 
     ``raw`` maps signal names (time under ``"t"``) to arrays and ``origin``
     maps them to a description of where they came from, for messages.
     With ``split_runs``, one dataset per run: a run ends where the time goes back.
+    ``positions``: all 7 joints' positions (samples x 7) [rad], kept as the run's pose (the medians,
+    ``pose_rad``) and each joint's travel (``joint_travel_rad``).
     """
     if split_runs:
         if "t" not in raw:
@@ -153,7 +168,8 @@ def _assemble(
             # Samples are numbered from 0 in the whole log, so a message points at the rows of the file.
             there = {name: f"{text}, run {k} (samples {a}-{b - 1})" for name, text in origin.items()}
             runs.append(_assemble({name: arr[a:b] for name, arr in raw.items()}, there, joint, experiment,
-                                  sample_rate_hz, scale, f"{where}, run {k}"))
+                                  sample_rate_hz, scale, f"{where}, run {k}", robot_model=robot_model,
+                                  positions=None if positions is None else positions[a:b]))
         return runs
     lengths = {name: arr.shape[0] for name, arr in raw.items()}
     if len(set(lengths.values())) > 1:
@@ -206,12 +222,19 @@ def _assemble(
 
     # Canonical order makes printed summaries and files predictable.
     ordered = {name: signals[name] for name in SIGNAL_UNITS if name in signals}
+    attrs: dict = {}
+    if robot_model is not None:
+        attrs["robot_model"] = robot_model
+    if positions is not None:
+        attrs["pose_rad"] = np.median(positions, axis=0)
+        attrs["joint_travel_rad"] = np.ptp(positions, axis=0)
     dataset = Dataset(
         signals=ordered,
         experiment=experiment,
         source="import",
         joint=joint,
         sample_rate_hz=rate,
+        experiment_attrs=attrs,
     )
     validate_dataset(dataset, where)
     return dataset
@@ -226,6 +249,7 @@ def import_columns(
     scale: Mapping[str, float] | None = None,
     time_signal: str = "t",
     split_runs: bool = False,
+    robot_model: str | None = None,
 ) -> Dataset | list[Dataset]:
     """Import whitespace-separated column files, one file per signal.
 
@@ -257,11 +281,15 @@ def import_columns(
         The log holds several runs, each starting where the time goes back
         (a recorder restarted without a new file): return one dataset per
         run. Without it such a log is refused, naming the sample.
+    robot_model : str, optional
+        The arm (``iiwa14``, ``iiwa7``), kept in the dataset (``robot_model``).
 
     Returns
     -------
     Dataset, or list of Dataset with ``split_runs``
-        With ``source="import"``, not yet written.
+        With ``source="import"``, not yet written. When the ``q_m`` file has a column per joint (7), the
+        experiment attributes keep the pose (``pose_rad``: each joint's median [rad]) and each joint's travel
+        (``joint_travel_rad``); see :func:`moving_joint_problem`.
 
     Raises
     ------
@@ -285,11 +313,42 @@ def import_columns(
     if column is not None and (isinstance(column, bool) or not isinstance(column, int) or column < 0):
         raise DatasetError(f"column must be an integer >= 0, got {column!r}")
 
+    _check_robot(robot_model)
     use = joint - 1 if column is None else column
-    raw = {name: _read_column_file(path, use) for name, path in files.items()}
+    raw, positions = {}, None
+    for name, path in files.items():
+        if name == "q_m":
+            every = _read_column_file(path, use, every=True)
+            if every.ndim == 2 and every.shape[1] == 7:
+                positions = every
+            raw[name] = every[:, use if every.shape[1] > 1 else 0]
+        else:
+            raw[name] = _read_column_file(path, use)
     origin = {name: f"{name} ({path})" for name, path in files.items()}
     where = str(files.get("q_m", next(iter(files.values()))).parent)
-    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, where, split_runs)
+    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, where, split_runs,
+                     robot_model=robot_model, positions=positions)
+
+
+#: A joint whose travel in a run is below this share of another joint's did not move in it.
+_MOVED_SHARE = 0.5
+#: ... when that other joint travelled at least this far [rad].
+_MOVED_MIN_RAD = 0.02
+
+
+def moving_joint_problem(dataset: Dataset) -> str | None:
+    """A warning when the dataset's joint barely moved while another did (``joint_travel_rad`` from the
+    import), naming the joint that moved; None when the joint moved or the dataset does not say."""
+    travel = dataset.experiment_attrs.get("joint_travel_rad")
+    if travel is None:
+        return None
+    travel = np.asarray(travel, float)
+    best = int(np.argmax(travel))
+    own = float(travel[dataset.joint - 1])
+    if best != dataset.joint - 1 and travel[best] >= _MOVED_MIN_RAD and own < _MOVED_SHARE * travel[best]:
+        return (f"joint {dataset.joint} moved {own:.3g} rad in this run, joint {best + 1} {travel[best]:.3g} rad: "
+                f"is it a run of joint {best + 1} (--joint {best + 1})?")
+    return None
 
 
 def _sniff_delimiter(header: str) -> str:
@@ -316,8 +375,9 @@ def import_csv(
     sample_rate_hz: float | None = None,
     scale: Mapping[str, float] | None = None,
     split_runs: bool = False,
+    robot_model: str | None = None,
 ) -> Dataset | list[Dataset]:
-    """Import a CSV file with a header row.
+    """Import a CSV file with a header row (``robot_model`` kept as in :func:`import_columns`).
 
     Parameters
     ----------
@@ -393,4 +453,6 @@ def import_csv(
         raise DatasetError(f"{path}: no data rows after the header")
     raw = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
     origin = {name: f"column {mapping[name]!r}" for name in mapping}
-    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, str(path), split_runs)
+    _check_robot(robot_model)
+    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, str(path), split_runs,
+                     robot_model=robot_model)

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets._format import SIGNAL_UNITS, Dataset
+from iiwa_ident.datasets._import import moving_joint_problem
 
 __all__ = ["dataset_info", "format_info"]
 
@@ -36,7 +37,8 @@ def dataset_info(ds: Dataset) -> dict[str, Any]:
         JSON-serialisable dict with keys ``path`` (str or None),
         ``experiment``, ``source``, ``joint``, ``sample_rate_hz`` [Hz],
         ``n_samples``, ``duration_s`` [s], ``created_utc``,
-        ``experiment_attrs`` and ``signals``; the latter maps each signal name
+        ``experiment_attrs``, ``warnings`` (e.g. the joint did not move while another did) and
+        ``signals``; the latter maps each signal name
         to ``unit``, ``min``, ``max``, ``mean`` and ``std`` (population
         standard deviation), all in the signal's unit.
     """
@@ -61,6 +63,7 @@ def dataset_info(ds: Dataset) -> dict[str, Any]:
         "created_utc": ds.created_utc,
         "experiment_attrs": {k: _jsonable(v) for k, v in ds.experiment_attrs.items()},
         "signals": signals,
+        "warnings": [w for w in (moving_joint_problem(ds),) if w],
     }
 
 
@@ -121,4 +124,5 @@ def format_info(info: dict[str, Any]) -> str:
         lines.append("  ".join(cells).rstrip())
         if i == 0:
             lines.append("  ".join("-" * w for w in widths))
+    lines += [f"warning: {w}" for w in info.get("warnings", [])]
     return "\n".join(lines)

@@ -31,7 +31,7 @@ from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, b
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel
+from iiwa_ident.ident import JointModel, check_model_matches
 
 __all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
 
@@ -298,6 +298,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     joints = {ds.joint for ds in datasets}
     if len(joints) > 1:
         raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
+    check_model_matches(model, datasets)
     original = model
     work = copy.deepcopy(model)
     # A model with an extra-delay effect predicts with the total delay.

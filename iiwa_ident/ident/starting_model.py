@@ -13,10 +13,12 @@ from typing import Sequence
 
 import numpy as np
 
+from iiwa_ident.datasets import Dataset, dataset_pose
 from iiwa_ident.description import describe_joint
+from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import JointModel, Parameter, table1_model
 
-__all__ = ["starting_model", "LOAD_NEGLIGIBLE_NM"]
+__all__ = ["starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD"]
 
 #: A gravity amplitude below this is no load (a vertical axis) [Nm]: numerical zero of the description.
 LOAD_NEGLIGIBLE_NM = 1e-6
@@ -64,3 +66,71 @@ def starting_model(robot: str, joint: int, pose: Sequence[float] | np.ndarray | 
                          + f"] rad: Jl and the gravity load from the rigid-body description ({d.source}); Jc, bc, K, "
                            f"Td, KI borrowed from the paper's Table I (joint 1), to be measured by a chirp fit")
     return model
+
+
+#: Runs whose other joints stand further apart than this [rad] were recorded at different poses.
+POSE_TOLERANCE_RAD = 0.05
+
+
+def dataset_model(datasets: Sequence[Dataset], borrow: bool = False) -> JointModel:
+    """The starting model (:func:`starting_model`) of the datasets' robot, joint and pose.
+
+    ``borrow``: where the datasets do not say their pose, Table I for their joint, every value marked
+    borrowed (for a command that needs only rough ``K`` and ``Jl``), instead of a refusal.
+
+    Raises
+    ------
+    IiwaIdentError
+        One line naming the file: no dataset, datasets of different joints or robots, a dataset that does
+        not say its pose (imported without all joint columns), runs at different poses of the other joints.
+    """
+    if not datasets:
+        raise IiwaIdentError("no dataset given")
+    first = datasets[0]
+    robots, poses = [], []
+    for ds in datasets:
+        name = ds.path or f"dataset of joint {ds.joint}"
+        if ds.joint != first.joint:
+            raise IiwaIdentError(f"{name}: a run of joint {ds.joint} among runs of joint {first.joint}")
+        robot, pose = dataset_pose(ds)
+        if pose is None and borrow:
+            model = table1_model()
+            for p in model.parameters.values():
+                p.origin = "borrowed"
+            model.joint, model.robot_model = first.joint, robot
+            model.description = (f"the paper's Table I (joint 1 of an iiwa 14) borrowed for joint {first.joint}: "
+                                 "the datasets do not say their pose")
+            return model
+        if pose is None:
+            raise IiwaIdentError(f"{name}: the dataset does not say the other joints' positions, so the "
+                                 "description cannot give its starting model: give --model, or import the log "
+                                 "with a position file of all 7 joints")
+        robots.append(robot or "iiwa14")
+        poses.append(np.asarray(pose))
+    if len(set(robots)) > 1:
+        raise IiwaIdentError(f"the datasets are of different robots ({', '.join(sorted(set(robots)))})")
+    others = [j for j in range(7) if j != first.joint - 1]
+    spread = np.ptp(np.array(poses)[:, others], axis=0) if len(poses) > 1 else np.zeros(len(others))
+    if np.any(spread > POSE_TOLERANCE_RAD):
+        j = others[int(np.argmax(spread))] + 1
+        raise IiwaIdentError(f"the runs were recorded at different poses (joint {j} differs by "
+                             f"{math.degrees(float(spread.max())):.1f} deg): the link inertia and the gravity load "
+                             "differ too; use the runs of one pose together")
+    return starting_model(robots[0], first.joint, poses[0])
+
+
+def check_model_matches(model: JointModel, datasets: Sequence[Dataset], where: str = "") -> None:
+    """Refuse (one line) a model of another joint or robot than the datasets'.
+
+    ``where``: the model file, for the message. A model that does not say its joint or robot, or a dataset
+    that does not say its robot, is not judged on that.
+    """
+    for ds in datasets:
+        name = ds.path or f"the dataset of joint {ds.joint}"
+        robot, _ = dataset_pose(ds)
+        if model.joint is not None and model.joint != ds.joint:
+            start = f"`iiwa-ident model --data {ds.path}`" if ds.path else "`iiwa-ident model`"
+            raise IiwaIdentError(f"{where}a model of joint {model.joint} on data of joint {ds.joint} ({name}): "
+                                 f"every joint has its own; start from {start}")
+        if model.robot_model and robot and model.robot_model != robot:
+            raise IiwaIdentError(f"{where}a model of an {model.robot_model} on data of an {robot} ({name})")
