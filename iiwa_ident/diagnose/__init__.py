@@ -4,6 +4,8 @@ Public API
 ----------
 diagnose, Diagnosis, EffectReport, ChannelReport
     Run the diagnosis on datasets with a model; the result, per effect and per channel.
+residual_rms
+    How well a model predicts datasets, per residual channel (nothing fitted).
 CandidateEffect, CANDIDATES, register_candidate, EvidenceChannel
     The pluggable library of candidate effects (one subclass per effect), and an effect's own evidence.
 build_context, Context
@@ -11,8 +13,8 @@ build_context, Context
 """
 
 from iiwa_ident.diagnose.candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
-from iiwa_ident.diagnose.diagnosis import ChannelReport, Diagnosis, EffectReport, diagnose
+from iiwa_ident.diagnose.diagnosis import ChannelReport, Diagnosis, EffectReport, diagnose, residual_rms
 from iiwa_ident.diagnose.predict import Context, build_context
 
-__all__ = ["diagnose", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
+__all__ = ["diagnose", "residual_rms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
            "EvidenceChannel", "register_candidate", "build_context", "Context"]

@@ -33,7 +33,8 @@ from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals,
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import JointModel, check_model_matches
 
-__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose"]
+__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
+           "residual_rms"]
 
 _LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
 #: Held-out reduction of the residual's power a candidate that failed the other tests must not reach for
@@ -243,6 +244,18 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
                 ctx.residual[ch] = ctx.residual[ch] - v
         known[name] = (cand, coef)
     return known
+
+
+def residual_rms(datasets: Sequence[Dataset], model: JointModel) -> list[tuple[str, str, float]]:
+    """How well ``model`` (with its effects and ripple table) predicts each dataset: ``(dataset, channel, RMS
+    [Nm])`` per residual channel, over the samples the diagnosis uses (nothing is fitted)."""
+    check_model_matches(model, datasets)
+    work = copy.deepcopy(model)
+    extra = sum(float(e.get("extra_s", 0.0)) for e in work.effects if e.get("name") == "input_delay")
+    work.parameters["Td"].value += extra
+    contexts = [build_context(ds, work, i) for i, ds in enumerate(datasets)]
+    _known_effects(work, contexts)
+    return [(ctx.name, ch, _rms([ctx.residual[ch][ctx.masks[ch]]])) for ctx in contexts for ch in ctx.channels]
 
 
 def _blocks(contexts: list[Context]) -> list[Block]:

@@ -1,0 +1,105 @@
+"""The diagnosis on every real joint, started from the robot's description: one block per joint.
+
+Imports every run of every joint under ``../shared/data/real/iiwa14-constant-velocity`` (200 Hz, constant
+speeds back and forth, the arm straight up) and the joint-6 position chirp, in memory, with the pose the
+position files give. For each run: the joint's starting model from the rigid-body description
+(:func:`iiwa_ident.ident.dataset_model`), the diagnosis of that run alone (what it names, the held-out RMS
+before and after), then the joint's other runs predicted by the model the diagnosis extended
+(:func:`iiwa_ident.diagnose.residual_rms`), against the starting model's RMS on them. Prints per joint whether
+its runs name the same effects, and the named load and inertia against the description's.
+
+Run: ``.venv/bin/python bench/bench_real_diagnose.py [--root ../shared/data/real] [--joints 1,2,3,4,6]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from iiwa_ident.datasets import Dataset, import_columns
+from iiwa_ident.diagnose import diagnose, residual_rms
+from iiwa_ident.ident import dataset_model
+
+_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def load_run(folder: Path, joint: int, experiment: str) -> Dataset:
+    ds = import_columns({"t": folder / "cur_traj_time_s.txt", "q_m": folder / "joint_position_measured.txt",
+                         "tau_j": folder / "joint_torque_measured.txt"}, joint=joint, experiment=experiment,
+                        robot_model="iiwa14")
+    return ds
+
+
+def runs(root: Path, joints: set[int]) -> dict[int, list[Dataset]]:
+    out: dict[int, list[Dataset]] = {}
+    for jd in sorted((root / "iiwa14-constant-velocity").glob("joint*")):
+        j = int(jd.name.removeprefix("joint"))
+        if j not in joints:
+            continue
+        for rd in sorted(p for p in jd.iterdir() if p.is_dir()):
+            ds = load_run(rd, j, "constant_velocity")
+            ds.path = Path(f"j{j}/{rd.name}")
+            out.setdefault(j, []).append(ds)
+    chirp = root / "iiwa14-position-chirp" / "joint6"
+    if 6 in joints and chirp.is_dir():
+        ds = load_run(chirp, 6, "chirp")
+        ds.path = Path("j6/chirp")
+        out.setdefault(6, []).append(ds)
+    return out
+
+
+def _rms(rows: list[tuple[str, str, float]]) -> float:
+    return float(np.sqrt(np.mean([r[2] ** 2 for r in rows]))) if rows else float("nan")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, default=_ROOT)
+    parser.add_argument("--joints", default="1,2,3,4,6")
+    args = parser.parse_args(argv)
+    if not (args.root / "iiwa14-constant-velocity").is_dir():
+        print(f"error: no real logs under {args.root}", file=sys.stderr)
+        return 2
+    by_joint = runs(args.root, {int(x) for x in args.joints.split(",")})
+    for j, dss in by_joint.items():
+        print(f"joint {j}: {len(dss)} run(s)")
+        named_sets = []
+        for ds in dss:
+            t0 = time.perf_counter()
+            start = dataset_model([ds])
+            d = diagnose([ds], start)
+            wall = time.perf_counter() - t0
+            before = float(np.sqrt(np.mean([c.rms_before ** 2 for c in d.channels])))
+            after = float(np.sqrt(np.mean([c.rms_after ** 2 for c in d.channels])))
+            named = sorted(e.name for e in d.effects)
+            named_sets.append(tuple(named))
+            desc = {e["name"]: e for e in start.effects}
+            params = []
+            for e in d.effects:
+                p = ", ".join(f"{k} {v:.4g}" for k, v in e.parameters.items())
+                params.append(f"{e.name} ({p})")
+            load0 = desc.get("position_dependent_load", {}).get("amplitude_nm", 0.0)
+            print(f"  {ds.path}: held-out RMS {before:.3f} -> {after:.3f} Nm ({100 * (1 - after / before):.1f} % "
+                  f"lower), {wall:.0f} s; named: {'; '.join(params) or 'nothing'}")
+            print(f"      description: Jl {start.value('Jl'):.4g} kg m^2, gravity amplitude {load0:.4g} Nm; "
+                  f"suspects: {', '.join(s['name'] + ' (' + s['failed'] + ')' for s in d.suspects) or 'none'}")
+            others = [o for o in dss if o is not ds]
+            if others:
+                rows_start = residual_rms(others, start)
+                rows_ext = residual_rms(others, d.extended)
+                per = "; ".join(f"{a[0]} {a[2]:.3f} -> {b[2]:.3f}" for a, b in zip(rows_start, rows_ext))
+                ratio = _rms(rows_ext) / _rms(rows_start)
+                print(f"      other runs predicted (starting -> extended model, Nm): {per}; "
+                      f"{100 * ratio:.1f} % of the starting RMS (target at most 15 %)")
+        same = len(set(named_sets)) == 1
+        print(f"  joint {j}: the runs name {'the same effects' if same else 'different effects'}: "
+              + " | ".join(", ".join(s) or "nothing" for s in named_sets))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
