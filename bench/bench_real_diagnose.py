@@ -20,33 +20,33 @@ from pathlib import Path
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset, import_columns
+from iiwa_ident.datasets import Dataset, import_columns, torque_sign_problem
 from iiwa_ident.diagnose import diagnose, residual_rms
 from iiwa_ident.ident import dataset_model
 
 _ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
-def load_run(folder: Path, joint: int, experiment: str) -> Dataset:
+def load_run(folder: Path, joint: int, experiment: str, sign: float = 1.0) -> Dataset:
     ds = import_columns({"t": folder / "cur_traj_time_s.txt", "q_m": folder / "joint_position_measured.txt",
                          "tau_j": folder / "joint_torque_measured.txt"}, joint=joint, experiment=experiment,
-                        robot_model="iiwa14")
+                        robot_model="iiwa14", scale={"tau_j": sign})
     return ds
 
 
-def runs(root: Path, joints: set[int]) -> dict[int, list[Dataset]]:
+def runs(root: Path, joints: set[int], sign: float = 1.0) -> dict[int, list[Dataset]]:
     out: dict[int, list[Dataset]] = {}
     for jd in sorted((root / "iiwa14-constant-velocity").glob("joint*")):
         j = int(jd.name.removeprefix("joint"))
         if j not in joints:
             continue
         for rd in sorted(p for p in jd.iterdir() if p.is_dir()):
-            ds = load_run(rd, j, "constant_velocity")
+            ds = load_run(rd, j, "constant_velocity", sign)
             ds.path = Path(f"j{j}/{rd.name}")
             out.setdefault(j, []).append(ds)
     chirp = root / "iiwa14-position-chirp" / "joint6"
     if 6 in joints and chirp.is_dir():
-        ds = load_run(chirp, 6, "chirp")
+        ds = load_run(chirp, 6, "chirp", sign)
         ds.path = Path("j6/chirp")
         out.setdefault(6, []).append(ds)
     return out
@@ -64,7 +64,15 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.root / "iiwa14-constant-velocity").is_dir():
         print(f"error: no real logs under {args.root}", file=sys.stderr)
         return 2
-    by_joint = runs(args.root, {int(x) for x in args.joints.split(",")})
+    # The recording's torque sign, as `import` tells it (the runs whose gravity decides it), for all its runs:
+    # one driver logged every joint.
+    verdicts = {str(ds.path): torque_sign_problem(ds) for dss in runs(args.root, {1, 2, 3, 4, 5, 6, 7}).values()
+                for ds in dss}
+    decided = [p for p, w in verdicts.items() if w]
+    sign = -1.0 if decided else 1.0
+    print(f"the recording's torque sign: {'the other way round' if decided else 'as the convention'} "
+          f"(import's check on {', '.join(decided) or 'no run'}); all runs imported with tau_j x {sign:+.0f}")
+    by_joint = runs(args.root, {int(x) for x in args.joints.split(",")}, sign)
     for j, dss in by_joint.items():
         print(f"joint {j}: {len(dss)} run(s)")
         named_sets = []

@@ -14,10 +14,10 @@ from iiwa_ident.cli._app import app, fail
 from iiwa_ident.datasets import (
     dataset_info,
     dataset_pose,
+    dataset_warnings,
     format_info,
     import_columns,
     import_csv,
-    moving_joint_problem,
     read_dataset,
     write_dataset,
 )
@@ -200,8 +200,7 @@ def import_cmd(
             f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
             + ("" if pose is None else "; pose " + ", ".join(f"{math.degrees(x):.1f}" for x in pose) + " deg")
         )
-        problem = moving_joint_problem(dataset)
-        if problem:
+        for problem in dataset_warnings(dataset):
             typer.echo(f"warning: {path}: {problem}", err=True)
 
 

@@ -21,6 +21,7 @@ from iiwa_ident.datasets._format import (
 )
 from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv, moving_joint_problem
 from iiwa_ident.datasets._info import dataset_info, format_info
+from iiwa_ident.datasets._provenance import SIGN_MIN_GRAVITY_NM, dataset_warnings, torque_sign_problem
 from iiwa_ident.datasets._logwriter import SHM_PREFIX as LOG_SHM_PREFIX
 from iiwa_ident.datasets._logwriter import LogStats, LogWriter
 
@@ -47,5 +48,8 @@ __all__ = [
     "LogStats",
     "LOG_SHM_PREFIX",
     "dataset_info",
+    "dataset_warnings",
+    "torque_sign_problem",
+    "SIGN_MIN_GRAVITY_NM",
     "format_info",
 ]

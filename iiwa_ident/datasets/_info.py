@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets._format import SIGNAL_UNITS, Dataset
-from iiwa_ident.datasets._import import moving_joint_problem
+from iiwa_ident.datasets._provenance import dataset_warnings
 
 __all__ = ["dataset_info", "format_info"]
 
@@ -63,7 +63,7 @@ def dataset_info(ds: Dataset) -> dict[str, Any]:
         "created_utc": ds.created_utc,
         "experiment_attrs": {k: _jsonable(v) for k, v in ds.experiment_attrs.items()},
         "signals": signals,
-        "warnings": [w for w in (moving_joint_problem(ds),) if w],
+        "warnings": dataset_warnings(ds),
     }
 
 
