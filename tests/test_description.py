@@ -144,3 +144,16 @@ def test_the_readme_quotes_the_description_as_computed():
               f"{d4.Jl_kgm2:.2g} kg m² and {d4.gravity_nm:.3g} Nm, joint 6 {d6.Jl_kgm2:.2g} kg m² and "
               f"{d6.gravity_nm:.2g} Nm")
     assert quoted in text
+
+
+def test_a_payload_at_the_flange_by_hand():
+    # 14 kg at the flange, 0.42 + 0.4 + 0.081 + 0.045 m above joint 2, straight up: m r^2 more inertia; tipped,
+    # m g r more torque.
+    r = 0.42 + 0.4 + 0.081 + 0.045
+    q = np.zeros(7)
+    assert link_inertia("iiwa14", 2, q, 14.0) - link_inertia("iiwa14", 2, q) == pytest.approx(14.0 * r ** 2, rel=1e-9)
+    a0, _ = gravity_sinusoid("iiwa14", 2, q)
+    a14, _ = gravity_sinusoid("iiwa14", 2, q, 14.0)
+    assert a14 - a0 == pytest.approx(14.0 * GRAVITY_M_S2 * r, rel=1e-6)
+    with pytest.raises(IiwaIdentError, match="a payload is a mass"):
+        mass_matrix("iiwa14", q, -1.0)

@@ -13,7 +13,7 @@ JointDescription, describe_joint
     One joint at a pose: ``Jl``, gravity load, limits, the figures' source.
 mass_matrix, gravity_torques, link_inertia, gravity_torque, gravity_sinusoid, check_pose
     The arm's dynamics at a pose (:mod:`iiwa_ident.description._dynamics`).
-Link, ARM_LINKS, JOINT_TURNS_RPY, FLANGE_M, SOURCES
+Link, ARM_LINKS, JOINT_TURNS_RPY, FLANGE_M, RATED_PAYLOAD_KG, SOURCES
     The published figures (:mod:`iiwa_ident.description._figures`).
 """
 
@@ -29,8 +29,8 @@ from iiwa_ident.description._dynamics import (
     link_inertia,
     mass_matrix,
 )
-from iiwa_ident.description._figures import ARM_LINKS, FLANGE_M, JOINT_TURNS_RPY, SOURCES, Link
+from iiwa_ident.description._figures import ARM_LINKS, FLANGE_M, JOINT_TURNS_RPY, RATED_PAYLOAD_KG, SOURCES, Link
 
 __all__ = ["ROBOTS", "GRAVITY_M_S2", "JointDescription", "describe_joint", "mass_matrix", "gravity_torques",
            "link_inertia", "gravity_torque", "gravity_sinusoid", "check_pose", "Link", "ARM_LINKS",
-           "JOINT_TURNS_RPY", "FLANGE_M", "SOURCES"]
+           "JOINT_TURNS_RPY", "FLANGE_M", "RATED_PAYLOAD_KG", "SOURCES"]

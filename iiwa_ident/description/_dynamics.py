@@ -36,12 +36,16 @@ def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, fl
             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
-def _mjcf(robot: str) -> str:
-    """The arm as an MJCF document: nested bodies, one hinge about each body's z axis."""
+def _mjcf(robot: str, payload_kg: float = 0.0) -> str:
+    """The arm as an MJCF document: nested bodies, one hinge about each body's z axis; ``payload_kg`` as a
+    point mass at the flange."""
     def num(xs) -> str:
         return " ".join(f"{x:.17g}" for x in xs)
 
     body = '<site name="flange" pos="0 0 %r"/>' % FLANGE_M
+    if payload_kg > 0:
+        body += (f'<body name="payload" pos="0 0 {FLANGE_M!r}"><inertial pos="0 0 0" mass="{payload_kg!r}" '
+                 'diaginertia="1e-9 1e-9 1e-9"/></body>')
     for i in reversed(range(7)):
         link, rpy = ARM_LINKS[robot][i], JOINT_TURNS_RPY[i]
         lim = joint_limits(robot, i + 1)
@@ -55,12 +59,14 @@ def _mjcf(robot: str) -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def _model(robot: str):
+def _model(robot: str, payload_kg: float = 0.0):
     if robot not in ARM_LINKS:
         raise IiwaIdentError(f"no rigid-body description of robot {robot!r} (described: {', '.join(ROBOTS)})")
+    if not (math.isfinite(payload_kg) and payload_kg >= 0):
+        raise IiwaIdentError(f"a payload is a mass >= 0 kg, got {payload_kg!r}")
     import mujoco  # imported here: the engine's load is paid only by the commands that need it
 
-    return mujoco.MjModel.from_xml_string(_mjcf(robot))
+    return mujoco.MjModel.from_xml_string(_mjcf(robot, payload_kg))
 
 
 def check_pose(q: Sequence[float] | np.ndarray, robot: str | None = None) -> np.ndarray:
@@ -78,18 +84,19 @@ def check_pose(q: Sequence[float] | np.ndarray, robot: str | None = None) -> np.
     return arr
 
 
-def _state(robot: str, q: Sequence[float] | np.ndarray):
+def _state(robot: str, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0):
     import mujoco
 
-    model = _model(robot)
+    model = _model(robot, float(payload_kg))
     data = mujoco.MjData(model)
     data.qpos[:] = check_pose(q)
     mujoco.mj_forward(model, data)
     return mujoco, model, data
 
 
-def mass_matrix(robot: str, q: Sequence[float] | np.ndarray) -> np.ndarray:
-    """The arm's joint-space mass matrix ``M(q)`` [kg m^2], 7 x 7, links only (no rotor inertia).
+def mass_matrix(robot: str, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0) -> np.ndarray:
+    """The arm's joint-space mass matrix ``M(q)`` [kg m^2], 7 x 7, links only (no rotor inertia), with
+    ``payload_kg`` as a point mass at the flange.
 
     Examples
     --------
@@ -98,15 +105,16 @@ def mass_matrix(robot: str, q: Sequence[float] | np.ndarray) -> np.ndarray:
     >>> bool(abs(M[6, 6] - 0.001) < 1e-12)  # link 7 turns about its own centre of mass
     True
     """
-    mujoco, model, data = _state(robot, q)
+    mujoco, model, data = _state(robot, q, payload_kg)
     out = np.zeros((model.nv, model.nv))
     mujoco.mj_fullM(model, data, out)
     return out
 
 
-def gravity_torques(robot: str, q: Sequence[float] | np.ndarray) -> np.ndarray:
-    """The joint torques ``g(q)`` [Nm] that hold the arm at rest at ``q`` against gravity, 7 values."""
-    _, _, data = _state(robot, q)
+def gravity_torques(robot: str, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0) -> np.ndarray:
+    """The joint torques ``g(q)`` [Nm] that hold the arm (and ``payload_kg`` at the flange) at rest at ``q``
+    against gravity, 7 values."""
+    _, _, data = _state(robot, q, payload_kg)
     return np.array(data.qfrc_bias, dtype=float)
 
 
@@ -116,20 +124,21 @@ def _joint(joint: int) -> int:
     return int(joint) - 1
 
 
-def link_inertia(robot: str, joint: int, q: Sequence[float] | np.ndarray) -> float:
+def link_inertia(robot: str, joint: int, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0) -> float:
     """The inertia ``Jl`` [kg m^2] that ``joint`` (1-7) moves at pose ``q``: the diagonal entry of ``M(q)``.
 
     It depends only on the joints beyond ``joint`` (the ones it carries), not on its own position.
     """
-    return float(mass_matrix(robot, q)[_joint(joint), _joint(joint)])
+    return float(mass_matrix(robot, q, payload_kg)[_joint(joint), _joint(joint)])
 
 
-def gravity_torque(robot: str, joint: int, q: Sequence[float] | np.ndarray) -> float:
+def gravity_torque(robot: str, joint: int, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0) -> float:
     """The gravity torque [Nm] on ``joint`` (1-7) at pose ``q`` (the torque that holds it)."""
-    return float(gravity_torques(robot, q)[_joint(joint)])
+    return float(gravity_torques(robot, q, payload_kg)[_joint(joint)])
 
 
-def gravity_sinusoid(robot: str, joint: int, pose: Sequence[float] | np.ndarray) -> tuple[float, float]:
+def gravity_sinusoid(robot: str, joint: int, pose: Sequence[float] | np.ndarray,
+                     payload_kg: float = 0.0) -> tuple[float, float]:
     """``(A, phi)``: with the other joints held at ``pose``, the gravity torque on ``joint`` is
     ``A sin(q_j + phi)`` [Nm] over the joint's own position ``q_j`` [rad], ``A >= 0``.
 
@@ -139,9 +148,9 @@ def gravity_sinusoid(robot: str, joint: int, pose: Sequence[float] | np.ndarray)
     j = _joint(joint)
     q = check_pose(pose).copy()
     q[j] = 0.0
-    g0 = gravity_torque(robot, joint, q)   # A sin(phi)
+    g0 = gravity_torque(robot, joint, q, payload_kg)   # A sin(phi)
     q[j] = math.pi / 2
-    g90 = gravity_torque(robot, joint, q)  # A cos(phi)
+    g90 = gravity_torque(robot, joint, q, payload_kg)  # A cos(phi)
     return math.hypot(g0, g90), math.atan2(g0, g90)
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["Link", "ARM_LINKS", "JOINT_TURNS_RPY", "FLANGE_M", "SOURCES"]
+__all__ = ["Link", "ARM_LINKS", "JOINT_TURNS_RPY", "FLANGE_M", "RATED_PAYLOAD_KG", "SOURCES"]
 
 _PI2 = math.pi / 2
 
@@ -81,6 +81,9 @@ ARM_LINKS: dict[str, tuple[Link, ...]] = {
 
 #: The flange's distance from joint 7's frame along its axis [m].
 FLANGE_M = 0.045
+
+#: The rated payload of each arm (KUKA's data sheets: 14 kg and 7 kg) [kg].
+RATED_PAYLOAD_KG: dict[str, float] = {"iiwa14": 14.0, "iiwa7": 7.0}
 
 #: Where each arm's figures come from, as written into the files that use them.
 SOURCES: dict[str, str] = {

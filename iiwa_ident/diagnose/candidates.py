@@ -63,7 +63,7 @@ from scipy import optimize, signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, RippleTable, line_ratio
+from iiwa_ident.ident import JointModel, PhysicalRanges, RippleTable, line_ratio
 from iiwa_ident.sim import EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TransmissionRipple, make_effect
 from iiwa_ident.sim import own_dataset_columns
 
@@ -199,6 +199,8 @@ class CandidateEffect:
         self.detail: dict[str, Any] = {}
         #: Coefficients of the same effect the model already has (its columns then fit a correction), or None.
         self.base_coef: np.ndarray | None = None
+        #: What the robot's description makes physically possible for the joint (None: judged by sign only).
+        self.ranges: PhysicalRanges | None = None
         #: The plant effect at the current nonlinear parameters (defaults until found).
         self.effect: Effect | None = self._default_effect() if self.is_effect else None
 
@@ -535,8 +537,12 @@ class PositionDependentLoadCandidate(CandidateEffect):
     def plausible(self, coef):
         # The robot compensates a fraction c in [0, 1] of the load it knows: its columns carry -c times the
         # link's. Far more there than on the link is a constant or a slope of the command channel, not a load.
+        # Where the robot is described, the amplitude must be a gravity load the arm can have at its pose
+        # (PhysicalRanges: within a factor 2 of the description, up to the rated payload).
         a, b = np.asarray(coef[:2], float), np.asarray(coef[2:4], float)
         norm = float(np.hypot(*a))
+        if self.ranges is not None and not self.ranges.load_nm[0] <= norm <= self.ranges.load_nm[1]:
+            return False
         if norm == 0.0:
             return not np.any(b)
         c = -float(a @ b) / norm ** 2
@@ -800,7 +806,11 @@ class ModelParametersCandidate(CandidateEffect):
         return any(abs(values[k] / self._model[k] - 1.0) > MODEL_PARAMETER_RELEVANT for k in ("Jc", "bc", "K", "Jl"))
 
     def plausible(self, coef):
-        return all(v > 0 for v in self._values(coef).values())
+        # Positive; and where the robot is described, a link inertia the arm can have at its pose.
+        values = self._values(coef)
+        if self.ranges is not None and not self.ranges.Jl_kgm2[0] <= values["Jl"] <= self.ranges.Jl_kgm2[1]:
+            return False
+        return all(v > 0 for v in values.values())
 
     def extend(self, model, coef):
         for k, v in self._values(coef).items():

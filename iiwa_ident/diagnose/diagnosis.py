@@ -31,7 +31,7 @@ from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, b
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, check_model_matches
+from iiwa_ident.ident import JointModel, PhysicalRanges, against_description, check_model_matches, physical_ranges
 
 __all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]
@@ -193,6 +193,8 @@ class Diagnosis:
                                  f"of what it leaves ({e.detail['shape_left_in']})")
                 if "other_shape" in e.detail:
                     lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
+                if e.detail.get("against_description"):
+                    lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
         for x in self.ambiguous:
             lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
@@ -325,8 +327,11 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         raise IiwaIdentError(f"{names}: nothing to compare (too short, or contact without a measured external torque)")
     ys = ys0 = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
     names = list(candidates) if candidates is not None else list(CANDIDATES)
+    ranges = physical_ranges(model)
+    for cand, _ in known.values():
+        cand.ranges = ranges
     sel, effects, extended, after, ambiguous, undecided = _named(names, work, model, known, blocks, ys,
-                                                                 selection_options)
+                                                                 selection_options, ranges)
     replaced: list[dict[str, Any]] = []
     # The model without one of its effects (then without all of them: a fit can take one effect for two
     # others), judged like the model: when the data then predict the held-out runs better, or a named
@@ -347,7 +352,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         others = {k: v for k, v in known.items() if k not in drop}
         without = copy.deepcopy(model)
         without.effects = [e for e in without.effects if e.get("name") not in drop]
-        trial = _named(names, work, without, others, blocks, ys_b, selection_options)
+        trial = _named(names, work, without, others, blocks, ys_b, selection_options, ranges)
         renamed = {c.name for c in trial[0].selected} & set(drop)
         sse_b, sse = _sse(trial[3], range(len(trial[3]))), _sse(after, range(len(after)))
         if not renamed >= set(drop) and trial[0].selected:
@@ -397,28 +402,29 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
 
 
 def _named(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
-           ys: list[np.ndarray], selection_options: dict[str, Any]
+           ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None
            ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray], list[dict[str, Any]],
                       list[dict[str, Any]]]:
     """:func:`_selected`, named again without the effects another one's shape makes ambiguous; those, and the
     undecided ones (:func:`_ambiguous`)."""
-    sel, effects, extended, after = _selected(names, work, model, known, blocks, ys, selection_options)
+    sel, effects, extended, after = _selected(names, work, model, known, blocks, ys, selection_options, ranges)
     ambiguous, undecided = _ambiguous(sel, effects, blocks, ys)
     if ambiguous:
         # Named again without them: the others' coefficients and gains must not lean on them.
         left = [n for n in names if n not in {a["name"] for a in ambiguous}]
-        sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options)
+        sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options, ranges)
         undecided = _ambiguous(sel, effects, blocks, ys)[1]
     return sel, effects, extended, after, ambiguous, undecided
 
 
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
-              ys: list[np.ndarray], selection_options: dict[str, Any]
+              ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None
               ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]]:
     """The selection among the candidates ``names``, its effect reports, the extended model and the held-out
-    residuals with the named effects."""
+    residuals with the named effects; ``ranges``: what the robot's description makes physically possible."""
     cands = [make_candidate(n) for n in names]
     for c in cands:
+        c.ranges = ranges
         if hasattr(c, "base_table"):
             c.base_table = work.ripple
         if c.name in known:
@@ -440,9 +446,14 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         cand.extend(extended, total)
         params = cand.parameters(total)
         shape = _shape_fit(cand, blocks, ys, sel, without, after, acts)
+        physical = {}
+        if ranges is not None and cand.name in ("position_dependent_load", "model_parameters"):
+            physical["against_description"] = against_description(
+                ranges, load_nm=params.get("amplitude_nm"), Jl_kgm2=params.get("Jl_kgm2"))
         effects.append(EffectReport(cand.name, sel.confidence[cand.name], params, rb, ra,
                                     100.0 * (1 - ra / rb) if rb > 0 else 0.0,
                                     {**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
+                                     **physical,
                                      "selected_in": sel.band[cand.name],
                                      **shape,
                                      **({"other_shape": sel.other_shape[cand.name]}

@@ -9,6 +9,7 @@ Table I (joint 1 of an iiwa 14) until a chirp fit measures them, and the file sa
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -18,7 +19,8 @@ from iiwa_ident.description import describe_joint
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.model_file import JointModel, Parameter, table1_model
 
-__all__ = ["starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD"]
+__all__ = ["starting_model", "dataset_model", "check_model_matches", "PhysicalRanges", "physical_ranges",
+           "against_description", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD", "DESCRIPTION_FACTOR"]
 
 #: A gravity amplitude below this is no load (a vertical axis) [Nm]: numerical zero of the description.
 LOAD_NEGLIGIBLE_NM = 1e-6
@@ -134,3 +136,62 @@ def check_model_matches(model: JointModel, datasets: Sequence[Dataset], where: s
                                  f"every joint has its own; start from {start}")
         if model.robot_model and robot and model.robot_model != robot:
             raise IiwaIdentError(f"{where}a model of an {model.robot_model} on data of an {robot} ({name})")
+
+
+#: A described value may be off by this factor either way and still be physical (figures from CAD and a
+#: published description, not a measurement of this arm: Drake's iiwa 14 links weigh 1-4 times KUKA's CAD).
+DESCRIPTION_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class PhysicalRanges:
+    """What is physically possible for one joint at one pose, from the robot's description.
+
+    ``Jl_kgm2``: from half the described link inertia to twice the inertia with the arm's rated payload at
+    the flange; ``load_nm``: the gravity amplitude likewise (on a vertical axis, where gravity exerts no
+    torque, both bounds are 0: a load there is not gravity). The torque loop's ``Jc``, ``bc``, ``K`` are not
+    described: positive is all that is asked of them.
+    """
+
+    Jl_kgm2: tuple[float, float]
+    load_nm: tuple[float, float]
+    Jl_described_kgm2: float
+    load_described_nm: float
+    robot: str
+    joint: int
+
+
+def physical_ranges(model: JointModel) -> PhysicalRanges | None:
+    """The :class:`PhysicalRanges` of the model's joint at its pose; None for a model that does not say its
+    robot, joint and pose (such as Table I), whose parameters are then judged by sign only."""
+    if model.robot_model is None or model.joint is None or model.pose_rad is None:
+        return None
+    from iiwa_ident.description import RATED_PAYLOAD_KG, ROBOTS, gravity_sinusoid, link_inertia
+
+    if model.robot_model not in ROBOTS:
+        return None
+    robot, joint, pose = model.robot_model, model.joint, model.pose_rad
+    payload = RATED_PAYLOAD_KG[robot]
+    jl, jl_p = link_inertia(robot, joint, pose), link_inertia(robot, joint, pose, payload)
+    a, a_p = gravity_sinusoid(robot, joint, pose)[0], gravity_sinusoid(robot, joint, pose, payload)[0]
+    a = a if a > LOAD_NEGLIGIBLE_NM else 0.0
+    a_p = a_p if a_p > LOAD_NEGLIGIBLE_NM else 0.0
+    return PhysicalRanges((jl / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * jl_p),
+                          (a / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * a_p), jl, a, robot, joint)
+
+
+def against_description(ranges: PhysicalRanges, Jl_kgm2: float | None = None,
+                        load_nm: float | None = None) -> str:
+    """The model's error against the description in physical terms, e.g. "gravity load 7 % above the
+    description's 80.6 Nm: payload or centre-of-mass error"; '' when nothing is given."""
+    parts = []
+    if load_nm is not None and ranges.load_described_nm > 0:
+        pct = 100.0 * (load_nm / ranges.load_described_nm - 1.0)
+        cause = ": payload or centre-of-mass error" if pct > 0 else ": lighter links or a centre of mass nearer the axis"
+        parts.append(f"gravity load {abs(pct):.0f} % {'above' if pct >= 0 else 'below'} the description's "
+                     f"{ranges.load_described_nm:.3g} Nm" + (cause if abs(pct) >= 5 else ""))
+    elif load_nm is not None:
+        parts.append(f"a load of {load_nm:.3g} Nm on an axis the description gives no gravity torque at this pose")
+    if Jl_kgm2 is not None:
+        parts.append(f"link inertia {Jl_kgm2:.3g} kg m^2 against {ranges.Jl_described_kgm2:.3g} described")
+    return "; ".join(parts)
