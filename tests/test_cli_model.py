@@ -164,3 +164,15 @@ def test_dataset_model_refusals():
     assert dataset_model([ds(2, zero), ds(2, own)]).joint == 2
     borrowed = dataset_model([ds(5, None)], borrow=True)
     assert borrowed.joint == 5 and all(p.origin == "borrowed" for p in borrowed.parameters.values())
+
+
+def test_fit_refuses_a_base_model_of_another_joint(tmp_path):
+    n = 500
+    ds = Dataset({"t": np.arange(n) * 1e-3, "q_m": np.zeros(n), "tau_j": np.zeros(n), "tau_c": np.zeros(n)},
+                 "chirp", "import", 1, 1000.0, {"robot_model": "iiwa14", "pose_rad": np.zeros(7)})
+    path = write_dataset(tmp_path / "chirp.h5", ds)
+    j4 = tmp_path / "j4.toml"
+    assert invoke("model", "--joint", "4", "--out", str(j4)).exit_code == 0
+    _one_line_error(invoke("fit", str(path), "--model", str(j4), "--out", str(tmp_path / "m.toml")),
+                    "a model of joint 4 on data of joint 1")
+    assert not (tmp_path / "m.toml").exists()

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset, read_dataset, sha256_file
+from iiwa_ident.datasets import Dataset, dataset_pose, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
 from iiwa_ident.ident.idim import (
@@ -34,6 +34,7 @@ from iiwa_ident.ident.idim import (
     fit_idim,
 )
 from iiwa_ident.ident.model_file import JointModel, Parameter, RippleTable, Source, read_model, table1_model
+from iiwa_ident.ident.starting_model import check_model_matches
 from iiwa_ident.model import PARAMETER_UNITS
 from iiwa_ident.ident.tf_fit import (
     FitResult,
@@ -247,8 +248,8 @@ def _inputs(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | 
     if base_path is not None:
         sources.append(Source(str(base_path), sha256_file(base_path), "base"))
     joint = int(datasets[0].joint)
-    if base_model is not None and base.joint is not None and base.joint != joint:
-        raise IiwaIdentError(f"{base_path or 'base model'}: is for joint {base.joint}, the data are joint {joint}")
+    if base_model is not None:
+        check_model_matches(base, datasets, f"{base_path}: " if base_path else "base model: ")
     return base, datasets, sources, joint
 
 
@@ -266,9 +267,10 @@ def _multisine_model(paths: Sequence[str | os.PathLike], datasets: list[Dataset]
         except IiwaIdentError as err:
             raise IiwaIdentError(str(err).replace("the dataset", label, 1)) from None
     result = fit_bla(blas, [1.0 / ds.sample_rate_hz for ds in datasets], labels=labels)
-    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
+    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k], "measured")
+              for k in PARAMETER_NAMES}
     ki = base.parameters["KI"]
-    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"])
+    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"], ki.origin)
     bands = result.variance_bands()
     fit_table: dict[str, Any] = {
         "method": "best linear approximation of random-phase odd multisines (robust method), eq (1)-(4) with "
@@ -287,7 +289,7 @@ def _multisine_model(paths: Sequence[str | os.PathLike], datasets: list[Dataset]
     model = JointModel(
         parameters=params, correlation_names=list(PARAMETER_NAMES),
         correlation=result.covariance / np.outer(std, std), ripple=base.ripple, fit=fit_table, sources=sources,
-        joint=joint, robot_model=base.robot_model,
+        joint=joint, robot_model=dataset_pose(datasets[0])[0] or base.robot_model,
         description="Eq (4) with delay fitted to the BLA of " + ", ".join(Path(p).name for p in paths))
     return model, result
 
@@ -333,9 +335,10 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
     # A ripple table in the base model (from the ripple command) gives its period and shape.
     result = fit_joint(datasets, method=method, ripple_table=base.ripple)
 
-    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k]) for k in PARAMETER_NAMES}
+    params = {k: Parameter(result.parameters[k], result.std[k], PARAMETER_UNITS[k], "measured")
+              for k in PARAMETER_NAMES}
     ki = base.parameters["KI"]
-    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"])
+    params["KI"] = Parameter(ki.value, ki.std, PARAMETER_UNITS["KI"], ki.origin)
     fit_table: dict[str, Any] = {
         "method": _METHOD_TEXT[result.method],
         "std_method": result.std_method,
@@ -377,7 +380,7 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
         fit=fit_table,
         sources=sources,
         joint=joint,
-        robot_model=base.robot_model,
+        robot_model=dataset_pose(datasets[0])[0] or base.robot_model,
         effects=effects,
         description=f"Eq (4) with delay fitted to {names}",
     )
