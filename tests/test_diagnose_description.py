@@ -60,3 +60,22 @@ def test_ranges_follow_the_description():
     from iiwa_ident.ident import table1_model
 
     assert physical_ranges(table1_model()) is None  # no pose: judged by sign only, as before
+
+
+def test_runs_at_one_speed_name_the_friction_at_that_speed():
+    # Back and forth at 0.4 rad/s only: Coulomb 1.5 Nm and viscous 2 Nm s/rad cannot be told apart, their sum at
+    # that speed (2.3 Nm) can. Named as a Coulomb friction of 2.3 Nm, and said so.
+    from iiwa_ident.ident import table1_model
+    from iiwa_ident.sim import make_effect
+
+    plant = table1_model().to_plant().without_effects().with_effects(
+        make_effect("link_friction", {"coulomb_nm": 1.5, "viscous_nms_rad": 2.0}))
+    ds = record(SimulatedJoint(plant, seed=4), ConstantVelocity([0.4], range_rad=1.2, repeats=2, mode="position"),
+                record_every=5)
+    d = diagnose([ds], table1_model())
+    friction = d.effect("link_friction")
+    assert friction is not None
+    assert friction.parameters["coulomb_nm"] == pytest.approx(1.5 + 2.0 * 0.4, rel=0.1)
+    assert friction.parameters["viscous_nms_rad"] == 0.0
+    assert friction.detail["one_speed_rad_s"] == pytest.approx(0.4, rel=0.05)
+    assert "the data move at one speed (0.4 rad/s)" in d.summary()

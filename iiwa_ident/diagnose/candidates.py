@@ -480,6 +480,12 @@ class TransmissionRippleCandidate(CandidateEffect):
 
 # ----------------------------------------------------------------------------- link torques
 
+#: Speeds below this do not count as moving for the one-speed test of the friction [rad/s].
+ONE_SPEED_MOVING_RAD_S = 0.02
+#: Moving samples whose 90th speed percentile is below this multiple of the 10th are at one speed.
+ONE_SPEED_RATIO = 1.5
+
+
 @register_candidate
 class LinkFrictionCandidate(CandidateEffect):
     """Coulomb and viscous friction on the link: ``-F_c tanh(omega_l / v_s) - F_v omega_l`` (the plant effect's
@@ -490,6 +496,52 @@ class LinkFrictionCandidate(CandidateEffect):
 
     free_shape = "Coulomb, viscous, breakaway at 0.01, 0.03, 0.1 and 0.3 rad/s, and quadratic drag"
 
+    def __init__(self) -> None:
+        super().__init__()
+        #: The one speed the data move at [rad/s], where their speeds do not separate Coulomb from viscous.
+        self.one_speed: float | None = None
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        # Runs at one speed (back and forth) show the friction at that speed only: the Coulomb and viscous
+        # columns are then nearly proportional, and their split is set by the reversals' few samples (a large
+        # negative Coulomb beside a large viscous slope). One column, the friction at that speed as Coulomb.
+        w = np.concatenate([np.abs(b.ctx.omega_l[b.mask]) for b in blocks])
+        moving = w[w > ONE_SPEED_MOVING_RAD_S]
+        self.one_speed = None
+        if len(moving) >= 0.5 * len(w) and len(moving) > 10:
+            lo, hi = np.percentile(moving, [10, 90])
+            if hi < ONE_SPEED_RATIO * lo:
+                self.one_speed = float(np.median(moving))
+                self.detail["one_speed_rad_s"] = self.one_speed
+        return True
+
+    def n_columns(self):
+        return 1 if self.one_speed is not None else 2
+
+    def columns(self, ctx):
+        cols = super().columns(ctx)
+        return cols[:1] if self.one_speed is not None else cols
+
+    def total(self, coef):
+        base = self.base_coef
+        if self.one_speed is not None and base is not None and len(base) == 2 and len(coef) == 1:
+            # The model's friction at that speed, as Coulomb, plus the correction.
+            return np.asarray(coef, float) + (base[0] + base[1] * self.one_speed)
+        return super().total(coef)
+
+    @staticmethod
+    def _two(coef) -> np.ndarray:
+        """Coulomb and viscous from the one-speed fit's single coefficient (viscous 0), or as they are."""
+        coef = np.asarray(coef, float)
+        return np.array([coef[0], 0.0]) if len(coef) == 1 else coef
+
+    def parameters(self, coef):
+        return super().parameters(self._two(coef))
+
+    def extend(self, model, coef):
+        super().extend(model, self._two(coef))
+
     def free_columns(self, ctx):
         w = ctx.omega_fast
         sign = np.tanh(w / self.effect.values["smoothing_rad_s"])
@@ -498,10 +550,12 @@ class LinkFrictionCandidate(CandidateEffect):
 
     def plausible(self, coef):
         # Friction dissipates: a clearly negative level is some other misfit.
+        coef = self._two(coef)
         return coef[0] > -0.05 and coef[1] > -0.05
 
     def other_shape(self, coef):
         # A friction that is larger at standstill than the Coulomb-plus-viscous line: a negative slope.
+        coef = self._two(coef)
         if coef[0] > 0.05 and coef[1] <= -0.05:
             return ("friction that falls with speed (negative viscous slope): breakaway (Stribeck) friction, "
                     "which the Coulomb-plus-viscous shape does not have")

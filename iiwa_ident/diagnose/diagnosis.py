@@ -193,6 +193,9 @@ class Diagnosis:
                                  f"of what it leaves ({e.detail['shape_left_in']})")
                 if "other_shape" in e.detail:
                     lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
+                if "one_speed_rad_s" in e.detail:
+                    lines.append(f"  {'':<24} the data move at one speed ({e.detail['one_speed_rad_s']:.2g} rad/s): the "
+                                 f"friction at that speed, as Coulomb; runs at other speeds separate the viscous part")
                 if e.detail.get("against_description"):
                     lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
         for x in self.ambiguous:
