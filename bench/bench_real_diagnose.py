@@ -6,7 +6,8 @@ position files give. For each run: the joint's starting model from the rigid-bod
 (:func:`iiwa_ident.ident.dataset_model`), the diagnosis of that run alone (what it names, the held-out RMS
 before and after), then the joint's other runs predicted by the model the diagnosis extended
 (:func:`iiwa_ident.diagnose.residual_rms`), against the starting model's RMS on them. Prints per joint whether
-its runs name the same effects, and the named load and inertia against the description's.
+its runs name the same effects, and the named load and inertia against the description's; for joints with
+three runs or more, each run predicted by the model the joint's other runs, diagnosed together, extended.
 
 Run: ``.venv/bin/python bench/bench_real_diagnose.py [--root ../shared/data/real] [--joints 1,2,3,4,6]``.
 """
@@ -106,6 +107,20 @@ def main(argv: list[str] | None = None) -> int:
         same = len(set(named_sets)) == 1
         print(f"  joint {j}: the runs name {'the same effects' if same else 'different effects'}: "
               + " | ".join(", ".join(s) or "nothing" for s in named_sets))
+        if len(dss) >= 3:
+            # Leave one run out: the joint's other runs diagnosed together (their speeds differ), the run left
+            # out predicted.
+            ratios = []
+            for k, ds in enumerate(dss):
+                rest = dss[:k] + dss[k + 1:]
+                start = dataset_model(rest)
+                d = diagnose(rest, start)
+                a, b = _rms(residual_rms([ds], start)), _rms(residual_rms([ds], d.extended))
+                ratios.append(b / a)
+                print(f"    {ds.path} left out: the other runs name {', '.join(sorted(e.name for e in d.effects))}; "
+                      f"it is predicted {a:.3f} -> {b:.3f} Nm ({100 * b / a:.1f} % of the starting RMS)")
+            print(f"  joint {j}, leave one run out: {min(ratios) * 100:.0f}-{max(ratios) * 100:.0f} % of the "
+                  f"starting RMS (target at most 15 %)")
     return 0
 
 
