@@ -79,3 +79,24 @@ def test_runs_at_one_speed_name_the_friction_at_that_speed():
     assert friction.parameters["viscous_nms_rad"] == 0.0
     assert friction.detail["one_speed_rad_s"] == pytest.approx(0.4, rel=0.05)
     assert "the data move at one speed (0.4 rad/s)" in d.summary()
+
+
+def test_an_offset_and_a_friction_that_pass_only_together(monkeypatch):
+    # Long passes back and forth at one speed: each held-out stretch of time holds mostly one direction, so an
+    # offset alone or a friction alone gains on some folds and loses on others; the two together gain on all.
+    from iiwa_ident.diagnose import select
+    from iiwa_ident.ident import table1_model
+    from iiwa_ident.sim import make_effect
+
+    plant = table1_model().to_plant().without_effects().with_effects(
+        make_effect("link_friction", {"coulomb_nm": 1.0, "viscous_nms_rad": 0.0}),
+        make_effect("torque_sensor_offset", {"offset_nm": 0.7}))
+    ds = record(SimulatedJoint(plant, seed=8), ConstantVelocity([0.2], range_rad=1.5, repeats=2, mode="position"),
+                record_every=5)
+    d = diagnose([ds], table1_model())
+    assert {e.name for e in d.effects} == {"link_friction", "torque_sensor_offset"}
+    assert d.effect("torque_sensor_offset").parameters["offset_nm"] == pytest.approx(0.7, abs=0.1)
+    assert d.effect("link_friction").parameters["coulomb_nm"] == pytest.approx(1.0, rel=0.15)
+    monkeypatch.setattr(select, "PAIR_CANDIDATES", 0)
+    alone = diagnose([ds], table1_model())
+    assert {e.name for e in alone.effects} != {"link_friction", "torque_sensor_offset"}

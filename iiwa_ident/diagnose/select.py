@@ -44,6 +44,12 @@ the already selected ones and keeps the best if all of these hold:
                 at least :data:`MIN_CONFIDENCE`; this probability is the
                 effect's reported confidence.
 
+When no candidate passes alone but some failed on the confidence only (whole band), the best
+:data:`PAIR_CANDIDATES` of those are tried in pairs, each pair scored as one effect by the same tests and
+each of its two judged plausible, relevant and material within it (:func:`_pair`): an offset and a friction
+on long passes back and forth, where every held-out stretch holds mostly one direction of travel, pass only
+together.
+
 Each test is made twice: on the whole band and on the fast band (residual
 and regressors high-passed at :data:`FAST_BAND_HZ`, zero phase). A large
 slow misfit nothing in the library explains (an unmodelled trajectory
@@ -296,6 +302,57 @@ def _score_own(step: int, cand: CandidateEffect, ev: EvidenceChannel) -> Step | 
     return record
 
 
+#: Candidates of a step tried in pairs when none passes alone (the best ones by held-out gain).
+PAIR_CANDIDATES = 3
+
+
+def _pair(step: int, near: list, blocks: Sequence[Block], ys: Sequence[np.ndarray], ys_full: list[np.ndarray],
+          cur_X: list[np.ndarray], cur_res: list[np.ndarray], min_gain: float, min_confidence: float,
+          sel: "Selection") -> list[tuple[CandidateEffect, list[np.ndarray]]] | None:
+    """Two effects named together where neither passes alone on its confidence; None when no pair passes.
+
+    An offset beside a friction on runs back and forth: each held-out fold, a stretch of time, holds mostly
+    one direction of travel, where the other effect's missing part dominates, so each alone gains on some
+    folds and loses on others; together they gain on all. Tried only among effects that passed every test
+    but the confidence in the whole band (:data:`PAIR_CANDIDATES` best by gain); the pair must pass every
+    test as one effect, and each of the two its own plausibility, relevance and materiality within it.
+    """
+    near = sorted(near, key=lambda x: -x[2].gain)[:PAIR_CANDIDATES]
+    best = None
+    for i in range(len(near)):
+        for k in range(i + 1, len(near)):
+            (c1, X1, _), (c2, X2, _) = near[i], near[k]
+            Xp = [np.hstack([a, b]) for a, b in zip(X1, X2)]
+            scored = _score(step, f"{c1.name} + {c2.name}", "full", [np.hstack([a, b]) for a, b in zip(cur_X, Xp)],
+                            Xp, ys_full, cur_res, c1.n_nonlinear + c2.n_nonlinear)
+            if scored is None:
+                continue
+            record = scored[0]
+            if not (record.gain >= min_gain and record.delta_bic < 0 and record.confidence >= min_confidence):
+                continue
+            joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xp)]
+            coef = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
+            left = [y - X @ coef for y, X in zip(ys, joint)]
+            n1, n2 = c1.n_columns(), c2.n_columns()
+            fits = [(c1, X1, coef[len(coef) - n1 - n2:len(coef) - n2]), (c2, X2, coef[len(coef) - n2:])]
+            if all(c.plausible(c.total(f)) and c.relevant(f) and _material(blocks, X, c.total(f), left)
+                   for c, X, f in fits) and (best is None or record.gain > best[0].gain):
+                best = (record, [(c1, X1), (c2, X2)])
+    if best is None:
+        return None
+    record, pair = best
+    record.accepted = True
+    sel.steps.append(record)
+    for cand, Xc in pair:
+        start = sel.slices[-1].stop if sel.slices else 0
+        sel.selected.append(cand)
+        sel.slices.append(slice(start, start + cand.n_columns()))
+        sel.confidence[cand.name] = record.confidence
+        sel.gain[cand.name] = record.gain
+        sel.band[cand.name] = "full"
+    return pair
+
+
 def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates: Sequence[CandidateEffect],
                    min_gain: float = MIN_GAIN, min_confidence: float = MIN_CONFIDENCE,
                    max_effects: int = MAX_EFFECTS) -> Selection:
@@ -329,6 +386,7 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
         cur_band = {band: _in_band(band, filters, cur_X) for band in BANDS}
         cur_res = {band: cv_residuals(cur_band[band], ys_band[band]) for band in BANDS}
         passed: dict[str, list] = {band: [] for band in BANDS + (_OWN,)}
+        near: list[tuple[CandidateEffect, list[np.ndarray], Step]] = []  # failed on the confidence alone
         for cand in remaining:
             if not cand.prepare(blocks, in_sample):
                 continue
@@ -359,6 +417,9 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                 sel.steps.append(record)
                 if band == _OWN and not agrees:
                     continue
+                if band == "full" and cand.is_effect and record.gain >= max(min_gain, cand.min_gain) and \
+                        record.delta_bic < 0 and record.confidence < min_confidence:
+                    near.append((cand, Xc, record))
                 if record.gain >= max(min_gain, cand.min_gain) and record.delta_bic < 0 and \
                         record.confidence >= min_confidence:
                     # The effect's own fit (on the residual channels) must be physically possible (a negative
@@ -383,6 +444,17 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
         # The whole band first (it judges the effect everywhere); the fast band only when nothing passes there;
         # an effect's own evidence channel last.
         choice = next((passed[band] for band in BANDS + (_OWN,) if passed[band]), None)
+        if not choice and len(sel.selected) + 2 <= max_effects:
+            pair = _pair(step, near, blocks, ys, ys_band["full"], cur_X, cur_res["full"], min_gain,
+                         min_confidence, sel)
+            if pair is not None:
+                for cand, Xc in pair:
+                    remaining.remove(cand)
+                    cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
+                X, y = np.vstack(cur_X), np.concatenate(ys)
+                coef = np.linalg.lstsq(X, y, rcond=None)[0]
+                in_sample = [yb - Xb @ coef for yb, Xb in zip(ys, cur_X)]
+                continue
         if not choice:
             break
         cand, Xc, record = max(choice, key=lambda x: x[2].gain)
