@@ -21,30 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset, import_columns, torque_sign_problem
+from bench_ripple_real import joint_runs, load_run
+from iiwa_ident.datasets import Dataset, torque_sign_problem
 from iiwa_ident.diagnose import diagnose, residual_rms
 from iiwa_ident.ident import dataset_model
 
 _ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
-def load_run(folder: Path, joint: int, experiment: str, sign: float = 1.0) -> Dataset:
-    ds = import_columns({"t": folder / "cur_traj_time_s.txt", "q_m": folder / "joint_position_measured.txt",
-                         "tau_j": folder / "joint_torque_measured.txt"}, joint=joint, experiment=experiment,
-                        robot_model="iiwa14", scale={"tau_j": sign})
-    return ds
-
-
 def runs(root: Path, joints: set[int], sign: float = 1.0) -> dict[int, list[Dataset]]:
-    out: dict[int, list[Dataset]] = {}
-    for jd in sorted((root / "iiwa14-constant-velocity").glob("joint*")):
-        j = int(jd.name.removeprefix("joint"))
-        if j not in joints:
-            continue
-        for rd in sorted(p for p in jd.iterdir() if p.is_dir()):
-            ds = load_run(rd, j, "constant_velocity", sign)
-            ds.path = Path(f"j{j}/{rd.name}")
-            out.setdefault(j, []).append(ds)
+    """The joints' constant-velocity runs (:func:`bench_ripple_real.joint_runs`) and the joint-6 chirp."""
+    out = {j: [ds for _, ds in rs] for j, rs in joint_runs(root, sign).items() if j in joints}
     chirp = root / "iiwa14-position-chirp" / "joint6"
     if 6 in joints and chirp.is_dir():
         ds = load_run(chirp, 6, "chirp", sign)
@@ -94,7 +81,9 @@ def main(argv: list[str] | None = None) -> int:
             load0 = desc.get("position_dependent_load", {}).get("amplitude_nm", 0.0)
             print(f"  {ds.path}: held-out RMS {before:.3f} -> {after:.3f} Nm ({100 * (1 - after / before):.1f} % "
                   f"lower), {wall:.0f} s; named: {'; '.join(params) or 'nothing'}")
-            print(f"      description: Jl {start.value('Jl'):.4g} kg m^2, gravity amplitude {load0:.4g} Nm; "
+            against = "; ".join(e.detail["against_description"] for e in d.effects if e.detail.get("against_description"))
+            print(f"      description: Jl {start.value('Jl'):.4g} kg m^2, gravity amplitude {load0:.4g} Nm"
+                  + (f" ({against})" if against else "") + "; "
                   f"suspects: {', '.join(s['name'] + ' (' + s['failed'] + ')' for s in d.suspects) or 'none'}")
             others = [o for o in dss if o is not ds]
             if others:

@@ -30,19 +30,21 @@ _K = 18500.0  # Table I [Nm/rad]: the amplitude as a torque, f K
 _ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
-def load_run(folder: Path, joint: int, experiment: str = "constant_velocity") -> Dataset:
-    """One run of the real logs (time, position, torque files), imported in memory."""
+def load_run(folder: Path, joint: int, experiment: str = "constant_velocity", sign: float = 1.0) -> Dataset:
+    """One run of the real logs (time, position, torque files; an iiwa 14), imported in memory with the
+    torque times ``sign``."""
     return import_columns({"t": folder / "cur_traj_time_s.txt", "q_m": folder / "joint_position_measured.txt",
-                           "tau_j": folder / "joint_torque_measured.txt"}, joint=joint, experiment=experiment)
+                           "tau_j": folder / "joint_torque_measured.txt"}, joint=joint, experiment=experiment,
+                          robot_model="iiwa14", scale={"tau_j": sign})
 
 
-def joint_runs(root: Path) -> dict[int, list[tuple[str, Dataset]]]:
+def joint_runs(root: Path, sign: float = 1.0) -> dict[int, list[tuple[str, Dataset]]]:
     """Every constant-velocity run of every joint, by joint."""
     out: dict[int, list[tuple[str, Dataset]]] = {}
     for jd in sorted((root / "iiwa14-constant-velocity").glob("joint*")):
         j = int(jd.name.removeprefix("joint"))
         for rd in sorted(p for p in jd.iterdir() if p.is_dir()):
-            ds = load_run(rd, j)
+            ds = load_run(rd, j, sign=sign)
             ds.path = Path(f"j{j}/{rd.name}")
             out.setdefault(j, []).append((rd.name, ds))
     return out

@@ -509,6 +509,7 @@ class LinkFrictionCandidate(CandidateEffect):
         w = np.concatenate([np.abs(b.ctx.omega_l[b.mask]) for b in blocks])
         moving = w[w > ONE_SPEED_MOVING_RAD_S]
         self.one_speed = None
+        self.detail.pop("one_speed_rad_s", None)
         if len(moving) >= 0.5 * len(w) and len(moving) > 10:
             lo, hi = np.percentile(moving, [10, 90])
             if hi < ONE_SPEED_RATIO * lo:

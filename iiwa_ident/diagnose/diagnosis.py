@@ -254,13 +254,20 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
 def residual_rms(datasets: Sequence[Dataset], model: JointModel) -> list[tuple[str, str, float]]:
     """How well ``model`` (with its effects and ripple table) predicts each dataset: ``(dataset, channel, RMS
     [Nm])`` per residual channel, over the samples the diagnosis uses (nothing is fitted)."""
+    _, contexts, _ = _residuals(datasets, model)
+    return [(ctx.name, ch, _rms([ctx.residual[ch][ctx.masks[ch]]])) for ctx in contexts for ch in ctx.channels]
+
+
+def _residuals(datasets: Sequence[Dataset], model: JointModel
+               ) -> tuple[JointModel, list[Context], dict[str, tuple[CandidateEffect, np.ndarray]]]:
+    """The model as it predicts (an extra-delay effect in its total delay), each dataset's context with the
+    residual left by the model and its effects, and those effects (:func:`_known_effects`)."""
     check_model_matches(model, datasets)
     work = copy.deepcopy(model)
     extra = sum(float(e.get("extra_s", 0.0)) for e in work.effects if e.get("name") == "input_delay")
     work.parameters["Td"].value += extra
     contexts = [build_context(ds, work, i) for i, ds in enumerate(datasets)]
-    _known_effects(work, contexts)
-    return [(ctx.name, ch, _rms([ctx.residual[ch][ctx.masks[ch]]])) for ctx in contexts for ch in ctx.channels]
+    return work, contexts, _known_effects(work, contexts)
 
 
 def _blocks(contexts: list[Context]) -> list[Block]:
@@ -316,14 +323,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     joints = {ds.joint for ds in datasets}
     if len(joints) > 1:
         raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
-    check_model_matches(model, datasets)
     original = model
-    work = copy.deepcopy(model)
-    # A model with an extra-delay effect predicts with the total delay.
-    extra = sum(float(e.get("extra_s", 0.0)) for e in work.effects if e.get("name") == "input_delay")
-    work.parameters["Td"].value += extra
-    contexts = [build_context(ds, work, i) for i, ds in enumerate(datasets)]
-    known = _known_effects(work, contexts)
+    work, contexts, known = _residuals(datasets, model)
     blocks = _blocks(contexts)
     if not blocks:
         names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))

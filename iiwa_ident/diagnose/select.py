@@ -307,8 +307,8 @@ PAIR_CANDIDATES = 3
 
 
 def _pair(step: int, near: list, blocks: Sequence[Block], ys: Sequence[np.ndarray], ys_full: list[np.ndarray],
-          cur_X: list[np.ndarray], cur_res: list[np.ndarray], min_gain: float, min_confidence: float,
-          sel: "Selection") -> list[tuple[CandidateEffect, list[np.ndarray]]] | None:
+          cur_X: list[np.ndarray], cur_res: list[np.ndarray], min_gain: float, min_confidence: float
+          ) -> tuple[Step, list[tuple[CandidateEffect, list[np.ndarray]]]] | None:
     """Two effects named together where neither passes alone on its confidence; None when no pair passes.
 
     An offset beside a friction on runs back and forth: each held-out fold, a stretch of time, holds mostly
@@ -323,14 +323,14 @@ def _pair(step: int, near: list, blocks: Sequence[Block], ys: Sequence[np.ndarra
         for k in range(i + 1, len(near)):
             (c1, X1, _), (c2, X2, _) = near[i], near[k]
             Xp = [np.hstack([a, b]) for a, b in zip(X1, X2)]
-            scored = _score(step, f"{c1.name} + {c2.name}", "full", [np.hstack([a, b]) for a, b in zip(cur_X, Xp)],
-                            Xp, ys_full, cur_res, c1.n_nonlinear + c2.n_nonlinear)
+            joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xp)]
+            scored = _score(step, f"{c1.name} + {c2.name}", "full", joint, Xp, ys_full, cur_res,
+                            c1.n_nonlinear + c2.n_nonlinear)
             if scored is None:
                 continue
             record = scored[0]
-            if not (record.gain >= min_gain and record.delta_bic < 0 and record.confidence >= min_confidence):
+            if not (_passes_but_confidence(record, min_gain) and record.confidence >= min_confidence):
                 continue
-            joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xp)]
             coef = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
             left = [y - X @ coef for y, X in zip(ys, joint)]
             n1, n2 = c1.n_columns(), c2.n_columns()
@@ -338,19 +338,24 @@ def _pair(step: int, near: list, blocks: Sequence[Block], ys: Sequence[np.ndarra
             if all(c.plausible(c.total(f)) and c.relevant(f) and _material(blocks, X, c.total(f), left)
                    for c, X, f in fits) and (best is None or record.gain > best[0].gain):
                 best = (record, [(c1, X1), (c2, X2)])
-    if best is None:
-        return None
-    record, pair = best
+    return best
+
+
+def _passes_but_confidence(record: Step, min_gain: float) -> bool:
+    """Whether a scored step passes the gain and BIC tests (``min_gain``: the candidate's own minimum)."""
+    return record.gain >= min_gain and record.delta_bic < 0
+
+
+def _accept(sel: "Selection", cand: CandidateEffect, record: Step, width: int) -> None:
+    """Name ``cand`` in ``sel`` on ``record``, its columns after the first ``width`` ones."""
     record.accepted = True
-    sel.steps.append(record)
-    for cand, Xc in pair:
-        start = sel.slices[-1].stop if sel.slices else 0
-        sel.selected.append(cand)
-        sel.slices.append(slice(start, start + cand.n_columns()))
-        sel.confidence[cand.name] = record.confidence
-        sel.gain[cand.name] = record.gain
-        sel.band[cand.name] = "full"
-    return pair
+    sel.selected.append(cand)
+    sel.slices.append(slice(width, width + cand.n_columns()))
+    sel.confidence[cand.name] = record.confidence
+    sel.gain[cand.name] = record.gain
+    sel.band[cand.name] = record.band
+    if record.other_shape:
+        sel.other_shape[cand.name] = record.other_shape
 
 
 def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates: Sequence[CandidateEffect],
@@ -417,58 +422,48 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
                 sel.steps.append(record)
                 if band == _OWN and not agrees:
                     continue
-                if band == "full" and cand.is_effect and record.gain >= max(min_gain, cand.min_gain) and \
-                        record.delta_bic < 0 and record.confidence < min_confidence:
-                    near.append((cand, Xc, record))
-                if record.gain >= max(min_gain, cand.min_gain) and record.delta_bic < 0 and \
-                        record.confidence >= min_confidence:
-                    # The effect's own fit (on the residual channels) must be physically possible (a negative
-                    # friction is a symptom of something else).
-                    if fit is None:
-                        joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
-                        coef_all = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
-                        left = [y - X @ coef_all for y, X in zip(ys, joint)]
-                        fit = coef_all[-cand.n_columns():]
-                        total = cand.total(fit)
-                    plausible = cand.plausible(total)
-                    note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(total)
-                    if plausible and not cand.relevant(fit):
-                        record.irrelevant = True
-                    elif (plausible or note) and band == "full" and not _material(blocks, Xc, total, left):
-                        record.negligible = True
-                    elif plausible or note:
-                        record.other_shape = note
-                        passed[band].append((cand, Xc, record))
-                    else:
-                        record.implausible = True
+                if not _passes_but_confidence(record, max(min_gain, cand.min_gain)):
+                    continue
+                if record.confidence < min_confidence:
+                    if band == "full" and cand.is_effect:  # tried in pairs where nothing passes alone
+                        near.append((cand, Xc, record))
+                    continue
+                # The effect's own fit (on the residual channels) must be physically possible (a negative
+                # friction is a symptom of something else).
+                if fit is None:
+                    joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
+                    coef_all = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
+                    left = [y - X @ coef_all for y, X in zip(ys, joint)]
+                    fit = coef_all[-cand.n_columns():]
+                    total = cand.total(fit)
+                plausible = cand.plausible(total)
+                note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(total)
+                if plausible and not cand.relevant(fit):
+                    record.irrelevant = True
+                elif (plausible or note) and band == "full" and not _material(blocks, Xc, total, left):
+                    record.negligible = True
+                elif plausible or note:
+                    record.other_shape = note
+                    passed[band].append((cand, Xc, record))
+                else:
+                    record.implausible = True
         # The whole band first (it judges the effect everywhere); the fast band only when nothing passes there;
         # an effect's own evidence channel last.
         choice = next((passed[band] for band in BANDS + (_OWN,) if passed[band]), None)
-        if not choice and len(sel.selected) + 2 <= max_effects:
+        if choice:
+            cand, Xc, record = max(choice, key=lambda x: x[2].gain)
+            named = [(cand, Xc)]
+        else:
             pair = _pair(step, near, blocks, ys, ys_band["full"], cur_X, cur_res["full"], min_gain,
-                         min_confidence, sel)
-            if pair is not None:
-                for cand, Xc in pair:
-                    remaining.remove(cand)
-                    cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
-                X, y = np.vstack(cur_X), np.concatenate(ys)
-                coef = np.linalg.lstsq(X, y, rcond=None)[0]
-                in_sample = [yb - Xb @ coef for yb, Xb in zip(ys, cur_X)]
-                continue
-        if not choice:
-            break
-        cand, Xc, record = max(choice, key=lambda x: x[2].gain)
-        record.accepted = True
-        start = cur_X[0].shape[1]
-        sel.selected.append(cand)
-        sel.slices.append(slice(start, start + cand.n_columns()))
-        sel.confidence[cand.name] = record.confidence
-        sel.gain[cand.name] = record.gain
-        sel.band[cand.name] = record.band
-        if record.other_shape:
-            sel.other_shape[cand.name] = record.other_shape
-        remaining.remove(cand)
-        cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
+                         min_confidence) if len(sel.selected) + 2 <= max_effects else None
+            if pair is None:
+                break
+            record, named = pair
+            sel.steps.append(record)
+        for cand, Xc in named:
+            _accept(sel, cand, record, cur_X[0].shape[1])
+            remaining.remove(cand)
+            cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
         X, y = np.vstack(cur_X), np.concatenate(ys)
         coef = np.linalg.lstsq(X, y, rcond=None)[0]
         in_sample = [yb - Xb @ coef for yb, Xb in zip(ys, cur_X)]

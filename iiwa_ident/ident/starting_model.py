@@ -53,21 +53,25 @@ def starting_model(robot: str, joint: int, pose: Sequence[float] | np.ndarray | 
     (6, 'description', 'borrowed')
     """
     d = describe_joint(robot, joint, pose)
-    model = table1_model()
-    for p in model.parameters.values():
-        p.std, p.origin = None, "borrowed"
+    model = _borrowed(int(joint), robot)
     model.parameters["Jl"] = Parameter(d.Jl_kgm2, None, model.parameters["Jl"].unit, "description")
     if d.gravity_nm > LOAD_NEGLIGIBLE_NM:
         # The description gives the torque that holds the link; the effect is gravity's torque on it.
         phase = math.remainder(d.gravity_phase_rad + math.pi, 2 * math.pi)
         model.effects = [{"name": "position_dependent_load", "amplitude_nm": d.gravity_nm, "phase_rad": phase,
                           "compensated": 1.0}]
-    model.joint, model.robot_model, model.pose_rad = int(joint), robot, list(d.pose_rad)
-    model.created_utc = JointModel(parameters={}).created_utc
+    model.pose_rad = list(d.pose_rad)
     model.description = (f"starting model of {robot} joint {joint} at pose [" + ", ".join(f"{x:.4g}" for x in d.pose_rad)
                          + f"] rad: Jl and the gravity load from the rigid-body description ({d.source}); Jc, bc, K, "
                            f"Td, KI borrowed from the paper's Table I (joint 1), to be measured by a chirp fit")
     return model
+
+
+def _borrowed(joint: int, robot: str | None) -> JointModel:
+    """A new model of ``joint`` of ``robot`` with Table I's values, every one marked borrowed."""
+    table = table1_model()
+    return JointModel(parameters={k: Parameter(p.value, None, p.unit, "borrowed") for k, p in table.parameters.items()},
+                      joint=joint, robot_model=robot)
 
 
 #: Runs whose other joints stand further apart than this [rad] were recorded at different poses.
@@ -96,10 +100,7 @@ def dataset_model(datasets: Sequence[Dataset], borrow: bool = False) -> JointMod
             raise IiwaIdentError(f"{name}: a run of joint {ds.joint} among runs of joint {first.joint}")
         robot, pose = dataset_pose(ds)
         if pose is None and borrow:
-            model = table1_model()
-            for p in model.parameters.values():
-                p.origin = "borrowed"
-            model.joint, model.robot_model = first.joint, robot
+            model = _borrowed(first.joint, robot)
             model.description = (f"the paper's Table I (joint 1 of an iiwa 14) borrowed for joint {first.joint}: "
                                  "the datasets do not say their pose")
             return model
