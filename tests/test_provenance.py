@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -53,3 +54,114 @@ def test_the_simulator_reads_the_convention():
     assert torque_sign_problem(ds) is None
     ds.signals["tau_j"] = -ds.signals["tau_j"]
     assert "reads the other way round" in torque_sign_problem(ds)
+
+
+# ----------------------------------------------------------------------------- what a log's recording did to it
+def _sim_log(tmp_path, every: int = 1, seed: int = 3):
+    """A simulated constant-velocity record written in the column layout of a driver's log."""
+    from iiwa_ident.sim import default_plant
+
+    ds = record(SimulatedJoint(default_plant(), seed=seed), ConstantVelocity([0.6], range_rad=0.6),
+                record_every=every)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    np.savetxt(folder / "t.txt", ds["t"])
+    np.savetxt(folder / "q.txt", ds["q_m"])
+    np.savetxt(folder / "tau.txt", ds["tau_j"])
+    return ds, folder
+
+
+def _import(folder, t=None, tau=None):
+    from iiwa_ident.datasets import import_columns
+
+    if t is not None:
+        np.savetxt(folder / "t.txt", t)
+    if tau is not None:
+        np.savetxt(folder / "tau.txt", tau)
+    return import_columns({"t": folder / "t.txt", "q_m": folder / "q.txt", "tau_j": folder / "tau.txt"},
+                          joint=1, experiment="constant_velocity")
+
+
+def test_lost_samples_are_counted(tmp_path):
+    from iiwa_ident.datasets import time_gaps_problem
+
+    ds, folder = _sim_log(tmp_path)
+    assert time_gaps_problem(_import(folder)) is None
+    rng = np.random.default_rng(5)
+    drop = np.zeros(ds.n_samples, bool)
+    starts = rng.choice(np.arange(100, ds.n_samples - 100), 7, replace=False)
+    lengths = [3, 9, 2, 17, 5, 4, 11]
+    for s, n in zip(starts, lengths):
+        drop[s:s + n] = True
+    keep = ~drop
+    for name, sig in (("q.txt", ds["q_m"]),):
+        np.savetxt(folder / name, sig[keep])
+    gappy = _import(folder, t=ds["t"][keep], tau=ds["tau_j"][keep])
+    w = time_gaps_problem(gappy)
+    t = np.asarray(gappy.t)
+    gaps = np.diff(t)[np.diff(t) > 1.5e-3]
+    assert w is not None and f"{gaps.size} gaps" in w, w
+    assert f"longest {1e3 * gaps.max():.1f} ms" in w, w
+
+
+def test_a_torque_filtered_before_logging_is_named(tmp_path):
+    from scipy import signal
+
+    from iiwa_ident.datasets import band_limited_problem
+
+    ds, folder = _sim_log(tmp_path)
+    assert band_limited_problem(_import(folder)) is None
+    # A driver's 10 Hz low-pass (exponential smoothing, as ROS drivers do) on the same log.
+    alpha = 1 - np.exp(-2 * np.pi * 10 / 1000)
+    smoothed = signal.lfilter([alpha], [1, alpha - 1], ds["tau_j"], zi=[ds["tau_j"][0] * (1 - alpha)])[0]
+    w = band_limited_problem(_import(folder, tau=smoothed))
+    assert w is not None and "low-pass filtered" in w, w
+    # Decimated to 200 Hz without a filter, fast motion content falls at the top too, but stays loud.
+    (tmp_path / "5").mkdir()
+    _, folder5 = _sim_log(tmp_path / "5", every=5)
+    assert band_limited_problem(_import(folder5)) is None
+
+
+def test_a_position_that_is_the_command_is_named():
+    from iiwa_ident.datasets import substituted_position_problem
+
+    t = np.arange(0, 2, 1e-3)
+    q = 0.3 * np.sin(t)
+    ds = Dataset({"t": t, "q_m": q, "tau_j": np.zeros_like(t), "q_cmd": q.copy()}, "sine", "import", 2, 1000.0)
+    assert "q_m equals q_cmd" in substituted_position_problem(ds)
+    ds.signals["q_m"] = q + 1e-6 * np.random.default_rng(0).normal(size=t.size)
+    assert substituted_position_problem(ds) is None
+
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def _real(folder: Path) -> Path:
+    if not folder.is_dir():
+        pytest.skip(f"real iiwa 14 logs not found at {folder} (expected ../shared beside the checkout)")
+    return folder
+
+
+def test_import_and_info_report_the_real_chirps_gaps_and_the_filtered_torque(tmp_path):
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+    from iiwa_ident.datasets import IMPORT_WARNINGS_ATTR, read_dataset
+
+    chirp = _real(REAL / "iiwa14-position-chirp" / "joint6")
+    args = ["import", "--joint", "6", "--experiment", "free", "--scale", "tau_j=-1",
+            "--columns", f"t={chirp / 'cur_traj_time_s.txt'}", "--columns", f"q_m={chirp / 'joint_position_measured.txt'}",
+            "--columns", f"tau_j={chirp / 'joint_torque_measured.txt'}", "--out", str(tmp_path / "chirp.h5")]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.stderr
+    assert "time has 33 gaps (longest 38.0 ms" in res.stderr
+    assert "33 gaps" in read_dataset(tmp_path / "chirp.h5").experiment_attrs[IMPORT_WARNINGS_ATTR]
+    info = CliRunner().invoke(app, ["info", str(tmp_path / "chirp.h5")])
+    assert info.exit_code == 0 and "warning: time has 33 gaps" in info.stdout
+    assert IMPORT_WARNINGS_ATTR not in info.stdout  # printed once, as a warning
+    cv = _real(REAL / "iiwa14-constant-velocity" / "joint1" / "vel_p4")
+    args = ["import", "--joint", "1", "--experiment", "constant_velocity",
+            "--columns", f"t={cv / 'cur_traj_time_s.txt'}", "--columns", f"q_m={cv / 'joint_position_measured.txt'}",
+            "--columns", f"tau_j={cv / 'joint_torque_measured.txt'}", "--out", str(tmp_path / "cv.h5")]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0 and "low-pass filtered before it was logged" in res.stderr, res.stderr

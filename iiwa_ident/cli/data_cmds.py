@@ -14,10 +14,10 @@ from iiwa_ident.cli._app import app, fail
 from iiwa_ident.datasets import (
     dataset_info,
     dataset_pose,
-    dataset_warnings,
     format_info,
     import_columns,
     import_csv,
+    note_warnings,
     read_dataset,
     write_dataset,
 )
@@ -176,6 +176,7 @@ def import_cmd(
             targets = [out]
         else:
             targets = [out.with_name(f"{out.stem}_run{k}{out.suffix or '.h5'}") for k in range(1, len(datasets) + 1)]
+        warnings = [note_warnings(ds) for ds in datasets]
         # All runs or none, and no file already there lost: each run goes to a hidden file first and
         # the files are renamed over their targets only when every run is written.
         staged: list[Path] = []
@@ -192,7 +193,7 @@ def import_cmd(
         written = targets
     except IiwaIdentError as err:
         raise fail(str(err)) from None
-    for path, dataset in zip(written, datasets):
+    for path, dataset, problems in zip(written, datasets, warnings):
         robot_model, pose = dataset_pose(dataset)
         typer.echo(
             f"wrote {path}: {dataset.experiment}, {robot_model} joint {dataset.joint}, "
@@ -200,7 +201,7 @@ def import_cmd(
             f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
             + ("" if pose is None else "; pose " + ", ".join(f"{math.degrees(x):.1f}" for x in pose) + " deg")
         )
-        for problem in dataset_warnings(dataset):
+        for problem in problems:
             typer.echo(f"warning: {path}: {problem}", err=True)
 
 

@@ -21,7 +21,16 @@ from iiwa_ident.datasets._format import (
 )
 from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv, moving_joint_problem
 from iiwa_ident.datasets._info import dataset_info, format_info
-from iiwa_ident.datasets._provenance import SIGN_MIN_GRAVITY_NM, dataset_warnings, torque_sign_problem
+from iiwa_ident.datasets._provenance import (
+    IMPORT_WARNINGS_ATTR,
+    SIGN_MIN_GRAVITY_NM,
+    band_limited_problem,
+    note_warnings,
+    dataset_warnings,
+    substituted_position_problem,
+    time_gaps_problem,
+    torque_sign_problem,
+)
 from iiwa_ident.datasets._logwriter import SHM_PREFIX as LOG_SHM_PREFIX
 from iiwa_ident.datasets._logwriter import LogStats, LogWriter
 
@@ -49,6 +58,11 @@ __all__ = [
     "LOG_SHM_PREFIX",
     "dataset_info",
     "dataset_warnings",
+    "note_warnings",
+    "IMPORT_WARNINGS_ATTR",
+    "time_gaps_problem",
+    "band_limited_problem",
+    "substituted_position_problem",
     "torque_sign_problem",
     "SIGN_MIN_GRAVITY_NM",
     "format_info",

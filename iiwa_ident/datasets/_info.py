@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets._format import SIGNAL_UNITS, Dataset
-from iiwa_ident.datasets._provenance import dataset_warnings
+from iiwa_ident.datasets._provenance import IMPORT_WARNINGS_ATTR, dataset_warnings
 
 __all__ = ["dataset_info", "format_info"]
 
@@ -102,7 +102,8 @@ def format_info(info: dict[str, Any]) -> str:
         f"duration      {info['duration_s']:.3f} s",
         f"created (UTC) {info['created_utc']}",
     ]
-    attrs = info.get("experiment_attrs") or {}
+    # What import found is printed with the warnings below.
+    attrs = {k: v for k, v in (info.get("experiment_attrs") or {}).items() if k != IMPORT_WARNINGS_ATTR}
     if attrs:
         lines.append("experiment attributes:")
         width = max(len(k) for k in attrs)

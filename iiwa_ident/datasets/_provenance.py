@@ -11,13 +11,29 @@ import numpy as np
 from iiwa_ident.datasets._format import Dataset, dataset_pose
 from iiwa_ident.datasets._import import moving_joint_problem
 
-__all__ = ["torque_sign_problem", "dataset_warnings", "SIGN_MIN_GRAVITY_NM"]
+__all__ = ["torque_sign_problem", "time_gaps_problem", "band_limited_problem", "substituted_position_problem",
+           "dataset_warnings", "SIGN_MIN_GRAVITY_NM", "GAP_FACTOR", "BAND_LIMITED_DB_PER_DECADE",
+           "BAND_LIMITED_FLOOR_DB", "IMPORT_WARNINGS_ATTR", "note_warnings"]
+
+#: The experiment attribute where ``import`` keeps what the checks found (one warning per line).
+IMPORT_WARNINGS_ATTR = "import_warnings"
 
 #: The gravity torque must change by at least this much over the run to tell the reading's sign [Nm].
 SIGN_MIN_GRAVITY_NM = 0.5
 #: ... and its coefficient be this many standard errors from zero.
 _SIGN_MIN_T = 10.0
 _MOVING_RAD_S = 0.02  # samples slower than this are left out (stiction, reversal)
+#: A sample period longer than this many times the median one is a gap (samples lost).
+GAP_FACTOR = 1.5
+#: A torque spectrum whose floor falls faster than this over the top of the band [dB/decade] ...
+BAND_LIMITED_DB_PER_DECADE = -15.0
+#: ... down to below this level at its top [dB re 1 Nm^2/Hz] was filtered before it was logged: a sensor's
+#: own noise is flat there (the simulated joint's: about -60 dB at 1 kHz), a first-order low-pass far below
+#: the band falls by 20 dB/decade; signals rich in fast motion fall too, but stay far above this level.
+BAND_LIMITED_FLOOR_DB = -80.0
+#: The top of the band the slope is measured over, as fractions of the Nyquist frequency.
+_TOP_BAND = (0.5, 0.95)
+_FLOOR_BANDS = 6
 
 
 def torque_sign_problem(dataset: Dataset) -> str | None:
@@ -68,6 +84,102 @@ def torque_sign_problem(dataset: Dataset) -> str | None:
     return None
 
 
+def time_gaps_problem(dataset: Dataset) -> str | None:
+    """A warning when samples were lost: sample periods longer than :data:`GAP_FACTOR` times the median one
+    (their number, the longest, and the share of the run's time they cover), or None."""
+    t = np.asarray(dataset.t, float)
+    if len(t) < 3:
+        return None
+    dt = np.diff(t)
+    period = float(np.median(dt))
+    gaps = dt[dt > GAP_FACTOR * period]
+    if not gaps.size:
+        return None
+    lost = float(np.sum(gaps - period))
+    return (f"time has {gaps.size} gap{'s' if gaps.size > 1 else ''} (longest {1e3 * gaps.max():.1f} ms against a "
+            f"{1e3 * period:.3g} ms period; {100 * lost / (t[-1] - t[0]):.2g} % of the run's time): samples were "
+            "lost; the analyses take the samples as they are, across each gap")
+
+
+def _top_band_slope(x: np.ndarray, fs: float) -> tuple[float, float, float] | None:
+    """The floor of the spectrum over the top of the band: its slope [dB/decade] and its level at the band's
+    two ends [dB]. The floor of each of :data:`_FLOOR_BANDS` sub-bands is the lower quartile of the Welch
+    spectrum there (lines of the motion, a ripple's harmonics, stand above it); a line through the floors in
+    log-log over :data:`_TOP_BAND`."""
+    from scipy import signal
+
+    nper = min(1024, len(x) // 8)
+    if nper < 64:
+        return None
+    f, p = signal.welch(signal.detrend(x), fs=fs, nperseg=nper)
+    edges = np.geomspace(_TOP_BAND[0], _TOP_BAND[1], _FLOOR_BANDS + 1) * fs / 2
+    centres, floors = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = (f >= a) & (f < b) & (p > 0)
+        if sel.sum() < 3:
+            return None
+        centres.append(np.sqrt(a * b))
+        floors.append(10 * np.log10(np.percentile(p[sel], 25)))
+    lf = np.log10(centres)
+    slope, icpt = np.polyfit(lf, floors, 1)
+    return float(slope), float(icpt + slope * lf[0]), float(icpt + slope * lf[-1])
+
+
+def band_limited_problem(dataset: Dataset) -> str | None:
+    """A warning when ``tau_j`` was low-pass filtered before it was logged, or None.
+
+    A torque sensor's own noise is flat at the top of the band; a driver's filter (a first-order low-pass
+    below the band falls by 20 dB/decade, steeper ones more) makes the spectrum fall there. The slope of
+    the Welch spectrum over 0.4-0.95 of the Nyquist frequency below :data:`BAND_LIMITED_DB_PER_DECADE` names
+    it when the floor ends below :data:`BAND_LIMITED_FLOOR_DB` (motion content falls too, but above that):
+    such a torque lags the motion, and the torque loop's response above the filter's corner cannot be fitted
+    from it. The real iiwa 14 logs of Drake's driver at 200 Hz fall by 80-130 dB/decade to -108 to -137 dB.
+    """
+    if not dataset.has("tau_j"):
+        return None
+    fs = float(dataset.sample_rate_hz)
+    got = _top_band_slope(np.asarray(dataset["tau_j"], float), fs)
+    if got is None or got[0] >= BAND_LIMITED_DB_PER_DECADE or got[2] >= BAND_LIMITED_FLOOR_DB:
+        return None
+    slope, lo, hi = got
+    ny = fs / 2
+    return (f"tau_j looks low-pass filtered before it was logged: its spectrum's floor falls by {lo - hi:.0f} dB "
+            f"from {_TOP_BAND[0] * ny:.0f} to {_TOP_BAND[1] * ny:.0f} Hz ({slope:.0f} dB/decade, to {hi:.0f} dB re "
+            "1 Nm^2/Hz; a sensor's noise is flat there): the torque lags the motion, and the torque loop's response cannot be fitted above the "
+            "filter's corner (record without the driver's torque filter)")
+
+
+#: Measured and commanded positions closer than this everywhere are one signal [rad].
+_SAME_RAD = 1e-9
+
+
+def substituted_position_problem(dataset: Dataset) -> str | None:
+    """A warning when the measured position ``q_m`` is the commanded one ``q_cmd`` sample for sample (a
+    driver that substitutes the command for the measurement), or None."""
+    if not (dataset.has("q_m") and dataset.has("q_cmd")):
+        return None
+    q, c = np.asarray(dataset["q_m"], float), np.asarray(dataset["q_cmd"], float)
+    if np.ptp(q) == 0.0 or np.max(np.abs(q - c)) > _SAME_RAD:
+        return None
+    return ("q_m equals q_cmd at every sample: the driver logged the commanded position as the measured one "
+            "(an open-loop or simulated mode?); the joint's deflection, the ripple and the link motion cannot be "
+            "identified from it")
+
+
 def dataset_warnings(dataset: Dataset) -> list[str]:
-    """Every check's warning for ``dataset`` (the joint given did not move; the torque's sign)."""
-    return [w for w in (moving_joint_problem(dataset), torque_sign_problem(dataset)) if w]
+    """Every check's warning for ``dataset``: the joint given did not move, the torque's sign, samples lost,
+    a torque filtered before it was logged, a measured position that is the commanded one."""
+    checks = (moving_joint_problem, torque_sign_problem, time_gaps_problem, band_limited_problem,
+              substituted_position_problem)
+    return [w for w in (check(dataset) for check in checks) if w]
+
+
+def note_warnings(dataset: Dataset) -> list[str]:
+    """Run every check on ``dataset``, keep the warnings in its attributes (:data:`IMPORT_WARNINGS_ATTR`, one
+    per line; removed when there are none) and return them."""
+    found = dataset_warnings(dataset)
+    if found:
+        dataset.experiment_attrs[IMPORT_WARNINGS_ATTR] = "\n".join(found)
+    else:
+        dataset.experiment_attrs.pop(IMPORT_WARNINGS_ATTR, None)
+    return found
