@@ -117,6 +117,9 @@ class TestFitErrors:
         out, js = tmp_path / "m.toml", tmp_path / "m.json"
         res = invoke("fit", path, "--out", out, "--json", js)
         self.assert_refused(res, f"{path}: no torque command: fit needs a torque-commanded chirp", out, js)
+        # What such a log still gives, and how to record what the fit needs.
+        for say in ("chirp --target robot", "'ripple'", "'diagnose'", "'pipeline --logs'"):
+            assert say in res.output, res.output
 
     def test_missing_file(self, tmp_path):
         out = tmp_path / "m.toml"

@@ -293,7 +293,10 @@ def _spline_basis(n: int, T: float, knot_s: float) -> np.ndarray:
 def _prepare(ds: Dataset, index: int) -> _Record:
     label = _label(ds, index)
     if not ds.has("tau_c"):
-        raise IiwaIdentError(f"{label}: no torque command: fit needs a torque-commanded chirp")
+        # Say what such a log can give and how to record what the fit needs.
+        raise IiwaIdentError(f"{label}: no torque command: fit needs a torque-commanded chirp (record one with "
+                             f"'iiwa-ident chirp --target robot --robot HOST --joint N'); a log without one still "
+                             f"gives 'ripple', 'diagnose' and 'pipeline --logs'")
     t = np.asarray(ds.t, float)
     if ds.duration_s < MIN_DURATION_S:
         raise IiwaIdentError(f"{label}: too short for a fit ({ds.duration_s:.2f} s; need at least "
