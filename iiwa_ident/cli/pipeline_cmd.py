@@ -18,13 +18,22 @@ def pipeline_cmd(
     workdir: Annotated[Path, typer.Option("--workdir", help="Folder for every intermediate file and report.pdf.")],
     target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint, validation against the FRI "
                                         "emulator) or 'robot' (FRI).")] = "sim",
+    logs: Annotated[Optional[list[Path]], typer.Option("--logs", help="Your own logs instead of experiments: a "
+                                                       "dataset file, a folder of column files "
+                                                       "(joint_position_measured.txt, ...) or a folder of such "
+                                                       "folders; repeat for more.")] = None,
+    torque_sign: Annotated[str, typer.Option("--torque-sign", help="--logs: auto (flip the column logs' torque "
+                                             "when gravity says it reads the other way round), +1 or -1.")]
+    = "auto",
     plant: Annotated[Optional[Path], typer.Option("--plant", help="Plant TOML file (--target sim; default: the "
                                                   "shipped default plant).")] = None,
     robot: Annotated[Optional[str], typer.Option("--robot", help="--target robot: robot controller HOST[:PORT].")]
     = None,
     port: Annotated[int, typer.Option("--port", help="--target robot: local FRI UDP port.")] = 30200,
-    robot_model: Annotated[str, typer.Option("--robot-model", help="--target robot: iiwa7 | iiwa14.")] = "iiwa14",
-    joint: Annotated[int, typer.Option("--joint", help="--target robot: joint under test, 1-7.")] = 1,
+    robot_model: Annotated[str, typer.Option("--robot-model", help="--target robot and --logs: iiwa7 | iiwa14.")]
+    = "iiwa14",
+    joint: Annotated[Optional[int], typer.Option("--joint", help="Joint under test, 1-7 (--target robot: default "
+                                                 "1; --logs: default the joint that moved).")] = None,
     short: Annotated[bool, typer.Option("--short", help="Short experiments (a quick check, not for the "
                                         "figures).")] = False,
     skip: Annotated[Optional[str], typer.Option("--skip", help="Comma-separated stages not to run, e.g. "
@@ -34,7 +43,9 @@ def pipeline_cmd(
                                            "in real time instead of in lockstep (figures then depend on the "
                                            "machine's load).")] = False,
 ) -> None:
-    """Run chirp, fit, experiments, ripple, design, deploy, FRI validation, diagnose and the report.
+    """Run chirp, fit, experiments, ripple, design, deploy, FRI validation, diagnose and the report;
+    or, with --logs, import, ripple, diagnose, held-out validation (fit, design, deploy where a
+    torque-commanded record is among the logs) and the report on your own logs.
 
     Prints one line per stage, writes every file into the work folder
     (chirp.h5, model.toml, fit.json, constant_velocity.h5, hand_guided.h5,
@@ -56,15 +67,26 @@ def pipeline_cmd(
       iiwa-ident pipeline --target sim --plant my_plant.toml --workdir run2
       iiwa-ident pipeline --target sim --realtime --workdir run3
       iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
+      iiwa-ident pipeline --logs ../shared/data/real/iiwa14-constant-velocity/joint6 --workdir j6
     """
-    from iiwa_ident.pipeline import format_summary, run_pipeline
+    from iiwa_ident.pipeline import format_summary, run_log_pipeline, run_pipeline
     from iiwa_ident.report import build_report
 
+    skipped = tuple(x.strip() for x in (skip or "").split(",") if x.strip())
     try:
-        result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,
-                              progress=lambda m: typer.echo(m), port=port, robot_model=robot_model, joint=joint,
-                              report=None if no_report else build_report, realtime=realtime,
-                              skip=tuple(x.strip() for x in (skip or "").split(",") if x.strip()))
+        if logs:
+            given = [name for name, value in (("--plant", plant), ("--robot", robot), ("--short", short or None),
+                                              ("--realtime", realtime or None)) if value is not None]
+            if target != "sim" or given:
+                raise IiwaIdentError(f"--logs runs on the logs alone: drop {', '.join(given) or '--target'}")
+            result = run_log_pipeline(workdir, logs, robot_model=robot_model, joint=joint, torque_sign=torque_sign,
+                                      progress=lambda m: typer.echo(m), report=None if no_report else build_report,
+                                      skip=skipped)
+        else:
+            result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,
+                                  progress=lambda m: typer.echo(m), port=port, robot_model=robot_model,
+                                  joint=1 if joint is None else joint, report=None if no_report else build_report,
+                                  realtime=realtime, skip=skipped)
     except IiwaIdentError as err:
         raise fail(str(err))
     typer.echo(format_summary(result))

@@ -16,7 +16,6 @@ from iiwa_ident.ident import (
     PERIOD_MAX_RAD,
     PERIOD_MIN_RAD,
     RippleResult,
-    RippleTable,
     Source,
     check_model_matches,
     dataset_model,
@@ -122,15 +121,7 @@ def ripple_cmd(
                                  period_max=period_max, bins=bins, link_motion=link_motion)
         typer.echo(format_ripple(result))
         if out:
-            if result.detected:
-                base.ripple = RippleTable(result.period_rad, result.lut, {
-                    "period_std_rad": result.period_std_rad, "amplitude_rad": result.amplitude_rad,
-                    "cycles_per_rev": result.cycles_per_rev, "period_ticks": result.period_ticks,
-                    "false_alarm_probability": result.false_alarm, "methods": sorted(result.methods),
-                    "link_motion": result.link_motion,
-                })
-            else:
-                base.ripple = None
+            base.ripple = result.table()
             base.sources = [s for s in base.sources if s.role != "ripple"] + [
                 Source(str(p), sha256_file(p), "ripple") for p in data]
             write_model(out, base)

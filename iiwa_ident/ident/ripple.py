@@ -162,6 +162,19 @@ class RippleResult:
         """The period in encoder ticks (5.989e-8 rad a tick)."""
         return None if self.period_rad is None else self.period_rad / ENCODER_TICK_RAD
 
+    def table(self):
+        """The model file's ripple table of this result (:class:`~iiwa_ident.ident.RippleTable`: the period,
+        the lookup table and how they were found), or None when nothing was detected."""
+        from iiwa_ident.ident.model_file import RippleTable
+
+        if not self.detected:
+            return None
+        return RippleTable(self.period_rad, self.lut, {
+            "period_std_rad": self.period_std_rad, "amplitude_rad": self.amplitude_rad,
+            "cycles_per_rev": self.cycles_per_rev, "period_ticks": self.period_ticks,
+            "false_alarm_probability": self.false_alarm, "methods": sorted(self.methods),
+            "link_motion": self.link_motion})
+
     def to_json(self) -> dict:
         """The ``--json`` document (SI units)."""
         return {

@@ -8,6 +8,8 @@ Stage, StageRecord, STAGES, FILES
     The stage abstraction, its outcome, the stages in order, the file names.
 format_summary, read_pipeline_json
     The closing summary; ``pipeline.json`` of a work folder.
+run_log_pipeline, find_log_runs, LOG_STAGES, LOG_FILES
+    The pipeline on a robot's own logs (``--logs``): the runs it finds, its stages, the column files it reads.
 run_validation, ValidationSettings, reference_of, oscillation_windows
     The closed-loop validation stage on its own: both controllers through FRI; its reference and the
     windows it judges oscillation on.
@@ -21,10 +23,12 @@ from iiwa_ident.pipeline.core import (
     PipelineSettings,
     Stage,
     StageRecord,
+    StageSkipped,
     format_summary,
     read_pipeline_json,
     run_pipeline,
 )
+from iiwa_ident.pipeline.logs import LOG_FILES, LOG_STAGES, find_log_runs, run_log_pipeline
 from iiwa_ident.pipeline.validation import (
     ValidationSettings,
     oscillation_windows,
@@ -33,5 +37,6 @@ from iiwa_ident.pipeline.validation import (
 )
 
 __all__ = ["FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
+           "StageSkipped", "LOG_FILES", "LOG_STAGES", "find_log_runs", "run_log_pipeline",
            "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation",
            "oscillation_windows", "reference_of"]

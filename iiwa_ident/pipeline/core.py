@@ -25,8 +25,8 @@ from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline.validation import ValidationSettings
 
-__all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "PipelineContext", "PipelineResult", "STAGES",
-           "run_pipeline", "format_summary", "read_pipeline_json"]
+__all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "StageSkipped", "PipelineContext",
+           "PipelineResult", "STAGES", "run_pipeline", "run_stages", "format_summary", "read_pipeline_json"]
 
 #: File names in the work folder, by role.
 FILES = {
@@ -84,6 +84,11 @@ class PipelineSettings:
         """A quick run for tests: shorter experiments, dynamic lookup table only, short closed-loop runs."""
         return cls(chirp_s=8.0, chirp_f1_hz=150.0, cv_speeds=(0.6, 1.2), cv_range_rad=0.6, qs_torques=(),
                    hand_s=8.0, validation=ValidationSettings(step_cycles=1, sine_s=0.6, kappa_s=1.5))
+
+
+class StageSkipped(Exception):
+    """Raised by a stage that has nothing to do with the data it was given (its message says why); the stage
+    is recorded as skipped, and so are the stages that need it."""
 
 
 @dataclass
@@ -278,14 +283,7 @@ def _stage_hand(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import (
-        RippleTable,
-        Source,
-        fit_model,
-        identify_ripple,
-        model_from_dict,
-        write_model,
-    )
+    from iiwa_ident.ident import Source, fit_model, identify_ripple, model_from_dict, write_model
 
     base = ctx.results["model"]
     data = [ctx.results["cv"]] + ([ctx.results["qs"]] if "qs" in ctx.results else [])
@@ -293,11 +291,8 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     r = identify_ripple(data, K=base.value("K"), Jl=base.value("Jl"))
     model = model_from_dict(base.to_dict())
     refit = None
+    model.ripple = r.table()
     if r.detected:
-        model.ripple = RippleTable(r.period_rad, r.lut, {
-            "period_std_rad": r.period_std_rad, "amplitude_rad": r.amplitude_rad, "cycles_per_rev": r.cycles_per_rev,
-            "period_ticks": r.period_ticks, "false_alarm_probability": r.false_alarm, "methods": sorted(r.methods),
-            "link_motion": r.link_motion})
         # The chirp again, with the table's deflection in the output-error model (eq (5)): the first
         # fit had only the period it could find in the chirp itself.
         refitted, refit = fit_model([ctx.path("chirp")], base_model=model)
@@ -305,8 +300,6 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
         refitted.sources = model.sources
         model = refitted
         write_atomic(ctx.path("fit_ripple_json"), json.dumps(refit.to_json(), indent=2) + "\n")
-    else:
-        model.ripple = None
     model.sources = [x for x in model.sources if x.role != "ripple"] + [
         Source(str(p.name), sha256_file(p), "ripple") for p in files]
     write_model(ctx.path("model_ripple"), model)
@@ -427,6 +420,11 @@ def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
     result.model_out = FILES["model_ext"]
     write_atomic(ctx.path("diagnose_json"), json.dumps(_jsonable(result.as_json()), indent=2) + "\n")
     ctx.results["diagnosis"] = result
+    return diagnosis_headline(result)
+
+
+def diagnosis_headline(result: Any) -> dict[str, Any]:
+    """The diagnose stage's headline figures of a :class:`~iiwa_ident.diagnose.Diagnosis`."""
     return {"explained": result.explained,
             "effects": [{"name": e.name, "gain_pct": e.gain_pct, "confidence": e.confidence} for e in result.effects],
             "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
@@ -552,6 +550,14 @@ def format_summary(result: PipelineResult) -> str:
         for a in h.get("ambiguous_effects", []):
             lines.append(f"diagnosis: {a['name']} not named: the data do not tell it from another shape of "
                          f"{a['or_shape_of']} ({a['gain_pct']:.1f} % lower with it)")
+    if h.get("data") == "measured":
+        lines.append(f"measured data: {len(h.get('runs', []))} run(s): {', '.join(h.get('runs', []))}")
+        if "ripple_decided" in h:
+            lines.append("ripple: " + ("period decided from the runs" if h["ripple_decided"] else
+                                       "no period decided from these runs (ripple.json says why)"))
+        for r in h.get("held_out", []):
+            lines.append(f"held out: {r['run']} predicted from the other runs, RMS {r['before_nm']:.3g} -> "
+                         f"{r['after_nm']:.3g} Nm (starting model -> extended)")
     if result.report is not None:
         lines.append(f"report: {result.report}")
     lines.append(f"wall time {result.wall_s:.1f} s")
@@ -666,10 +672,23 @@ def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_mo
                           progress=progress)
     if target == "sim":
         ctx.plant  # noqa: B018  (a bad plant file is an argument error, reported before anything runs)
-    inputs = _inputs(ctx)
-    n = len(STAGES) + (1 if report else 0)
+    return run_stages(ctx, STAGES, _inputs(ctx), skip=skip, report=report, t_start=t_start)
+
+
+def run_stages(ctx: PipelineContext, stages: tuple[Stage, ...], inputs: dict[str, Any], *, skip: tuple[str, ...] = (),
+               report: Callable[..., list] | None = None, t_start: float | None = None,
+               headline: Callable[[list[StageRecord]], dict[str, Any]] | None = None) -> PipelineResult:
+    """Run ``stages`` in order on ``ctx``, then the report; write ``pipeline.json``.
+
+    A stage that raises is recorded as failed with its one-line message (:class:`StageSkipped`: skipped, with
+    its reason), and the stages that need it are skipped. ``headline`` turns the records into the headline
+    figures (default: the simulated pipeline's).
+    """
+    t_start = time.perf_counter() if t_start is None else t_start
+    progress = ctx.progress
+    n = len(stages) + (1 if report else 0)
     status: dict[str, str] = {}
-    for i, stage in enumerate(STAGES, 1):
+    for i, stage in enumerate(stages, 1):
         blocked = [d for d in stage.needs if status.get(d) != "ok"]
         if stage.name in skip:
             rec = StageRecord(stage.name, stage.title, "skipped", error="skipped on request")
@@ -682,8 +701,10 @@ def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_mo
             progress(f"[{i}/{n}] {stage.name}: {stage.title} ...")
             t0 = time.perf_counter()
             try:
-                headline = stage.run(ctx)
-                rec = StageRecord(stage.name, stage.title, "ok", headline=_jsonable(headline))
+                headline_ = stage.run(ctx)
+                rec = StageRecord(stage.name, stage.title, "ok", headline=_jsonable(headline_))
+            except StageSkipped as why:
+                rec = StageRecord(stage.name, stage.title, "skipped", error=f"skipped: {why}")
             except IiwaIdentError as err:
                 rec = StageRecord(stage.name, stage.title, "failed", error=str(err))
             except Exception as err:  # noqa: BLE001  (a bug in one stage must not cost the report)
@@ -691,19 +712,21 @@ def _run_pipeline(workdir, target, plant, robot, short, progress, port, robot_mo
                 rec = StageRecord(stage.name, stage.title, "failed",
                                   error=f"{type(err).__name__}: {err} ({Path(where.filename).name}:{where.lineno})")
             rec.duration_s = time.perf_counter() - t0
-            rec.outputs = [FILES[k] for k in stage.outputs if ctx.path(k).exists()]
-            progress(f"[{i}/{n}] {stage.name}: {rec.status} in {rec.duration_s:.1f} s"
+            rec.outputs = [FILES[k] if k in FILES else k for k in stage.outputs
+                           if (ctx.workdir / FILES.get(k, k)).exists()]
+            progress(f"[{i}/{n}] {stage.name}: {rec.error}" if rec.status == "skipped" else
+                     f"[{i}/{n}] {stage.name}: {rec.status} in {rec.duration_s:.1f} s"
                      + (f": {rec.error}" if rec.status == "failed" else ""))
         status[stage.name] = rec.status
         ctx.records.append(rec)
-    result = PipelineResult(workdir, ctx.records, _headline(ctx.records), None, 0.0, inputs)
+    result = PipelineResult(ctx.workdir, ctx.records, (headline or _headline)(ctx.records), None, 0.0, inputs)
     if report is not None:
         progress(f"[{n}/{n}] report: PDF of every stage ...")
         t0 = time.perf_counter()
         rec = StageRecord("report", "PDF report", "ok")
         try:
             result.wall_s = time.perf_counter() - t_start
-            pages = report(ctx.path("report"), workdir, result.as_json(), ctx.results)
+            pages = report(ctx.path("report"), ctx.workdir, result.as_json(), ctx.results)
             rec.headline = {"pages": len(pages)}
             result.report = ctx.path("report")
         except IiwaIdentError as err:

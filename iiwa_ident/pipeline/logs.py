@@ -1,0 +1,372 @@
+"""The pipeline on a robot's own logs (``iiwa-ident pipeline --logs``).
+
+Stages: import (every run, with the provenance checks of ``import``), ripple from all runs of the joint,
+the diagnosis from the joint's starting model (the robot's description at the logged pose), held-out
+validation (each run predicted by the model the diagnosis extended on the other runs) and, where a
+torque-commanded record is among the logs, fit, design and deploy; then the report. Stage table,
+``pipeline.json`` and exit codes are the simulated pipeline's (:mod:`iiwa_ident.pipeline.core`).
+
+A log is a dataset file (``.h5``), a folder of column files in the layout of Drake's iiwa driver
+(:data:`LOG_FILES`: one text file per signal, one column per joint), or a folder of such folders.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from iiwa_ident._toml import write_atomic
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.pipeline.core import (
+    FILES,
+    PipelineContext,
+    PipelineResult,
+    Stage,
+    StageRecord,
+    StageSkipped,
+    _headline,
+    _jsonable,
+    _num,
+    _stage_deploy,
+    _stage_design,
+    diagnosis_headline,
+    run_stages,
+)
+
+__all__ = ["LOG_FILES", "RUNS_DIR", "LogRun", "find_log_runs", "LOG_STAGES", "run_log_pipeline"]
+
+#: Column files of a log folder and the signal each holds (Drake's iiwa driver names them so).
+LOG_FILES = {
+    "cur_traj_time_s.txt": "t",
+    "joint_position_measured.txt": "q_m",
+    "joint_torque_measured.txt": "tau_j",
+    "joint_velocity_measured.txt": "dq_m",
+    "joint_position_commanded.txt": "q_cmd",
+    "joint_torque_commanded.txt": "tau_c",
+    "joint_torque_external.txt": "tau_ext_fri",
+}
+#: The file that makes a folder a log run.
+_RUN_MARK = "joint_position_measured.txt"
+#: Imported runs go here in the work folder, one dataset per run.
+RUNS_DIR = "runs"
+#: Folders searched below a given path for runs.
+_MAX_DEPTH = 3
+#: A run whose moving speeds keep within this ratio (90th over 10th percentile) is a constant-velocity run.
+_CONSTANT_SPEED_RATIO = 1.5
+
+
+@dataclass
+class LogRun:
+    """One run found under a ``--logs`` path: its name in the work folder and where it is."""
+
+    name: str
+    path: Path
+    kind: str  # "dataset" (an .h5 file) or "columns" (a folder of column files)
+
+
+def find_log_runs(paths: Sequence[str | Path]) -> list[LogRun]:
+    """Every run under ``paths``: dataset files, column-file folders (:data:`LOG_FILES`), and such files and
+    folders up to three folders below. Names are the runs' paths from the folder given (``/`` as ``_``).
+
+    Raises
+    ------
+    IiwaIdentError
+        A path that does not exist or holds no run.
+    """
+    runs: list[LogRun] = []
+    for given in paths:
+        given = Path(given)
+        if not given.exists():
+            raise IiwaIdentError(f"{given}: no such file or folder")
+        found: list[LogRun] = []
+
+        def visit(p: Path, depth: int) -> None:
+            if p.is_file():
+                if p.suffix == ".h5":
+                    found.append(LogRun(_run_name(p.with_suffix(""), given), p, "dataset"))
+                return
+            if (p / _RUN_MARK).is_file():
+                found.append(LogRun(_run_name(p, given), p, "columns"))
+                return
+            if depth < _MAX_DEPTH:
+                for child in sorted(p.iterdir()):
+                    if not child.name.startswith("."):
+                        visit(child, depth + 1)
+
+        visit(given, 0)
+        if not found:
+            raise IiwaIdentError(f"{given}: no run found (a dataset file .h5, or a folder with {_RUN_MARK} and "
+                                 "the other column files, up to three folders down)")
+        runs += found
+    seen: dict[str, int] = {}
+    for r in runs:
+        k = seen[r.name] = seen.get(r.name, 0) + 1
+        if k > 1:
+            r.name = f"{r.name}_{k}"
+    return runs
+
+
+def _run_name(p: Path, given: Path) -> str:
+    # A run given itself is named with its folder's parent too: "joint6" alone says little.
+    rel = p.relative_to(given.parent) if p != given else Path(p.parent.name) / p.name
+    return "_".join(x for x in rel.parts if x)
+
+
+def _moving_speeds(ds) -> np.ndarray:
+    t, q = np.asarray(ds.t, float), np.asarray(ds["q_m"], float)
+    k = max(1, int(round(0.02 * ds.sample_rate_hz)))  # central differences over about 40 ms
+    w = np.abs(q[2 * k:] - q[:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    return w[w > 0.5 * np.percentile(w, 95)] if w.size else w
+
+
+def _import_columns(run: LogRun, joint: int | None, robot_model: str):
+    from iiwa_ident.datasets import import_columns
+
+    files = {sig: run.path / name for name, sig in LOG_FILES.items() if (run.path / name).is_file()}
+    if "t" not in files or "tau_j" not in files:
+        raise IiwaIdentError(f"{run.path}: a log folder needs cur_traj_time_s.txt, {_RUN_MARK} and "
+                             "joint_torque_measured.txt")
+    ds = import_columns(files, joint=joint or 1, experiment="free", robot_model=robot_model)
+    travel = ds.experiment_attrs.get("joint_travel_rad")
+    if joint is None:
+        if travel is None:
+            raise IiwaIdentError(f"{run.path}: the position file has no column per joint: give --joint")
+        moved = int(np.argmax(travel)) + 1
+        if moved != ds.joint:
+            ds = import_columns(files, joint=moved, experiment="free", robot_model=robot_model)
+    # The experiment the log was: a torque-commanded record, constant speeds back and forth, or free motion.
+    if ds.has("tau_c"):
+        ds.experiment = "chirp"
+    else:
+        w = _moving_speeds(ds)
+        steady = w.size > 10 and np.percentile(w, 90) < _CONSTANT_SPEED_RATIO * np.percentile(w, 10)
+        ds.experiment = "constant_velocity" if steady else "free"
+    return ds
+
+
+# --------------------------------------------------------------------------- stages
+def _runs(ctx: PipelineContext) -> list:
+    return ctx.results["runs"]
+
+
+def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
+    from iiwa_ident.datasets import note_warnings, read_dataset, torque_sign_problem, write_dataset
+
+    runs = find_log_runs(ctx.results["log_paths"])
+    joint = ctx.results.get("log_joint")
+    datasets = []
+    for run in runs:
+        ds = read_dataset(run.path) if run.kind == "dataset" else _import_columns(run, joint, ctx.robot_model)
+        datasets.append(ds)
+    joints = {ds.joint for ds in datasets}
+    if len(joints) > 1:
+        listed = ", ".join(f"{r.name} (joint {ds.joint})" for r, ds in zip(runs, datasets))
+        raise IiwaIdentError(f"the runs move different joints: {listed}; give --joint N or one joint's runs")
+    ctx.joint = joints.pop()
+    # One driver wrote every run: where a run's gravity decides that the torque reads the other way round,
+    # all column logs are read with the sign flipped (dataset files were imported by the user already).
+    sign = ctx.results.get("torque_sign", "auto")
+    deciding = [r.name for r, ds in zip(runs, datasets) if r.kind == "columns" and torque_sign_problem(ds)]
+    flip = sign == "-1" or (sign == "auto" and bool(deciding))
+    rows = []
+    out_dir = ctx.workdir / RUNS_DIR
+    out_dir.mkdir(exist_ok=True)
+    for run, ds in zip(runs, datasets):
+        if flip and run.kind == "columns":
+            ds.signals["tau_j"] = -np.asarray(ds["tau_j"], float)
+        warnings = note_warnings(ds)
+        path = write_dataset(out_dir / f"{run.name}.h5", ds)
+        ds.path = path
+        for w in warnings:
+            ctx.progress(f"  warning: {run.name}: {w}")
+        w = _moving_speeds(ds)
+        rows.append({"run": run.name, "source": str(run.path), "file": f"{RUNS_DIR}/{path.name}",
+                     "experiment": ds.experiment, "samples": ds.n_samples, "rate_hz": ds.sample_rate_hz,
+                     "speed_rad_s": _num(float(np.median(w))) if w.size else None, "warnings": warnings})
+    ctx.results["runs"] = datasets
+    how = ("as logged" if not flip else
+           "flipped (--torque-sign -1)" if sign == "-1" else
+           f"flipped: the gravity of {', '.join(deciding)} reads the other way round")
+    ctx.progress(f"  {len(datasets)} run(s) of joint {ctx.joint}; torque sign {how}")
+    return {"runs": rows, "joint": ctx.joint, "robot_model": ctx.robot_model, "torque_sign": how}
+
+
+def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
+    from iiwa_ident.datasets import sha256_file
+    from iiwa_ident.ident import Source, dataset_model, identify_ripple, write_model
+
+    runs = _runs(ctx)
+    model = dataset_model(runs, borrow=True)
+    r = identify_ripple(runs, K=model.value("K"), Jl=model.value("Jl"))
+    model.ripple = r.table()
+    model.sources = [x for x in model.sources if x.role != "ripple"] + [
+        Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "ripple") for ds in runs]
+    write_model(ctx.path("model_ripple"), model)
+    write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
+    ctx.results.update(ripple=r, model_ripple=model, model_start=model)
+    # A period the runs do not agree on is no answer (ripple.json keeps what each run saw).
+    got = r.detected
+    return {"detected": got, "period_rad": _num(r.period_rad) if got else None,
+            "period_std_rad": _num(r.period_std_rad) if got else None,
+            "cycles_per_rev": _num(r.cycles_per_rev) if got else None,
+            "amplitude_rad": _num(r.amplitude_rad) if got else None,
+            "methods": sorted(r.methods), "verdict": r.agreement.get("verdict")}
+
+
+def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
+    from iiwa_ident.datasets import sha256_file
+    from iiwa_ident.diagnose import diagnose
+    from iiwa_ident.ident import Source, write_model
+
+    runs = _runs(ctx)
+    result = diagnose(runs, ctx.results["model_ripple"])
+    ext = result.extended
+    ext.sources = [s for s in ext.sources if s.role != "diagnose"] + [
+        Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "diagnose") for ds in runs]
+    write_model(ctx.path("model_ext"), ext)
+    result.model_out = FILES["model_ext"]
+    write_atomic(ctx.path("diagnose_json"), json.dumps(_jsonable(result.as_json()), indent=2) + "\n")
+    ctx.results["diagnosis"] = result
+    return diagnosis_headline(result)
+
+
+def _rms(rows: list[tuple[str, str, float]]) -> float:
+    return float(np.sqrt(np.mean([r[2] ** 2 for r in rows]))) if rows else float("nan")
+
+
+def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
+    from iiwa_ident.diagnose import diagnose, residual_rms
+
+    runs = _runs(ctx)
+    if len(runs) < 2:
+        raise StageSkipped("one run: no other run to predict it from")
+    start = ctx.results["model_ripple"]
+    rows = []
+    for k, ds in enumerate(runs):
+        rest = runs[:k] + runs[k + 1:]
+        extended = diagnose(rest, start).extended
+        before, after = _rms(residual_rms([ds], start)), _rms(residual_rms([ds], extended))
+        rows.append({"run": ds.path.stem, "before_nm": before, "after_nm": after,
+                     "ratio": after / before if before > 0 else None,
+                     "named_by_others": sorted(e["name"] for e in extended.effects
+                                               if e["name"] not in {x["name"] for x in start.effects})})
+        ctx.progress(f"  {ds.path.stem}: predicted from the other runs {before:.3g} -> {after:.3g} Nm RMS")
+    write_atomic(ctx.workdir / "held_out.json", json.dumps({"runs": rows}, indent=2) + "\n")
+    return {"runs": rows}
+
+
+def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
+    from iiwa_ident.ident import fit_model, model_from_dict, write_model
+
+    chirps = [ds for ds in _runs(ctx) if ds.has("tau_c")]
+    if not chirps:
+        raise StageSkipped("no torque-commanded record among the logs (no tau_c): fit, design and deploy need "
+                           "one (record it with 'iiwa-ident chirp --target robot --robot HOST --joint N')")
+    model, result = fit_model([ds.path for ds in chirps], base_model=ctx.results["model_ripple"])
+    model.joint, model.robot_model = ctx.joint, ctx.robot_model
+    write_model(ctx.path("model"), model)
+    write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
+    with_table = model_from_dict(model.to_dict())
+    with_table.ripple = ctx.results["model_ripple"].ripple
+    write_model(ctx.path("model_ripple"), with_table)
+    ctx.results.update(model=model, fit=result, model_ripple=with_table)
+    rows = {k: {"value": v, "std": result.std[k], "rel_std_pct": 100 * result.std[k] / abs(v) if v else None}
+            for k, v in result.parameters.items()}
+    return {"parameters": rows, "method": result.method, "warnings": list(result.warnings)}
+
+
+#: The stages of a pipeline on logs, in the order they run.
+LOG_STAGES: tuple[Stage, ...] = (
+    Stage("import", "the logs, with the provenance checks", (), (RUNS_DIR,), _stage_import),
+    Stage("ripple", "ripple period and lookup table from all runs", ("import",), ("model_ripple", "ripple_json"),
+          _stage_ripple),
+    Stage("diagnose", "diagnosis from the joint's starting model", ("ripple",), ("diagnose_json", "model_ext"),
+          _stage_diagnose),
+    Stage("held_out", "each run predicted by the model extended on the others", ("ripple",), ("held_out.json",),
+          _stage_held_out),
+    Stage("fit", "transfer-function fit of the torque-commanded records", ("ripple",), ("model", "fit_json"),
+          _stage_fit),
+    Stage("design", "additive controller, kappa margins", ("fit",), ("design", "design_json"), _stage_design),
+    Stage("deploy", "controller config and safety checks", ("design",), ("controller", "controller_json"),
+          _stage_deploy),
+)
+
+
+def _log_headline(records: list[StageRecord]) -> dict[str, Any]:
+    out = {"data": "measured", **_headline(records)}
+    by = {r.name: r for r in records if r.status == "ok"}
+    if "import" in by:
+        out["runs"] = [r["run"] for r in by["import"].headline["runs"]]
+    if "ripple" in by:
+        out["ripple_decided"] = bool(by["ripple"].headline["detected"])
+    if "held_out" in by:
+        out["held_out"] = [{k: r[k] for k in ("run", "before_nm", "after_nm")} for r in by["held_out"].headline["runs"]]
+    if "fit" in by:
+        out["fit"] = {k: {kk: v[kk] for kk in ("value", "std", "rel_std_pct")} for k, v in
+                      by["fit"].headline["parameters"].items()}
+    return out
+
+
+def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_model: str = "iiwa14",
+                     joint: int | None = None, torque_sign: str = "auto", progress: Callable[[str], None] = print,
+                     report: Callable[..., list] | None = None, skip: tuple[str, ...] = ()) -> PipelineResult:
+    """Run :data:`LOG_STAGES` on the runs under ``logs`` into ``workdir``; write ``pipeline.json``.
+
+    Parameters
+    ----------
+    workdir : path
+        Work folder (created): ``runs/*.h5``, ``model_ripple.toml``, ``ripple.json``, ``diagnose.json``,
+        ``model_ext.toml``, ``held_out.json``, (``model.toml``, ``design.toml``, ``controller.toml``),
+        ``pipeline.json``, ``report.pdf``.
+    logs : paths
+        Dataset files, column-log folders or folders of them (:func:`find_log_runs`).
+    robot_model : str
+        The arm the column logs come from (``iiwa14``, ``iiwa7``).
+    joint : int, optional
+        The joint under test; by default the one that moved furthest in each run (they must agree).
+    torque_sign : str
+        ``auto`` (flip the column logs' torque when a run's gravity says it reads the other way round),
+        ``+1`` or ``-1``.
+    progress, report, skip
+        As :func:`~iiwa_ident.pipeline.run_pipeline`.
+
+    Raises
+    ------
+    IiwaIdentError
+        A bad argument; failures inside stages are recorded instead.
+    """
+    from iiwa_ident._blas import single_threaded_blas
+    from iiwa_ident.description import ROBOTS
+
+    t_start = time.perf_counter()
+    if not logs:
+        raise IiwaIdentError("--logs: give at least one dataset file or log folder")
+    if robot_model not in ROBOTS:
+        raise IiwaIdentError(f"--robot-model {robot_model}: expected one of {', '.join(ROBOTS)}")
+    if joint is not None and not 1 <= joint <= 7:
+        raise IiwaIdentError(f"--joint {joint}: expected 1-7")
+    if torque_sign not in ("auto", "+1", "-1"):
+        raise IiwaIdentError(f"--torque-sign {torque_sign}: expected auto, +1 or -1")
+    unknown = [name for name in skip if name not in {st.name for st in LOG_STAGES}]
+    if unknown:
+        raise IiwaIdentError(f"--skip {unknown[0]}: unknown stage (known: {', '.join(s.name for s in LOG_STAGES)})")
+    for p in logs:
+        if not Path(p).exists():
+            raise IiwaIdentError(f"{p}: no such file or folder")
+    workdir = Path(workdir)
+    if workdir.exists() and not workdir.is_dir():
+        raise IiwaIdentError(f"{workdir}: exists and is not a folder")
+    workdir.mkdir(parents=True, exist_ok=True)
+    ctx = PipelineContext(workdir=workdir, target="logs", robot_model=robot_model, joint=joint or 0,
+                          progress=progress)
+    ctx.results.update(log_paths=[Path(p) for p in logs], log_joint=joint, torque_sign=torque_sign)
+    inputs = {"logs": ", ".join(str(p) for p in logs), "robot_model": robot_model,
+              "joint": "the one that moved" if joint is None else str(joint)}
+    with single_threaded_blas():
+        return run_stages(ctx, LOG_STAGES, inputs, skip=skip, report=report, t_start=t_start,
+                          headline=_log_headline)

@@ -1,0 +1,129 @@
+"""The pipeline on a robot's own logs (``pipeline --logs``): logs written in a driver's column layout, with
+what drivers do to them, and the real iiwa 14 logs when ``../shared`` is beside the checkout."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from iiwa_ident.cli import app
+from iiwa_ident.datasets import read_dataset
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.excite import ConstantVelocity, record
+from iiwa_ident.pipeline import FILES, LOG_STAGES, find_log_runs, run_log_pipeline
+from iiwa_ident.sim import SimulatedJoint, default_plant
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def write_log(folder: Path, speed: float, seed: int, joint: int = 1, drop: int = 0) -> None:
+    """A simulated constant-velocity run of ``joint`` (the others at 0) in the column layout of Drake's iiwa
+    driver at 200 Hz: time, 7 positions, 7 torques; ``drop`` samples lost in one gap."""
+    ds = record(SimulatedJoint(default_plant(), seed=seed), ConstantVelocity([speed], range_rad=0.8),
+                record_every=5)
+    keep = np.ones(ds.n_samples, bool)
+    if drop:
+        keep[ds.n_samples // 2:ds.n_samples // 2 + drop] = False
+    folder.mkdir(parents=True)
+    n = int(keep.sum())
+    q, tau = np.zeros((n, 7)), np.zeros((n, 7))
+    q[:, joint - 1], tau[:, joint - 1] = ds["q_m"][keep], ds["tau_j"][keep]
+    np.savetxt(folder / "cur_traj_time_s.txt", ds["t"][keep])
+    np.savetxt(folder / "joint_position_measured.txt", q)
+    np.savetxt(folder / "joint_torque_measured.txt", tau)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("logs") / "joint1"
+    write_log(root / "vel_p3", 0.3, 1)
+    write_log(root / "vel_p6", 0.6, 2, drop=7)
+    return root
+
+
+@pytest.fixture(scope="module")
+def logs_run(logs, tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("logs_run")
+    lines: list[str] = []
+    result = run_log_pipeline(workdir, [logs], progress=lines.append)
+    return workdir, result, lines
+
+
+def test_runs_are_found_in_folders_of_folders(logs, tmp_path):
+    runs = find_log_runs([logs])
+    assert [(r.name, r.kind) for r in runs] == [("joint1_vel_p3", "columns"), ("joint1_vel_p6", "columns")]
+    assert [r.name for r in find_log_runs([logs / "vel_p3"])] == ["joint1_vel_p3"]
+    with pytest.raises(IiwaIdentError, match="no run found"):
+        find_log_runs([tmp_path])
+
+
+def test_every_stage_on_logs(logs_run):
+    workdir, result, lines = logs_run
+    status = {s.name: s.status for s in result.stages}
+    assert status == {"import": "ok", "ripple": "ok", "diagnose": "ok", "held_out": "ok", "fit": "skipped",
+                      "design": "skipped", "deploy": "skipped"}, [(s.name, s.error) for s in result.stages]
+    assert result.ok  # nothing failed: the logs hold no torque command, so fit says why it did not run
+    fit = next(s for s in result.stages if s.name == "fit")
+    assert "no torque-commanded record" in fit.error and "chirp --target robot" in fit.error
+    assert any("fit: skipped: no torque-commanded record" in x for x in lines)
+    for name in ("model_ripple", "ripple_json", "diagnose_json", "model_ext", "pipeline_json"):
+        assert (workdir / FILES[name]).is_file(), name
+    doc = json.loads((workdir / FILES["pipeline_json"]).read_text())
+    h = doc["headline"]
+    assert h["data"] == "measured" and h["runs"] == ["joint1_vel_p3", "joint1_vel_p6"]
+    assert h["ripple_decided"] is True
+    # The default plant's ripple, found from the runs alone (0.01963 rad).
+    assert h["rho_rad"] == pytest.approx(0.01963, rel=0.01)
+    assert [r["run"] for r in h["held_out"]] == h["runs"]
+    assert all(r["after_nm"] > 0 and r["before_nm"] > 0 for r in h["held_out"])
+
+
+def test_the_imported_runs_keep_what_the_checks_found(logs_run):
+    workdir, result, lines = logs_run
+    imp = next(s for s in result.stages if s.name == "import").headline
+    by = {r["run"]: r for r in imp["runs"]}
+    assert by["joint1_vel_p3"]["warnings"] == []
+    assert any("1 gap" in w for w in by["joint1_vel_p6"]["warnings"]), by["joint1_vel_p6"]
+    ds = read_dataset(workdir / by["joint1_vel_p6"]["file"])
+    assert ds.joint == 1 and ds.experiment == "constant_velocity"
+    assert "1 gap" in ds.experiment_attrs["import_warnings"]
+    assert any("warning: joint1_vel_p6: time has 1 gap" in x for x in lines)
+
+
+def test_runs_of_different_joints_are_refused(logs, tmp_path):
+    write_log(tmp_path / "other" / "j2", 0.4, 3, joint=2)
+    lines: list[str] = []
+    result = run_log_pipeline(tmp_path / "w", [logs, tmp_path / "other"], progress=lines.append)
+    imp = next(s for s in result.stages if s.name == "import")
+    assert imp.status == "failed" and "the runs move different joints" in imp.error
+    assert "joint1_vel_p3 (joint 1)" in imp.error and "other_j2 (joint 2)" in imp.error
+    assert not result.ok
+
+
+def test_cli_bad_input_is_one_line(tmp_path):
+    res = CliRunner().invoke(app, ["pipeline", "--logs", str(tmp_path / "nothing"), "--workdir", str(tmp_path / "w")])
+    assert res.exit_code == 2 and res.stderr.strip().count("\n") == 0, res.output
+    assert "nothing: no such file or folder" in res.stderr and "Traceback" not in res.output
+    res = CliRunner().invoke(app, ["pipeline", "--logs", str(tmp_path), "--plant", "p.toml", "--workdir",
+                                   str(tmp_path / "w")])
+    assert res.exit_code == 2 and "drop --plant" in res.stderr
+    assert [s.name for s in LOG_STAGES][:4] == ["import", "ripple", "diagnose", "held_out"]
+
+
+def test_real_joint2_through_the_cli(tmp_path):
+    folder = REAL / "iiwa14-constant-velocity" / "joint2"
+    if not folder.is_dir():
+        pytest.skip(f"real iiwa 14 logs not found at {folder} (expected ../shared beside the checkout)")
+    res = CliRunner().invoke(app, ["pipeline", "--logs", str(folder), "--workdir", str(tmp_path / "w"),
+                                   "--no-report"])
+    assert res.exit_code == 0, res.output
+    assert "torque sign flipped: the gravity of joint2_vel_p3 reads the other way round" in res.stdout
+    assert "low-pass filtered before it was logged" in res.stdout
+    doc = json.loads((tmp_path / "w" / FILES["pipeline_json"]).read_text())
+    assert doc["headline"]["data"] == "measured"
+    named = {e["name"] for e in doc["headline"]["named_effects"]}
+    assert "position_dependent_load" in named  # the arm's gravity, against the description's
