@@ -127,3 +127,27 @@ def test_real_joint2_through_the_cli(tmp_path):
     assert doc["headline"]["data"] == "measured"
     named = {e["name"] for e in doc["headline"]["named_effects"]}
     assert "position_dependent_load" in named  # the arm's gravity, against the description's
+
+
+def test_the_report_of_measured_data(logs_run, tmp_path):
+    from iiwa_ident.report import build_report
+    from iiwa_ident.report.pdf import banner
+
+    workdir, result, _ = logs_run
+    doc = json.loads((workdir / FILES["pipeline_json"]).read_text())
+    head = banner(doc)
+    assert head.startswith("MEASURED: 2 run(s) of iiwa14 joint 1 from ")
+    # Rebuilt from the work folder's files alone, as `report --workdir` does.
+    titles = build_report(tmp_path / "r.pdf", workdir, png_dir=tmp_path / "png", png_dpi=30)
+    assert titles[:3] == ["Title page", "Runs and what their logs say", "Each run predicted from the other runs"]
+    assert not any(t.endswith("missing") or t.startswith("validation") for t in titles), titles
+    assert "fit: skipped" in titles and "Named effects and gains" in titles
+    assert any(t.startswith("Residuals before and after: joint1_vel_p6.h5") for t in titles), titles
+    assert not any("dataset 0" in t or "not drawn" in t for t in titles), titles
+
+
+def test_the_simulated_report_says_so():
+    from iiwa_ident.report.pdf import banner
+
+    assert banner({"inputs": {"plant": "default plant"}, "headline": {}}) == "SIMULATED: default plant"
+    assert banner(None) == ""

@@ -96,12 +96,21 @@ class TestFailedStages:
         for png in sorted((tmp_path / "png").glob("*.png")):
             assert_not_blank(png)
 
-    def test_missing_files_are_named(self, tmp_path):
+    def test_a_folder_without_results_is_refused(self, tmp_path):
         (tmp_path / "empty").mkdir()
-        titles = build_report(tmp_path / "r.pdf", tmp_path / "empty")
+        with pytest.raises(IiwaIdentError, match="empty: no pipeline results"):
+            build_report(tmp_path / "r.pdf", tmp_path / "empty")
+        assert not (tmp_path / "r.pdf").exists()
+
+    def test_missing_files_are_named(self, workdir, tmp_path):
+        # A folder whose pipeline.json names stages whose files are gone: each such stage says so.
+        gone = tmp_path / "gone"
+        gone.mkdir()
+        shutil.copy(workdir / "pipeline.json", gone / "pipeline.json")
+        titles = build_report(tmp_path / "r.pdf", gone)
         assert titles[0] == "Title page"
         assert len(titles) == 1 + len(REPORT_STAGES)
-        assert all(t.endswith("missing") for t in titles[1:]), titles
+        assert all(t.endswith(("missing", "skipped")) for t in titles[1:]), titles
 
 
 class TestCli:

@@ -15,7 +15,7 @@ __all__ = ["report_cmd"]
 
 @app.command("report")
 def report_cmd(
-    workdir: Annotated[Path, typer.Option("--workdir", help="Pipeline work folder (from 'iiwa-ident pipeline').")],
+    workdir: Annotated[Path, typer.Option("--workdir", help="Pipeline work folder (from 'iiwa-ident pipeline', also with --logs).")],
     out: Annotated[Optional[Path], typer.Option("--out", help="PDF to write (default: WORKDIR/report.pdf, or "
                                                 "WORKDIR/report_STAGE.pdf with --stage).")] = None,
     stage: Annotated[Optional[str], typer.Option("--stage", help="Only this stage: fit | ripple | design | "
@@ -25,7 +25,10 @@ def report_cmd(
 
     A title page with the inputs and their sha256, then per stage its figures,
     each with a caption saying what to look at; a stage that failed gets a
-    page saying what failed.
+    page saying what failed. Every page says whether its data are SIMULATED
+    or MEASURED; the report of a 'pipeline --logs' folder adds the runs with
+    the warnings of their import and each run's held-out prediction. A
+    folder without pipeline results is refused.
 
     Examples:
       iiwa-ident report --workdir run1

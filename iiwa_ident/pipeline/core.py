@@ -32,11 +32,11 @@ __all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "StageSkipped", 
 FILES = {
     "chirp": "chirp.h5", "model": "model.toml", "fit_json": "fit.json",
     "cv": "constant_velocity.h5", "qs": "quasi_static.h5", "hand": "hand_guided.h5",
-    "model_ripple": "model_ripple.toml", "ripple_json": "ripple.json", "fit_ripple_json": "fit_ripple.json",
+    "model_ripple": "model_ripple.toml", "model_start": "model_start.toml", "ripple_json": "ripple.json", "fit_ripple_json": "fit_ripple.json",
     "design": "design.toml", "design_json": "design.json", "observers_json": "observers.json",
     "controller": "controller.toml", "controller_json": "controller.json",
     "validation_dir": "validation", "validation_json": "validation.json",
-    "diagnose_json": "diagnose.json", "model_ext": "model_ext.toml",
+    "diagnose_json": "diagnose.json", "model_ext": "model_ext.toml", "runs_dir": "runs", "held_out_json": "held_out.json",
     "pipeline_json": "pipeline.json", "report": "report.pdf", "plant": "plant.toml",
 }
 
@@ -214,7 +214,8 @@ def _record(ctx: PipelineContext, experiment, key: str, seed: int, mode: str = "
     if "stopped_reason" in ds.experiment_attrs:
         ctx.progress(f"  warning: {experiment.name} stopped early: {ds.experiment_attrs['stopped_reason']}")
     ctx.results[key] = ds
-    return write_dataset(ctx.path(key), ds)
+    ds.path = write_dataset(ctx.path(key), ds)  # the diagnosis and the report name it by its file
+    return ds.path
 
 
 # --------------------------------------------------------------------------- stages
@@ -712,8 +713,7 @@ def run_stages(ctx: PipelineContext, stages: tuple[Stage, ...], inputs: dict[str
                 rec = StageRecord(stage.name, stage.title, "failed",
                                   error=f"{type(err).__name__}: {err} ({Path(where.filename).name}:{where.lineno})")
             rec.duration_s = time.perf_counter() - t0
-            rec.outputs = [FILES[k] if k in FILES else k for k in stage.outputs
-                           if (ctx.workdir / FILES.get(k, k)).exists()]
+            rec.outputs = [FILES[k] for k in stage.outputs if ctx.path(k).exists()]
             progress(f"[{i}/{n}] {stage.name}: {rec.error}" if rec.status == "skipped" else
                      f"[{i}/{n}] {stage.name}: {rec.status} in {rec.duration_s:.1f} s"
                      + (f": {rec.error}" if rec.status == "failed" else ""))

@@ -53,7 +53,7 @@ LOG_FILES = {
 #: The file that makes a folder a log run.
 _RUN_MARK = "joint_position_measured.txt"
 #: Imported runs go here in the work folder, one dataset per run.
-RUNS_DIR = "runs"
+RUNS_DIR = FILES["runs_dir"]
 #: Folders searched below a given path for runs.
 _MAX_DEPTH = 3
 #: A run whose moving speeds keep within this ratio (90th over 10th percentile) is a constant-velocity run.
@@ -206,6 +206,8 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     model.ripple = r.table()
     model.sources = [x for x in model.sources if x.role != "ripple"] + [
         Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "ripple") for ds in runs]
+    # The starting model with the table: what the diagnosis starts from (a fit replaces model_ripple later).
+    write_model(ctx.path("model_start"), model)
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
     ctx.results.update(ripple=r, model_ripple=model, model_start=model)
@@ -224,7 +226,7 @@ def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.ident import Source, write_model
 
     runs = _runs(ctx)
-    result = diagnose(runs, ctx.results["model_ripple"])
+    result = diagnose(runs, ctx.results["model_start"])
     ext = result.extended
     ext.sources = [s for s in ext.sources if s.role != "diagnose"] + [
         Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "diagnose") for ds in runs]
@@ -245,7 +247,7 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
     runs = _runs(ctx)
     if len(runs) < 2:
         raise StageSkipped("one run: no other run to predict it from")
-    start = ctx.results["model_ripple"]
+    start = ctx.results["model_start"]
     rows = []
     for k, ds in enumerate(runs):
         rest = runs[:k] + runs[k + 1:]
@@ -256,7 +258,7 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
                      "named_by_others": sorted(e["name"] for e in extended.effects
                                                if e["name"] not in {x["name"] for x in start.effects})})
         ctx.progress(f"  {ds.path.stem}: predicted from the other runs {before:.3g} -> {after:.3g} Nm RMS")
-    write_atomic(ctx.workdir / "held_out.json", json.dumps({"runs": rows}, indent=2) + "\n")
+    write_atomic(ctx.path("held_out_json"), json.dumps({"runs": rows}, indent=2) + "\n")
     return {"runs": rows}
 
 
@@ -282,12 +284,12 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
 
 #: The stages of a pipeline on logs, in the order they run.
 LOG_STAGES: tuple[Stage, ...] = (
-    Stage("import", "the logs, with the provenance checks", (), (RUNS_DIR,), _stage_import),
-    Stage("ripple", "ripple period and lookup table from all runs", ("import",), ("model_ripple", "ripple_json"),
-          _stage_ripple),
+    Stage("import", "the logs, with the provenance checks", (), ("runs_dir",), _stage_import),
+    Stage("ripple", "ripple period and lookup table from all runs", ("import",),
+          ("model_start", "model_ripple", "ripple_json"), _stage_ripple),
     Stage("diagnose", "diagnosis from the joint's starting model", ("ripple",), ("diagnose_json", "model_ext"),
           _stage_diagnose),
-    Stage("held_out", "each run predicted by the model extended on the others", ("ripple",), ("held_out.json",),
+    Stage("held_out", "each run predicted by the model extended on the others", ("ripple",), ("held_out_json",),
           _stage_held_out),
     Stage("fit", "transfer-function fit of the torque-commanded records", ("ripple",), ("model", "fit_json"),
           _stage_fit),
@@ -320,7 +322,8 @@ def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_m
     Parameters
     ----------
     workdir : path
-        Work folder (created): ``runs/*.h5``, ``model_ripple.toml``, ``ripple.json``, ``diagnose.json``,
+        Work folder (created): ``runs/*.h5``, ``model_start.toml`` (the starting model with the ripple table),
+        ``model_ripple.toml``, ``ripple.json``, ``diagnose.json``,
         ``model_ext.toml``, ``held_out.json``, (``model.toml``, ``design.toml``, ``controller.toml``),
         ``pipeline.json``, ``report.pdf``.
     logs : paths

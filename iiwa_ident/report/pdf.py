@@ -5,7 +5,12 @@ look at. The report is built from the pipeline's in-memory results, or
 re-computed from the files of a work folder (the analyses are re-run on the
 stored datasets; no experiment is repeated). A stage that failed or was
 skipped gets a page saying so, with the message from ``pipeline.json``,
-instead of empty axes; a page whose drawing fails says that too.
+instead of empty axes; a page whose drawing fails says that too; a stage the
+pipeline did not have (``pipeline --logs`` runs no validation) gets no page.
+Every page carries a banner saying whether its data are simulated or
+measured. A report of measured data adds the runs with what their logs say
+about themselves (the provenance warnings of ``import``) and each run's
+held-out prediction.
 """
 
 from __future__ import annotations
@@ -25,7 +30,12 @@ from matplotlib.backends.backend_pdf import PdfPages  # noqa: E402
 
 from iiwa_ident.errors import IiwaIdentError  # noqa: E402
 
-__all__ = ["REPORT_STAGES", "Page", "build_report", "load_results", "report_pages"]
+__all__ = ["REPORT_STAGES", "Page", "banner", "build_report", "load_results", "report_pages"]
+
+#: Characters of a monospace text page's line (7.5 pt on a page 11 inches wide).
+_MONO_WIDTH = 140
+#: Files of a work folder that hold results (any one makes a folder worth a report).
+_RESULT_FILES = ("chirp.h5", "constant_velocity.h5", "model_ripple.toml", "design.toml", "runs")
 
 #: Stages that have pages, in report order.
 REPORT_STAGES = ("fit", "ripple", "design", "validation", "diagnose")
@@ -103,7 +113,37 @@ def _stage_status(doc: dict[str, Any] | None, name: str) -> tuple[str, str]:
     for s in doc.get("stages", []):
         if s["name"] == name:
             return s["status"], s.get("error", "")
-    return "missing", "not in pipeline.json"
+    return "absent", "not in pipeline.json"
+
+
+def _measured(doc: dict[str, Any] | None) -> bool:
+    return doc is not None and doc.get("headline", {}).get("data") == "measured"
+
+
+def _stage_headline(doc: dict[str, Any] | None, name: str) -> dict[str, Any] | None:
+    for s in (doc or {}).get("stages", []):
+        if s["name"] == name and s["status"] == "ok":
+            return s.get("headline", {})
+    return None
+
+
+def banner(doc: dict[str, Any] | None) -> str:
+    """The line every page carries: SIMULATED (the plant file) or MEASURED (the logs or the robot, the robot
+    model, the joint); '' without a ``pipeline.json``."""
+    if doc is None:
+        return ""
+    inputs = doc.get("inputs", {})
+    if _measured(doc):
+        imp = _stage_headline(doc, "import") or {}
+        logs = inputs.get("logs", "")
+        logs = logs if len(logs) <= 90 else "..." + logs[-87:]
+        return (f"MEASURED: {len(doc['headline'].get('runs', []))} run(s) of {inputs.get('robot_model', '?')} joint "
+                f"{imp.get('joint', inputs.get('joint', '?'))} from {logs}")
+    if "robot" in inputs:
+        return f"MEASURED on the robot: {inputs['robot']}"
+    if "plant" in inputs:
+        return f"SIMULATED: {inputs['plant']}"
+    return ""
 
 
 def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, ...] = REPORT_STAGES,
@@ -146,6 +186,43 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
             out["load_errors"][stage] = f"{type(err).__name__}: {err}"
 
     want = set(stages)
+    if p["runs_dir"].is_dir() and usable("import"):
+        # A folder of `pipeline --logs`: the runs it imported, the starting model the diagnosis began from.
+        def runs() -> None:
+            out["runs"] = [read_dataset(f) for f in sorted(p["runs_dir"].glob("*.h5"))]
+        attempt("import", runs)
+    if "runs" in out:
+        if p["model_start"].is_file() and usable("ripple"):
+            attempt("ripple", lambda: out.__setitem__("model_start", read_model(p["model_start"])))
+        if want & {"ripple"} and "model_start" in out and out["runs"]:
+            def ripple_of_runs() -> None:
+                from iiwa_ident.ident import identify_ripple
+
+                m = out["model_start"]
+                out["ripple"] = identify_ripple(out["runs"], K=m.value("K"), Jl=m.value("Jl"))
+            attempt("ripple", ripple_of_runs)
+        if want & {"diagnose"} and "model_start" in out and out["runs"] and usable("diagnose"):
+            def diag_of_runs() -> None:
+                from iiwa_ident.diagnose import diagnose
+
+                out["diagnosis"] = diagnose(out["runs"], out["model_start"])
+            attempt("diagnose", diag_of_runs)
+        if want & {"fit"} and usable("fit") and p["model"].is_file():
+            def fit_of_runs() -> None:
+                from iiwa_ident.ident import fit_model
+
+                chirps = [ds.path for ds in out["runs"] if ds.has("tau_c")]
+                if chirps:
+                    model, result = fit_model(chirps, base_model=out.get("model_start"))
+                    out.update(model=model, fit=result, chirp=read_dataset(chirps[0]))
+            attempt("fit", fit_of_runs)
+        if want & {"design"} and p["design"].is_file() and usable("design"):
+            def design_of_runs() -> None:
+                from iiwa_ident.design import read_design
+
+                out["design"] = read_design(p["design"])
+            attempt("design", design_of_runs)
+        return out
     for key, stage in (("chirp", "chirp"), ("cv", "constant_velocity"), ("qs", "constant_velocity"),
                        ("hand", "hand_guided")):
         if p[key].is_file() and usable(stage):
@@ -217,6 +294,8 @@ def _title_page(workdir: Path, doc: dict[str, Any] | None, stage: str | None) ->
         files = [workdir / n for n in names if (workdir / n).is_file()]
         if vdir.is_dir():
             files += sorted(vdir.glob("*.h5"))
+        if (workdir / FILES["runs_dir"]).is_dir():
+            files += sorted((workdir / FILES["runs_dir"]).glob("*.h5"))
         for f in files:
             lines.append(f"  {str(f.relative_to(workdir)):<34} {_sha256(f)}")
         what = "the whole pipeline" if stage is None else f"stage '{stage}'"
@@ -389,6 +468,62 @@ def _diagnose_pages(r: dict[str, Any]) -> list[Page]:
     return pages
 
 
+def _runs_page(doc: dict[str, Any]) -> Page | None:
+    imp = _stage_headline(doc, "import")
+    if not imp:
+        return None
+
+    def draw() -> plt.Figure:
+        lines = textwrap.wrap(f"robot {imp.get('robot_model')}, joint {imp.get('joint')}; torque sign "
+                              f"{imp.get('torque_sign')}", _MONO_WIDTH) + [""]
+        for r in imp["runs"]:
+            speed = "-" if r.get("speed_rad_s") is None else f"{r['speed_rad_s']:.2f} rad/s"
+            lines += textwrap.wrap(f"{r['run']}: {r['experiment']}, {r['samples']} samples at {r['rate_hz']:.4g} "
+                                   f"Hz, speed {speed} ({r['source']})", _MONO_WIDTH, subsequent_indent="  ")
+            for w in r.get("warnings", []):
+                lines += textwrap.wrap(f"warning: {w}", _MONO_WIDTH, initial_indent="    ",
+                                       subsequent_indent="      ")
+            if not r.get("warnings"):
+                lines.append("    no warning")
+        return _text_page("Runs and what their logs say", "\n".join(lines), mono=True)
+
+    return Page("import", "Runs and what their logs say", "Each imported run with its experiment, rate and "
+                "speed, and what the checks of import found in it (samples lost, a torque filtered before it was "
+                "logged, the torque's sign, a joint that did not move). Read the warnings first: they say what "
+                "the data cannot give.", draw, captioned=False)
+
+
+def _held_out_page(doc: dict[str, Any]) -> Page | None:
+    held = _stage_headline(doc, "held_out")
+    if not held or not held.get("runs"):
+        return None
+    rows = held["runs"]
+
+    def draw() -> plt.Figure:
+        import numpy as np
+
+        fig, ax = plt.subplots(figsize=(11, 6))
+        x = np.arange(len(rows))
+        before = [r["before_nm"] for r in rows]
+        after = [r["after_nm"] for r in rows]
+        ax.bar(x - 0.2, before, 0.4, label="starting model (the description at the logged pose)", color="0.6")
+        ax.bar(x + 0.2, after, 0.4, label="extended by the diagnosis of the other runs", color="C0")
+        for i, r in enumerate(rows):
+            if r.get("ratio") is not None:
+                ax.annotate(f"{100 * r['ratio']:.0f} %", (i + 0.2, r["after_nm"]), ha="center", va="bottom",
+                            fontsize=9)
+        ax.set_xticks(x, [r["run"] for r in rows], rotation=15, ha="right", fontsize=8)
+        ax.set_ylabel("held-out residual RMS [Nm]")
+        ax.legend(loc="upper right", fontsize=9)
+        fig.tight_layout()
+        return fig
+
+    return Page("held_out", "Each run predicted from the other runs", "Residual RMS of each run with the joint's "
+                "starting model and with the model the diagnosis extended on the other runs only (the figure above "
+                "each bar: after as a share of before). Look for every run lower after: an effect named on some "
+                "runs that does not predict another is a property of those runs, not of the joint.", draw)
+
+
 def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, Any],
                  stage: str | None = None) -> list[Page]:
     """The pages of the report, in order: title, then per stage its figures or a failure notice.
@@ -407,6 +542,8 @@ def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, A
     if stage is not None and stage not in REPORT_STAGES:
         raise IiwaIdentError(f"--stage {stage}: expected one of {', '.join(REPORT_STAGES)}")
     pages = [_title_page(workdir, doc, stage)]
+    if stage is None and _measured(doc):
+        pages += [p for p in (_runs_page(doc), _held_out_page(doc)) if p is not None]
     makers = {"fit": (("fit",), lambda: _fit_pages(results, doc)),
               "ripple": (("ripple",), lambda: _ripple_pages(results)),
               "design": (("design",), lambda: _design_pages(results)),
@@ -415,6 +552,8 @@ def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, A
     for name in REPORT_STAGES if stage is None else (stage,):
         keys, make = makers[name]
         status, message = _stage_status(doc, name)
+        if status == "absent":
+            continue  # a stage this pipeline does not have (--logs runs no validation)
         if status in ("failed", "skipped"):
             pages.append(_failure_page(name, status, message))
             continue
@@ -463,8 +602,14 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
     out = Path(out)
     if not workdir.is_dir():
         raise IiwaIdentError(f"{workdir}: no such folder")
+    if stage is not None and stage not in REPORT_STAGES:
+        raise IiwaIdentError(f"--stage {stage}: expected one of {', '.join(REPORT_STAGES)}")
     if doc is None:
         doc = read_pipeline_json(workdir)
+    if doc is None and not any((workdir / name).exists() for name in _RESULT_FILES):
+        raise IiwaIdentError(f"{workdir}: no pipeline results (no pipeline.json and none of "
+                             f"{', '.join(_RESULT_FILES)}): run 'iiwa-ident pipeline' into it first")
+    head = banner(doc)
     if results is None:
         from iiwa_ident._blas import single_threaded_blas
 
@@ -487,6 +632,9 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
                         fig = _captioned(fig, page.title, page.caption)
                     title = page.title
                     _rasterize_dense(fig)
+                    if head:
+                        fig.text(0.5, 0.998, head, ha="center", va="top", fontsize=8, weight="bold",
+                                 color="C3" if head.startswith("MEASURED") else "C0")
                 except Exception as err:  # noqa: BLE001  (one bad page must not cost the others)
                     plt.close("all")
                     fig = _text_page(f"{page.title}: this page could not be drawn",
