@@ -151,3 +151,23 @@ def test_the_simulated_report_says_so():
 
     assert banner({"inputs": {"plant": "default plant"}, "headline": {}}) == "SIMULATED: default plant"
     assert banner(None) == ""
+
+
+def test_datasets_without_a_pose_need_a_model(tmp_path):
+    from iiwa_ident.datasets import write_dataset
+    from iiwa_ident.ident import table1_model, write_model
+
+    paths = []
+    for k, speed in enumerate((0.4, 0.8)):
+        ds = record(SimulatedJoint(default_plant(), seed=10 + k), ConstantVelocity([speed], range_rad=0.8),
+                    record_every=5)
+        paths.append(write_dataset(tmp_path / f"cv{k}.h5", ds))
+    result = run_log_pipeline(tmp_path / "w1", paths, progress=lambda _m: None)
+    status = {s.name: (s.status, s.error) for s in result.stages}
+    assert status["ripple"][0] == "ok"
+    assert status["diagnose"][0] == "failed" and "does not say the other joints' positions" in status["diagnose"][1]
+    model = tmp_path / "table1.toml"
+    write_model(model, table1_model())
+    result = run_log_pipeline(tmp_path / "w2", paths, model=model, progress=lambda _m: None)
+    status = {s.name: s.status for s in result.stages}
+    assert status["diagnose"] == "ok" and status["held_out"] == "ok", [(s.name, s.error) for s in result.stages]

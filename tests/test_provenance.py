@@ -38,9 +38,21 @@ def test_a_reading_of_the_other_sign_is_named(joint):
     assert dataset_warnings(_sweep(joint, pose, -1.0)) == [warning]
 
 
-def test_a_vertical_axis_does_not_decide():
-    assert torque_sign_problem(_sweep(1, [0.0] * 7, -1.0)) is None
-    assert torque_sign_problem(_sweep(3, [0.0] * 7, -1.0)) is None
+@pytest.mark.parametrize("joint", [1, 3])
+def test_on_a_vertical_axis_friction_decides(joint):
+    # No gravity torque: the friction the reading shows must drive the link against its motion.
+    assert torque_sign_problem(_sweep(joint, [0.0] * 7, +1.0)) is None
+    warning = torque_sign_problem(_sweep(joint, [0.0] * 7, -1.0))
+    assert warning is not None and "pushes the link along its motion" in warning and "--scale tau_j=-1" in warning
+    # 1.5 Nm Coulomb and 3 Nm s/rad at about 0.3 rad/s on average, read the other way round.
+    assert re.search(r"\(-(1\.[6-9]|2\.\d)\d Nm on average", warning), warning
+
+
+def test_without_gravity_or_friction_nothing_decides():
+    ds = _sweep(1, [0.0] * 7, -1.0)
+    q = np.asarray(ds["q_m"])
+    ds.signals["tau_j"] = np.random.default_rng(1).normal(0, 0.3, q.size)  # noise alone, either sign
+    assert torque_sign_problem(ds) is None
 
 
 def test_the_simulator_reads_the_convention():

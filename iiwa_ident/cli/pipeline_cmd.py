@@ -22,6 +22,9 @@ def pipeline_cmd(
                                                        "dataset file, a folder of column files "
                                                        "(joint_position_measured.txt, ...) or a folder of such "
                                                        "folders; repeat for more.")] = None,
+    model: Annotated[Optional[Path], typer.Option("--model", help="--logs: a model file of the joint to start "
+                                                  "from (default: its starting model from the robot's "
+                                                  "description at the logged pose).")] = None,
     torque_sign: Annotated[str, typer.Option("--torque-sign", help="--logs: auto (flip the column logs' torque "
                                              "when gravity says it reads the other way round), +1 or -1.")]
     = "auto",
@@ -80,9 +83,12 @@ def pipeline_cmd(
             if target != "sim" or given:
                 raise IiwaIdentError(f"--logs runs on the logs alone: drop {', '.join(given) or '--target'}")
             result = run_log_pipeline(workdir, logs, robot_model=robot_model, joint=joint, torque_sign=torque_sign,
+                                      model=model,
                                       progress=lambda m: typer.echo(m), report=None if no_report else build_report,
                                       skip=skipped)
         else:
+            if model is not None:
+                raise IiwaIdentError("--model applies to --logs (the simulated pipeline fits its own)")
             result = run_pipeline(workdir, target=target, plant=plant, robot=robot, short=short,
                                   progress=lambda m: typer.echo(m), port=port, robot_model=robot_model,
                                   joint=1 if joint is None else joint, report=None if no_report else build_report,

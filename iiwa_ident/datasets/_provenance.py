@@ -12,7 +12,7 @@ from iiwa_ident.datasets._format import Dataset, dataset_pose
 from iiwa_ident.datasets._import import moving_joint_problem
 
 __all__ = ["torque_sign_problem", "time_gaps_problem", "band_limited_problem", "substituted_position_problem",
-           "dataset_warnings", "SIGN_MIN_GRAVITY_NM", "GAP_FACTOR", "BAND_LIMITED_DB_PER_DECADE",
+           "dataset_warnings", "SIGN_MIN_GRAVITY_NM", "SIGN_MIN_FRICTION_NM", "GAP_FACTOR", "BAND_LIMITED_DB_PER_DECADE",
            "BAND_LIMITED_FLOOR_DB", "IMPORT_WARNINGS_ATTR", "note_warnings"]
 
 #: The experiment attribute where ``import`` keeps what the checks found (one warning per line).
@@ -20,6 +20,8 @@ IMPORT_WARNINGS_ATTR = "import_warnings"
 
 #: The gravity torque must change by at least this much over the run to tell the reading's sign [Nm].
 SIGN_MIN_GRAVITY_NM = 0.5
+#: Where gravity does not decide, the friction the reading shows must be this strong to tell the sign [Nm].
+SIGN_MIN_FRICTION_NM = 0.05
 #: ... and its coefficient be this many standard errors from zero.
 _SIGN_MIN_T = 10.0
 _MOVING_RAD_S = 0.02  # samples slower than this are left out (stiction, reversal)
@@ -40,27 +42,32 @@ def torque_sign_problem(dataset: Dataset) -> str | None:
     """A warning when the torque reading's sign is opposite to the toolkit's convention, or None.
 
     The convention: ``tau_j`` is the torque the joint exerts on its link, so holding the link against
-    gravity reads as the description's gravity torque ``g(q)``. Over the run, ``tau_j`` is regressed on
-    ``g(q_j)`` at the dataset's pose (:mod:`iiwa_ident.description`) with a friction ``tanh(omega / 0.01)``,
-    a viscous term and a constant, on the samples where the joint moves. A coefficient of ``g`` near -1 (below
-    -0.5, at least 10 standard errors from zero) is a reading of the other sign (the real iiwa 14 logs of
-    Drake's driver read -0.94 to -1.29 on joints 2, 4 and 6). Joints without a gravity torque that changes by
-    :data:`SIGN_MIN_GRAVITY_NM` over the run (a vertical axis) do not decide it, nor datasets without robot
-    and pose: None.
-    """
-    robot, pose = dataset_pose(dataset)
-    if pose is None or not dataset.has("q_m") or not dataset.has("tau_j"):
-        return None
-    from iiwa_ident.description import ROBOTS, gravity_sinusoid
+    gravity reads as the description's gravity torque ``g(q)``, and moving it against friction reads with
+    the sign of its velocity (the joint does positive work on the link). Over the run, ``tau_j`` is
+    regressed on ``g(q_j)`` at the dataset's pose (:mod:`iiwa_ident.description`), a friction
+    ``tanh(omega / 0.01)``, a viscous term and a constant, on the samples where the joint moves.
 
-    if (robot or "iiwa14") not in ROBOTS:
+    Gravity decides first: a coefficient of ``g`` near -1 (below -0.5, at least 10 standard errors from
+    zero) is a reading of the other sign (the real iiwa 14 logs of Drake's driver read -0.94 to -1.29 on
+    joints 2, 4 and 6). Where gravity does not change by :data:`SIGN_MIN_GRAVITY_NM` over the run (a
+    vertical axis), friction decides: its mean over the moving samples, signed with the motion, below
+    -:data:`SIGN_MIN_FRICTION_NM` at 10 standard errors is a reading of the other sign (the same logs' joints
+    1 and 3 read -1.0 and -0.2 Nm). Datasets without robot and pose decide by friction alone.
+    """
+    if not dataset.has("q_m") or not dataset.has("tau_j"):
         return None
-    amp, phase = gravity_sinusoid(robot or "iiwa14", dataset.joint, pose)
     q = np.asarray(dataset["q_m"], float)
     t = np.asarray(dataset.t, float)
-    g = amp * np.sin(q + phase)
-    if len(q) < 10 or np.ptp(g) < SIGN_MIN_GRAVITY_NM:
+    if len(q) < 10:
         return None
+    robot, pose = dataset_pose(dataset)
+    g = np.zeros_like(q)
+    if pose is not None:
+        from iiwa_ident.description import ROBOTS, gravity_sinusoid
+
+        if (robot or "iiwa14") in ROBOTS:
+            amp, phase = gravity_sinusoid(robot or "iiwa14", dataset.joint, pose)
+            g = amp * np.sin(q + phase)
     # Central differences over about 20 ms: the encoder's steps average out.
     k = max(1, int(round(0.02 * dataset.sample_rate_hz)))
     w = np.zeros_like(q)
@@ -68,7 +75,9 @@ def torque_sign_problem(dataset: Dataset) -> str | None:
     moving = np.abs(w) > _MOVING_RAD_S
     if moving.sum() < 10:
         return None
-    X = np.column_stack([g, np.tanh(w / 0.01), w, np.ones_like(q)])[moving]
+    by_gravity = np.ptp(g) >= SIGN_MIN_GRAVITY_NM
+    cols = ([g] if by_gravity else []) + [np.tanh(w / 0.01), w, np.ones_like(q)]
+    X = np.column_stack(cols)[moving]
     y = np.asarray(dataset["tau_j"], float)[moving]
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ coef
@@ -76,11 +85,22 @@ def torque_sign_problem(dataset: Dataset) -> str | None:
         cov = float(r @ r) / max(len(y) - X.shape[1], 1) * np.linalg.inv(X.T @ X)
     except np.linalg.LinAlgError:
         return None
-    a, se = float(coef[0]), float(np.sqrt(max(cov[0, 0], 0.0)))
-    if a < -0.5 and abs(a) >= _SIGN_MIN_T * se:
-        return (f"tau_j reads the other way round: it follows the description's gravity torque with the factor "
-                f"{a:.2f} (the convention: the torque the joint exerts on its link, +1); import the log with "
-                "--scale tau_j=-1")
+    if by_gravity:
+        a, se = float(coef[0]), float(np.sqrt(max(cov[0, 0], 0.0)))
+        if a < -0.5 and abs(a) >= _SIGN_MIN_T * se:
+            return (f"tau_j reads the other way round: it follows the description's gravity torque with the factor "
+                    f"{a:.2f} (the convention: the torque the joint exerts on its link, +1); import the log with "
+                    "--scale tau_j=-1")
+        return None
+    # The friction's mean over the moving samples, signed with the motion: a linear combination of the
+    # Coulomb and viscous coefficients, with its standard error.
+    wm = w[moving]
+    c = np.array([np.mean(np.tanh(wm / 0.01) * np.sign(wm)), np.mean(np.abs(wm)), 0.0])
+    f, se = float(c @ coef), float(np.sqrt(max(c @ cov @ c, 0.0)))
+    if f < -SIGN_MIN_FRICTION_NM and abs(f) >= _SIGN_MIN_T * se:
+        return (f"tau_j reads the other way round: the friction it shows pushes the link along its motion "
+                f"({f:.2f} Nm on average; the convention: the torque the joint exerts on its link, which moves it "
+                "against friction); import the log with --scale tau_j=-1")
     return None
 
 

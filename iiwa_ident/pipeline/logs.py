@@ -201,7 +201,18 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.ident import Source, dataset_model, identify_ripple, write_model
 
     runs = _runs(ctx)
-    model = dataset_model(runs, borrow=True)
+    given = ctx.results.get("log_model")
+    if given is not None:
+        from iiwa_ident.ident import check_model_matches, read_model
+
+        model = read_model(given)
+        check_model_matches(model, runs, f"{given}: ")
+    else:
+        try:
+            model = dataset_model(runs)
+        except IiwaIdentError as err:
+            # Rough K and Jl do for the ripple search; the diagnosis refuses to judge a joint by another's model.
+            model, ctx.results["start_problem"] = dataset_model(runs, borrow=True), str(err)
     r = identify_ripple(runs, K=model.value("K"), Jl=model.value("Jl"))
     model.ripple = r.table()
     model.sources = [x for x in model.sources if x.role != "ripple"] + [
@@ -220,12 +231,20 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
             "methods": sorted(r.methods), "verdict": r.agreement.get("verdict")}
 
 
+def _start(ctx: PipelineContext):
+    """The model the diagnosis starts from, or the one-line reason there is none."""
+    if "start_problem" in ctx.results:
+        raise IiwaIdentError(ctx.results["start_problem"])
+    return ctx.results["model_start"]
+
+
 def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
     from iiwa_ident.diagnose import diagnose
     from iiwa_ident.ident import Source, write_model
 
     runs = _runs(ctx)
+    _start(ctx)
     result = diagnose(runs, ctx.results["model_start"])
     ext = result.extended
     ext.sources = [s for s in ext.sources if s.role != "diagnose"] + [
@@ -247,7 +266,7 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
     runs = _runs(ctx)
     if len(runs) < 2:
         raise StageSkipped("one run: no other run to predict it from")
-    start = ctx.results["model_start"]
+    start = _start(ctx)
     rows = []
     for k, ds in enumerate(runs):
         rest = runs[:k] + runs[k + 1:]
@@ -315,7 +334,8 @@ def _log_headline(records: list[StageRecord]) -> dict[str, Any]:
 
 
 def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_model: str = "iiwa14",
-                     joint: int | None = None, torque_sign: str = "auto", progress: Callable[[str], None] = print,
+                     joint: int | None = None, torque_sign: str = "auto", model: str | Path | None = None,
+                     progress: Callable[[str], None] = print,
                      report: Callable[..., list] | None = None, skip: tuple[str, ...] = ()) -> PipelineResult:
     """Run :data:`LOG_STAGES` on the runs under ``logs`` into ``workdir``; write ``pipeline.json``.
 
@@ -335,6 +355,9 @@ def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_m
     torque_sign : str
         ``auto`` (flip the column logs' torque when a run's gravity says it reads the other way round),
         ``+1`` or ``-1``.
+    model : path, optional
+        A model file of the joint to start from instead of its starting model from the robot's description
+        (needed where the logs do not say the other joints' positions).
     progress, report, skip
         As :func:`~iiwa_ident.pipeline.run_pipeline`.
 
@@ -358,6 +381,8 @@ def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_m
     unknown = [name for name in skip if name not in {st.name for st in LOG_STAGES}]
     if unknown:
         raise IiwaIdentError(f"--skip {unknown[0]}: unknown stage (known: {', '.join(s.name for s in LOG_STAGES)})")
+    if model is not None and not Path(model).is_file():
+        raise IiwaIdentError(f"{model}: no such file")
     for p in logs:
         if not Path(p).exists():
             raise IiwaIdentError(f"{p}: no such file or folder")
@@ -367,9 +392,11 @@ def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_m
     workdir.mkdir(parents=True, exist_ok=True)
     ctx = PipelineContext(workdir=workdir, target="logs", robot_model=robot_model, joint=joint or 0,
                           progress=progress)
-    ctx.results.update(log_paths=[Path(p) for p in logs], log_joint=joint, torque_sign=torque_sign)
+    ctx.results.update(log_paths=[Path(p) for p in logs], log_joint=joint, torque_sign=torque_sign,
+                       log_model=None if model is None else Path(model))
     inputs = {"logs": ", ".join(str(p) for p in logs), "robot_model": robot_model,
-              "joint": "the one that moved" if joint is None else str(joint)}
+              "joint": "the one that moved" if joint is None else str(joint),
+              "model": "the joint's starting model (the robot's description)" if model is None else str(model)}
     with single_threaded_blas():
         return run_stages(ctx, LOG_STAGES, inputs, skip=skip, report=report, t_start=t_start,
                           headline=_log_headline)
