@@ -253,6 +253,78 @@ class TestSeveralRuns:
             identify_ripple([ds, other])
 
 
+def _position_controlled(speed: float, lines: list[tuple[float, float]], seed: int, temporal_hz: float = 0.0,
+                         span: float = 1.2, k_nm_rad: float = 18500.0) -> Dataset:
+    """A 200 Hz position-controlled sweep back and forth written apart from the simulator: the link follows the
+    motor, and the torque carries friction, the ripple's ``lines`` ((cycles per revolution, deflection
+    amplitude [rad]) with random phases) times K, an optional temporal hum [Hz] and noise."""
+    rng = np.random.default_rng(seed)
+    dt, accel = 5e-3, 2.0
+    ramp = speed / accel
+    leg = span / speed + ramp
+    n_legs = max(4, int(np.ceil(40.0 / leg)))
+    t = np.arange(0, n_legs * leg, dt)
+    # A smooth speed profile per leg: constant speed with cosine ramps; the legs alternate direction.
+    v = speed * np.clip(np.minimum(t % leg, leg - t % leg) / ramp, 0, 1)
+    v *= np.where((t // leg) % 2 == 0, 1.0, -1.0)
+    q = np.cumsum(v) * dt - span / 2
+    tau = 1.5 * np.tanh(v / 0.01) + rng.normal(0, 0.01, t.size)
+    for cpr, amp in lines:
+        tau += k_nm_rad * amp * np.sin(cpr * q + rng.uniform(0, 2 * np.pi))
+    if temporal_hz:
+        tau += k_nm_rad * 1.5e-5 * np.sin(2 * np.pi * temporal_hz * t + rng.uniform(0, 2 * np.pi))
+    return Dataset({"t": t, "q_m": q, "tau_j": tau}, "constant_velocity", "import", 1, 200.0)
+
+
+class TestReproducedAcrossSpeeds:
+    """The period to compensate is the line phase-locked to the motor position at several speeds.
+
+    The generator's link follows the motor rigidly (a position-controlled arm), so the link's motion is not
+    restored from the torque (``link_motion="neglected"``)."""
+
+    def test_a_subharmonic_seen_at_one_speed_does_not_set_the_period(self):
+        # 320 cycles per revolution at every speed; at 0.4 rad/s a resonance-amplified 160-cycle line as well.
+        runs = [_position_controlled(0.2, [(320, 1e-5)], 1), _position_controlled(0.3, [(320, 1e-5)], 2),
+                _position_controlled(0.4, [(320, 1e-5), (160, 3e-5)], 3)]
+        r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
+        assert r.detected and r.agreement["verdict"] == "reproduced", r.warnings
+        assert abs(r.cycles_per_rev / 320 - 1) < 2e-3 and abs(r.cycles_per_rev - 320) <= 3 * (
+            r.cycles_per_rev * r.period_std_rad / r.period_rad)
+        one = r.agreement["one_run_lines"]
+        assert [x["run"] for x in one] == ["run 3"] and abs(one[0]["cycles_per_rev"] / 160 - 1) < 3e-3
+        assert one[0]["subharmonic"] == 2 and "not decided by this data" in one[0]["note"]
+        assert any("run 3 alone shows a line at 160" in w for w in r.warnings)
+
+    def test_a_temporal_line_at_one_speed_does_not_set_the_period(self):
+        # At 0.4 rad/s a hum at the frequency a 160-cycle line would have there: fixed in time, not in position.
+        runs = [_position_controlled(0.2, [(320, 1e-5)], 4), _position_controlled(0.3, [(320, 1e-5)], 5),
+                _position_controlled(0.4, [(320, 1e-5)], 6, temporal_hz=0.4 * 160 / (2 * np.pi))]
+        r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
+        assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 2e-3, r.warnings
+
+    def test_a_run_whose_line_passes_nyquist_says_so_and_does_not_sink_the_joint(self):
+        # At 1.5 rad/s and 200 Hz the spatial Nyquist limit is 419 cycles per revolution: a 1300-cycle line
+        # there is an alias; the two slower runs still decide 320.
+        runs = [_position_controlled(0.2, [(320, 1e-5)], 7), _position_controlled(0.35, [(320, 1e-5)], 8),
+                _position_controlled(1.5, [(1300, 2e-5)], 9)]
+        r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
+        assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 2e-3, r.warnings
+        fast = r.runs[2]
+        assert not fast["detected"] or fast.get("harmonic"), fast
+        if "reason" in fast:
+            assert "beyond the Nyquist limit" in fast["reason"]
+
+
+@pytest.mark.parametrize("span", [0.8, 1.1, 1.2, 1.4])
+@pytest.mark.parametrize("speed", [0.2, 0.3, 0.4])
+def test_a_clean_line_is_not_taken_for_its_chunk_neighbour(span, speed):
+    # On a clean line the chunks' coefficients one over the chunk length away are phase-aligned too and their
+    # T^2 as large (they were taken for the line, 21 cycles per revolution off); their power is a quarter.
+    ds = _position_controlled(speed, [(320, 1e-5)], int(100 * span + 10 * speed))
+    r = identify_ripple([ds], K=18500.0, Jl=1.0, link_motion="neglected")
+    assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 1e-3, (span, speed, r.cycles_per_rev)
+
+
 def _real(joint: int) -> Dataset:
     d = REAL_LOGS / f"joint{joint}" / "vel_p3"
     if not d.exists():

@@ -651,6 +651,8 @@ class _LineSpectrum:
     warnings: list[str]
     #: The most significant harmonic family (see :func:`_family`).
     family: "_Family | None" = None
+    #: Grid steps to one and a half over the chunk length (:func:`_lobe_reach`).
+    lobe_reach: int = 0
 
     def false_alarm(self, j: int, tries: float | None = None) -> float:
         """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
@@ -688,9 +690,15 @@ def _line_search(passes: list[Pass], period_min: float, period_max: float) -> _L
     # significant than the law says.
     floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
     t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
-    spec = _LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings)
+    spec = _LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings, lobe_reach=_lobe_reach(chunks, dk))
     spec.family = _family(spec)
     return spec
+
+
+def _lobe_reach(chunks, dk: float) -> int:
+    """Grid steps to a line's neighbours one and a half over the chunk length away (see :func:`_family`)."""
+    length = float(np.median([np.ptp(th) for th, _, _ in chunks]))
+    return int(math.ceil(1.5 / max(length, 1e-12) / dk))
 
 
 def _line_pvalues(spec: _LineSpectrum) -> np.ndarray:
@@ -767,12 +775,22 @@ def _family(spec: "_LineSpectrum") -> "_Family":
         dof[inside] += 2.0
     fam_logp = stats.chi2.logsf(score, np.maximum(dof, 2.0))
     j0 = int(np.argmin(fam_logp))
-    k0 = float(k[j0])
     alpha = math.log(1e-3)
 
     def strongest(kk: float) -> float:
         return max(_peak_power(spec, h * kk, 1 + h // 2) for h in range(1, FAMILY_HARMONICS + 1)
                    if h * kk <= k[-1])
+
+    # A line's chunk coefficients are phase-aligned one over the chunk length from it too (the Hann
+    # taper's first neighbours, at half its amplitude). On a clean line, whose spread between chunks is
+    # its own, T^2 cannot tell these neighbours from the line: of fundamentals there about as significant
+    # (half the log p-value or more), the one whose lines carry the most power is the line.
+    if spec.lobe_reach:
+        lo, hi = max(0, j0 - spec.lobe_reach), min(n_k, j0 + spec.lobe_reach + 1)
+        near = [j for j in range(lo, hi) if fam_logp[j] <= 0.5 * fam_logp[j0] < 0]
+        if len(near) > 1:
+            j0 = max(near, key=lambda j: strongest(float(k[j])))
+    k0 = float(k[j0])
 
     def own_lines(kk: float, m: int) -> tuple[bool, float]:
         """Whether the lines of kk that m kk does not explain are significant, and their largest power."""
@@ -994,15 +1012,26 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         except IiwaIdentError as err:
             runs.append({"run": name, "speed_rad_s": speed, "detected": False, "usable": False, "reason": str(err)})
             continue
-        runs.append({"run": name, "speed_rad_s": speed, "detected": r.detected, "usable": True,
-                     "period_rad": r.period_rad, "period_std_rad": r.period_std_rad,
-                     "cycles_per_rev": r.cycles_per_rev, "false_alarm_probability": r.false_alarm,
-                     "amplitude_rad": r.amplitude_rad, "warnings": r.warnings})
-    return _combine_runs(pooled, runs)
+        # The spatial Nyquist limit at this run's speed: lines beyond it are aliases.
+        nyquist_cpr = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
+        row = {"run": name, "speed_rad_s": speed, "detected": r.detected, "usable": True,
+               "period_rad": r.period_rad, "period_std_rad": r.period_std_rad,
+               "cycles_per_rev": r.cycles_per_rev, "false_alarm_probability": r.false_alarm,
+               "amplitude_rad": r.amplitude_rad, "warnings": r.warnings, "link_motion": r.link_motion,
+               "nyquist_cycles_per_rev": nyquist_cpr}
+        if r.detected and r.cycles_per_rev > nyquist_cpr:
+            row.update(detected=False, reason=(
+                f"its line at {r.cycles_per_rev:.1f} cycles per revolution lies beyond the Nyquist limit at "
+                f"{speed:.2f} rad/s ({nyquist_cpr:.0f} cycles per revolution at {ds.sample_rate_hz:.0f} Hz): an "
+                "alias; this run cannot decide the period"))
+        runs.append(row)
+    return _combine_runs(pooled, runs, datasets, options)
 
 
-def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
-    """Attach the per-run estimates to the pooled result, test their agreement and widen its std."""
+def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset] | None = None,
+                  options: dict | None = None) -> RippleResult:
+    """Attach the per-run estimates to the pooled result, test their agreement and widen its std; where they
+    disagree, the family reproduced at several speeds decides (:func:`_reproduced`)."""
     detected = [r for r in runs if r["detected"]]
     # verdict: "agree", "disagree" (the data do not decide) or "none" (no run detects anything).
     agreement: dict = {"runs": len(runs), "detected": len(detected), "agree": [], "disagree": [],
@@ -1012,6 +1041,8 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
         agreement["verdict"] = "none"
         return pooled
     if not pooled.detected:
+        if datasets is not None and (found := _reproduced(pooled, runs, datasets, options)) is not None:
+            return found
         agreement["verdict"] = "disagree"
         agreement["disagree"] = [r["run"] for r in detected]
         pooled.warnings.append("the runs disagree: " + "; ".join(
@@ -1033,12 +1064,21 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
         else:
             agreement["disagree"].append(r["run"])
     if agreement["disagree"]:
+        if datasets is not None and (found := _reproduced(pooled, runs, datasets, options)) is not None:
+            return found
         pooled.detected = False
         pooled.warnings.append("the runs disagree: " + "; ".join(
             f"{r['run']} gives {r['cycles_per_rev']:.1f} cycles per revolution" for r in detected)
             + f"; together they give {pooled.cycles_per_rev:.1f}: the data do not decide, nothing is reported")
         agreement["verdict"] = "disagree"
         return pooled
+    # Runs that agree as harmonics of the pooled period may still see that period's own line at one speed only
+    # (a 160-cycle family at 0.4 rad/s, 320 elsewhere): then the line reproduced at several speeds decides.
+    if datasets is not None and _speeds([(r, 1) for r in detected]) >= 2 \
+            and _speeds(_support(pooled.period_rad, pooled.period_std_rad, detected)) < 2:
+        found = _reproduced(pooled, runs, datasets, options)
+        if found is not None:
+            return found
     agreement["verdict"] = "agree"
     if len(fund) >= 2:
         fund, weights = np.asarray(fund), np.asarray(weights)
@@ -1051,6 +1091,117 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
         std_k = max(s0, spread_std, abs(mean - k0) / 2.0)
         pooled.period_std_rad = std_k / k0 ** 2
     return pooled
+
+
+#: Runs whose speeds differ by less than this ratio count as one speed for the reproducibility test.
+SAME_SPEED_RATIO = 1.1
+#: A run's line supports a period when it is its h-th harmonic within this many combined std and ...
+_SUPPORT_STD = 3.0
+#: ... this relative tolerance (the runs' periods scatter by a few 0.1 % on real joints).
+_SUPPORT_RTOL = 3e-3
+
+
+def _support(period: float, period_std: float, detected: list[dict]) -> list[tuple[dict, int]]:
+    """The runs whose line family contains the period's line, with its harmonic number in each."""
+    c0, s0 = 2 * math.pi / period, 2 * math.pi * period_std / period ** 2
+    out = []
+    for r in detected:
+        h = int(round(c0 / r["cycles_per_rev"]))
+        if not 1 <= h <= FAMILY_HARMONICS:
+            continue
+        sc = 2 * math.pi * r["period_std_rad"] / r["period_rad"] ** 2
+        if abs(c0 - h * r["cycles_per_rev"]) <= _SUPPORT_STD * math.hypot(h * sc, s0) + _SUPPORT_RTOL * c0:
+            out.append((r, h))
+    return out
+
+
+def _speeds(support: list[tuple[dict, int]]) -> int:
+    """How many different speeds (apart by :data:`SAME_SPEED_RATIO`) the supporting runs have."""
+    speeds = sorted(r["speed_rad_s"] for r, _ in support)
+    return sum(1 for a, b in zip(speeds, speeds[1:]) if b > SAME_SPEED_RATIO * a) + 1 if speeds else 0
+
+
+def _reproduced(pooled: RippleResult, runs: list[dict], datasets: list[Dataset], options: dict) -> RippleResult | None:
+    """The compensation period when the runs disagree: the family reproduced at different speeds.
+
+    A run supports the period ``c`` (cycles per revolution) when ``c`` is a harmonic ``h`` (1 to
+    :data:`FAMILY_HARMONICS`) of the run's own fundamental: a run whose strongest family is a subharmonic
+    (160 cycles where the others see 320) still shows ``c`` as its second harmonic. Only a line seen in runs
+    at two speeds or more (differing by :data:`SAME_SPEED_RATIO`) is phase-locked to the motor position,
+    since its frequency in Hz differs between them; of such candidates (each run's fundamental), the one
+    with the most supporting runs is the compensation period, its value the supporters' weighted mean (std
+    widened by the Birge ratio), its table fitted on their passes. The other runs' lines are reported with
+    their run, frequency and amplitude as seen at one speed only (spatial or temporal: not decided). None
+    when no line is reproduced.
+    """
+    detected = [r for r in runs if r["detected"]]
+    one_run: list[dict] = []
+    best = None
+    for cand in detected:
+        support = _support(cand["period_rad"], cand["period_std_rad"], detected)
+        if _speeds(support) >= 2 and (best is None or len(support) > len(best[1])):
+            best = (cand, support)
+    if best is None:
+        return None
+    _, support = best
+    c = np.array([h * r["cycles_per_rev"] for r, h in support])
+    sc = np.array([h * 2 * math.pi * r["period_std_rad"] / r["period_rad"] ** 2 for r, h in support])
+    w = 1.0 / np.maximum(sc, 1e-9 * c) ** 2
+    mean = float(np.sum(w * c) / np.sum(w))
+    chi2 = float(np.sum(w * (c - mean) ** 2))
+    dof = max(len(c) - 1, 1)
+    std = math.sqrt(max(1.0, chi2 / dof)) / math.sqrt(float(np.sum(w)))
+    period = 2 * math.pi / mean
+    period_std = 2 * math.pi * std / mean ** 2
+    names = [r["run"] for r, _ in support]
+    used = [ds for ds, r in zip(datasets, runs) if r["run"] in names]
+    motion = max((r.get("link_motion") or "restored" for r, _ in support),
+                 key=lambda m: sum((r.get("link_motion") or "restored") == m for r, _ in support))
+    o = options
+    passes: list[Pass] = []
+    for i, ds in enumerate(used):
+        passes += deflection(ds, i, o["K"], o["Jl"], o["period_max"], o["min_speed"],
+                             min_travel=4.0 * o["period_min"], link_motion=motion)
+    combined = _method_result("combined", passes, period, o["max_harmonics"], o["bins"])
+    methods = {"dynamic": combined} if any(p.method == "dynamic" for p in passes) else {"static": combined}
+    fap = float(max(r["false_alarm_probability"] for r, _ in support))
+    for r in runs:
+        if r["run"] in names:
+            h = r["harmonic"] = next(h for rr, h in support if rr is r)
+            if h > 1 and _speeds(_support(r["period_rad"], r["period_std_rad"], detected)) < 2:
+                # The run's strongest family is a subharmonic of the period, seen at this speed only.
+                f_hz = r["speed_rad_s"] * r["cycles_per_rev"] / (2 * math.pi)
+                one_run.append({"run": r["run"], "cycles_per_rev": r["cycles_per_rev"],
+                                "speed_rad_s": r["speed_rad_s"], "frequency_hz": f_hz,
+                                "amplitude_rad": r["amplitude_rad"], "subharmonic": h,
+                                "note": f"1/{h} of the period's cycles, seen at this speed only: spatial or "
+                                        "temporal, not decided by this data"})
+            continue
+        if r["detected"]:
+            f_hz = r["speed_rad_s"] * r["cycles_per_rev"] / (2 * math.pi)
+            one_run.append({"run": r["run"], "cycles_per_rev": r["cycles_per_rev"], "speed_rad_s": r["speed_rad_s"],
+                            "frequency_hz": f_hz, "amplitude_rad": r["amplitude_rad"],
+                            "note": "seen at this speed only: spatial or temporal, not decided by this data"})
+    warnings = [w for w in pooled.warnings if "disagree" not in w]
+    for x in one_run:
+        sub = f" (1/{x['subharmonic']} of the period's)" if "subharmonic" in x else ""
+        warnings.append(f"{x['run']} alone shows a line at {x['cycles_per_rev']:.1f} cycles per revolution{sub} "
+                        f"({x['frequency_hz']:.1f} Hz at {x['speed_rad_s']:.2f} rad/s, "
+                        f"{1e6 * (x['amplitude_rad'] or 0):.1f} µrad), seen at this speed only: spatial or temporal, "
+                        "not decided by this data; it does not set the period")
+    for r in runs:
+        if r.get("reason") and r.get("usable", True):
+            warnings.append(f"{r['run']}: {r['reason']}")
+    agreement = dict(pooled.agreement, verdict="reproduced", agree=names,
+                     disagree=[x["run"] for x in one_run if "subharmonic" not in x], one_run_lines=one_run,
+                     supporting_speeds_rad_s=sorted(r["speed_rad_s"] for r, _ in support),
+                     chi2=chi2 if len(c) > 1 else None, dof=dof if len(c) > 1 else None,
+                     p_value=float(stats.chi2.sf(chi2, dof)) if len(c) > 1 else None,
+                     birge_ratio=math.sqrt(max(1.0, chi2 / dof)) if len(c) > 1 else None)
+    return RippleResult(True, period, period_std, fap, pooled.statistic, combined.lut, combined.amplitude_rad,
+                        methods, pooled.spectrum_k, pooled.spectrum_stat, pooled.spectrum_power,
+                        _velocity_table(passes, period), passes, warnings, pooled.K, pooled.Jl, motion,
+                        runs=runs, agreement=agreement)
 
 
 def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: float, period_max: float, bins: int,
