@@ -52,11 +52,15 @@ def joint_runs(root: Path, sign: float = 1.0) -> dict[int, list[tuple[str, Datas
 
 def _row(label: str, r: RippleResult, seconds: float) -> str:
     """One Markdown row: the runs, the joint's answer, agreement, amplitude, false alarm, time."""
-    runs = "; ".join(
-        f"{Path(x['run']).name} {x['speed_rad_s']:.2f} rad/s: "
-        + (f"{x['cycles_per_rev']:.1f}" + (f" (h{x['harmonic']})" if "harmonic" in x else " (disagrees)")
-           if x["detected"] else "none")
-        for x in r.runs) or "one run"
+    alone = {x["run"] for x in r.agreement.get("one_run_lines", [])}
+
+    def seen(x: dict) -> str:
+        if not x["detected"]:
+            return "beyond Nyquist" if "Nyquist" in x.get("reason", "") else "none"
+        how = f"h{x['harmonic']}" if "harmonic" in x else "this speed only" if x["run"] in alone else "disagrees"
+        return f"{x['cycles_per_rev']:.1f} ({how})"
+
+    runs = "; ".join(f"{Path(x['run']).name} {x['speed_rad_s']:.2f} rad/s: {seen(x)}" for x in r.runs) or "one run"
     if r.detected:
         std_cpr = r.cycles_per_rev * r.period_std_rad / r.period_rad
         # The table's strongest harmonic: a period of two motor-side cycles shows as harmonic 2.
@@ -67,8 +71,10 @@ def _row(label: str, r: RippleResult, seconds: float) -> str:
     else:
         answer, amp = "not decided" if r.agreement.get("verdict") == "disagree" else "none", "-"
     p = r.agreement.get("p_value")
-    agree = f"p = {p:.2g}" if p is not None else r.agreement.get("verdict", "-")
-    notes = "; ".join(w for w in r.warnings if "weaker lines" in w or "disagree" in w or "edge" in w)
+    verdict = r.agreement.get("verdict", "-")
+    agree = (f"{verdict}, p = {p:.2g}" if verdict == "reproduced" else f"p = {p:.2g}") if p is not None else verdict
+    notes = "; ".join(w for w in r.warnings if any(x in w for x in ("weaker lines", "disagree", "edge",
+                                                                    "at this speed only", "Nyquist")))
     return (f"| {label} | {runs} | {answer} | {agree} | {amp} | {r.false_alarm:.1g} | {seconds:.0f} s |"
             + (f" {notes}" if notes else ""))
 

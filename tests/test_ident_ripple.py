@@ -294,6 +294,8 @@ class TestReproducedAcrossSpeeds:
         assert [x["run"] for x in one] == ["run 3"] and abs(one[0]["cycles_per_rev"] / 160 - 1) < 3e-3
         assert one[0]["subharmonic"] == 2 and "not decided by this data" in one[0]["note"]
         assert any("run 3 alone shows a line at 160" in w for w in r.warnings)
+        text = format_ripple(r)
+        assert "agrees (its own line: this speed only)" in text and "disagrees" not in text
 
     def test_a_temporal_line_at_one_speed_does_not_set_the_period(self):
         # At 0.4 rad/s a hum at the frequency a 160-cycle line would have there: fixed in time, not in position.

@@ -61,15 +61,17 @@ def format_ripple(r: RippleResult) -> str:
     if r.runs:
         lines += ["", f"  {'run':<40}{'speed [rad/s]':>14}{'cycles/rev':>12}{'std':>9}{'harmonic':>10}  verdict"]
         agree = set(r.agreement.get("agree", []))
+        alone = {x["run"]: x for x in r.agreement.get("one_run_lines", [])}
         for run in r.runs:
             name = run["run"] if len(run["run"]) <= 38 else "..." + run["run"][-35:]
             if not run["detected"]:
-                verdict = "no detection" if run["usable"] else "unusable: " + run["reason"]
+                verdict = ("unusable: " + run["reason"] if not run["usable"] else
+                           "beyond its Nyquist limit" if "Nyquist" in run.get("reason", "") else "no detection")
                 lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{'-':>12}{'-':>9}{'-':>10}  {verdict}")
                 continue
             std_cpr = run["cycles_per_rev"] * run["period_std_rad"] / run["period_rad"]
             lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{run['cycles_per_rev']:>12.2f}{std_cpr:>9.2f}"
-                         f"{run.get('harmonic', '-'):>10}  {'agrees' if run['run'] in agree else 'disagrees'}")
+                         f"{run.get('harmonic', '-'):>10}  {_run_verdict(run, agree, alone)}")
         a = r.agreement
         if a.get("chi2") is not None:
             lines.append(f"  agreement: chi2 {a['chi2']:.2f} on {a['dof']} dof (p = {a['p_value']:.2g}); "
@@ -79,6 +81,14 @@ def format_ripple(r: RippleResult) -> str:
     for w in r.warnings:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
+
+
+def _run_verdict(run: dict, agree: set, alone: dict) -> str:
+    """How a run's line stands against the joint's period: it agrees (its fundamental, or a subharmonic seen at
+    this speed only whose harmonic is the period's line), it is seen at this speed only, or it disagrees."""
+    if run["run"] in agree:
+        return "agrees (its own line: this speed only)" if run["run"] in alone else "agrees"
+    return "this speed only" if run["run"] in alone else "disagrees"
 
 
 @app.command("ripple")
