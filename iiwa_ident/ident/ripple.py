@@ -1002,6 +1002,9 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                    min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
     pooled = _identify_pooled(datasets, **options)
     if len(datasets) < 2:
+        beyond = _beyond_nyquist(pooled, datasets[0]) if datasets else None
+        if beyond:
+            pooled.warnings.append(f"{beyond}: an alias is possible; runs at other speeds would decide")
         return pooled
     runs = []
     for i, ds in enumerate(datasets):
@@ -1019,13 +1022,30 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                "cycles_per_rev": r.cycles_per_rev, "false_alarm_probability": r.false_alarm,
                "amplitude_rad": r.amplitude_rad, "warnings": r.warnings, "link_motion": r.link_motion,
                "nyquist_cycles_per_rev": nyquist_cpr}
-        if r.detected and r.cycles_per_rev > nyquist_cpr:
-            row.update(detected=False, reason=(
-                f"its line at {r.cycles_per_rev:.1f} cycles per revolution lies beyond the Nyquist limit at "
-                f"{speed:.2f} rad/s ({nyquist_cpr:.0f} cycles per revolution at {ds.sample_rate_hz:.0f} Hz): an "
-                "alias; this run cannot decide the period"))
+        beyond = _beyond_nyquist(r, ds)
+        if beyond and r.cycles_per_rev > nyquist_cpr:
+            row.update(detected=False, reason=f"{beyond}: an alias; this run does not decide the period")
+        elif beyond:
+            # The fundamental's own line is below the limit: the run votes, and says what its estimate rests on.
+            row["note"] = f"{beyond}: its period rests mostly on that line, where an alias is possible"
         runs.append(row)
     return _combine_runs(pooled, runs, datasets, options)
+
+
+def _beyond_nyquist(r: RippleResult, ds: Dataset) -> str:
+    """Why a detected family may be an alias, or '': the family's strongest line (of its table) lies beyond
+    the spatial Nyquist limit at the run's median speed, pi x rate / speed cycles per revolution."""
+    if not r.detected or r.lut is None:
+        return ""
+    speed = float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(_spread_repeated_stamps(ds["t"])))))
+    nyquist = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
+    h = int(np.argmax(np.abs(np.fft.rfft(r.lut))[1:FAMILY_HARMONICS + 4])) + 1
+    line = h * r.cycles_per_rev
+    if line <= nyquist:
+        return ""
+    which = "its line" if h == 1 else f"its strongest line, harmonic {h} of {r.cycles_per_rev:.1f},"
+    return (f"{which} at {line:.1f} cycles per revolution lies beyond the Nyquist limit at its median speed "
+            f"{speed:.2f} rad/s ({nyquist:.0f} cycles per revolution at {ds.sample_rate_hz:.0f} Hz)")
 
 
 def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset] | None = None,
@@ -1033,6 +1053,7 @@ def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset
     """Attach the per-run estimates to the pooled result, test their agreement and widen its std; where they
     disagree, the family reproduced at several speeds decides (:func:`_reproduced`)."""
     detected = [r for r in runs if r["detected"]]
+    pooled.warnings += [f"{r['run']}: {r['note']}" for r in runs if r.get("note")]
     # verdict: "agree", "disagree" (the data do not decide) or "none" (no run detects anything).
     agreement: dict = {"runs": len(runs), "detected": len(detected), "agree": [], "disagree": [],
                        "chi2": None, "dof": None, "p_value": None, "birge_ratio": None}
