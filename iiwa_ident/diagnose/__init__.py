@@ -6,6 +6,8 @@ diagnose, Diagnosis, EffectReport, ChannelReport
     Run the diagnosis on datasets with a model; the result, per effect and per channel.
 residual_rms
     How well a model predicts datasets, per residual channel (nothing fitted).
+compare, ChannelComparison, fit_percent
+    A model against data per dataset and channel: signals, fit percentage, RMS and residual tests.
 CandidateEffect, CANDIDATES, register_candidate, EvidenceChannel
     The pluggable library of candidate effects (one subclass per effect), and an effect's own evidence.
 build_context, Context
@@ -13,8 +15,10 @@ build_context, Context
 """
 
 from iiwa_ident.diagnose.candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
+from iiwa_ident.diagnose.compare import ChannelComparison, compare, fit_percent
 from iiwa_ident.diagnose.diagnosis import ChannelReport, Diagnosis, EffectReport, diagnose, residual_rms
 from iiwa_ident.diagnose.predict import Context, build_context
 
 __all__ = ["diagnose", "residual_rms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
-           "EvidenceChannel", "register_candidate", "build_context", "Context"]
+           "EvidenceChannel", "register_candidate", "build_context", "Context", "compare", "ChannelComparison",
+           "fit_percent"]

@@ -6,9 +6,11 @@ build_report
     The PDF report of a pipeline's work folder, or of one stage (:mod:`iiwa_ident.report.pdf`).
 fit_figure_pngs, lookup_table_figure, spatial_spectrum_figure, velocity_frequency_figure, figure_set
     The figures of ``fit --plots``, ``ripple --plots`` and ``diagnose --plots``.
+comparison_figure
+    A model against one dataset's channel (``compare --figures``).
 """
 
-from iiwa_ident.report.diagnose_figures import figure_set
+from iiwa_ident.report.diagnose_figures import comparison_figure, figure_set
 from iiwa_ident.report.fit_figures import fit_figure_pngs
 from iiwa_ident.report.pdf import build_report
 from iiwa_ident.report.ripple_figures import (
@@ -18,4 +20,4 @@ from iiwa_ident.report.ripple_figures import (
 )
 
 __all__ = ["build_report", "fit_figure_pngs", "lookup_table_figure", "spatial_spectrum_figure",
-           "velocity_frequency_figure", "figure_set"]
+           "velocity_frequency_figure", "figure_set", "comparison_figure"]

@@ -10,7 +10,7 @@ import numpy as np  # noqa: E402
 
 from iiwa_ident.diagnose import Diagnosis  # noqa: E402
 
-__all__ = ["residuals_figure", "evidence_figure", "gain_table_figure", "figure_set"]
+__all__ = ["residuals_figure", "evidence_figure", "gain_table_figure", "figure_set", "comparison_figure"]
 
 _CHANNEL_LABEL = {"link": "link channel (external-torque estimate error)",
                   "command": "command channel (torque response error)"}
@@ -149,3 +149,30 @@ def figure_set(d: Diagnosis) -> dict[str, plt.Figure]:
     for e in d.effects:
         figs[f"diagnose_evidence_{e.name}"] = evidence_figure(d, e.name)
     return figs
+
+
+def comparison_figure(c) -> plt.Figure:
+    """A model against one dataset's channel (:class:`~iiwa_ident.diagnose.ChannelComparison`): measured and
+    predicted over time with the fit, then the residual's autocorrelation and its cross-correlation with the
+    input, each with its per-lag bounds (as ``resid`` draws them) and the test's verdict."""
+    fig = plt.figure(figsize=(11, 7))
+    grid = fig.add_gridspec(2, 2, height_ratios=[1.3, 1])
+    ax = fig.add_subplot(grid[0, :])
+    ax.plot(c.t - c.t[0], c.predicted, lw=1.2, color="C0", label=f"predicted (fit {c.fit_pct:.1f} %)")
+    ax.plot(c.t - c.t[0], c.measured, lw=0.6, color="0.2", label="measured")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("torque [Nm]")
+    ax.set_title(f"{c.dataset}: {_CHANNEL_LABEL.get(c.channel, c.channel).split(' (')[0]}, RMS error "
+                 f"{c.rms_nm:.3g} Nm", fontsize=10)
+    ax.legend(loc="upper right", fontsize=8)
+    for i, t in enumerate(c.tests.tests):
+        a = fig.add_subplot(grid[1, i])
+        a.vlines(t.lags, 0, t.correlation, color=["C3" if k in t.failing else "C0" for k in t.lags], lw=1.5)
+        a.plot(t.lags, t.bound, "k--", lw=0.8)
+        a.plot(t.lags, -t.bound, "k--", lw=0.8)
+        a.axhline(0, color="0.5", lw=0.5)
+        a.set_xlabel(f"lag [samples of {1e3 * c.lag_s:.3g} ms]")
+        a.set_ylabel("normalised correlation")
+        a.set_title(f"{t.name}: {'passed' if t.passed else 'FAILED'} (p = {t.p_value:.2g})", fontsize=9)
+    fig.tight_layout()
+    return fig
