@@ -95,3 +95,23 @@ def test_real_joint_with_the_diagnosed_model(tmp_path):
     assert after.fit_pct > before.fit_pct and after.rms_nm < before.rms_nm
     with pytest.raises(IiwaIdentError):
         compare([ds], table1_model())  # joint 1's model on joint 2's data
+
+
+def test_the_fit_reports_its_residual_tests(tmp_path):
+    # The simulated joint fitted with its own model leaves a white residual independent of the command; with
+    # the transmission ripple it does not model, the residual is coloured and the fit says not to trust its std.
+    from iiwa_ident.ident import fit_model
+    from iiwa_ident.sim import default_plant
+
+    exact = write_dataset(tmp_path / "exact.h5", record(SimulatedJoint(table1_model().to_plant(), seed=3),
+                                                        Chirp(0.5, 100, 8, 8, 3, 30)))
+    _, res = fit_model([exact])
+    assert len(res.residual_tests) == 1 and res.residual_tests[0].passed, res.residual_tests[0].summary()
+    doc = res.to_json()["residual_tests"]
+    assert doc[0]["passed"] and [t["name"] for t in doc[0]["tests"]] == ["whiteness", "independence of the input"]
+    assert not any("fails its tests" in w for w in res.warnings)
+    rippled = write_dataset(tmp_path / "ripple.h5", record(SimulatedJoint(default_plant(), seed=3),
+                                                           Chirp(0.5, 100, 8, 8, 3, 30)))
+    _, res = fit_model([rippled])
+    assert not res.residual_tests[0].passed
+    assert any("fails its tests" in w and "not to be trusted" in w for w in res.warnings), res.warnings
