@@ -16,7 +16,7 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.diagnosis import _residuals
-from iiwa_ident.ident import JointModel, ResidualTests, residual_tests
+from iiwa_ident.ident import INDEPENDENCE, JointModel, ResidualTests, residual_tests
 
 __all__ = ["ChannelComparison", "compare", "fit_percent"]
 
@@ -73,7 +73,7 @@ class ChannelComparison:
 
     @property
     def model_tests(self) -> tuple[str, ...]:
-        return ("independence of the input",) if self.channel == "command" else \
+        return (INDEPENDENCE,) if self.channel == "command" else \
             tuple(t.name for t in self.tests.tests)
 
     @property

@@ -36,7 +36,11 @@ from typing import Any
 import numpy as np
 from scipy import linalg, stats
 
-__all__ = ["MAX_LAG", "LEVEL", "ResidualTest", "ResidualTests", "residual_tests"]
+__all__ = ["MAX_LAG", "LEVEL", "WHITENESS", "INDEPENDENCE", "ResidualTest", "ResidualTests", "residual_tests"]
+
+#: The tests' names.
+WHITENESS = "whiteness"
+INDEPENDENCE = "independence of the input"
 
 #: Lags tested each way, as ``resid``'s default.
 MAX_LAG = 25
@@ -93,6 +97,10 @@ class ResidualTests:
     @property
     def passed(self) -> bool:
         return all(t.passed for t in self.tests)
+
+    def passed_test(self, name: str) -> bool | None:
+        """Whether the test ``name`` passed (None when it was not run)."""
+        return next((t.passed for t in self.tests if t.name == name), None)
 
     def summary(self) -> str:
         """One line: each test's verdict with its p-value and the lags that fail."""
@@ -157,7 +165,7 @@ def residual_tests(residual: np.ndarray, u: np.ndarray | None = None, max_lag: i
     q = float(n * (n + 2) * np.sum(r ** 2 / (n - lags)))
     p = float(stats.chi2.sf(q, max_lag))
     bound = np.full(max_lag, z / math.sqrt(n))
-    out.tests.append(ResidualTest("whiteness", lags, r, bound, [int(k) for k in lags[np.abs(r) > bound]], q,
+    out.tests.append(ResidualTest(WHITENESS, lags, r, bound, [int(k) for k in lags[np.abs(r) > bound]], q,
                                   max_lag, p, p >= 1 - level))
     if u is not None:
         x = np.asarray(u, float)
@@ -176,6 +184,6 @@ def residual_tests(residual: np.ndarray, u: np.ndarray | None = None, max_lag: i
         dof = len(lags2)
         p2 = float(stats.chi2.sf(q2, dof))
         bound2 = np.full(dof, z / math.sqrt(n))
-        out.tests.append(ResidualTest("independence of the input", lags2, r2, bound2,
+        out.tests.append(ResidualTest(INDEPENDENCE, lags2, r2, bound2,
                                       [int(k) for k in lags2[np.abs(r2) > bound2]], q2, dof, p2, p2 >= 1 - level))
     return out

@@ -61,7 +61,11 @@ def bode_figure(result: FitResult, index: int = 0) -> Figure:
     mag = np.abs(est.H)
     lo = np.maximum(mag - 2 * est.std_mag, mag * 1e-3)
     hi = mag + 2 * est.std_mag
-    ax_m.fill_between(f, _db(lo), _db(hi), color="tab:blue", alpha=0.25, lw=0, label="H1 $\\pm 2\\sigma$")
+    # The band is often narrower than the points: its median width is in the legend, so it is read even then.
+    width_db = float(np.median(_db(hi) - _db(lo)))
+    width_deg = float(np.median(4 * np.degrees(est.std_phase_rad)))
+    ax_m.fill_between(f, _db(lo), _db(hi), color="tab:blue", alpha=0.25, lw=0,
+                      label=f"H1 $\\pm 2\\sigma$ (median width {width_db:.2g} dB, {width_deg:.2g} deg)")
     ax_m.semilogx(f, _db(est.H), ".", color="tab:blue", ms=4, label="H1 (data)")
     ax_m.semilogx(fine, _db(model_fine), "-", color="tab:red", lw=1.4, label="fitted model (sampled, ZOH)")
     ax_m.semilogx(fine, _db(eq4_fine), "--", color="k", lw=0.9, label="eq (4), continuous")
