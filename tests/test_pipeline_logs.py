@@ -80,6 +80,9 @@ def test_every_stage_on_logs(logs_run):
     assert h["rho_rad"] == pytest.approx(0.01963, rel=0.01)
     assert [r["run"] for r in h["held_out"]] == h["runs"]
     assert all(r["after_nm"] > 0 and r["before_nm"] > 0 for r in h["held_out"])
+    held = next(s for s in result.stages if s.name == "held_out").headline["runs"]
+    assert all(set(r["fit_pct"]) == {"link"} and r["fit_pct"]["link"] < 100 for r in held), held
+    assert all(r["residual_tests_passed"]["link"] in (True, False) for r in held)
 
 
 def test_the_imported_runs_keep_what_the_checks_found(logs_run):

@@ -14,6 +14,8 @@ from iiwa_ident.ident import dataset_model, read_model
 
 __all__ = ["compare_cmd", "format_comparison"]
 
+_VERDICT = {True: "passed", False: "FAILED", None: "-"}
+
 
 def format_comparison(rows) -> str:
     """The table ``compare`` prints: per dataset and channel the fit, the RMS and the residual tests."""
@@ -21,12 +23,12 @@ def format_comparison(rows) -> str:
     for r in rows:
         name = r.dataset if len(r.dataset) <= 30 else "..." + r.dataset[-27:]
         lines.append(f"  {name:<32}{r.channel:<9}{r.fit_pct:>9.1f}{r.rms_nm:>10.4g}  "
-                     f"{'passed' if r.passed else 'FAILED':<8}{r.tests.summary()}")
+                     f"{_VERDICT[r.passed]:<8}{r.tests.summary()}")
     if any(r.channel == "command" for r in rows):
         lines.append("command channel: an output-error residual carries the sensor noise through the torque loop, "
                      "coloured even for an exact model: its whiteness is shown, the model is judged by its "
                      "independence of the input")
-    if any(not r.passed for r in rows):
+    if any(r.passed is False for r in rows):
         lines.append("a residual that fails the model's tests holds what the model misses: its fit's standard "
                      "deviations assume a complete model; 'iiwa-ident diagnose' names the effect")
     return "\n".join(lines)

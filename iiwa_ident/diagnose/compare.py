@@ -16,9 +16,12 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.diagnosis import _residuals
-from iiwa_ident.ident import INDEPENDENCE, JointModel, ResidualTests, residual_tests
+from iiwa_ident.ident import INDEPENDENCE, LEVEL, MAX_LAG, JointModel, ResidualTests, residual_tests
 
 __all__ = ["ChannelComparison", "compare", "fit_percent"]
+
+#: Fewest lags a residual is tested over; shorter records (below four times as many samples) are not tested.
+_MIN_LAGS = 5
 
 
 def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
@@ -77,8 +80,10 @@ class ChannelComparison:
             tuple(t.name for t in self.tests.tests)
 
     @property
-    def passed(self) -> bool:
-        """Whether the residual passes the tests that judge the model."""
+    def passed(self) -> bool | None:
+        """Whether the residual passes the tests that judge the model (None: too few samples to test)."""
+        if not self.tests.tests:
+            return None
         return all(t.passed for t in self.tests.tests if t.name in self.model_tests)
 
     def to_json(self) -> dict[str, Any]:
@@ -107,7 +112,10 @@ def compare(datasets: Sequence[Dataset], model: JointModel) -> list[ChannelCompa
             step = 1 if ch == "command" else max(1, int(round(1.0 / (ctx.cutoff_hz * ctx.dt))))
             u = ctx.tau_c if ch == "command" else ctx.omega_l
             e = ctx.residual[ch][m][::step]
-            tests = residual_tests(e, None if u is None else np.asarray(u)[m][::step])
+            # A short record is tested over fewer lags (a quarter of its samples), a very short one not at all.
+            lags = min(MAX_LAG, len(e) // 4)
+            tests = (residual_tests(e, None if u is None else np.asarray(u)[m][::step], max_lag=lags)
+                     if lags >= _MIN_LAGS else ResidualTests(n=len(e), level=LEVEL))
             out.append(ChannelComparison(ctx.name, ch, ctx.t[m], measured, predicted, fit_percent(measured, predicted),
                                          float(np.sqrt(np.mean((measured - predicted) ** 2))), tests, step * ctx.dt))
     return out

@@ -16,7 +16,7 @@ from iiwa_ident.ident.model_file import (
     table1_model,
     write_model,
 )
-from iiwa_ident.ident.resid import INDEPENDENCE, WHITENESS, ResidualTest, ResidualTests, residual_tests
+from iiwa_ident.ident.resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
 from iiwa_ident.ident.ripple import (
     PERIOD_MAX_RAD,
     PERIOD_MIN_RAD,
@@ -41,4 +41,4 @@ __all__ = ["JointModel", "ModelError", "PARAMETER_ORIGINS", "Parameter", "Ripple
            "table1_model", "write_model", "BlaFit", "joint_position", "link_position", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description", "ResidualTest",
-           "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE"]
+           "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG"]

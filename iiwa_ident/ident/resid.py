@@ -104,6 +104,8 @@ class ResidualTests:
 
     def summary(self) -> str:
         """One line: each test's verdict with its p-value and the lags that fail."""
+        if not self.tests:
+            return f"not tested ({self.n} samples: too few)"
         parts = []
         for t in self.tests:
             lags = "" if not t.failing else f", lags {_lags(t.failing)} outside the {100 * self.level:g} % bounds"

@@ -261,7 +261,7 @@ def _rms(rows: list[tuple[str, str, float]]) -> float:
 
 
 def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.diagnose import diagnose, residual_rms
+    from iiwa_ident.diagnose import compare, diagnose, residual_rms
 
     runs = _runs(ctx)
     if len(runs) < 2:
@@ -272,11 +272,17 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
         rest = runs[:k] + runs[k + 1:]
         extended = diagnose(rest, start).extended
         before, after = _rms(residual_rms([ds], start)), _rms(residual_rms([ds], extended))
+        # As an identification engineer checks a model on held-out data: the fit and the residual tests.
+        checks = compare([ds], extended)
         rows.append({"run": ds.path.stem, "before_nm": before, "after_nm": after,
                      "ratio": after / before if before > 0 else None,
+                     "fit_pct": {c.channel: c.fit_pct for c in checks},
+                     "residual_tests_passed": {c.channel: c.passed for c in checks},
                      "named_by_others": sorted(e["name"] for e in extended.effects
                                                if e["name"] not in {x["name"] for x in start.effects})})
-        ctx.progress(f"  {ds.path.stem}: predicted from the other runs {before:.3g} -> {after:.3g} Nm RMS")
+        ctx.progress(f"  {ds.path.stem}: predicted from the other runs {before:.3g} -> {after:.3g} Nm RMS; "
+                     + "; ".join(f"{c.channel} fit {c.fit_pct:.1f} %, residual tests "
+                                 f"{ {True: 'passed', False: 'failed', None: 'not run'}[c.passed]}" for c in checks))
     write_atomic(ctx.path("held_out_json"), json.dumps({"runs": rows}, indent=2) + "\n")
     return {"runs": rows}
 

@@ -510,8 +510,12 @@ def _held_out_page(doc: dict[str, Any]) -> Page | None:
         ax.bar(x + 0.2, after, 0.4, label="extended by the diagnosis of the other runs", color="C0")
         for i, r in enumerate(rows):
             if r.get("ratio") is not None:
-                ax.annotate(f"{100 * r['ratio']:.0f} %", (i + 0.2, r["after_nm"]), ha="center", va="bottom",
-                            fontsize=9)
+                fit = r.get("fit_pct", {}).get("link")
+                tests = r.get("residual_tests_passed", {}).get("link")
+                said = {True: "pass", False: "fail", None: "not run"}.get(tests, "not run")
+                extra = "" if fit is None else f"\nfit {fit:.0f} %, tests {said}"
+                ax.annotate(f"{100 * r['ratio']:.0f} %{extra}", (i + 0.2, r["after_nm"]), ha="center", va="bottom",
+                            fontsize=8)
         ax.set_xticks(x, [r["run"] for r in rows], rotation=15, ha="right", fontsize=8)
         ax.set_ylabel("held-out residual RMS [Nm]")
         ax.legend(loc="upper right", fontsize=9)
@@ -519,8 +523,9 @@ def _held_out_page(doc: dict[str, Any]) -> Page | None:
         return fig
 
     return Page("held_out", "Each run predicted from the other runs", "Residual RMS of each run with the joint's "
-                "starting model and with the model the diagnosis extended on the other runs only (the figure above "
-                "each bar: after as a share of before). Look for every run lower after: an effect named on some "
+                "starting model and with the model the diagnosis extended on the other runs only (above each bar: "
+                "after as a share of before, the link channel's fit and whether its residual passes the tests of "
+                "'compare'). Look for every run lower after: an effect named on some "
                 "runs that does not predict another is a property of those runs, not of the joint.", draw)
 
 
