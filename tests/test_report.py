@@ -42,7 +42,8 @@ class TestEveryPageRenders:
         assert len(pngs) == len(titles)
         for png in pngs:
             assert_not_blank(png)
-        expected = ["Title page", "Bode plot of tau_c -> tau_J", "Harmonic distortion", "Parameter table",
+        expected = ["Title page", "Bode plot of tau_c -> tau_J", "Harmonic distortion", "Fitted model against the chirp",
+                    "Parameter table",
                     "Spatial spectrum", "Lookup tables (like Fig. 6)", "Spatial filter at several speeds (like Fig. 4)",
                     "External-torque observers (like Fig. 7)", "Pole map", "Paper reproduction table",
                     "validation: skipped", "Named effects and gains"]
@@ -120,7 +121,7 @@ class TestCli:
                               capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
         assert "page  1: Title page" in proc.stdout and f"wrote {out}" in proc.stdout
-        assert pdf_pages(out) == 4
+        assert pdf_pages(out) == 5  # the title, Bode, harmonics, the model against the chirp, the parameters
 
     def test_errors_are_one_line(self, tmp_path):
         proc = subprocess.run(CLI + ["report", "--workdir", str(tmp_path / "nowhere")], capture_output=True, text=True)

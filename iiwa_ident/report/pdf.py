@@ -343,11 +343,27 @@ def _fit_pages(r: dict[str, Any], doc: dict[str, Any] | None) -> list[Page]:
         Page("fit", "Harmonic distortion", "Harmonic impulse responses of the exponential sweep and the share of "
              "output power in harmonics per octave band. Look for small shares: the transmission ripple is the "
              "only nonlinearity and it adds little to a 10 Nm chirp.", lambda: harmonics_figure(fit)),
+        Page("fit", "Fitted model against the chirp", "The fitted model run on the chirp it was fitted to (as "
+             "'iiwa-ident compare' does): measured and predicted joint torque with the fit percentage, then the "
+             "residual's autocorrelation and its cross-correlation with the torque command with their 99 % bounds. "
+             "Look at the independence of the command: a residual that follows the command means the model misses "
+             "part of the response; whiteness fails in closed loop even for a complete model.",
+             lambda: _comparison(r)),
         Page("fit", "Parameter table", "The five parameters with their standard deviations (and, on the "
              "simulated joint, the error against the plant that was simulated), with the correlation of the "
              "estimates. Look for errors within a few standard deviations; the ripple biases K by about -2 %.",
              table),
     ]
+
+
+def _comparison(r: dict[str, Any]) -> plt.Figure:
+    from iiwa_ident.diagnose import compare
+    from iiwa_ident.report.diagnose_figures import comparison_figure
+
+    rows = [c for c in compare([r["chirp"]], r["model"]) if c.channel == "command"]
+    if not rows:
+        raise IiwaIdentError("the chirp has no torque command to compare the model on")
+    return comparison_figure(rows[0])
 
 
 def _ripple_pages(r: dict[str, Any]) -> list[Page]:
