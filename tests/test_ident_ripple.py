@@ -311,10 +311,11 @@ class TestReproducedAcrossSpeeds:
                 _position_controlled(1.5, [(1300, 2e-5)], 9)]
         r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
         assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 2e-3, r.warnings
+        # The fast run (median speed 0.78 rad/s, limit 806 cycles) finds a family whose strongest line lies beyond
+        # the limit: it says its estimate rests on that line; the slower runs set the period.
         fast = r.runs[2]
-        assert not fast["detected"] or fast.get("harmonic"), fast
-        if "reason" in fast:
-            assert "beyond the Nyquist limit" in fast["reason"]
+        assert "beyond the Nyquist limit" in fast.get("reason", "") + fast.get("note", ""), fast
+        assert any("run 3" in w and "Nyquist" in w for w in r.warnings), r.warnings
 
 
 @pytest.mark.parametrize("span", [0.8, 1.1, 1.2, 1.4])

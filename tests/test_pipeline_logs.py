@@ -174,3 +174,16 @@ def test_datasets_without_a_pose_need_a_model(tmp_path):
     result = run_log_pipeline(tmp_path / "w2", paths, model=model, progress=lambda _m: None)
     status = {s.name: s.status for s in result.stages}
     assert status["diagnose"] == "ok" and status["held_out"] == "ok", [(s.name, s.error) for s in result.stages]
+
+
+def test_a_driver_that_logs_the_command_as_the_position_is_named(tmp_path):
+    # A run folder whose commanded-position file is the measured one, sample for sample (a driver in open loop).
+    run = tmp_path / "logs" / "joint1" / "vel_p4"
+    write_log(run, 0.4, 21)
+    (run / "joint_position_commanded.txt").write_bytes((run / "joint_position_measured.txt").read_bytes())
+    lines: list[str] = []
+    result = run_log_pipeline(tmp_path / "w", [run], progress=lines.append, skip=("held_out",))
+    imp = next(s for s in result.stages if s.name == "import")
+    assert imp.status == "ok", imp.error
+    assert any("q_m equals q_cmd" in w for w in imp.headline["runs"][0]["warnings"]), imp.headline
+    assert any("warning: joint1_vel_p4: q_m equals q_cmd" in x for x in lines)

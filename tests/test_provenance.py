@@ -48,6 +48,36 @@ def test_on_a_vertical_axis_friction_decides(joint):
     assert re.search(r"\(-(1\.[6-9]|2\.\d)\d Nm on average", warning), warning
 
 
+def test_friction_of_another_shape_and_coloured_noise_decide_the_same():
+    # Written apart from the check's own regressors: Stribeck friction (breakaway 2 Nm falling to 1.2 Nm), a
+    # smooth sign of 0.05 rad/s, coloured noise and a slow drift; the reading flipped is named, as logged not.
+    from scipy import signal
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0, 30, 2e-3)
+    q = 0.5 * np.sin(2 * np.pi * t / 7.5)
+    w = np.gradient(q, t)
+    friction = (1.2 + 0.8 * np.exp(-np.abs(w) / 0.05)) * np.tanh(w / 0.05) + 0.5 * w
+    noise = signal.lfilter([1.0], [1.0, -0.95], rng.normal(0, 0.05, t.size)) + 0.2 * np.sin(2 * np.pi * t / 30)
+    for sign, named in ((+1.0, False), (-1.0, True)):
+        ds = Dataset({"t": t, "q_m": q, "tau_j": sign * friction + noise}, "free", "import", 1, 500.0)
+        assert (torque_sign_problem(ds) is not None) == named
+
+
+def test_the_real_vertical_joints_read_the_other_way_round():
+    from iiwa_ident.datasets import import_columns
+
+    for joint in (1, 3):
+        run = _real(REAL / "iiwa14-constant-velocity" / f"joint{joint}" / "vel_p2")
+        files = {"t": run / "cur_traj_time_s.txt", "q_m": run / "joint_position_measured.txt",
+                 "tau_j": run / "joint_torque_measured.txt"}
+        ds = import_columns(files, joint=joint, experiment="constant_velocity", robot_model="iiwa14")
+        assert "pushes the link along its motion" in (torque_sign_problem(ds) or ""), joint
+        flipped = import_columns(files, joint=joint, experiment="constant_velocity", robot_model="iiwa14",
+                                 scale={"tau_j": -1.0})
+        assert torque_sign_problem(flipped) is None
+
+
 def test_without_gravity_or_friction_nothing_decides():
     ds = _sweep(1, [0.0] * 7, -1.0)
     q = np.asarray(ds["q_m"])

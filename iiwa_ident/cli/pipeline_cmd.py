@@ -70,7 +70,7 @@ def pipeline_cmd(
       iiwa-ident pipeline --target sim --plant my_plant.toml --workdir run2
       iiwa-ident pipeline --target sim --realtime --workdir run3
       iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
-      iiwa-ident pipeline --logs ../shared/data/real/iiwa14-constant-velocity/joint6 --workdir j6
+      iiwa-ident pipeline --logs my_logs/joint6 --workdir j6
     """
     from iiwa_ident.pipeline import format_summary, run_log_pipeline, run_pipeline
     from iiwa_ident.report import build_report

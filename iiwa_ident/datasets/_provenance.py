@@ -11,7 +11,7 @@ import numpy as np
 from iiwa_ident.datasets._format import Dataset, dataset_pose
 from iiwa_ident.datasets._import import moving_joint_problem
 
-__all__ = ["torque_sign_problem", "time_gaps_problem", "band_limited_problem", "substituted_position_problem",
+__all__ = ["joint_velocity", "torque_sign_problem", "time_gaps_problem", "band_limited_problem", "substituted_position_problem",
            "dataset_warnings", "SIGN_MIN_GRAVITY_NM", "SIGN_MIN_FRICTION_NM", "GAP_FACTOR", "BAND_LIMITED_DB_PER_DECADE",
            "BAND_LIMITED_FLOOR_DB", "IMPORT_WARNINGS_ATTR", "note_warnings"]
 
@@ -38,6 +38,17 @@ _TOP_BAND = (0.5, 0.95)
 _FLOOR_BANDS = 6
 
 
+def joint_velocity(dataset: Dataset) -> np.ndarray:
+    """The joint's velocity [rad/s] from ``q_m`` by central differences over about 40 ms (the encoder's steps
+    average out), one value per sample, 0 within 20 ms of either end."""
+    q, t = np.asarray(dataset["q_m"], float), np.asarray(dataset.t, float)
+    k = max(1, int(round(0.02 * dataset.sample_rate_hz)))
+    w = np.zeros_like(q)
+    if len(q) > 2 * k:
+        w[k:-k] = (q[2 * k:] - q[:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    return w
+
+
 def torque_sign_problem(dataset: Dataset) -> str | None:
     """A warning when the torque reading's sign is opposite to the toolkit's convention, or None.
 
@@ -52,12 +63,11 @@ def torque_sign_problem(dataset: Dataset) -> str | None:
     joints 2, 4 and 6). Where gravity does not change by :data:`SIGN_MIN_GRAVITY_NM` over the run (a
     vertical axis), friction decides: its mean over the moving samples, signed with the motion, below
     -:data:`SIGN_MIN_FRICTION_NM` at 10 standard errors is a reading of the other sign (the same logs' joints
-    1 and 3 read -1.0 and -0.2 Nm). Datasets without robot and pose decide by friction alone.
+    1 and 3 read -1.0 and -0.14 Nm). Datasets without robot and pose decide by friction alone.
     """
     if not dataset.has("q_m") or not dataset.has("tau_j"):
         return None
     q = np.asarray(dataset["q_m"], float)
-    t = np.asarray(dataset.t, float)
     if len(q) < 10:
         return None
     robot, pose = dataset_pose(dataset)
@@ -68,10 +78,7 @@ def torque_sign_problem(dataset: Dataset) -> str | None:
         if (robot or "iiwa14") in ROBOTS:
             amp, phase = gravity_sinusoid(robot or "iiwa14", dataset.joint, pose)
             g = amp * np.sin(q + phase)
-    # Central differences over about 20 ms: the encoder's steps average out.
-    k = max(1, int(round(0.02 * dataset.sample_rate_hz)))
-    w = np.zeros_like(q)
-    w[k:-k] = (q[2 * k:] - q[:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    w = joint_velocity(dataset)
     moving = np.abs(w) > _MOVING_RAD_S
     if moving.sum() < 10:
         return None

@@ -1002,14 +1002,14 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                    min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
     pooled = _identify_pooled(datasets, **options)
     if len(datasets) < 2:
-        beyond = _beyond_nyquist(pooled, datasets[0]) if datasets else None
+        beyond = _beyond_nyquist(pooled, datasets[0], _median_speed(datasets[0])) if datasets else None
         if beyond:
             pooled.warnings.append(f"{beyond}: an alias is possible; runs at other speeds would decide")
         return pooled
     runs = []
     for i, ds in enumerate(datasets):
         name = str(ds.path) if ds.path else f"run {i + 1}"
-        speed = float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(_spread_repeated_stamps(ds["t"])))))
+        speed = _median_speed(ds)
         try:
             r = _identify_pooled([ds], **options)
         except IiwaIdentError as err:
@@ -1022,7 +1022,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                "cycles_per_rev": r.cycles_per_rev, "false_alarm_probability": r.false_alarm,
                "amplitude_rad": r.amplitude_rad, "warnings": r.warnings, "link_motion": r.link_motion,
                "nyquist_cycles_per_rev": nyquist_cpr}
-        beyond = _beyond_nyquist(r, ds)
+        beyond = _beyond_nyquist(r, ds, speed)
         if beyond and r.cycles_per_rev > nyquist_cpr:
             row.update(detected=False, reason=f"{beyond}: an alias; this run does not decide the period")
         elif beyond:
@@ -1032,12 +1032,16 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     return _combine_runs(pooled, runs, datasets, options)
 
 
-def _beyond_nyquist(r: RippleResult, ds: Dataset) -> str:
+def _median_speed(ds: Dataset) -> float:
+    """The run's median speed [rad/s]."""
+    return float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(_spread_repeated_stamps(ds["t"])))))
+
+
+def _beyond_nyquist(r: RippleResult, ds: Dataset, speed: float) -> str:
     """Why a detected family may be an alias, or '': the family's strongest line (of its table) lies beyond
-    the spatial Nyquist limit at the run's median speed, pi x rate / speed cycles per revolution."""
+    the spatial Nyquist limit at the run's median ``speed`` [rad/s], pi x rate / speed cycles per revolution."""
     if not r.detected or r.lut is None:
         return ""
-    speed = float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(_spread_repeated_stamps(ds["t"])))))
     nyquist = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
     h = int(np.argmax(np.abs(np.fft.rfft(r.lut))[1:FAMILY_HARMONICS + 4])) + 1
     line = h * r.cycles_per_rev

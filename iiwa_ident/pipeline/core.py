@@ -26,7 +26,8 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline.validation import ValidationSettings
 
 __all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "StageSkipped", "PipelineContext",
-           "PipelineResult", "STAGES", "run_pipeline", "run_stages", "format_summary", "read_pipeline_json"]
+           "PipelineResult", "STAGES", "run_pipeline", "run_stages", "record_diagnosis", "parameter_rows",
+           "format_summary", "read_pipeline_json"]
 
 #: File names in the work folder, by role.
 FILES = {
@@ -241,10 +242,10 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model"), model)
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
     ctx.results.update(model=model, fit=result)
-    return {"parameters": _parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings)}
+    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings)}
 
 
-def _parameter_rows(ctx: PipelineContext, result: Any) -> dict[str, dict[str, Any]]:
+def parameter_rows(ctx: PipelineContext, result: Any) -> dict[str, dict[str, Any]]:
     """A fit's parameters with std and, on the simulator, their error against the simulated plant."""
     from iiwa_ident.model import PARAMETER_NAMES
 
@@ -312,7 +313,7 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
                            "period_std_rad": _num(r.period_std_rad), "period_ticks": _num(r.period_ticks),
                            "amplitude_rad": _num(r.amplitude_rad), "methods": sorted(r.methods)}
     if refit is not None:
-        out["refit"] = {"parameters": _parameter_rows(ctx, refit), "method": refit.method,
+        out["refit"] = {"parameters": parameter_rows(ctx, refit), "method": refit.method,
                         "warnings": list(refit.warnings)}
     if ctx.target == "sim":
         true = [e for e in ctx.plant.effects if e.name == "transmission_ripple"]
@@ -408,15 +409,22 @@ def _stage_validation(ctx: PipelineContext) -> dict[str, Any]:
 
 
 def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.datasets import sha256_file
     from iiwa_ident.diagnose import diagnose
-    from iiwa_ident.ident import Source, write_model
 
     keys = [k for k in ("chirp", "cv", "hand") if k in ctx.results]
     result = diagnose([ctx.results[k] for k in keys], ctx.results["model_ripple"])
+    return record_diagnosis(ctx, result, [ctx.path(k) for k in keys])
+
+
+def record_diagnosis(ctx: PipelineContext, result: Any, data: list[Path]) -> dict[str, Any]:
+    """Write a diagnosis's extended model (its sources: the diagnosed files, named from the work folder) and
+    ``diagnose.json``; keep it in the context; return its headline figures."""
+    from iiwa_ident.datasets import sha256_file
+    from iiwa_ident.ident import Source, write_model
+
     ext = result.extended
     ext.sources = [s for s in ext.sources if s.role != "diagnose"] + [
-        Source(FILES[k], sha256_file(ctx.path(k)), "diagnose") for k in keys]
+        Source(str(p.relative_to(ctx.workdir)), sha256_file(p), "diagnose") for p in data]
     write_model(ctx.path("model_ext"), ext)
     result.model_out = FILES["model_ext"]
     write_atomic(ctx.path("diagnose_json"), json.dumps(_jsonable(result.as_json()), indent=2) + "\n")

@@ -30,11 +30,11 @@ from iiwa_ident.pipeline.core import (
     StageRecord,
     StageSkipped,
     _headline,
-    _jsonable,
     _num,
     _stage_deploy,
     _stage_design,
-    diagnosis_headline,
+    parameter_rows,
+    record_diagnosis,
     run_stages,
 )
 
@@ -118,9 +118,10 @@ def _run_name(p: Path, given: Path) -> str:
 
 
 def _moving_speeds(ds) -> np.ndarray:
-    t, q = np.asarray(ds.t, float), np.asarray(ds["q_m"], float)
-    k = max(1, int(round(0.02 * ds.sample_rate_hz)))  # central differences over about 40 ms
-    w = np.abs(q[2 * k:] - q[:-2 * k]) / (t[2 * k:] - t[:-2 * k])
+    """The run's speeds [rad/s] where it moves at more than half its top speed (its 95th percentile)."""
+    from iiwa_ident.datasets import joint_velocity
+
+    w = np.abs(joint_velocity(ds))
     return w[w > 0.5 * np.percentile(w, 95)] if w.size else w
 
 
@@ -239,21 +240,10 @@ def _start(ctx: PipelineContext):
 
 
 def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
-    from iiwa_ident.datasets import sha256_file
     from iiwa_ident.diagnose import diagnose
-    from iiwa_ident.ident import Source, write_model
 
     runs = _runs(ctx)
-    _start(ctx)
-    result = diagnose(runs, ctx.results["model_start"])
-    ext = result.extended
-    ext.sources = [s for s in ext.sources if s.role != "diagnose"] + [
-        Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "diagnose") for ds in runs]
-    write_model(ctx.path("model_ext"), ext)
-    result.model_out = FILES["model_ext"]
-    write_atomic(ctx.path("diagnose_json"), json.dumps(_jsonable(result.as_json()), indent=2) + "\n")
-    ctx.results["diagnosis"] = result
-    return diagnosis_headline(result)
+    return record_diagnosis(ctx, diagnose(runs, _start(ctx)), [ds.path for ds in runs])
 
 
 def _rms(rows: list[tuple[str, str, float]]) -> float:
@@ -271,9 +261,10 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
     for k, ds in enumerate(runs):
         rest = runs[:k] + runs[k + 1:]
         extended = diagnose(rest, start).extended
-        before, after = _rms(residual_rms([ds], start)), _rms(residual_rms([ds], extended))
-        # As an identification engineer checks a model on held-out data: the fit and the residual tests.
+        # As an identification engineer checks a model on held-out data: the RMS, the fit and the residual tests.
         checks = compare([ds], extended)
+        before = _rms(residual_rms([ds], start))
+        after = _rms([(c.dataset, c.channel, c.rms_nm) for c in checks])
         rows.append({"run": ds.path.stem, "before_nm": before, "after_nm": after,
                      "ratio": after / before if before > 0 else None,
                      "fit_pct": {c.channel: c.fit_pct for c in checks},
@@ -302,9 +293,7 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     with_table.ripple = ctx.results["model_ripple"].ripple
     write_model(ctx.path("model_ripple"), with_table)
     ctx.results.update(model=model, fit=result, model_ripple=with_table)
-    rows = {k: {"value": v, "std": result.std[k], "rel_std_pct": 100 * result.std[k] / abs(v) if v else None}
-            for k, v in result.parameters.items()}
-    return {"parameters": rows, "method": result.method, "warnings": list(result.warnings)}
+    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings)}
 
 
 #: The stages of a pipeline on logs, in the order they run.
@@ -333,9 +322,6 @@ def _log_headline(records: list[StageRecord]) -> dict[str, Any]:
         out["ripple_decided"] = bool(by["ripple"].headline["detected"])
     if "held_out" in by:
         out["held_out"] = [{k: r[k] for k in ("run", "before_nm", "after_nm")} for r in by["held_out"].headline["runs"]]
-    if "fit" in by:
-        out["fit"] = {k: {kk: v[kk] for kk in ("value", "std", "rel_std_pct")} for k, v in
-                      by["fit"].headline["parameters"].items()}
     return out
 
 
