@@ -105,12 +105,17 @@ def run_draw(seed: int, method: str = "auto") -> dict:
     err = {}
     z = {}
     z_sandwich = {}
+    z_robust = {}
+    widening = {}
     for k in _NAMES:
         v, s = res.parameters[k], res.std[k]
         err[k] = (v - sc.truth[k]) if k == "Td" else v / sc.truth[k] - 1.0
         z[k] = abs(v - sc.truth[k]) / s if s > 0 else math.inf
         sw = res.std_sandwich[k]
         z_sandwich[k] = abs(v - sc.truth[k]) / sw if sw > 0 else math.inf
+        sr = res.std_robust.get(k, s)
+        z_robust[k] = abs(v - sc.truth[k]) / sr if sr > 0 else math.inf
+        widening[k] = sr / s if s > 0 else math.inf
     ok = all(abs(err[k]) <= _REL_TOL for k in _NAMES[:4]) and abs(err["Td"]) <= _TD_TOL_S
     ripple = next((e for e in res.effects if e.name == "transmission_ripple"), None)
     true_period = sc.effects.get("transmission_ripple", {}).get("period_rad")
@@ -118,7 +123,8 @@ def run_draw(seed: int, method: str = "auto") -> dict:
     # The fit judges its model by the independence of the command (its whiteness is coloured by the loop).
     out["tests_passed"] = all(t.passed_test("independence of the input") for t in tests) if tests else None
     out["white"] = all(t.passed_test("whiteness") for t in tests) if tests else None
-    out.update(status="pass" if ok else "miss", error=err, z=z, z_sandwich=z_sandwich, method=res.method,
+    out.update(status="pass" if ok else "miss", error=err, z=z, z_sandwich=z_sandwich, z_robust=z_robust,
+               widening=widening, method=res.method,
                ripple_found=ripple is not None, ripple_true=true_period is not None,
                ripple_period_error=(ripple.values["period_rad"] / true_period - 1.0
                                     if ripple is not None and true_period else None))
@@ -230,6 +236,17 @@ def _coverage_of(excitation: str, seeds: list[int], jobs: int) -> None:
             cov = "  ".join(f"{k} {100 * np.mean([r['z'][k] <= Z95 for r in sub]):3.0f}%/"
                             f"{100 * np.mean([r['z_sandwich'][k] <= Z95 for r in sub]):3.0f}%" for k in _NAMES)
             print(f"  {label:<20s} {len(sub):4d} draws, covered by the reported/sandwich std: {cov}")
+            if "z_robust" in sub[0]:
+                cov = "  ".join(f"{k} {100 * np.mean([r['z_robust'][k] <= Z95 for r in sub]):3.0f}%" for k in _NAMES)
+                wide = "  ".join(f"{k} {np.median([r['widening'][k] for r in sub]):.3g}" for k in _NAMES)
+                print(f"  {'':<20s} {'':4s}        covered by std_robust: {cov}")
+                print(f"  {'':<20s} {'':4s}        median std_robust/std: {wide}")
+                for white in (True, False):
+                    part = [r for r in sub if r.get("white") is white]
+                    if part:
+                        cov = "  ".join(f"{k} {100 * np.mean([r['z_robust'][k] <= Z95 for r in part]):3.0f}%"
+                                        for k in _NAMES)
+                        print(f"  {'':<20s} {len(part):4d} {'white' if white else 'not white':>9s}, std_robust: {cov}")
     print("  by nuisance (reported std):  draws  " + "  ".join(f"{k:>5s}" for k in _NAMES) + "  follow the input")
     for name in ("none", *NUISANCES):
         sub = [r for r in fitted if (name in r["nuisances"]) or (name == "none" and not r["nuisances"])]

@@ -56,6 +56,10 @@ class TestFitCommand:
             entry = doc["parameters"][name]
             assert entry["value"] > 0 and entry["std"] > 0
             assert entry["value"] == pytest.approx(model.value(name), rel=1e-12, abs=0)
+            # The model-error aware std: the same where the residual tests pass, wider where they fail.
+            assert entry["std_robust"] == entry["std"] if not doc["model_rejected"] else \
+                entry["std_robust"] >= entry["std"]
+        assert model.fit["std_robust"] == [doc["parameters"][k]["std_robust"] for k in PARAMETER_NAMES]
         assert doc["parameters"]["Td"]["value"] == pytest.approx(0.005, rel=0, abs=0.5e-3)  # seconds
         assert doc["correlation"]["names"] == list(PARAMETER_NAMES)
         assert np.asarray(doc["correlation"]["matrix"]).shape == (5, 5)

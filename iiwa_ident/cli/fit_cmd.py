@@ -58,6 +58,12 @@ def format_fit(result: FitResult) -> str:
     lines = _parameter_lines(result.parameters, result.std)
     lines.append(f"method: {result.method}")
     lines.append(f"std: {result.std_method}")
+    if result.model_rejected and result.std_robust:
+        lines.append("the residual follows the command: the std above assumes a complete model and is not to be "
+                     "trusted; model-error aware std:")
+        lines.append("  " + ", ".join(f"{k} {_value_text(k, result.parameters[k], result.std_robust[k])[1]}"
+                                      for k in PARAMETER_NAMES))
+        lines.append(f"  ({result.std_robust_method})")
     if result.effects:
         lines.append("")
         lines.append("link-side effects (simulator names; * = above 3 std)")

@@ -145,6 +145,14 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
     if method == "eq4":
         result = fit_transfer_function(datasets)
         result.method = "eq4"
+        if result.model_rejected:
+            try:
+                other = fit_idim(datasets)
+                _model_error_std(result, other.parameters, other.std, "the inverse-dynamics (IDIM-IV) estimate")
+            except IiwaIdentError:
+                _model_error_std(result, None, None, "")
+        else:
+            _model_error_std(result, None, None, "")
         return result
     if ripple_table is not None:
         ripple_period_rad = ripple_table.period_rad
@@ -161,6 +169,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         friction = idim.effect("link_friction")
         sticks = friction is not None and friction.significant and friction.values["coulomb_nm"] > STICK_COULOMB_NM
         method = "idim" if sticks else "joint"
+    oe: FitResult | None = None  # the output-error estimate, to compare with IDIM-IV's
     if method == "idim":
         result = _from_idim(idim, datasets)
     else:
@@ -182,6 +191,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
                 result = fit_transfer_function(datasets, initial=here, known=options[best], ripple=terms)
         if terms is not None:
             method = "joint+ripple"
+        oe = result
         moved = _departure(result.parameters, idim.parameters)
         if moved:
             # Both estimate the same parameters; a large disagreement usually means the output-error search
@@ -201,10 +211,52 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
                 fallback.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
                                          "the inverse-dynamics values are kept")
                 result, method = fallback, "idim"
+    if not result.model_rejected:
+        _model_error_std(result, None, None, "")
+    elif method == "idim":
+        if oe is None:
+            try:
+                oe = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs,
+                                           ripple=terms)
+            except IiwaIdentError:
+                oe = None
+        _model_error_std(result, None if oe is None else oe.parameters, None if oe is None else oe.std,
+                         "the output-error estimate")
+    else:
+        _model_error_std(result, idim.parameters, idim.std, "the inverse-dynamics (IDIM-IV) estimate")
     result.method = method
     result.effects = idim.effects
     result.lines_hz = idim.lines_hz
     return result
+
+
+def _model_error_std(result: FitResult, other: dict[str, float] | None, other_std: dict[str, float] | None,
+                     other_name: str) -> None:
+    """Set ``result.std_robust``: its std where the model holds, else widened by the estimators' disagreement.
+
+    Where the residual follows the command the model misses part of the response, and the Fisher or
+    sandwich std (which describe the noise) say nothing of the bias this causes. The inverse dynamics and
+    the output-error fit weigh the data differently (equation error on every channel against the
+    simulated torque and position), so a missing effect biases them differently: their difference is a
+    measure of the model error. Under a complete model it is at most the less efficient estimate's
+    spread, so ``std_robust^2 = std^2 + std_other^2 + (value - other)^2`` widens the interval by what the
+    data cannot tell apart (a Hausman-type comparison; Hausman, Econometrica 46, 1978). Its coverage is
+    measured by ``bench/bench_robustness.py coverage``. Without a second estimate the block sandwich
+    std is the fallback.
+    """
+    if not result.model_rejected:
+        result.std_robust = dict(result.std)
+        result.std_robust_method = "equal to std: the residual is independent of the command"
+        return
+    if other is None or other_std is None:
+        result.std_robust = {k: max(result.std[k], result.std_sandwich[k]) for k in PARAMETER_NAMES}
+        result.std_robust_method = ("the residual follows the command; no second estimate: the larger of std and "
+                                    "the block sandwich std, which does not cover the bias of a missing effect")
+        return
+    result.std_robust = {k: math.sqrt(result.std[k] ** 2 + other_std[k] ** 2 + (result.parameters[k] - other[k]) ** 2)
+                         for k in PARAMETER_NAMES}
+    result.std_robust_method = ("the residual follows the command: std, the std of " + other_name
+                                + " and the two estimates' difference added in quadrature")
 
 
 def model_effects(effects: Sequence[LinkEffectEstimate]) -> list[dict[str, Any]]:
@@ -346,6 +398,9 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
         "cost": result.cost,
         "evaluations": result.n_evaluations,
         "std_sandwich": [result.std_sandwich[k] for k in PARAMETER_NAMES],
+        "std_robust": [result.std_robust.get(k, result.std[k]) for k in PARAMETER_NAMES],
+        "std_robust_method": result.std_robust_method or "equal to std",
+        "model_rejected": result.model_rejected,
         "noise_tau_j_nm": [n["tau_j_nm"] for n in result.noise],
         "noise_q_m_rad": [n["q_m_rad"] for n in result.noise],
         "start": [float(result.initial[0][k]) for k in PARAMETER_NAMES],

@@ -823,6 +823,11 @@ class FitResult:
         Block-wise sandwich estimate ``F^-1 (sum_b g_b g_b^T) F^-1``, robust
         to residuals correlated within a quarter-second block; much larger
         than :attr:`std` when the residuals are not white.
+    std_robust : dict of str to float
+        The model-error aware std (see
+        :func:`iiwa_ident.ident.joint_fit.fit_joint`): equal to :attr:`std`
+        where the residual is independent of the command, wider where it is
+        not; empty until the joint fit sets it (then :attr:`std` applies).
     correlation : numpy.ndarray
         Correlation matrix in the order of :data:`PARAMETER_NAMES`.
     covariance : numpy.ndarray
@@ -880,6 +885,15 @@ class FitResult:
     #: (:func:`iiwa_ident.ident.residual_tests`); the model is judged by the independence of the command (in
     #: closed loop the residual is coloured by the loop even where the model is complete).
     residual_tests: list[Any] = field(default_factory=list)
+    std_robust: dict[str, float] = field(default_factory=dict)
+    #: How :attr:`std_robust` was computed (named in the JSON).
+    std_robust_method: str = ""
+
+    @property
+    def model_rejected(self) -> bool:
+        """True when the torque's residual follows the command in some dataset (the model misses part of
+        the response); whiteness alone does not reject it, as the torque loop colours the noise."""
+        return any(t.passed_test(INDEPENDENCE) is False for t in self.residual_tests)
 
     @property
     def relative_std(self) -> dict[str, float]:
@@ -899,7 +913,8 @@ class FitResult:
                                   "harmonics": b.harmonics,
                                   "harmonic_share": [num(v) for v in b.harmonic_share]})
         return {
-            "parameters": {k: {"value": self.parameters[k], "std": self.std[k], "unit": PARAMETER_UNITS[k]}
+            "parameters": {k: {"value": self.parameters[k], "std": self.std[k],
+                               "std_robust": self.std_robust.get(k, self.std[k]), "unit": PARAMETER_UNITS[k]}
                            for k in PARAMETER_NAMES},
             "correlation": {"names": list(PARAMETER_NAMES), "matrix": np.asarray(self.correlation).tolist()},
             "noise": self.noise,
@@ -909,6 +924,8 @@ class FitResult:
             "warnings": list(self.warnings),
             "method": self.method,
             "std_method": self.std_method,
+            "model_rejected": self.model_rejected,
+            "std_robust_method": self.std_robust_method or "equal to std",
             "effects": {e.name: e.to_json() for e in self.effects},
             "spectral_lines_hz": [float(f) for f in self.lines_hz],
             "residual_tests": [{"dataset": label, "passed": t.passed,
