@@ -1,95 +1,20 @@
 """A model against data, as ``compare`` and ``resid`` do it: the predicted and measured signals, the fit
 percentage, the RMS and the residual tests, per dataset and channel (``iiwa-ident compare``).
 
-The channels are the diagnosis's (:mod:`iiwa_ident.diagnose.predict`): ``command``, the joint torque's
-response to the torque command (torque-commanded data), and ``link``, the link equation's torque (eq (2),
-low-passed at its cut-off). The model predicts with everything it holds: its parameters, its ripple table
-and its extra effects (from ``diagnose``); nothing is fitted.
+The model predicts with everything it holds: its parameters, its ripple table and its extra effects (from
+``diagnose``); nothing is fitted. One channel's figures: :mod:`iiwa_ident.diagnose.channels`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Sequence
-
-import numpy as np
+from typing import Sequence
 
 from iiwa_ident.datasets import Dataset
+from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison, fit_percent
 from iiwa_ident.diagnose.diagnosis import _residuals
-from iiwa_ident.ident import INDEPENDENCE, LEVEL, MAX_LAG, JointModel, ResidualTests, residual_tests
+from iiwa_ident.ident import JointModel
 
 __all__ = ["ChannelComparison", "compare", "fit_percent"]
-
-#: Fewest lags a residual is tested over; shorter records (below four times as many samples) are not tested.
-_MIN_LAGS = 5
-
-
-def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
-    """The normalised fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` [%] (100: exact; 0: no better than the
-    mean; negative: worse).
-
-    >>> fit_percent(np.array([1.0, 2.0, 3.0]), np.array([1.0, 2.0, 3.0]))
-    100.0
-    >>> fit_percent(np.array([1.0, 2.0, 3.0]), np.full(3, 2.0))
-    0.0
-    """
-    y, y_hat = np.asarray(y, float), np.asarray(y_hat, float)
-    spread = float(np.linalg.norm(y - y.mean()))
-    return 100.0 * (1.0 - float(np.linalg.norm(y - y_hat)) / spread) if spread > 0 else float("nan")
-
-
-@dataclass
-class ChannelComparison:
-    """One dataset's channel: the signals over the samples compared and the figures of merit.
-
-    Attributes
-    ----------
-    dataset, channel : str
-    t, measured, predicted : numpy.ndarray
-        Time [s] and the measured and predicted torques [Nm] over the samples compared.
-    fit_pct : float
-        Normalised fit [%] (:func:`fit_percent`).
-    rms_nm : float
-        RMS of measured minus predicted [Nm].
-    tests : ResidualTests
-        Whiteness and independence of the input (the torque command; on the link channel the link's
-        velocity), on samples spaced by the channel's bandwidth.
-    lag_s : float
-        The spacing of those samples, one lag of the tests [s].
-
-    The tests that judge the model (:attr:`model_tests`, :attr:`passed`): on the link channel both; on the
-    command channel the independence of the input only. The command channel's prediction is an output error:
-    its residual carries the torque sensor's noise through the closed torque loop, coloured even for an exact
-    model (the simulated joint with its own model: whiteness p < 1e-4 on 5 of 6 seeds, independence p 0.82-1.0),
-    so its whiteness is shown, not judged.
-    """
-
-    dataset: str
-    channel: str
-    t: np.ndarray
-    measured: np.ndarray
-    predicted: np.ndarray
-    fit_pct: float
-    rms_nm: float
-    tests: ResidualTests
-    lag_s: float
-
-    @property
-    def model_tests(self) -> tuple[str, ...]:
-        return (INDEPENDENCE,) if self.channel == "command" else \
-            tuple(t.name for t in self.tests.tests)
-
-    @property
-    def passed(self) -> bool | None:
-        """Whether the residual passes the tests that judge the model (None: too few samples to test)."""
-        if not self.tests.tests:
-            return None
-        return all(t.passed for t in self.tests.tests if t.name in self.model_tests)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"dataset": self.dataset, "channel": self.channel, "fit_pct": self.fit_pct, "rms_nm": self.rms_nm,
-                "samples": int(len(self.t)), "lag_s": self.lag_s, "passed": self.passed,
-                "model_tests": list(self.model_tests), "residual_tests": self.tests.to_json()}
 
 
 def compare(datasets: Sequence[Dataset], model: JointModel) -> list[ChannelComparison]:
@@ -101,21 +26,4 @@ def compare(datasets: Sequence[Dataset], model: JointModel) -> list[ChannelCompa
         A model of another joint or robot than the datasets' (one line).
     """
     _, contexts, _ = _residuals(datasets, model)
-    out = []
-    for ctx in contexts:
-        for ch in ctx.channels:
-            m = ctx.masks[ch]
-            measured = ctx.measured[ch][m]
-            predicted = measured - ctx.residual[ch][m]
-            # The residual tests want samples that are not correlated by the channel's own filter: the link
-            # channel is low-passed (zero-phase, fourth order in effect), so it is tested at its cut-off.
-            step = 1 if ch == "command" else max(1, int(round(1.0 / (ctx.cutoff_hz * ctx.dt))))
-            u = ctx.tau_c if ch == "command" else ctx.omega_l
-            e = ctx.residual[ch][m][::step]
-            # A short record is tested over fewer lags (a quarter of its samples), a very short one not at all.
-            lags = min(MAX_LAG, len(e) // 4)
-            tests = (residual_tests(e, None if u is None else np.asarray(u)[m][::step], max_lag=lags)
-                     if lags >= _MIN_LAGS else ResidualTests(n=len(e), level=LEVEL))
-            out.append(ChannelComparison(ctx.name, ch, ctx.t[m], measured, predicted, fit_percent(measured, predicted),
-                                         float(np.sqrt(np.mean((measured - predicted) ** 2))), tests, step * ctx.dt))
-    return out
+    return [channel_comparison(ctx, ch, ctx.residual[ch]) for ctx in contexts for ch in ctx.channels]

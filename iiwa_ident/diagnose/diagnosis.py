@@ -28,6 +28,7 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
+from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
@@ -84,13 +85,16 @@ class EffectReport:
 
 @dataclass
 class ChannelReport:
-    """Held-out residual RMS of one channel of one dataset [Nm]."""
+    """Held-out residual RMS of one channel of one dataset [Nm]; the model's prediction of it, before and
+    after the named effects (in-sample: fit %, residual tests), as ``compare`` gives it."""
 
     dataset: str
     experiment: str
     channel: str
     rms_before: float
     rms_after: float
+    before: ChannelComparison | None = None
+    after: ChannelComparison | None = None
 
     @property
     def gain_pct(self) -> float:
@@ -156,6 +160,11 @@ class Diagnosis:
             d[f"{key}_rms_before"] = c.rms_before
             d[f"{key}_rms_after"] = c.rms_after
             d[f"{key}_gain_pct"] = c.gain_pct
+            for when, cmp in (("before", c.before), ("after", c.after)):
+                if cmp is not None:
+                    d[f"{key}_fit_pct_{when}"] = cmp.fit_pct
+                    d[f"{key}_tests_passed_{when}"] = cmp.passed
+                    d[f"{key}_tests_{when}"] = cmp.tests.summary()
         return {
             "explained": self.explained,
             "effects": [e.as_json() for e in self.effects],
@@ -213,13 +222,22 @@ class Diagnosis:
                 lines.append(f"  {x['name']:<24} would remove {100 * x['gain']:.0f} % of the held-out residual "
                              f"({x['band']} band) but {x['failed']}")
         lines.append("")
-        lines.append(f"  {'dataset':<28}{'channel':<10}{'RMS before [Nm]':>16}{'after [Nm]':>12}{'gain':>8}")
+        lines.append(f"  {'dataset':<28}{'channel':<10}{'RMS before [Nm]':>16}{'after [Nm]':>12}{'gain':>8}"
+                     f"{'fit before':>12}{'after':>8}  residual tests before -> after")
         for c in self.channels:
+            fits = tests = ""
+            if c.before is not None and c.after is not None:
+                fits = f"{c.before.fit_pct:>11.1f}%{c.after.fit_pct:>7.1f}%"
+                tests = f"  {_verdict(c.before.passed)} -> {_verdict(c.after.passed)}"
             lines.append(f"  {c.dataset[:27]:<28}{c.channel:<10}{c.rms_before:>16.4f}{c.rms_after:>12.4f}"
-                         f"{c.gain_pct:>7.1f}%")
+                         f"{c.gain_pct:>7.1f}%{fits}{tests}")
         lines.append("  (link: error of a model-based external-torque estimate; command: joint-torque response "
-                     "the model cannot predict from the command)")
+                     "the model cannot predict from the command; RMS held out, fit % and residual tests in-sample)")
         return "\n".join(lines)
+
+
+def _verdict(passed: bool | None) -> str:
+    return {True: "pass", False: "FAIL", None: "not tested"}[passed]
 
 
 def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
@@ -325,6 +343,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
     original = model
     work, contexts, known = _residuals(datasets, model)
+    tested = {(ctx.index, ch): channel_comparison(ctx, ch, ctx.residual[ch]) for ctx in contexts for ch in ctx.channels}
     blocks = _blocks(contexts)
     if not blocks:
         names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
@@ -390,19 +409,22 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
             for ch, v in back[ctx.index].items():
                 ctx.residual[ch] = ctx.residual[ch] + v
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys0], ys0)
-    channels = []
-    for b, rb, ra in zip(blocks, before, after):
-        channels.append(ChannelReport(b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]),
-                                      _rms([ra / b.weight])))
     suspects = _suspects(sel)
     if replaced:
         extended.description += " | replaced: " + ", ".join(f"{r['old']} -> {' + '.join(r['new'])}"
                                                               for r in replaced)
-    return Diagnosis(explained=not effects and not suspects and not ambiguous and not replaced, effects=effects,
-                     channels=channels, model=original, extended=extended, replaced=replaced, contexts=contexts,
+    diag = Diagnosis(explained=not effects and not suspects and not ambiguous and not replaced, effects=effects,
+                     channels=[], model=original, extended=extended, replaced=replaced, contexts=contexts,
                      blocks=blocks, selection=sel,
                      heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous,
                      undecided=undecided)
+    for b, rb, ra in zip(blocks, before, after):
+        key = (b.ctx.index, b.channel)
+        changed = bool(effects) or bool(replaced)
+        diag.channels.append(ChannelReport(
+            b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]), _rms([ra / b.weight]), tested[key],
+            channel_comparison(b.ctx, b.channel, diag.residual_after(b.ctx, b.channel)) if changed else tested[key]))
+    return diag
 
 
 def _named(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
