@@ -254,6 +254,24 @@ class TestLibrary:
         assert max(r[2] for r in with_load) < 0.1
 
 
+def test_residual_tests_before_and_after_the_named_effect():
+    # A load Table I lacks: its residual fails the tests on every link channel; with the named load each passes
+    # and fits above 99 %. The constant-velocity run's command comes from a tracking PD: not judged.
+    d = diagnose(simulate_case(_case(7, a="position_dependent_load")), table1_model())
+    assert [e.name for e in d.effects] == ["position_dependent_load"]
+    for c in d.channels:
+        assert c.before is not None and c.after is not None and c.after.fit_pct > c.before.fit_pct
+        if c.channel == "link":
+            assert c.before.passed is False and c.after.passed is True, c.after.tests.summary()
+            assert c.after.fit_pct > 99.0
+        elif c.experiment == "constant_velocity":
+            assert c.before.passed is None and c.after.passed is None
+    doc = d.as_json()["datasets"]
+    assert all(x["ext_torque_error_tests_passed_before"] is False and x["ext_torque_error_tests_passed_after"]
+               for x in doc)
+    assert "residual tests before -> after" in d.summary() and "FAIL -> pass" in d.summary()
+
+
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """Three simulated runs with a hidden sensor offset and a Table I model file."""

@@ -27,7 +27,8 @@ def format_comparison(rows) -> str:
     if any(r.channel == "command" for r in rows):
         lines.append("command channel: an output-error residual carries the sensor noise through the torque loop, "
                      "coloured even for an exact model: its whiteness is shown, the model is judged by its "
-                     "independence of the input")
+                     "independence of the input; not judged ('-') where the command is computed from the "
+                     "measurements (constant velocity in torque mode, hand guiding): the residual feeds back into it")
     if any(r.passed is False for r in rows):
         lines.append("a residual that fails the model's tests holds what the model misses: its fit's standard "
                      "deviations assume a complete model; 'iiwa-ident diagnose' names the effect")
