@@ -40,6 +40,7 @@ def _hooks(effect, t, q_m, theta_l, omega_l, tau) -> tuple[dict[str, np.ndarray]
     num = lambda x: np.array(ca.DM(x)).ravel() if x is not None else np.zeros_like(t)  # noqa: E731
     d = effect.deflection(ca.DM(q_m), P)
     out = {"deflection": num(d[0] if d is not None else None),
+           "reaction": num(d[1]) * tau if d is not None else np.zeros_like(t),
            "link": num(effect.link_torque(ca.DM(theta_l), ca.DM(omega_l), P)),
            "command": -num(effect.robot_model_torque(ca.DM(q_m), P))}
     reading = num(effect.sensor(ca.DM(tau), ca.DM(t), P))

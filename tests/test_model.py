@@ -137,3 +137,19 @@ def test_sampled_model_approaches_eq4_at_low_frequency():
     # The hold adds half a sample of delay: T/2 = 50 us, 2.5 mrad at 8 Hz.
     exact = frequency_response(TABLE1, f) * np.exp(-1j * np.pi * f * 1e-4)
     np.testing.assert_allclose(sampled, exact, rtol=1e-5, atol=0)
+
+
+@pytest.mark.parametrize("kind", ["motor", "link", "deflection", "reaction"])
+def test_polynomials_are_the_state_space_model(kind):
+    # Each input's numerator over eq (4)'s denominator is C (sI - A)^-1 B of the state-space model, for a
+    # random joint (the deflection's direct path -K added; the reaction: a torque on the motor that the loop's
+    # damping does not see).
+    rng = np.random.default_rng(7)
+    p = {"Jc": rng.uniform(0.3, 2.0), "bc": rng.uniform(20, 90), "K": rng.uniform(3e3, 4e4),
+         "Jl": rng.uniform(0.3, 20.0), "Td": 0.005}
+    A, B, C = model.state_matrices(p, kind)
+    num, den = model.polynomials(p, kind)
+    for f in rng.uniform(0.1, 300.0, size=5):
+        s = 2j * np.pi * f
+        ss = C[0] @ np.linalg.solve(s * np.eye(4) - A, B) - (p["K"] if kind == "deflection" else 0.0)  # direct path
+        np.testing.assert_allclose(np.polyval(num, s) / np.polyval(den, s), ss, rtol=1e-9, atol=0)

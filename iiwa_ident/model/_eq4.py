@@ -103,14 +103,17 @@ def polynomials(p, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
 
     The denominator is eq (4)'s ``Jc Jl s^2 + Jl bc s + (Jc + Jl) K`` for every
     input; the numerators are ``Jl (bc s + K)`` for the command and a torque
-    added inside the robot, ``-K Jc`` for a torque on the link [Nm/Nm] and
-    ``-K Jc Jl s^2`` for a transmission deflection [Nm/rad].
+    added inside the robot, ``-K Jc`` for a torque on the link [Nm/Nm],
+    ``-K Jc Jl s^2`` for a transmission deflection [Nm/rad] and ``K Jl`` for
+    the ripple's reaction, a torque on the motor that the loop's damping does
+    not see (eq (1) with ``r`` added to ``z'`` of
+    :func:`~iiwa_ident.model.state_matrices`) [Nm/Nm].
 
     Parameters
     ----------
     p : JointParameters, mapping, joint model or sequence
         (:func:`~iiwa_ident.model.parameter_values`).
-    input : {"command", "motor", "link", "deflection"}
+    input : {"command", "motor", "link", "deflection", "reaction"}
         The input (:data:`INPUTS`).
 
     Examples
@@ -119,8 +122,8 @@ def polynomials(p, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
     >>> num.tolist(), den.tolist()
     ([-10000.0], [4.0, 200.0, 50000.0])
     """
-    if input not in INPUTS[:4]:
-        raise ValueError(f"input must be one of {INPUTS[:4]}")
+    if input not in INPUTS:
+        raise ValueError(f"input must be one of {INPUTS}")
     Jc, bc, K, Jl, _ = parameter_values(p)
     den = np.array([Jc * Jl, Jl * bc, (Jc + Jl) * K])
     if input == "link":
@@ -129,6 +132,8 @@ def polynomials(p, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
         # K f pushes the motor side, -K f the link, and the sensor reads -K f directly: the sum leaves
         # only the inertias' share (no torque at low frequency, -K f far above the resonance).
         return np.array([-K * Jc * Jl, 0.0, 0.0]), den
+    if input == "reaction":
+        return np.array([K * Jl]), den
     return np.array([Jl * bc, Jl * K]), den
 
 
@@ -142,7 +147,7 @@ def frequency_response(p, f_hz: np.ndarray | float, input: str = "command") -> n
         ``Td`` [s] (:func:`~iiwa_ident.model.parameter_values`).
     f_hz : array_like
         Frequencies [Hz] (negative ones give the conjugate).
-    input : {"command", "motor", "link", "deflection"}
+    input : {"command", "motor", "link", "deflection", "reaction"}
         ``tau_J / tau_c`` (delayed by ``Td``), the same for a torque added
         inside the robot (no delay), ``tau_J`` per torque on the link, or per
         transmission deflection [Nm/rad] (:func:`polynomials`).

@@ -80,8 +80,9 @@ __all__ = [
 #: ``robot_model_torque``, which the robot adds to every command), ``sensor`` an additive error of the
 #: torque reading the internal loop regulates [Nm], ``reading_scale`` the reading times a relative error
 #: (``sensor``) and ``logged`` an additive error of the logged reading only, which the loop does not see [Nm]
-#: (``logged_offset``).
-INJECTIONS = ("deflection", "link", "command", "sensor", "reading_scale", "logged")
+#: (``logged_offset``); ``reaction`` the deflection's reaction on the motor side, ``tau_J f'(theta_m)`` [Nm]
+#: (the transmission's ratio ``1 - f'``; ``deflection``'s second output times the torque).
+INJECTIONS = ("deflection", "link", "command", "sensor", "reading_scale", "logged", "reaction")
 
 #: One regressor column: ``(point, signal)`` pairs, all scaled by the same coefficient.
 Column = list[tuple[str, np.ndarray]]
@@ -331,8 +332,14 @@ class TransmissionRipple(Effect):
         return effect
 
     def columns(self, s):
-        x = 2 * np.pi * s.q_m / self.values["period_rad"]
-        return [[("deflection", fn(k * x))] for k in range(1, self.n_harmonics + 1) for fn in (np.cos, np.sin)]
+        w = 2 * np.pi / self.values["period_rad"]
+        x = w * s.q_m
+        out = []
+        for k in range(1, self.n_harmonics + 1):
+            c, sn = np.cos(k * x), np.sin(k * x)
+            out.append([("deflection", c), ("reaction", -k * w * sn * s.tau_j)])
+            out.append([("deflection", sn), ("reaction", k * w * c * s.tau_j)])
+        return out
 
     def coefficients(self):
         return np.column_stack([self.cos_coef, self.sin_coef]).ravel()
