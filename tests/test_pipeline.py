@@ -112,7 +112,7 @@ class TestShortPipeline:
 
         workdir, _, _ = short_run
         titles = build_report(tmp_path / "v.pdf", workdir, stage="validation", png_dir=tmp_path / "png")
-        assert len(titles) == 4 and not any("not drawn" in t for t in titles), titles
+        assert len(titles) == 5 and not any("not drawn" in t for t in titles), titles
         for png in sorted((tmp_path / "png").glob("*.png")):
             assert_not_blank(png)
 

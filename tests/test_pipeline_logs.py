@@ -142,7 +142,7 @@ def test_the_report_of_measured_data(logs_run, tmp_path):
     assert head.startswith("MEASURED: 2 run(s) of iiwa14 joint 1 from ")
     # Rebuilt from the work folder's files alone, as `report --workdir` does.
     titles = build_report(tmp_path / "r.pdf", workdir, png_dir=tmp_path / "png", png_dpi=30)
-    assert titles[:3] == ["Title page", "Runs and what their logs say", "Each run predicted from the other runs"]
+    assert titles[:3] == ["Verdict", "Runs and what their logs say", "Each run predicted from the other runs"]
     assert not any(t.endswith("missing") or t.startswith("validation") for t in titles), titles
     assert "fit: skipped" in titles and "Named effects and gains" in titles
     assert any(t.startswith("Residuals before and after: joint1_vel_p6.h5") for t in titles), titles

@@ -42,7 +42,7 @@ class TestEveryPageRenders:
         assert len(pngs) == len(titles)
         for png in pngs:
             assert_not_blank(png)
-        expected = ["Title page", "Bode plot of tau_c -> tau_J", "Harmonic distortion", "Fitted model against the chirp",
+        expected = ["Verdict", "Appendix: inputs, stages and files (sha256)", "Bode plot of tau_c -> tau_J", "Harmonic distortion", "Fitted model against the chirp",
                     "Parameter table",
                     "Spatial spectrum", "Lookup tables (like Fig. 6)", "Spatial filter at several speeds (like Fig. 4)",
                     "External-torque observers (like Fig. 7)", "Pole map", "Paper reproduction table",
@@ -68,9 +68,9 @@ class TestEveryPageRenders:
 
     def test_one_stage(self, workdir, tmp_path):
         titles = build_report(tmp_path / "ripple.pdf", workdir, stage="ripple")
-        assert titles[0] == "Title page" and len(titles) == 4
+        assert titles[0] == "Verdict" and titles[-1].startswith("Appendix") and len(titles) == 5
         assert all(("ripple" in t.lower() or "spectrum" in t.lower() or "lookup" in t.lower() or "eq (6)" in t)
-                   for t in titles[1:]), titles
+                   for t in titles[1:-1]), titles
 
 
 class TestFailedStages:
@@ -109,9 +109,9 @@ class TestFailedStages:
         gone.mkdir()
         shutil.copy(workdir / "pipeline.json", gone / "pipeline.json")
         titles = build_report(tmp_path / "r.pdf", gone)
-        assert titles[0] == "Title page"
-        assert len(titles) == 1 + len(REPORT_STAGES)
-        assert all(t.endswith(("missing", "skipped")) for t in titles[1:]), titles
+        assert titles[0] == "Verdict" and titles[-1].startswith("Appendix")
+        assert len(titles) == 2 + len(REPORT_STAGES)
+        assert all(t.endswith(("missing", "skipped")) for t in titles[1:-1]), titles
 
 
 class TestCli:
@@ -120,8 +120,8 @@ class TestCli:
         proc = subprocess.run(CLI + ["report", "--workdir", str(workdir), "--stage", "fit", "--out", str(out)],
                               capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
-        assert "page  1: Title page" in proc.stdout and f"wrote {out}" in proc.stdout
-        assert pdf_pages(out) == 5  # the title, Bode, harmonics, the model against the chirp, the parameters
+        assert "page  1: Verdict" in proc.stdout and f"wrote {out}" in proc.stdout
+        assert pdf_pages(out) == 6  # verdict, Bode, harmonics, the model against the chirp, parameters, appendix
 
     def test_errors_are_one_line(self, tmp_path):
         proc = subprocess.run(CLI + ["report", "--workdir", str(tmp_path / "nowhere")], capture_output=True, text=True)
@@ -129,3 +129,55 @@ class TestCli:
         assert proc.stderr == f"error: {tmp_path / 'nowhere'}: no such folder\n", proc.stderr
         with pytest.raises(IiwaIdentError, match="--stage nope: expected one of fit, ripple"):
             build_report(tmp_path / "r.pdf", tmp_path, stage="nope")
+
+
+class TestVerdictPage:
+    def test_page_one_holds_the_verdict_of_every_stage(self, workdir, tmp_path):
+        # Extracted from the PDF as a reader sees it: the banner, one row per stage with its figure from
+        # pipeline.json and its verdict, the page index, page numbers; the sha256 in the appendix.
+        import pypdf
+
+        from iiwa_ident.report.verdict import verdict_rows
+
+        out = tmp_path / "report.pdf"
+        titles = build_report(out, workdir)
+        pages = pypdf.PdfReader(out).pages
+        assert len(pages) == len(titles)
+        first = pages[0].extract_text()
+        doc = json.loads((workdir / "pipeline.json").read_text())
+        assert "iiwa-ident report" in first and "SIMULATED: " in first and f"page 1 of {len(pages)}" in first
+        rows = verdict_rows(doc)
+        assert {r.stage for r in rows} >= {"fit", "ripple", "design", "deploy", "diagnose", "validation"}
+        flat = " ".join(first.split())
+        for r in rows:
+            assert " ".join(f"{r.stage} {r.figure.split()[0]}".split()) in flat, r
+            assert r.verdict in ("PASS", "WARN", "FAIL")
+        ripple = next(s for s in doc["stages"] if s["name"] == "ripple")["headline"]
+        assert f"rho = {ripple['period_rad']:.6f} rad" in flat
+        for i, title in enumerate(titles, 1):
+            assert f"{i} {title}" in flat, title
+        assert f"page {len(pages)} of {len(pages)}" in pages[-1].extract_text()
+        import re
+
+        digest = re.compile(r"\b[0-9a-f]{64}\b")  # the hashes live in the appendix, not on page 1
+        assert digest.search(pages[-1].extract_text()) and not digest.search(first)
+
+    def test_the_verdicts_follow_the_data(self, workdir):
+        # The same run as if another plant had made it: every row is computed from pipeline.json, none typed.
+        from iiwa_ident.report.verdict import verdict_rows
+
+        doc = json.loads((workdir / "pipeline.json").read_text())
+        by = {s["name"]: s for s in doc["stages"]}
+        by["ripple"]["headline"]["period_rad"] = 0.025
+        design = by["design"]["headline"]
+        design.update(kappa_max_builtin=10.0, kappa_max_additive=15.0, kappa_ratio=1.5)
+        design["observer"].update(improved_rms_nm=2.0 * design["observer"]["builtin_rms_nm"], improvement=0.5)
+        by["fit"]["headline"]["parameters"]["K"].update(error_std=-9.0, error_pct=-1.0)
+        rows = {r.stage: r for r in verdict_rows(doc)}
+        assert rows["ripple"].verdict == "WARN" and f"{100 * (0.025 / 0.01963 - 1):+.3f} % from the paper" in rows["ripple"].figure
+        assert rows["design"].verdict == "WARN" and "= 1.50x" in rows["design"].figure
+        assert rows["observer"].verdict == "FAIL" and "(0.50x)" in rows["observer"].figure
+        assert rows["fit"].verdict == "FAIL" and "worst K at 9.0 std" in rows["fit"].figure
+        by["fit"]["status"], by["fit"]["error"] = "failed", "no coherent band"
+        rows = verdict_rows(doc)
+        assert any(r.stage == "fit" and r.verdict == "FAIL" and "no coherent band" in r.figure for r in rows)

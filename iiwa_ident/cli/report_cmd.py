@@ -23,9 +23,11 @@ def report_cmd(
 ) -> None:
     """Build the PDF report from the files of a work folder (the analyses are re-run, no experiment is).
 
-    A title page with the inputs and their sha256, then per stage its figures,
-    each with a caption saying what to look at; a stage that failed gets a
-    page saying what failed. Every page says whether its data are SIMULATED
+    Page 1 is the verdict: one row per stage (its key figure, the reference
+    it is judged by, PASS / WARN / FAIL), the warnings and the page index;
+    then per stage its figures, each with a caption saying what to look at
+    (a stage that failed gets a page saying what failed), and an appendix
+    with the inputs and every file's sha256. Every page says whether its data are SIMULATED
     or MEASURED; the report of a 'pipeline --logs' folder adds the runs with
     the warnings of their import and each run's held-out prediction. A
     folder without pipeline results is refused.

@@ -242,7 +242,8 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model"), model)
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
     ctx.results.update(model=model, fit=result)
-    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings)}
+    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings),
+            "model_rejected": result.model_rejected}
 
 
 def parameter_rows(ctx: PipelineContext, result: Any) -> dict[str, dict[str, Any]]:
@@ -314,7 +315,7 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
                            "amplitude_rad": _num(r.amplitude_rad), "methods": sorted(r.methods)}
     if refit is not None:
         out["refit"] = {"parameters": parameter_rows(ctx, refit), "method": refit.method,
-                        "warnings": list(refit.warnings)}
+                        "warnings": list(refit.warnings), "model_rejected": refit.model_rejected}
     if ctx.target == "sim":
         true = [e for e in ctx.plant.effects if e.name == "transmission_ripple"]
         if true:
@@ -348,14 +349,15 @@ def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
     if hand is not None and hand.has("tau_ext_ref"):
         from iiwa_ident.design import compare_observers
 
-        obs = compare_observers(hand, model)
+        obs = compare_observers(hand, model, beta=record.filter.beta, v_min=record.filter.v_min_rad_s)  # as deployed
         write_atomic(ctx.path("observers_json"), json.dumps(_jsonable(obs), indent=2) + "\n")
         ctx.results["observers"] = obs
         rows = obs["observers"]
         out["observer"] = {"builtin_rms_nm": rows["builtin"]["rms_lagged_fast_nm"],
                            "improved_rms_nm": rows["improved"]["rms_lagged_fast_nm"],
                            "filtered_rms_nm": rows["filtered"]["rms_lagged_fast_nm"],
-                           "improvement": _num(obs["ratio_lagged_fast"])}
+                           "improvement": _num(obs["ratio_lagged_fast"]),
+                           "speed_threshold_rad_s": obs["speed_threshold_rad_s"]}
     else:
         out["observer"] = None
         ctx.progress("  observer comparison skipped: no hand-guided record with an F/T reference")
@@ -403,7 +405,8 @@ def _stage_validation(ctx: PipelineContext) -> dict[str, Any]:
     write_atomic(ctx.path("validation_json"), json.dumps(_jsonable(doc), indent=2) + "\n")
     ctx.results["validation"] = doc
     live = doc["kappa"].get("live")
-    return {"tracking": doc["tracking"], "kappa_linear_ratio": doc["kappa"]["linear_ratio"],
+    return {"tracking": doc["tracking"], "sine_hz": ctx.settings.validation.sine_hz,
+            "kappa_linear_ratio": doc["kappa"]["linear_ratio"],
             "kappa_live": None if live is None else {"kappa": live["kappa"], "stable": live["stable"],
                                                       "verdict": live["verdict"]}}
 

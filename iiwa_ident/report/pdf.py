@@ -89,7 +89,7 @@ def _rasterize_dense(fig: plt.Figure, points: int = 4000) -> None:
 
 def _text_page(title: str, body: str, mono: bool = False, size: tuple[float, float] = (11.0, 8.5),
                colour: str = "black") -> plt.Figure:
-    """A page of text only (title page, tables, failure notices): no axes at all."""
+    """A page of text only (the appendix, tables, failure notices): no axes at all."""
     fig = plt.figure(figsize=size)
     fig.text(0.05, 0.95, title, fontsize=15, va="top", weight="bold", color=colour)
     fig.text(0.05, 0.89, body, fontsize=7.5 if mono else 10, va="top", ha="left",
@@ -263,6 +263,75 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
 
 
 # --------------------------------------------------------------------------- pages
+_VERDICT_COLOUR = {"PASS": "#c8e6c9", "WARN": "#ffe0b2", "FAIL": "#ffcdd2"}
+
+
+def _warnings(doc: dict[str, Any]) -> list[str]:
+    """What the stages warned about, from ``pipeline.json`` (each once, its stage first)."""
+    out: list[str] = []
+    for s in doc.get("stages", []):
+        h = s.get("headline") or {}
+        said = list(h.get("warnings", [])) + list((h.get("refit") or {}).get("warnings", []))
+        for r in h.get("runs", []) if s["name"] == "import" else []:
+            said += [f"{r['run']}: {w}" for w in r.get("warnings", [])]
+        for w in said:
+            line = f"{s['name']}: {w}"
+            if line not in out:
+                out.append(line)
+    return out
+
+
+def _verdict_page(doc: dict[str, Any], index: list[str]) -> Page:
+    """Page 1: the banner, one verdict per stage (:mod:`iiwa_ident.report.verdict`), the warnings, the pages."""
+    def draw() -> plt.Figure:
+        from iiwa_ident.report.verdict import verdict_rows
+
+        rows = verdict_rows(doc)
+        fig = plt.figure(figsize=(11.0, 8.5))
+        head = banner(doc) or "no pipeline.json: no verdict"
+        fig.text(0.04, 0.965, "iiwa-ident report", fontsize=16, weight="bold", va="top")
+        fig.text(0.04, 0.925, head, fontsize=10, weight="bold", va="top",
+                 color="C3" if head.startswith("MEASURED") else "C0")
+        n_rows = max(len(rows), 1)
+        height = min(0.045 * (n_rows + 1), 0.55)
+        ax = fig.add_axes((0.04, 0.89 - height, 0.92, height))
+        ax.axis("off")
+        cells = [[r.stage, textwrap.fill(r.figure, 78), textwrap.fill(r.reference, 42), r.verdict] for r in rows] or \
+            [["-", "no stage has results", "-", "-"]]
+        table = ax.table(cellText=cells, colLabels=["stage", "key figure", "reference", "verdict"],
+                         colWidths=[0.11, 0.52, 0.29, 0.08], loc="upper left", cellLoc="left")
+        table.auto_set_font_size(False)
+        table.set_fontsize(8)
+        lines = [1] + [max(c.count("\n") + 1 for c in row) for row in cells]  # per row, the header first
+        unit = 1.0 / sum(1 + 0.6 * (n - 1) for n in lines)
+        for (i, j), cell in table.get_celld().items():
+            cell.set_height(unit * (1 + 0.6 * (lines[i] - 1)))
+            if i == 0:
+                cell.set_text_props(weight="bold")
+            elif j == 3:
+                cell.set_facecolor(_VERDICT_COLOUR.get(cells[i - 1][3], "white"))
+                cell.set_text_props(weight="bold")
+        y = 0.89 - height - 0.04
+        warn = _warnings(doc)
+        fig.text(0.04, y, f"Warnings ({len(warn)})" if warn else "Warnings: none", fontsize=10, weight="bold",
+                 va="top")
+        shown = [textwrap.shorten(w, 165, placeholder=" ...") for w in warn[:8]]
+        if len(warn) > 8:
+            shown.append(f"... and {len(warn) - 8} more (the stages' pages and JSON files)")
+        fig.text(0.04, y - 0.03, "\n".join(shown), fontsize=7, va="top", family="sans-serif")
+        y_index = min(y - 0.05 - 0.018 * len(shown), 0.3)
+        fig.text(0.04, y_index, "Pages", fontsize=10, weight="bold", va="top")
+        col = (len(index) + 1) // 2
+        for c in range(2):
+            part = index[c * col:(c + 1) * col]
+            fig.text(0.04 + 0.47 * c, y_index - 0.03,
+                     "\n".join(f"{c * col + i + 1:3d}  {t}" for i, t in enumerate(part)),
+                     fontsize=7.5, va="top", family="monospace")
+        return fig
+
+    return Page("verdict", "Verdict", "", draw, captioned=False)
+
+
 def _title_page(workdir: Path, doc: dict[str, Any] | None, stage: str | None) -> Page:
     def draw() -> plt.Figure:
         from iiwa_ident.pipeline import (
@@ -299,9 +368,9 @@ def _title_page(workdir: Path, doc: dict[str, Any] | None, stage: str | None) ->
         for f in files:
             lines.append(f"  {str(f.relative_to(workdir)):<34} {_sha256(f)}")
         what = "the whole pipeline" if stage is None else f"stage '{stage}'"
-        return _text_page(f"iiwa-ident report: {what}", "\n".join(lines), mono=True)
+        return _text_page(f"Appendix: inputs, stages and files of {what}", "\n".join(lines), mono=True)
 
-    return Page("title", "Title page", "Inputs with their sha256, the stages with status and duration, the "
+    return Page("title", "Appendix: inputs, stages and files (sha256)", "Inputs with their sha256, the stages with status and duration, the "
                 "headline figures and every file of the work folder with its sha256. Check the stage table first: "
                 "a failed stage has its own page saying why.", draw, captioned=False)
 
@@ -418,7 +487,7 @@ def _design_pages(r: dict[str, Any]) -> list[Page]:
                           "the improved one on the link velocity of eq (9) and the spatially filtered one, against "
                           "the F/T reference during hand guiding. Look at the zoom on fast motion: the built-in "
                           "estimate carries the ripple, the improved ones do not.",
-                          lambda: observer_figure(hand, model)))
+                          lambda: observer_figure(hand, model, beta=rec.filter.beta, v_min=rec.filter.v_min_rad_s)))
     d = rec.design
     poles = {"poles": {"builtin": builtin_poles(d.params), "additive": np.asarray(d.poles),
                        "observer": np.asarray(d.observer_poles)}}
@@ -547,22 +616,23 @@ def _held_out_page(doc: dict[str, Any]) -> Page | None:
 
 def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, Any],
                  stage: str | None = None) -> list[Page]:
-    """The pages of the report, in order: title, then per stage its figures or a failure notice.
+    """The pages of the report, in order: the verdict (page 1, with a ``pipeline.json``), the runs and held-out
+    pages of measured data, per stage its figures or a failure notice, and the appendix of inputs and files.
 
     Parameters
     ----------
     workdir : Path
-        The work folder (run logs, files for the title page).
+        The work folder (run logs, files for the appendix).
     doc : dict or None
         ``pipeline.json`` content (stage status and messages).
     results : dict
         In-memory results (from the pipeline or :func:`load_results`).
     stage : str, optional
-        Only this stage's pages (after the title page).
+        Only this stage's pages (between the verdict and the appendix).
     """
     if stage is not None and stage not in REPORT_STAGES:
         raise IiwaIdentError(f"--stage {stage}: expected one of {', '.join(REPORT_STAGES)}")
-    pages = [_title_page(workdir, doc, stage)]
+    pages: list[Page] = []
     if stage is None and _measured(doc):
         pages += [p for p in (_runs_page(doc), _held_out_page(doc)) if p is not None]
     makers = {"fit": (("fit",), lambda: _fit_pages(results, doc)),
@@ -585,6 +655,10 @@ def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, A
             pages.append(_failure_page(name, status if status not in ("ok", "unknown") else "missing", why))
             continue
         pages.extend(make())
+    pages.append(_title_page(workdir, doc, stage))
+    if doc is not None:
+        # Page 1 indexes every page, itself included.
+        pages.insert(0, _verdict_page(doc, ["Verdict"] + [p.title for p in pages]))
     return pages
 
 
@@ -656,6 +730,7 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
                     if head:
                         fig.text(0.5, 0.998, head, ha="center", va="top", fontsize=8, weight="bold",
                                  color="C3" if head.startswith("MEASURED") else "C0")
+                    fig.text(0.99, 0.003, f"page {i} of {len(pages)}", ha="right", va="bottom", fontsize=7)
                 except Exception as err:  # noqa: BLE001  (one bad page must not cost the others)
                     plt.close("all")
                     fig = _text_page(f"{page.title}: this page could not be drawn",

@@ -1,0 +1,161 @@
+"""Page 1 of the report: the verdict of each stage, computed from ``pipeline.json`` alone.
+
+Every figure on the page is read from a stage's headline in ``pipeline.json`` (the same numbers the
+pipeline prints and the stage pages draw), never typed: :func:`verdict_rows` is a pure function of that
+document, so a test can build it on two plants and check that the page follows the data.
+
+Verdicts:
+
+- ``PASS``: the figure meets its reference (stated in the row);
+- ``WARN``: it misses it, but not by what makes the result unusable, or the data cannot decide;
+- ``FAIL``: the result contradicts the reference.
+
+References: the paper's ripple period (0.01963 rad, given to 4 digits: 0.03 %) and its "about 3 times the
+gain margin"; a fitted parameter against the simulated plant within 3 standard deviations; an improved
+observer, step and sine tracking better than the robot's own loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from iiwa_ident.model import RIPPLE_PERIOD_RAD
+
+__all__ = ["VerdictRow", "verdict_rows", "PASS", "WARN", "FAIL"]
+
+PASS, WARN, FAIL = "PASS", "WARN", "FAIL"
+
+#: Relative tolerance of the ripple period against the paper's value: its printed digits (0.01963).
+_PERIOD_DIGITS = 0.5e-5 / RIPPLE_PERIOD_RAD
+#: The paper's gain margin ratio of the additive controller over the built-in loop ("about 3x").
+_PAPER_KAPPA_RATIO = 3.0
+
+
+@dataclass(frozen=True)
+class VerdictRow:
+    """One row of page 1: the stage, its key figure with unit, the reference it is judged by and the verdict."""
+
+    stage: str
+    figure: str
+    reference: str
+    verdict: str
+
+
+def _stage(doc: dict[str, Any], name: str) -> dict[str, Any] | None:
+    return next((s for s in doc.get("stages", []) if s["name"] == name), None)
+
+
+def _fit_row(stage: str, params: dict[str, Any], rejected: bool | None) -> VerdictRow:
+    z = {k: abs(r["error_std"]) for k, r in params.items() if r.get("error_std") is not None}
+    rel = max((abs(r["rel_std_pct"]) for r in params.values() if r.get("rel_std_pct") is not None), default=None)
+    tests = "" if rejected is None else ("; residual follows the command" if rejected else
+                                         "; residual independent of the command")
+    if z:
+        worst = max(z, key=z.get)
+        fig = f"worst {worst} at {z[worst]:.1f} std of the plant (error {params[worst]['error_pct']:+.3g} %){tests}"
+        verdict = PASS if z[worst] <= 3 else (WARN if z[worst] <= 6 else FAIL)
+        if rejected:
+            verdict = WARN if verdict == PASS else verdict
+        return VerdictRow(stage, fig, "every parameter within 3 std of the simulated plant", verdict)
+    fig = (f"largest relative std {rel:.2g} %" if rel is not None else "parameters fitted") + tests
+    return VerdictRow(stage, fig, "residual independent of the command (no truth to compare)",
+                      WARN if rejected else PASS)
+
+
+def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
+    """The verdict table of a pipeline run (module docstring), one row per stage that has results.
+
+    Parameters
+    ----------
+    doc : dict
+        The content of ``pipeline.json``.
+
+    Returns
+    -------
+    list of VerdictRow
+        In stage order; a failed stage is a ``FAIL`` row with its message, a skipped one a ``WARN`` row.
+    """
+    rows: list[VerdictRow] = []
+    for s in doc.get("stages", []):
+        if s["status"] == "failed":
+            rows.append(VerdictRow(s["name"], f"failed: {s.get('error', '')}", "the stage runs", FAIL))
+        elif s["status"] == "skipped" and s["name"] != "report":
+            rows.append(VerdictRow(s["name"], f"skipped: {s.get('error', '')}", "the stage runs", WARN))
+    by = {s["name"]: s.get("headline", {}) for s in doc.get("stages", []) if s["status"] == "ok"}
+
+    if "import" in by:
+        runs = by["import"].get("runs", [])
+        warned = sum(bool(r.get("warnings")) for r in runs)
+        rows.append(VerdictRow("import", f"{len(runs)} run(s), {warned} with warnings (see the runs page)",
+                               "logs that say what they can give", WARN if warned else PASS))
+    if "fit" in by:
+        h = by["fit"]
+        rows.append(_fit_row("fit", h.get("parameters", {}), h.get("model_rejected")))
+    if "ripple" in by:
+        h = by["ripple"]
+        if h.get("detected"):
+            rho, sd = h["period_rad"], h.get("period_std_rad")
+            dev = rho / RIPPLE_PERIOD_RAD - 1.0
+            fig = f"rho = {rho:.6f} rad" + (f" +- {sd:.2g}" if sd else "") + f" ({100 * dev:+.3f} % from the paper)"
+            rows.append(VerdictRow("ripple", fig, f"paper {RIPPLE_PERIOD_RAD} rad (+-{100 * _PERIOD_DIGITS:.2f} %, "
+                                   "its digits)", PASS if abs(dev) <= _PERIOD_DIGITS else WARN))
+        else:
+            rows.append(VerdictRow("ripple", "no period found", f"paper {RIPPLE_PERIOD_RAD} rad", WARN))
+        refit = h.get("refit")
+        if refit:
+            rows.append(_fit_row("fit with table", refit.get("parameters", {}), refit.get("model_rejected")))
+    if "design" in by:
+        h = by["design"]
+        ratio = h.get("kappa_ratio")
+        if ratio is not None:
+            rows.append(VerdictRow("design", f"kappa margin {h['kappa_max_additive']:.3g} additive / "
+                                   f"{h['kappa_max_builtin']:.3g} built-in = {ratio:.2f}x",
+                                   f"paper about {_PAPER_KAPPA_RATIO:g}x",
+                                   PASS if ratio >= 0.8 * _PAPER_KAPPA_RATIO else (WARN if ratio > 1 else FAIL)))
+        obs = h.get("observer")
+        if obs:
+            better = obs["improved_rms_nm"] < obs["builtin_rms_nm"]
+            rows.append(VerdictRow("observer", f"improved {obs['improved_rms_nm']:.3g} Nm against built-in "
+                                   f"{obs['builtin_rms_nm']:.3g} Nm RMS ({obs['improvement']:.2f}x), |v| > "
+                                   f"{obs.get('speed_threshold_rad_s', 0.5):g} rad/s",
+                                   "F/T reference through the observers' own lag (K_I)", PASS if better else FAIL))
+    if "deploy" in by:
+        h = by["deploy"]
+        ok = h.get("checks_passed") == h.get("checks")
+        rows.append(VerdictRow("deploy", f"{h.get('checks_passed')}/{h.get('checks')} checks, torque limit "
+                               f"{h.get('torque_limit_nm')} Nm", "every check passes", PASS if ok else FAIL))
+    if "validation" in by:
+        h = by["validation"]
+        step = h.get("tracking", {}).get("step")
+        if step:
+            rows.append(VerdictRow("step", f"overshoot {step['additive_overshoot_pct']:.0f} % additive, "
+                                   f"{step['builtin_overshoot_pct']:.0f} % built-in", "below the built-in loop's",
+                                   PASS if step["additive_overshoot_pct"] < step["builtin_overshoot_pct"] else FAIL))
+        sine = h.get("tracking", {}).get("sine")
+        if sine:
+            hz = h.get("sine_hz")
+            rows.append(VerdictRow("sine", f"{'' if hz is None else f'{hz:g} Hz '}peak error "
+                                   f"{sine['additive_peak_error_nm']:.3g} Nm additive, "
+                                   f"{sine['builtin_peak_error_nm']:.3g} Nm built-in", "below the built-in loop's",
+                                   PASS if sine["additive_peak_error_nm"] < sine["builtin_peak_error_nm"] else FAIL))
+        live = h.get("kappa_live")
+        if live:
+            rows.append(VerdictRow("kappa live", f"kappa = {live['kappa']:.3g}: {live['verdict']}",
+                                   "stable through FRI", PASS if live.get("stable") else FAIL))
+    if "diagnose" in by:
+        h = by["diagnose"]
+        if h.get("explained"):
+            rows.append(VerdictRow("diagnose", "the model explains the data: nothing named",
+                                   "no effect lowers the held-out residual", PASS))
+        else:
+            named = ", ".join(f"{e['name']} ({e['gain_pct']:.0f} %)" for e in h.get("effects", [])) or "none"
+            rows.append(VerdictRow("diagnose", f"named: {named}", "the model explains the data", WARN))
+    if "held_out" in by:
+        runs = by["held_out"].get("runs", [])
+        ratios = [r["ratio"] for r in runs if r.get("ratio") is not None]
+        if ratios:
+            rows.append(VerdictRow("held out", f"each run predicted from the others at {100 * min(ratios):.0f}-"
+                                   f"{100 * max(ratios):.0f} % of the starting model's RMS",
+                                   "every run lower", PASS if max(ratios) < 1 else WARN))
+    return rows
