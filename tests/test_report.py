@@ -49,7 +49,11 @@ class TestEveryPageRenders:
                     "validation: skipped", "Named effects and gains"]
         for title in expected:
             assert title in titles, title
-        assert any(t.startswith("Residuals before and after") for t in titles)
+        # Residual pages (before and after) only where the diagnosis changed the model.
+        diag = next(s for s in json.loads((workdir / "pipeline.json").read_text())["stages"]
+                    if s["name"] == "diagnose")["headline"]
+        changed = bool(diag["effects"] or diag["replaced"])
+        assert any(t.startswith("Residuals before and after") for t in titles) == changed
 
     def test_every_figure_has_a_caption_and_labelled_axes(self, workdir):
         doc = json.loads((workdir / "pipeline.json").read_text())

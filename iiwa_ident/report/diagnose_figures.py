@@ -114,19 +114,27 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     # An undecided effect is named, but the other shape of a named effect would predict as well.
     undecided = {u["name"]: f" (or {u['or_shape_of']}'s shape: undecided)" for u in d.undecided}
     rows = [[e.name + undecided.get(e.name, ""), f"{e.confidence:.4f}", f"{e.rms_before:.4f}", f"{e.rms_after:.4f}",
-             f"{e.gain_pct:.1f}"] for e in d.effects]
+             f"{e.gain_pct:.1f}", "", ""] for e in d.effects]
     # Not named: the data do not decide between it and another shape of a named effect (its gain as named).
-    rows += [[f"({a['name']} or {a['or_shape_of']}'s shape)", "ambiguous", "", "", f"{a['gain_pct']:.1f}"]
+    rows += [[f"({a['name']} or {a['or_shape_of']}'s shape)", "ambiguous", "", "", f"{a['gain_pct']:.1f}", "", ""]
              for a in d.ambiguous]
     # The model's own effects the data contradicted (left out of the extended model), with their gain.
     rows += [[f"(replaced: {r['old']} -> {' + '.join(r['new']) or 'nothing'})", "replaced", "", "",
-              f"{r['gain_pct']:.1f}"] for r in d.replaced]
-    rows += [[f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}", f"{c.gain_pct:.1f}"]
-             for c in d.channels]
-    fig, ax = plt.subplots(figsize=(9, 0.6 + 0.3 * (len(rows) + 1)))
+              f"{r['gain_pct']:.1f}", "", ""] for r in d.replaced]
+    verdicts = {True: "pass", False: "FAIL", None: "-"}
+    for c in d.channels:
+        fits = tests = ""
+        if c.before is not None and c.after is not None:
+            fits = f"{c.before.fit_pct:.1f} / {c.after.fit_pct:.1f}"
+            tests = f"{verdicts[c.before.passed]} / {verdicts[c.after.passed]}"
+        rows.append([f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}",
+                     f"{c.gain_pct:.1f}", fits, tests])
+    fig, ax = plt.subplots(figsize=(11, 0.6 + 0.3 * (len(rows) + 1)))
     ax.set_axis_off()
     table = ax.table(cellText=rows, colLabels=["effect / dataset channel", "confidence", "RMS before [Nm]",
-                                              "RMS after [Nm]", "gain [%]"], loc="center", cellLoc="right")
+                                              "RMS after [Nm]", "gain [%]", "fit % before/after",
+                                              "tests before/after"],
+                     colWidths=[0.3, 0.09, 0.11, 0.11, 0.08, 0.14, 0.17], loc="center", cellLoc="left")
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     verdict = "model explains the data: nothing named" if d.explained else f"{len(d.effects)} effect(s) named"

@@ -147,14 +147,21 @@ def harmonics_figure(result: FitResult, index: int = 0) -> Figure | None:
     for xi, b in zip(x, bands):
         if not math.isfinite(b.share):
             ax_s.text(xi, 0, "n/a", ha="center", va="bottom", fontsize=8)
-    ax_s.axhline(5.0, color="tab:red", ls="--", lw=0.8, label="5 % warning level")
-    ax_s.set_ylim(0, max(6.0, 1.2 * max(shares, default=0.0)))
-    ax_s.legend(fontsize=8, loc="upper right")
+    top = max(shares, default=0.0)
+    if top > 2.5:
+        ax_s.axhline(5.0, color="tab:red", ls="--", lw=0.8, label="5 % warning level")
+        ax_s.set_ylim(0, max(6.0, 1.2 * top))
+    else:
+        # Far below the warning level: scaled to the data, so the bars show (the level is named in the title).
+        ax_s.set_ylim(0, max(1.25 * top, 1e-3))
+    if top > 2.5:
+        ax_s.legend(fontsize=8, loc="upper right")
     ax_s.set_xticks(x)
     ax_s.set_xticklabels(labels, rotation=30, fontsize=8)
     ax_s.set_xlabel("octave band of the input frequency [Hz]")
     ax_s.set_ylabel("nonlinear share [%]")
-    ax_s.set_title("Output power in harmonics 2.. (red: above 5 %)", fontsize=10)
+    ax_s.set_title("Output power in harmonics 2.. (red: above the 5 % warning level; largest here "
+                   f"{top:.2g} %)", fontsize=10)
     ax_s.grid(True, axis="y", alpha=0.3)
     fig.suptitle(f"Harmonic distortion: {result.labels[index]}", fontsize=10)
     fig.tight_layout()

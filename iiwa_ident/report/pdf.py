@@ -419,10 +419,22 @@ def _fit_pages(r: dict[str, Any], doc: dict[str, Any] | None) -> list[Page]:
              "part of the response; whiteness fails in closed loop even for a complete model.",
              lambda: _comparison(r)),
         Page("fit", "Parameter table", "The five parameters with their standard deviations (and, on the "
-             "simulated joint, the error against the plant that was simulated), with the correlation of the "
-             "estimates. Look for errors within a few standard deviations; the ripple biases K by about -2 %.",
-             table),
+             "simulated joint, the error against the plant that was simulated, in % and in std), with the "
+             "correlation of the estimates. Look for errors within 3 standard deviations" + _ripple_shift(doc)
+             + ".", table),
     ]
+
+
+def _ripple_shift(doc: dict[str, Any] | None) -> str:
+    """What the ripple table changes in the fit (from pipeline.json: the fit and its refit with the table)."""
+    fit = _stage_headline(doc, "fit")
+    refit = ((_stage_headline(doc, "ripple") or {}).get("refit") or {}).get("parameters")
+    if not fit or not refit:
+        return ""
+    first = fit["parameters"]
+    moved = {k: 100 * (refit[k]["value"] / first[k]["value"] - 1) for k in ("K", "Jl") if k in refit and k in first}
+    said = ", ".join(f"{k} by {v:+.2g} %" for k, v in moved.items())
+    return f"; the fit with the ripple's table (ripple stage) moves {said}" if said else ""
 
 
 def _comparison(r: dict[str, Any]) -> plt.Figure:
@@ -535,11 +547,14 @@ def _diagnose_pages(r: dict[str, Any]) -> list[Page]:
     from iiwa_ident.report import diagnose_figures as df
 
     d = r["diagnosis"]
+    changed = bool(d.effects or d.replaced)
     pages = [Page("diagnose", "Named effects and gains", "Held-out residual RMS before and after each named "
-                  "effect, per effect and per dataset channel. Look at the gain column: an effect is named only "
-                  "when it lowers the held-out residual by at least 3 % with 0.999 confidence.",
-                  lambda: df.gain_table_figure(d))]
-    for ctx in d.contexts:
+                  "effect, per effect and per dataset channel, with each channel's fit and residual tests (as "
+                  "'compare' gives them, in-sample) before and after. Look at the gain column: an effect is named "
+                  "only when it lowers the held-out residual by at least 3 % with 0.999 confidence"
+                  + ("." if changed else "; nothing was named, so the residual pages are left out (before and "
+                     "after would be the same)."), lambda: df.gain_table_figure(d))]
+    for ctx in d.contexts if changed else ():
         for ch in ctx.channels:
             what = "link-side external-torque error" if ch == "link" else "joint-torque response to the command"
             pages.append(Page("diagnose", f"Residuals before and after: {ctx.name}"

@@ -187,14 +187,16 @@ def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any]
     units = {"Jc": "kg m^2", "bc": "Nm s/rad", "K": "Nm/rad", "Jl": "kg m^2", "Td": "s"}
     params = headline["parameters"]
     has_truth = any("simulated" in v for v in params.values())
-    cols = ["parameter", "unit", "value", "std", "rel. std [%]"] + (["simulated", "error [%]"] if has_truth else [])
+    cols = ["parameter", "unit", "value", "std", "rel. std [%]"] + (["simulated", "error [%]", "error [std]"]
+                                                                     if has_truth else [])
     rows = []
     for name, v in params.items():
         row = [name, units.get(name, ""), f"{v['value']:.6g}", f"{v['std']:.3g}",
                "-" if v.get("rel_std_pct") is None else f"{v['rel_std_pct']:.3f}"]
         if has_truth:
             row += [f"{v['simulated']:.6g}" if "simulated" in v else "-",
-                    f"{v['error_pct']:+.3f}" if "error_pct" in v else "-"]
+                    f"{v['error_pct']:+.3g}" if "error_pct" in v else "-",
+                    f"{v['error_std']:+.1f}" if v.get("error_std") is not None else "-"]
         rows.append(row)
     fig = plt.figure(figsize=(12, 4.5))
     grid = fig.add_gridspec(1, 2, width_ratios=(1.6, 1.0))
@@ -203,8 +205,9 @@ def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any]
     table = ax.table(cellText=rows, colLabels=cols, loc="center", cellLoc="right")
     table.auto_set_font_size(False)
     table.set_fontsize(9)
+    table.auto_set_column_width(list(range(len(cols))))
     table.scale(1.0, 1.5)
-    ax.set_title("Parameters of eq (4) from the chirp (std from the Fisher information)", fontsize=10)
+    ax.set_title("Parameters of eq (4) from the chirp", fontsize=10)
     if correlation:
         axc = fig.add_subplot(grid[0, 1])
         m = np.asarray(correlation["matrix"], float)
@@ -214,7 +217,9 @@ def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any]
         axc.set_yticks(range(len(names)), names)
         for i in range(len(names)):
             for j in range(len(names)):
-                axc.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=7)
+                # Dark cells (|rho| near 1) get white digits, so every value stays readable.
+                axc.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=7,
+                         color="white" if abs(m[i, j]) > 0.6 else "black")
         fig.colorbar(im, ax=axc, label="correlation coefficient [-]")
         axc.set_xlabel("parameter")
         axc.set_ylabel("parameter")
