@@ -281,8 +281,32 @@ def _warnings(doc: dict[str, Any]) -> list[str]:
     return out
 
 
-def _verdict_page(doc: dict[str, Any], index: list[str]) -> Page:
-    """Page 1: the banner, one verdict per stage (:mod:`iiwa_ident.report.verdict`), the warnings, the pages."""
+#: Pages shown as thumbnails on page 1, by title (those the report has).
+_THUMBNAILS = ("Bode plot of tau_c -> tau_J", "Lookup tables (like Fig. 6)", "Step responses through FRI (like Fig. 8)",
+               "kappa margin")
+
+
+def _thumbnail(page: Page) -> Any:
+    """The page's figure as a small image (None when it cannot be drawn: its own page says why)."""
+    import io
+
+    try:
+        fig = page.draw()
+        if fig is None:
+            return None
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=45)
+        plt.close(fig)
+        buf.seek(0)
+        return plt.imread(buf)
+    except Exception:  # noqa: BLE001  (a thumbnail must not cost page 1)
+        plt.close("all")
+        return None
+
+
+def _verdict_page(doc: dict[str, Any], index: list[str], thumbs: list[Page] = ()) -> Page:
+    """Page 1: the banner, one verdict per stage (:mod:`iiwa_ident.report.verdict`), thumbnails of the key
+    figures, the warnings, the pages."""
     def draw() -> plt.Figure:
         from iiwa_ident.report.verdict import verdict_rows
 
@@ -293,7 +317,7 @@ def _verdict_page(doc: dict[str, Any], index: list[str]) -> Page:
         fig.text(0.04, 0.925, head, fontsize=10, weight="bold", va="top",
                  color="C3" if head.startswith("MEASURED") else "C0")
         n_rows = max(len(rows), 1)
-        height = min(0.045 * (n_rows + 1), 0.55)
+        height = min(0.036 * (n_rows + 1), 0.5)
         ax = fig.add_axes((0.04, 0.89 - height, 0.92, height))
         ax.axis("off")
         cells = [[r.stage, textwrap.fill(r.figure, 78), textwrap.fill(r.reference, 42), r.verdict] for r in rows] or \
@@ -311,22 +335,32 @@ def _verdict_page(doc: dict[str, Any], index: list[str]) -> Page:
             elif j == 3:
                 cell.set_facecolor(_VERDICT_COLOUR.get(cells[i - 1][3], "white"))
                 cell.set_text_props(weight="bold")
-        y = 0.89 - height - 0.04
+        y = 0.89 - height - 0.035
+        images = [(p.title, im) for p in thumbs if (im := _thumbnail(p)) is not None]
+        for k, (title, im) in enumerate(images):
+            ax_t = fig.add_axes((0.04 + 0.235 * k, y - 0.17, 0.215, 0.17))
+            ax_t.imshow(im)
+            ax_t.set_axis_off()
+            ax_t.set_title(f"p. {index.index(title) + 1}: {title}", fontsize=6.5)
+        if images:
+            y -= 0.2
         warn = _warnings(doc)
         fig.text(0.04, y, f"Warnings ({len(warn)})" if warn else "Warnings: none", fontsize=10, weight="bold",
                  va="top")
-        shown = [textwrap.shorten(w, 165, placeholder=" ...") for w in warn[:8]]
-        if len(warn) > 8:
-            shown.append(f"... and {len(warn) - 8} more (the stages' pages and JSON files)")
-        fig.text(0.04, y - 0.03, "\n".join(shown), fontsize=7, va="top", family="sans-serif")
-        y_index = min(y - 0.05 - 0.018 * len(shown), 0.3)
+        most = 5
+        shown = [textwrap.shorten(w, 165, placeholder=" ...") for w in warn[:most]]
+        if len(warn) > most:
+            shown.append(f"... and {len(warn) - most} more (the stages' pages and JSON files)")
+        fig.text(0.04, y - 0.025, "\n".join(shown), fontsize=7, va="top", family="sans-serif")
+        y_index = y - 0.045 - 0.016 * len(shown)
         fig.text(0.04, y_index, "Pages", fontsize=10, weight="bold", va="top")
-        col = (len(index) + 1) // 2
-        for c in range(2):
+        col = (len(index) + 2) // 3
+        for c in range(3):
             part = index[c * col:(c + 1) * col]
-            fig.text(0.04 + 0.47 * c, y_index - 0.03,
-                     "\n".join(f"{c * col + i + 1:3d}  {t}" for i, t in enumerate(part)),
-                     fontsize=7.5, va="top", family="monospace")
+            fig.text(0.04 + 0.31 * c, y_index - 0.025,
+                     "\n".join(f"{c * col + i + 1:3d}  {textwrap.shorten(t, 44, placeholder='...')}"
+                                for i, t in enumerate(part)),
+                     fontsize=7, va="top", family="monospace")
         return fig
 
     return Page("verdict", "Verdict", "", draw, captioned=False)
@@ -459,7 +493,9 @@ def _ripple_pages(r: dict[str, Any]) -> list[Page]:
     return [
         Page("ripple", "Spatial spectrum", f"Consistency of the deflection's Fourier coefficients across passes "
              f"against the period. Look for one line at rho = {res.period_rad:.5f} rad (paper 0.01963 rad) "
-             "standing far above a flat floor.", lambda: spatial_spectrum_figure(res)),
+             "standing far above a flat floor. Lines at rho/2, rho/3, ... are the deflection's higher harmonics "
+             "(its shape is not a pure sine) and may stand taller than rho's own: they belong to the same family, "
+             "whose fundamental is the period.", lambda: spatial_spectrum_figure(res)),
         Page("ripple", "Lookup tables (like Fig. 6)", f"The deflection folded modulo rho with the table of each "
              f"method ({methods}). Look for the methods agreeing: the table is what the position correction of "
              "eqs (8)-(9) subtracts.", lambda: lookup_table_figure(res)),
@@ -673,7 +709,8 @@ def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, A
     pages.append(_title_page(workdir, doc, stage))
     if doc is not None:
         # Page 1 indexes every page, itself included.
-        pages.insert(0, _verdict_page(doc, ["Verdict"] + [p.title for p in pages]))
+        pages.insert(0, _verdict_page(doc, ["Verdict"] + [p.title for p in pages],
+                                      [p for p in pages if p.title in _THUMBNAILS]))
     return pages
 
 
