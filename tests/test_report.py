@@ -187,3 +187,26 @@ class TestVerdictPage:
         by["fit"]["status"], by["fit"]["error"] = "failed", "no coherent band"
         rows = verdict_rows(doc)
         assert any(r.stage == "fit" and r.verdict == "FAIL" and "no coherent band" in r.figure for r in rows)
+
+    def test_the_captions_follow_the_data(self, workdir):
+        # The parameter table's caption says what the ripple's table moves, from pipeline.json; the spatial
+        # filter's says the design's beta, from the design file: change the data and the captions follow.
+        doc = json.loads((workdir / "pipeline.json").read_text())
+        results = load_results(workdir, doc, ("fit", "ripple", "design"))
+
+        def captions(d):
+            return {p.title: p.caption for p in report_pages(workdir, d, results)}
+
+        fit = next(s for s in doc["stages"] if s["name"] == "fit")["headline"]["parameters"]
+        refit = next(s for s in doc["stages"] if s["name"] == "ripple")["headline"]["refit"]["parameters"]
+        shift = 100 * (refit["K"]["value"] / fit["K"]["value"] - 1)
+        assert f"moves K by {shift:+.2g} %" in captions(doc)["Parameter table"]
+        refit["K"]["value"] = fit["K"]["value"] * 0.98
+        assert "moves K by -2 %" in captions(doc)["Parameter table"]
+        beta = results["design"].filter.beta
+        assert f"(beta = {beta:g})" in captions(doc)["Spatial filter at several speeds (like Fig. 4)"]
+        import dataclasses
+
+        rec = results["design"]
+        results["design"] = dataclasses.replace(rec, filter=dataclasses.replace(rec.filter, beta=beta + 3.0))
+        assert f"(beta = {beta + 3.0:g})" in captions(doc)["Spatial filter at several speeds (like Fig. 4)"]

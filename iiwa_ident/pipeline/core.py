@@ -357,6 +357,9 @@ def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
                            "improved_rms_nm": rows["improved"]["rms_lagged_fast_nm"],
                            "filtered_rms_nm": rows["filtered"]["rms_lagged_fast_nm"],
                            "improvement": _num(obs["ratio_lagged_fast"]),
+                           # Against the F/T torque itself, the observers' common lag (1/K_I) dominates.
+                           "builtin_rms_raw_nm": rows["builtin"]["rms_fast_nm"],
+                           "improved_rms_raw_nm": rows["improved"]["rms_fast_nm"],
                            "speed_threshold_rad_s": obs["speed_threshold_rad_s"]}
     else:
         out["observer"] = None

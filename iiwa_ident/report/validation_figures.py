@@ -164,6 +164,9 @@ def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
         ax_r.axhline(5.0, color="0.5", ls=":", label="growth is ignored below 5 Nm")
         ax_r.axhline(25.0, color="C3", ls=":", label="limit cycle: unstable above 25 Nm")
         ax_r.set_xlim(0, t[-1])
+        if rms and min(rms) > 0:
+            ax_r.set_yscale("log")  # a level far below both thresholds stays visible beside them
+            ax_r.set_ylim(min(min(rms), 5.0) / 3.0, max(max(rms), 25.0) * 2.0)
         ax_r.set_xlabel("time since the start of the run [s]")
         ax_r.set_ylabel("RMS [Nm]")
         ax_r.legend(fontsize=7, loc="upper right")

@@ -116,9 +116,13 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
         obs = h.get("observer")
         if obs:
             better = obs["improved_rms_nm"] < obs["builtin_rms_nm"]
+            raw = ""
+            if obs.get("improved_rms_raw_nm") is not None:
+                raw = (f"; against the F/T itself {obs['improved_rms_raw_nm']:.3g} and {obs['builtin_rms_raw_nm']:.3g}"
+                       " Nm (their common lag dominates)")
             rows.append(VerdictRow("observer", f"improved {obs['improved_rms_nm']:.3g} Nm against built-in "
                                    f"{obs['builtin_rms_nm']:.3g} Nm RMS ({obs['improvement']:.2f}x), |v| > "
-                                   f"{obs.get('speed_threshold_rad_s', 0.5):g} rad/s",
+                                   f"{obs.get('speed_threshold_rad_s', 0.5):g} rad/s{raw}",
                                    "F/T reference through the observers' own lag (K_I)", PASS if better else FAIL))
     if "deploy" in by:
         h = by["deploy"]
