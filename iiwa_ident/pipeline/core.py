@@ -243,7 +243,15 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
     ctx.results.update(model=model, fit=result)
     return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings),
-            "model_rejected": result.model_rejected}
+            "model_rejected": result.model_rejected, **residual_level(ctx, result)}
+
+
+def residual_level(ctx: PipelineContext, result: Any) -> dict[str, float]:
+    """The fit's torque residual [Nm RMS] and, on the simulator, the sensor noise it simulated (its floor)."""
+    out = {"residual_tau_j_nm": max(n["tau_j_nm"] for n in result.noise)}
+    if ctx.target == "sim":
+        out["sensor_noise_nm"] = float(ctx.plant.sensors["tau_noise_nm"])
+    return out
 
 
 def parameter_rows(ctx: PipelineContext, result: Any) -> dict[str, dict[str, Any]]:
@@ -315,7 +323,8 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
                            "amplitude_rad": _num(r.amplitude_rad), "methods": sorted(r.methods)}
     if refit is not None:
         out["refit"] = {"parameters": parameter_rows(ctx, refit), "method": refit.method,
-                        "warnings": list(refit.warnings), "model_rejected": refit.model_rejected}
+                        "warnings": list(refit.warnings), "model_rejected": refit.model_rejected,
+                        **residual_level(ctx, refit)}
     if ctx.target == "sim":
         true = [e for e in ctx.plant.effects if e.name == "transmission_ripple"]
         if true:

@@ -46,18 +46,29 @@ def _stage(doc: dict[str, Any], name: str) -> dict[str, Any] | None:
     return next((s for s in doc.get("stages", []) if s["name"] == name), None)
 
 
-def _fit_row(stage: str, params: dict[str, Any], rejected: bool | None) -> VerdictRow:
+#: A fit's torque residual beyond this multiple of the simulated sensor noise leaves something unexplained.
+_NOISE_FLOOR_FACTOR = 1.5
+
+
+def _fit_row(stage: str, h: dict[str, Any]) -> VerdictRow:
+    params, rejected = h.get("parameters", {}), h.get("model_rejected")
     z = {k: abs(r["error_std"]) for k, r in params.items() if r.get("error_std") is not None}
     rel = max((abs(r["rel_std_pct"]) for r in params.values() if r.get("rel_std_pct") is not None), default=None)
     tests = "" if rejected is None else ("; residual follows the command" if rejected else
                                          "; residual independent of the command")
+    level, floor = h.get("residual_tau_j_nm"), h.get("sensor_noise_nm")
+    above = level is not None and floor is not None and level > _NOISE_FLOOR_FACTOR * floor
+    if level is not None:
+        tests += f"; residual {level:.3g} Nm RMS" + (f" (sensor noise {floor:.3g})" if floor is not None else "")
+    rejected = bool(rejected) or above
     if z:
         worst = max(z, key=z.get)
         fig = f"worst {worst} at {z[worst]:.1f} std of the plant (error {params[worst]['error_pct']:+.3g} %){tests}"
         verdict = PASS if z[worst] <= 3 else (WARN if z[worst] <= 6 else FAIL)
         if rejected:
             verdict = WARN if verdict == PASS else verdict
-        return VerdictRow(stage, fig, "every parameter within 3 std of the simulated plant", verdict)
+        return VerdictRow(stage, fig, "every parameter within 3 std of the simulated plant; residual at the "
+                          f"sensor noise (within {_NOISE_FLOOR_FACTOR:g}x) and independent of the command", verdict)
     fig = (f"largest relative std {rel:.2g} %" if rel is not None else "parameters fitted") + tests
     return VerdictRow(stage, fig, "residual independent of the command (no truth to compare)",
                       WARN if rejected else PASS)
@@ -91,7 +102,7 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
                                "logs that say what they can give", WARN if warned else PASS))
     if "fit" in by:
         h = by["fit"]
-        rows.append(_fit_row("fit", h.get("parameters", {}), h.get("model_rejected")))
+        rows.append(_fit_row("fit", h))
     if "ripple" in by:
         h = by["ripple"]
         if h.get("detected"):
@@ -104,7 +115,7 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
             rows.append(VerdictRow("ripple", "no period found", f"paper {RIPPLE_PERIOD_RAD} rad", WARN))
         refit = h.get("refit")
         if refit:
-            rows.append(_fit_row("fit with table", refit.get("parameters", {}), refit.get("model_rejected")))
+            rows.append(_fit_row("fit with table", refit))
     if "design" in by:
         h = by["design"]
         ratio = h.get("kappa_ratio")
