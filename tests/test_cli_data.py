@@ -189,3 +189,14 @@ class TestHelpShowsUnits:
                     assert unit in res.output, (name, param.name, unit)
                     checked += 1
         assert checked >= 30
+
+
+def test_version():
+    from importlib.metadata import version
+
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+
+    res = CliRunner().invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.output == f"iiwa-ident {version('iiwa-ident')}\n"

@@ -160,8 +160,21 @@ class TestConfigFile:
         text = path.read_text()
         assert "torque_nm = 320.0" in text
         path.write_text(text.replace("torque_nm = 320.0", "torque_nm = 300.0", 1))
-        with pytest.raises(ConfigError, match=r"c\.toml: sha256: .*modified"):
-            read_config(path)
+        with pytest.raises(ConfigError, match=r"c\.toml: sha256: .*modified.*'iiwa-ident deploy .*--torque-limit NM'"):
+            read_config(path)  # the refusal says how such a change is made
+
+    @pytest.mark.parametrize("umask", [0o022, 0o027, 0o077])
+    def test_written_with_the_users_file_mode(self, config, tmp_path, umask):
+        # As any file the user writes (the datasets are 0644 under umask 022): the lab's other accounts read it.
+        import os
+        import stat
+
+        old = os.umask(umask)
+        try:
+            path = write_config(tmp_path / f"c{umask:o}.toml", config)
+        finally:
+            os.umask(old)
+        assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
 
     @pytest.mark.parametrize("key", ["limits.torque_nm", "controller.Kd", "robot.watchdog_timeout_s", "joint"])
     def test_missing_key_named(self, config, tmp_path, key):

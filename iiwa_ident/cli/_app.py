@@ -67,6 +67,25 @@ app = _App(
 )
 
 
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            typer.echo(f"iiwa-ident {version('iiwa-ident')}")
+        except PackageNotFoundError:
+            typer.echo("iiwa-ident (not installed: version unknown)")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    show_version: bool = typer.Option(False, "--version", help="Print the version and exit.", callback=_version,
+                                      is_eager=True),
+) -> None:
+    """Identify and tune the joint torque control of a KUKA LBR iiwa."""
+
+
 def fail(message: str, code: int = 2) -> "typer.Exit":
     """Print ``error: message`` on stderr and return the exit to raise."""
     typer.echo(f"error: {message}", err=True)

@@ -403,7 +403,9 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
     _check_keys(r)
     sha = r.sha("sha256")
     if content_sha256(data) != sha:
-        raise r.fail("sha256", "does not match the content: the file was modified after it was written; refused")
+        raise r.fail("sha256", "does not match the content: the file was modified after it was written; refused "
+                     "(a changed limit is written with its checks by 'iiwa-ident deploy --design DESIGN.toml --out "
+                     "controller.toml --torque-limit NM' and the other limit options; see 'iiwa-ident deploy --help')")
 
     robot_model = r.string("robot_model")
     if robot_model not in ROBOT_MODELS:
