@@ -82,8 +82,13 @@ def _version(value: bool) -> None:
 def _main(
     show_version: bool = typer.Option(False, "--version", help="Print the version and exit.", callback=_version,
                                       is_eager=True),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress display on long commands (it shows only on a "
+                                                      "terminal anyway)."),
 ) -> None:
     """Identify and tune the joint torque control of a KUKA LBR iiwa."""
+    from iiwa_ident.cli._progress import set_quiet
+
+    set_quiet(quiet)
 
 
 def fail(message: str, code: int = 2) -> "typer.Exit":

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._progress import progress
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import dataset_model, read_model
@@ -63,7 +64,8 @@ def compare_cmd(
     try:
         datasets = [read_dataset(p) for p in data]
         base = read_model(model) if model is not None else dataset_model(datasets)
-        rows = compare(datasets, base)
+        with progress(f"running the model on {len(datasets)} dataset(s)"):
+            rows = compare(datasets, base)
         if not rows:
             raise IiwaIdentError(f"{data[0]}: no channel the model can predict (too short?)")
         typer.echo(format_comparison(rows))

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._progress import progress
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import Source, check_model_matches, dataset_model, read_model, write_model
@@ -55,7 +56,8 @@ def diagnose_cmd(
         else:
             base = dataset_model(datasets)
             typer.echo(f"model: {base.description}")
-        result = diagnose(datasets, base)
+        with progress(f"diagnosing {len(datasets)} dataset(s): testing the candidate effects"):
+            result = diagnose(datasets, base)
         typer.echo(result.summary())
         if out:
             ext = result.extended

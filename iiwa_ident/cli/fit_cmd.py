@@ -10,6 +10,7 @@ import typer
 
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
+from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import METHODS, BlaFit, FitResult, fit_model, write_model
 from iiwa_ident.model import PARAMETER_NAMES, PARAMETER_UNITS
@@ -172,7 +173,14 @@ def fit_cmd(
                 raise IiwaIdentError(f"{target}: is a directory, not a file")
         if figures is not None and figures.exists() and not figures.is_dir():
             raise IiwaIdentError(f"{figures}: exists and is not a folder")
-        joint_model, result = fit_model(chirps, base_model=model, method=method)
+        pngs: dict[str, bytes] = {}
+        with progress(f"fitting {', '.join(p.name for p in chirps)}") as shown:
+            joint_model, result = fit_model(chirps, base_model=model, method=method)
+            if figures is not None and not isinstance(result, BlaFit):
+                shown.say("drawing the figures")
+                from iiwa_ident.report import fit_figure_pngs
+
+                pngs = fit_figure_pngs(result)
         if isinstance(result, BlaFit):
             if figures is not None:
                 raise IiwaIdentError("--figures: the plots are of chirp fits; not made for multisines")
@@ -181,11 +189,6 @@ def fit_cmd(
             text, warnings = format_fit(result), list(result.warnings)
         # Prepare every output before writing any, so a failure leaves no partial results.
         json_doc = json_text(result.to_json()) if json_out else None
-        pngs: dict[str, bytes] = {}
-        if figures is not None:
-            from iiwa_ident.report import fit_figure_pngs
-
-            pngs = fit_figure_pngs(result)
         written = [write_model(out, joint_model)]
         if json_doc is not None:
             written.append(write_atomic(json_out, json_doc))

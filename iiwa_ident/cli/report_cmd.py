@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["report_cmd"]
@@ -42,7 +43,8 @@ def report_cmd(
         target = out or workdir / ("report.pdf" if stage is None else f"report_{stage}.pdf")
         if target.is_dir():
             raise IiwaIdentError(f"{target}: is a directory, not a file")
-        titles = build_report(target, workdir, stage=stage)
+        with progress(f"building the report of {workdir} (the analyses are run again)"):
+            titles = build_report(target, workdir, stage=stage)
     except IiwaIdentError as err:
         raise fail(str(err))
     for i, title in enumerate(titles, 1):

@@ -10,6 +10,7 @@ import numpy as np
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._progress import progress
 from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import (
@@ -127,8 +128,9 @@ def ripple_cmd(
             check_model_matches(base, datasets, f"{model}: ")
         else:
             base = dataset_model(datasets, borrow=True)
-        result = identify_ripple(datasets, K=base.value("K"), Jl=base.value("Jl"), period_min=period_min,
-                                 period_max=period_max, bins=bins, link_motion=link_motion)
+        with progress(f"searching the ripple's period in {len(datasets)} run(s)"):
+            result = identify_ripple(datasets, K=base.value("K"), Jl=base.value("Jl"), period_min=period_min,
+                                     period_max=period_max, bins=bins, link_motion=link_motion)
         typer.echo(format_ripple(result))
         if out:
             base.ripple = result.table()

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import contextlib
-import sys
 from pathlib import Path
-from typing import Annotated, Iterator, Optional
+from typing import Annotated, Optional
 
 import typer
 
 from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._progress import progress
 from iiwa_ident.datasets import dataset_info, format_info, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import (
@@ -45,20 +44,6 @@ def _floats(text: str, option: str) -> list[float]:
     return values
 
 
-@contextlib.contextmanager
-def _progress(label: str) -> Iterator:
-    """A progress bar on stderr for long runs (hidden when stderr is not a terminal)."""
-    with typer.progressbar(length=1, label=label, file=sys.stderr) as bar:
-        state = {"done": 0}
-
-        def update(done: int, total: int) -> None:
-            bar.length = total
-            bar.update(done - state["done"])
-            state["done"] = done
-
-        yield update
-
-
 def _robot_target(experiment: Experiment, robot: Optional[str], port: int, robot_model: str,
                   joint: int) -> RobotInterface:
     """The FRI robot the experiment runs on (``--target robot``)."""
@@ -86,8 +71,8 @@ def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], se
     if rate <= 0 or abs(every - round(every)) > 1e-9 or round(every) < 1:
         raise IiwaIdentError(f"--rate {rate:g}: must divide the robot's {1 / cycle:g} Hz cycle rate")
     where = "simulated" if target == "sim" else "on the robot"
-    with _progress(f"{experiment.name} ({experiment.duration_s:.0f} s {where})") as progress:
-        ds = record(target_robot, experiment, record_every=int(round(every)), progress=progress)
+    with progress(f"{experiment.name} ({experiment.duration_s:.0f} s {where})") as shown:
+        ds = record(target_robot, experiment, record_every=int(round(every)), progress=shown.advance)
     path = write_dataset(out, ds)
     typer.echo(format_info(dataset_info(ds)))
     if "stopped_reason" in ds.experiment_attrs:
