@@ -69,12 +69,9 @@ app = _App(
 
 def _version(value: bool) -> None:
     if value:
-        from importlib.metadata import PackageNotFoundError, version
+        from iiwa_ident import tool_version
 
-        try:
-            typer.echo(f"iiwa-ident {version('iiwa-ident')}")
-        except PackageNotFoundError:
-            typer.echo("iiwa-ident (not installed: version unknown)")
+        typer.echo(f"iiwa-ident {tool_version()}")
         raise typer.Exit()
 
 

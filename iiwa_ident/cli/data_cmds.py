@@ -105,7 +105,8 @@ def import_cmd(
     ] = None,
     column: Annotated[
         Optional[int],
-        typer.Option("--column", help="0-based column of multi-column files; default: the joint's (joint - 1)."),
+        typer.Option("--column", help="0-based column of multi-column files; default: the joint's own column "
+                                      "(joint 1 reads column 0, joint 7 column 6)."),
     ] = None,
     robot: Annotated[
         str, typer.Option("--robot", help="The arm the log is of: iiwa14 or iiwa7 (kept in the dataset).")

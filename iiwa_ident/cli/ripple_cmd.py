@@ -102,10 +102,14 @@ def ripple_cmd(
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the result as JSON.")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for PNG figures.")] = None,
     bins: Annotated[int, typer.Option("--bins", help="Lookup-table size.")] = 256,
-    period_min: Annotated[float, typer.Option("--period-min", help="Shortest period searched [rad] (2000 cycles "
-                                                                   "per revolution).")] = PERIOD_MIN_RAD,
-    period_max: Annotated[float, typer.Option("--period-max", help="Longest period searched [rad] (50 cycles per "
-                                                                   "revolution).")] = PERIOD_MAX_RAD,
+    period_min: Annotated[float, typer.Option("--period-min", help="Shortest period searched [rad].",
+                                              show_default=f"{PERIOD_MIN_RAD:.4g} rad, "
+                                                           f"{2 * math.pi / PERIOD_MIN_RAD:.0f} per revolution")
+                          ] = PERIOD_MIN_RAD,
+    period_max: Annotated[float, typer.Option("--period-max", help="Longest period searched [rad].",
+                                              show_default=f"{PERIOD_MAX_RAD:.4g} rad, "
+                                                           f"{2 * math.pi / PERIOD_MAX_RAD:.0f} per revolution")
+                          ] = PERIOD_MAX_RAD,
     link_motion: Annotated[str, typer.Option("--link-motion", help="auto | restored | neglected (dynamic method).")] = "auto",
 ) -> None:
     """Find the period and lookup table of the transmission deflection of eq (5).

@@ -107,7 +107,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
-import control as ct
 import numpy as np
 from scipy.linalg import matrix_balance
 from scipy.signal import cont2discrete
@@ -268,6 +267,8 @@ def _scaling(A: np.ndarray) -> np.ndarray:
 
 def _acker(A: np.ndarray, B: np.ndarray, poles: np.ndarray) -> np.ndarray:
     """Single-input pole placement (Ackermann, python-control); repeated poles allowed."""
+    import control as ct  # here: python-control takes a quarter of a second to import
+
     k = np.atleast_2d(np.asarray(ct.acker(A, B.reshape(-1, 1), poles), dtype=float))
     return k.ravel()
 
@@ -284,6 +285,8 @@ def _place_scaled(A: np.ndarray, B: np.ndarray, C: np.ndarray, S: np.ndarray,
 
 def _realised(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """A balanced state-space realisation of ``num/den`` (proper)."""
+    import control as ct  # here: python-control takes a quarter of a second to import
+
     sys = ct.tf2ss(ct.tf(num, den))
     A, B, C, D = (np.asarray(m, float) for m in (sys.A, sys.B, sys.C, sys.D))
     # Diagonal balancing only: keeps the realisation, evens out the entry sizes.
@@ -293,7 +296,7 @@ def _realised(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 
 
 def feedforward_transfer_function(params: JointParameters, prefilter_hz: float = DEFAULT_PREFILTER_HZ,
-                                  prefilter_zeta: float = DEFAULT_PREFILTER_ZETA) -> ct.TransferFunction:
+                                  prefilter_zeta: float = DEFAULT_PREFILTER_ZETA) -> "ct.TransferFunction":
     """``F(s) P(s)``: eq (22) behind the reference pre-filter [Nm/Nm].
 
     ``F(s) = (Jc Jl s^2 + Jl bc s + (Jc + Jl) K) / (Jl (bc s + K))`` inverts the
@@ -305,6 +308,8 @@ def feedforward_transfer_function(params: JointParameters, prefilter_hz: float =
     p = params
     num = np.polymul([p.Jc * p.Jl, p.Jl * p.bc, (p.Jc + p.Jl) * p.K], [wf ** 2])
     den = np.polymul([p.Jl * p.bc, p.Jl * p.K], [1.0, 2 * prefilter_zeta * wf, wf ** 2])
+    import control as ct  # here: python-control takes a quarter of a second to import
+
     return ct.tf(num, den)
 
 
@@ -430,7 +435,7 @@ class AdditiveDesign:
             A, B, C = Si @ A @ S, Si @ B, C @ S
         return A, B, C
 
-    def closed_loop(self, discrete: bool = True, kr: float | None = None) -> ct.StateSpace:
+    def closed_loop(self, discrete: bool = True, kr: float | None = None) -> "ct.StateSpace":
         """The controller on its own design model: ``tau_r`` -> ``[tau_J, tau_c]``.
 
         A python-control system, discrete with ``dt = T`` or continuous.
@@ -438,6 +443,8 @@ class AdditiveDesign:
         ctrl = self.controller_matrices(discrete, kr)
         model = self.model_matrices(discrete)
         A, B, C, D = _close_on_model(ctrl, model)
+        import control as ct  # here: python-control takes a quarter of a second to import
+
         return ct.ss(A, B, C, D, self.sample_time_s if discrete else 0)
 
     def dc_gain(self, discrete: bool = True) -> float:
@@ -854,6 +861,8 @@ def exact_delay_spectral_radius(design: AdditiveDesign, params: JointParameters 
         The plant (default: the design's model).
     """
     num, den = coefficients(params or design.params)
+    import control as ct  # here: python-control takes a quarter of a second to import
+
     sys = ct.tf2ss(ct.tf(num, den))
     A, B, C = np.asarray(sys.A, float), np.asarray(sys.B, float).ravel(), np.asarray(sys.C, float).ravel()
     M = _sampled_loop(A, B, C, np.zeros_like(C), design.sample_time_s, (params or design.params).Td, design)

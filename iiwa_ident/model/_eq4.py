@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 
-import control as ct
 import numpy as np
 
 from iiwa_ident.model._parameters import JointParameters, parameter_values
@@ -78,7 +77,7 @@ def coefficients(p: JointParameters, delay: str = "none") -> tuple[np.ndarray, n
     return num, den
 
 
-def transfer_function(p: JointParameters, delay: str = "pade") -> ct.TransferFunction:
+def transfer_function(p: JointParameters, delay: str = "pade") -> "ct.TransferFunction":
     """Eq (4) from ``tau_c`` to ``tau_J`` [Nm/Nm] as a python-control transfer function.
 
     Parameters
@@ -95,6 +94,8 @@ def transfer_function(p: JointParameters, delay: str = "pade") -> ct.TransferFun
     >>> round(float(G.dcgain()), 4)  # Jl / (Jc + Jl): the link keeps its share of a slow torque
     0.8446
     """
+    import control as ct  # here, not at import: python-control takes most of a second to import
+
     return ct.tf(*coefficients(p, delay))
 
 
