@@ -9,9 +9,7 @@ import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.cli._progress import progress
-from iiwa_ident.datasets import read_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import dataset_model, read_model
 
 __all__ = ["compare_cmd", "format_comparison"]
 
@@ -59,6 +57,9 @@ def compare_cmd(
       iiwa-ident compare --model model.toml chirp.h5
       iiwa-ident compare --model model_ext.toml run1.h5 run2.h5 --json compare.json --figures cmp
     """
+    from iiwa_ident.ident import dataset_model, read_model
+    from iiwa_ident.datasets import read_dataset
+
     from iiwa_ident.diagnose import compare
 
     try:

@@ -11,16 +11,6 @@ from typing import Annotated, Optional
 import typer
 
 from iiwa_ident.cli._app import app, fail
-from iiwa_ident.datasets import (
-    dataset_info,
-    dataset_pose,
-    format_info,
-    import_columns,
-    import_csv,
-    note_warnings,
-    read_dataset,
-    write_dataset,
-)
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["import_cmd", "info_cmd", "parse_pairs"]
@@ -147,6 +137,8 @@ def import_cmd(
           --csv log.csv --map t=time --map q_m=q2 --map tau_j=tau2 \
           --split-runs --out runs/j2.h5
     """
+    from iiwa_ident.datasets import dataset_pose, import_columns, import_csv, note_warnings, write_dataset
+
     try:
         column_files = parse_pairs(columns, "--columns", "FILE")
         csv_map = parse_pairs(mapping, "--map", "COLUMN")
@@ -217,6 +209,8 @@ def info_cmd(
       iiwa-ident info chirp.h5
       iiwa-ident info chirp.h5 --json
     """
+    from iiwa_ident.datasets import dataset_info, format_info, read_dataset
+
     try:
         info = dataset_info(read_dataset(file))
     except IiwaIdentError as err:

@@ -4,21 +4,16 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
-from iiwa_ident.datasets import sha256_file
-from iiwa_ident.deploy import config_json
-from iiwa_ident.deploy import (
-    DeployError,
-    deploy,
-    write_config,
-)
-from iiwa_ident.design import DesignRecord, read_design
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, read_model
+
+if TYPE_CHECKING:
+    from iiwa_ident.design import DesignRecord
+    from iiwa_ident.ident import JointModel
 
 __all__ = ["deploy_cmd", "find_model"]
 
@@ -33,6 +28,10 @@ def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | No
     DeployError
         If the file is found but differs from the one the design was made from.
     """
+    from iiwa_ident.deploy import DeployError
+    from iiwa_ident.ident import read_model
+    from iiwa_ident.datasets import sha256_file
+
     if not record.model_file:
         return None, None
     recorded = Path(record.model_file)
@@ -46,6 +45,8 @@ def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | No
 
 
 def _positive(value: float | None, option: str) -> None:
+    from iiwa_ident.deploy import DeployError
+
     if value is not None and not (math.isfinite(value) and value > 0):
         raise DeployError(f"{option} must be a positive number, got {value:g}")
 
@@ -81,6 +82,10 @@ def deploy_cmd(
       iiwa-ident deploy --design design.toml --out controller.toml
       iiwa-ident deploy --design design.toml --out controller.toml --torque-limit 100 --json deploy.json
     """
+    from iiwa_ident.deploy import DeployError, config_json, deploy, write_config
+    from iiwa_ident.design import read_design
+    from iiwa_ident.datasets import sha256_file
+
     try:
         for value, option in ((torque_limit, "--torque-limit"), (rate_limit, "--rate-limit"),
                               (velocity_limit, "--velocity-limit"), (reference_rate, "--reference-rate")):

@@ -4,36 +4,18 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
-import numpy as np
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
-from iiwa_ident.design import (
-    DEFAULT_PREFILTER_HZ,
-    FEEDFORWARD_MODES,
-    PAPER_OBSERVER_POLES,
-    PAPER_POLES,
-    AdditiveDesign,
-    HumanArm,
-    OuterLoopMargins,
-    check_poles,
-    design_controller,
-    exact_delay_spectral_radius,
-    natural_frequency_damping,
-    outer_loop_margins,
-)
-from iiwa_ident.design import design_json, make_record, write_design
-from iiwa_ident.design import (
-    format_reproduction,
-    paper_reproduction,
-    table1_parameters,
-)
-from iiwa_ident.design import DESIGN_BETA
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import read_model
-from iiwa_ident.model import JointParameters
+from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, DESIGN_BETA, FEEDFORWARD_MODES
+
+if TYPE_CHECKING:
+    from iiwa_ident.design import AdditiveDesign
+    from iiwa_ident.design import OuterLoopMargins
+    import numpy as np
 
 __all__ = ["design_cmd", "parse_poles", "format_design"]
 
@@ -73,6 +55,8 @@ def _kappa(k: float) -> str:
 
 def format_design(design: AdditiveDesign, margins: OuterLoopMargins) -> str:
     """The summary printed by ``iiwa-ident design``: poles, gains, DC gain and outer-loop margins."""
+    from iiwa_ident.design import exact_delay_spectral_radius, natural_frequency_damping
+
     p = design.params
     T = design.sample_time_s
     bp = design.builtin_poles[0]
@@ -134,6 +118,24 @@ def design_cmd(
       iiwa-ident design --model datasets/paper-table1.toml --out design.toml --paper
       iiwa-ident design --model model.toml --poles=-150+20j,-150-20j,-400,-450 --out d.toml --json d.json
     """
+    from iiwa_ident.design import (
+        HumanArm,
+        PAPER_OBSERVER_POLES,
+        PAPER_POLES,
+        check_poles,
+        design_controller,
+        design_json,
+        exact_delay_spectral_radius,
+        format_reproduction,
+        make_record,
+        outer_loop_margins,
+        paper_reproduction,
+        table1_parameters,
+        write_design,
+    )
+    from iiwa_ident.model import JointParameters
+    from iiwa_ident.ident import read_model
+
     try:
         if not (math.isfinite(beta) and beta > 0 and math.isfinite(v_min) and v_min > 0):
             raise IiwaIdentError("--beta and --v-min must be positive")

@@ -9,9 +9,7 @@ import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.cli._progress import progress
-from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import Source, check_model_matches, dataset_model, read_model, write_model
 
 __all__ = ["diagnose_cmd"]
 
@@ -46,6 +44,9 @@ def diagnose_cmd(
     Example:
       iiwa-ident diagnose --model model.toml --json diagnose.json --out model_ext.toml chirp.h5 cv.h5 hand.h5
     """
+    from iiwa_ident.ident import Source, check_model_matches, dataset_model, read_model, write_model
+    from iiwa_ident.datasets import read_dataset, sha256_file
+
     from iiwa_ident.diagnose import diagnose
 
     try:

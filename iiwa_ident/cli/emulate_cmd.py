@@ -4,25 +4,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
 from iiwa_ident._realtime import stop_signals
 from iiwa_ident.cli._app import app, fail, parse_pose, write_json
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.fri import (
-    AGENTS,
-    DEFAULT_JOINT_POSITIONS,
-    ClientCommandMode,
-    ControlMode,
-    EmulatorConfig,
-    EmulatorReport,
-    Faults,
-    RobotEmulator,
-    parse_host_port,
-)
-from iiwa_ident.sim import load_plant
+
+if TYPE_CHECKING:
+    from iiwa_ident.fri import EmulatorConfig
+    from iiwa_ident.fri import EmulatorReport
 
 __all__ = ["emulate_cmd", "format_summary"]
 
@@ -78,6 +70,17 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
             record, max_time, hand_speed, lockstep=False, stalls=(), pose=None) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
+    from iiwa_ident.fri import (
+        AGENTS,
+        ClientCommandMode,
+        ControlMode,
+        DEFAULT_JOINT_POSITIONS,
+        EmulatorConfig,
+        Faults,
+        parse_host_port,
+    )
+    from iiwa_ident.sim import load_plant
+
     if mode not in ("torque", "position"):
         raise IiwaIdentError(f"--mode {mode!r}: must be 'torque' or 'position'")
     if agent is not None and agent not in AGENTS:
@@ -186,6 +189,8 @@ def emulate_cmd(
       iiwa-ident emulate --duration 10 --stall 2.0:30 --stall 6.5:200
       iiwa-ident emulate --duration 30 --pose 160,30,0,-90,0,60,0
     """
+    from iiwa_ident.fri import RobotEmulator
+
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
                          agent, record, max_time, hand_speed, lockstep, stall or (), pose)

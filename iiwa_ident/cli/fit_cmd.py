@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
@@ -12,8 +12,10 @@ from iiwa_ident._toml import write_atomic
 from iiwa_ident.cli._app import app, fail, json_text
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import METHODS, BlaFit, FitResult, fit_model, write_model
-from iiwa_ident.model import PARAMETER_NAMES, PARAMETER_UNITS
+
+if TYPE_CHECKING:
+    from iiwa_ident.ident import BlaFit
+    from iiwa_ident.ident import FitResult
 
 __all__ = ["fit_cmd", "format_fit", "format_bla_fit"]
 
@@ -22,6 +24,8 @@ _DISPLAY = {"Td": ("ms", 1e3)}
 
 
 def _value_text(name: str, value: float, std: float) -> tuple[str, str, str]:
+    from iiwa_ident.model import PARAMETER_UNITS
+
     unit, factor = _DISPLAY.get(name, (PARAMETER_UNITS[name], 1.0))
     rel = f"{100 * std / abs(value):.2f} %" if value else "-"
     return f"{value * factor:.6g} {unit}", f"{std * factor:.3g} {unit}", rel
@@ -33,6 +37,8 @@ def _band(lo: float, hi: float) -> str:
 
 def _parameter_lines(values: dict[str, float], std: dict[str, float]) -> list[str]:
     """The parameter table (value, std, relative std; the delay in ms) and the delay line."""
+    from iiwa_ident.model import PARAMETER_NAMES
+
     lines = ["parameter  value                std              rel. std"]
     for name in PARAMETER_NAMES:
         v, s, r = _value_text(name, values[name], std[name])
@@ -56,6 +62,8 @@ def format_fit(result: FitResult) -> str:
         noise levels, fit quality per octave band and the nonlinear share
         per octave band.
     """
+    from iiwa_ident.model import PARAMETER_NAMES
+
     lines = _parameter_lines(result.parameters, result.std)
     lines.append(f"method: {result.method}")
     lines.append(f"std: {result.std_method}")
@@ -165,6 +173,8 @@ def fit_cmd(
       iiwa-ident fit ms.h5 --out joint1.toml --json joint1.json   (a multisine: the BLA's noise and nonlinear
       variance per band, the std from both)
     """
+    from iiwa_ident.ident import BlaFit, METHODS, fit_model, write_model
+
     try:
         if method not in METHODS:
             raise IiwaIdentError(f"--method: unknown estimator {method!r} (known: {', '.join(METHODS)})")

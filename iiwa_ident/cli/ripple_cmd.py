@@ -4,32 +4,25 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
-import numpy as np
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
 from iiwa_ident.cli._progress import progress
-from iiwa_ident.datasets import read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import (
-    PERIOD_MAX_RAD,
-    PERIOD_MIN_RAD,
-    RippleResult,
-    Source,
-    check_model_matches,
-    dataset_model,
-    identify_ripple,
-    read_model,
-    write_model,
-)
+from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD
+
+if TYPE_CHECKING:
+    from iiwa_ident.ident import RippleResult
 
 __all__ = ["ripple_cmd", "format_ripple"]
 
 
 def format_ripple(r: RippleResult) -> str:
     """A readable summary: verdict, period in three units, methods, eq (6)."""
+    import numpy as np
+
     lines = []
     if not r.detected and r.agreement.get("verdict") == "disagree":
         lines.append("the runs disagree on the period (table below): the data do not decide, nothing is written "
@@ -125,6 +118,9 @@ def ripple_cmd(
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
       iiwa-ident ripple cv.h5 --model model.toml --out model_ripple.toml --json ripple.json
     """
+    from iiwa_ident.ident import Source, check_model_matches, dataset_model, identify_ripple, read_model, write_model
+    from iiwa_ident.datasets import read_dataset, sha256_file
+
     try:
         datasets = [read_dataset(p) for p in data]
         if model is not None:

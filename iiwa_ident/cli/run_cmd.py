@@ -3,25 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
 from iiwa_ident.cli._app import app, fail, write_json
-from iiwa_ident.deploy import read_config
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.fri import (
-    DEFAULT_PORT,
-    TASKS,
-    FriRobot,
-    RunReport,
-    Watchdog,
-    make_task,
-    parse_host_port,
-    run_controller,
-)
-from iiwa_ident.robot import RobotInterface
-from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
+from iiwa_ident._defaults import DEFAULT_PORT, TASKS
+
+if TYPE_CHECKING:
+    from iiwa_ident.fri import RunReport
 
 __all__ = ["run_cmd", "format_report"]
 
@@ -100,6 +91,11 @@ def run_cmd(
       iiwa-ident run --config controller.toml --target sim --task step --amplitude 10 --log step.h5
       iiwa-ident run --config controller.toml --target sim --task multisine --amplitude 5 --frequency 1 --f1 40 --period 2 --log ms.h5
     """
+    from iiwa_ident.fri import FriRobot, Watchdog, make_task, parse_host_port, run_controller
+    from iiwa_ident.robot import RobotInterface
+    from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
+    from iiwa_ident.deploy import read_config
+
     try:
         cfg = read_config(config)
         the_task = make_task(task, amplitude, frequency, period, f1, sweep, kappa, cfg.sample_time_s)

@@ -3,28 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
 from iiwa_ident.cli._app import app, fail
 from iiwa_ident.cli._progress import progress
-from iiwa_ident.datasets import dataset_info, format_info, write_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite import (
-    Chirp,
-    ConstantVelocity,
-    Experiment,
-    HandGuided,
-    Multisine,
-    QuasiStatic,
-    SineTorque,
-    StepTorque,
-    record,
-)
-from iiwa_ident.fri import FriRobot, parse_host_port
-from iiwa_ident.robot import RobotInterface
-from iiwa_ident.sim import EFFECTS, SimulatedJoint, default_plant, load_plant
+
+if TYPE_CHECKING:
+    from iiwa_ident.excite import Experiment
+    from iiwa_ident.robot import RobotInterface
 
 __all__ = ["chirp_cmd", "simulate_cmd", "plant_cmd", "run_on_target"]
 
@@ -47,6 +36,8 @@ def _floats(text: str, option: str) -> list[float]:
 def _robot_target(experiment: Experiment, robot: Optional[str], port: int, robot_model: str,
                   joint: int) -> RobotInterface:
     """The FRI robot the experiment runs on (``--target robot``)."""
+    from iiwa_ident.fri import FriRobot, parse_host_port
+
     if not robot:
         raise IiwaIdentError("--target robot needs --robot HOST (the robot controller's address)")
     host, port = parse_host_port(robot, port, "--robot")
@@ -57,6 +48,11 @@ def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], se
                   out: Path, q0: float = 0.0, robot: Optional[str] = None, port: int = 30200,
                   robot_model: str = "iiwa14", joint: int = 1) -> None:
     """Run ``experiment`` on the simulated joint or on a robot over FRI, write the dataset, print its summary."""
+    from iiwa_ident.robot import RobotInterface
+    from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
+    from iiwa_ident.datasets import dataset_info, format_info, write_dataset
+    from iiwa_ident.excite import record
+
     if target == "sim":
         the_plant = load_plant(plant) if plant else default_plant()
         target_robot: RobotInterface = SimulatedJoint(the_plant, seed=seed, q0=q0)
@@ -113,6 +109,8 @@ def chirp_cmd(
       iiwa-ident chirp --target sim --duration 30 --out chirp.h5
       iiwa-ident chirp --target robot --robot 192.170.10.2 --joint 1 --duration 30 --out chirp.h5
     """
+    from iiwa_ident.excite import Chirp
+
     try:
         run_on_target(Chirp(f0, f1, duration, amplitude, bias, hold), target, plant, seed, rate, out,
                       robot=robot, port=port, robot_model=robot_model, joint=joint)
@@ -169,6 +167,8 @@ def simulate_cmd(
       iiwa-ident simulate sine --amplitude 15 --frequency 25 --duration 4 --out sine.h5
       iiwa-ident simulate constant_velocity --target robot --robot 192.170.10.2 --out cv.h5
     """
+    from iiwa_ident.excite import Experiment, Multisine
+
     try:
         if experiment == "multisine":
             lo_hi = _floats(band, "--band")
@@ -188,6 +188,8 @@ def simulate_cmd(
 
 def _experiment(name, velocity, range_, repeats, mode, torque, duration, kappa, amplitude, frequency, period,
                 cycles) -> Experiment:
+    from iiwa_ident.excite import ConstantVelocity, HandGuided, QuasiStatic, SineTorque, StepTorque
+
     opt = {} if range_ is None else {"range_rad": range_}
     if name == "constant_velocity":
         speeds = _floats(velocity, "--velocity") if velocity else [0.3, 0.6, 1.2]
@@ -222,6 +224,8 @@ def plant_cmd(
       iiwa-ident plant my_plant.toml
       iiwa-ident plant --effects
     """
+    from iiwa_ident.sim import EFFECTS, default_plant, load_plant
+
     try:
         if effects:
             for name, cls in EFFECTS.items():

@@ -111,6 +111,7 @@ import numpy as np
 from scipy.linalg import matrix_balance
 from scipy.signal import cont2discrete
 
+from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, FEEDFORWARD_MODES  # one definition, light for the CLI's help
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointParameters, coefficients, delayed_hold, pade_coefficients, zoh
 
@@ -143,16 +144,9 @@ __all__ = [
 PAPER_POLES: tuple[complex, ...] = (-180 + 30j, -180 - 30j, -500 + 1j, -500 - 1j)
 #: Observer poles of section V.B [rad/s].
 PAPER_OBSERVER_POLES: tuple[complex, ...] = (-620 + 0j, -630 + 0j, -1000 + 0j, -1010 + 0j)
-#: Ways of combining ``Kr`` and the feed-forward (see the module docstring).
-FEEDFORWARD_MODES = ("reference", "paper", "none")
 #: FRI cycle [s].
 SAMPLE_TIME_S = 1e-3
-#: Reference pre-filter of the feed-forward: natural frequency [Hz] and damping ratio. 250 Hz keeps
-#: eq (22) close to the paper's unfiltered inverse below 50 Hz (0.2 rad of lag at 25 Hz; 50 Hz would
-#: lag a 25 Hz reference by 0.93 rad, ~12 Nm of error at 15 Nm). An ideal step through it commands
-#: ~7x its height at the peak, which is why the runtime rate-limits the reference
-#: (:mod:`iiwa_ident.deploy.checks`, ``reference_range``).
-DEFAULT_PREFILTER_HZ = 250.0
+#: Damping ratio of the feed-forward's reference pre-filter (its frequency: DEFAULT_PREFILTER_HZ).
 DEFAULT_PREFILTER_ZETA = 1.0
 
 

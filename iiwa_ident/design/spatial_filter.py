@@ -72,6 +72,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from iiwa_ident._defaults import DESIGN_BETA  # one definition, light for the CLI's help
 from iiwa_ident.ident import find_passes
 from iiwa_ident.model import RIPPLE_PERIOD_RAD
 
@@ -89,12 +90,6 @@ __all__ = [
     "ripple_line_cut",
 ]
 
-#: beta of the filter a design deploys (observer, eq (14), and controller feedback, eq (15)) [-].
-#: The paper's 5 stays the default of :class:`SpatialFilter`; inside the torque loop it costs
-#: margin: on the simulated joint the outer-loop kappa_max of the additive controller is 20.9
-#: with beta = 5 (2.8x the built-in 7.6) and 26-28 with beta = 2 (3.5-3.7x), and below the
-#: notch ``1 - H^2`` boosts a 2 Hz torque at 0.3 rad/s by 1.24 dB with beta = 5, 0.17 dB with 2.
-DESIGN_BETA = 2.0
 
 
 def ripple_bandpass_coefficients(period_rad: float, beta: float, delta_rad: float) -> tuple[np.ndarray, np.ndarray]:

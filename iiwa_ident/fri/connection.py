@@ -31,6 +31,7 @@ import socket
 import time
 from dataclasses import dataclass, field
 
+from iiwa_ident._defaults import DEFAULT_PORT  # one definition, light for the CLI's help
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
@@ -45,8 +46,6 @@ from iiwa_ident.fri.protocol import (
 
 __all__ = ["DEFAULT_PORT", "COMMANDING_STATES", "ConnectionStats", "FriConnection", "parse_host_port"]
 
-#: UDP port the FRI client listens on by default.
-DEFAULT_PORT = 30200
 #: Session states in which every answer carries joint positions and torques.
 COMMANDING_STATES = frozenset({SessionState.COMMANDING_WAIT, SessionState.COMMANDING_ACTIVE})
 _UINT32 = 1 << 32

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from iiwa_ident._defaults import TASKS  # one definition, light for the CLI's help
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.references import exponential_sweep, odd_lines, odd_multisine, sine, square
 
@@ -186,8 +187,6 @@ class KappaTask(Task):
         return {"task": self.name, "kappa": self.kappa}
 
 
-#: Task names accepted by :func:`make_task`.
-TASKS = ("zero", "constant", "step", "sine", "chirp", "multisine", "kappa")
 
 
 def _finite(name: str, value: float, positive: bool = False) -> float:

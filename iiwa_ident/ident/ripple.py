@@ -40,6 +40,7 @@ from scipy import optimize, stats
 from scipy.interpolate import BSpline
 from scipy.ndimage import maximum_filter1d, median_filter
 
+from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definition, light for the CLI's help
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 
@@ -57,10 +58,6 @@ __all__ = [
     "identify_ripple",
 ]
 
-#: Default search range of the period [rad]: 2000 down to 50 cycles per motor revolution (the paper's
-#: joint has 320; other gear ratios have other counts).
-PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
-PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
 #: Harmonics summed per candidate fundamental in the family search.
 FAMILY_HARMONICS = 5
 #: Least power, as a share of the family's strongest line, of the strongest line that only a subharmonic
