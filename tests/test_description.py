@@ -135,10 +135,10 @@ def test_doctests():
     assert doctest.testmod(_dynamics).failed == 0
 
 
-def test_the_readme_quotes_the_description_as_computed():
+def test_the_docs_quote_the_description_as_computed():
     from pathlib import Path
 
-    text = " ".join((Path(__file__).resolve().parents[1] / "README.md").read_text().split())
+    text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "diagnose.md").read_text().split())
     d2, d4, d6 = (describe_joint("iiwa14", j) for j in (2, 4, 6))
     quoted = (f"joint 2 `Jl` {d2.Jl_kgm2:.3g} kg m² and an {d2.gravity_nm:.3g} Nm gravity amplitude, joint 4 "
               f"{d4.Jl_kgm2:.2g} kg m² and {d4.gravity_nm:.3g} Nm, joint 6 {d6.Jl_kgm2:.2g} kg m² and "

@@ -2,7 +2,7 @@
 
 Random truths from wrist to base joints at 200-1000 Hz, the robot's own slew limit and standstill
 suppression on, no link-side effect: the multisine fit's 95 % intervals must cover the truth (the
-benchmark's no-nuisance row: 86-100 %; with nuisances they do not yet, see the README).
+benchmark's no-nuisance row: 86-100 %; with nuisances they do not yet, see docs/fit.md).
 """
 
 from __future__ import annotations

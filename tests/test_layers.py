@@ -1,6 +1,6 @@
 """The package's layers, checked from the source: every import goes down, no part reaches into another's privates.
 
-The parts of ``iiwa_ident``, bottom first (README, "Layout"). A part may import
+The parts of ``iiwa_ident``, bottom first (docs/layout.md, "Layout"). A part may import
 the parts of lower layers, never of its own layer or above, so nothing below
 the CLI imports the CLI and there are no import cycles between parts; the packages of
 :data:`PUBLIC_API` are imported only through their ``__init__``.
@@ -60,7 +60,7 @@ def _layer(part: str) -> int:
     for i, layer in enumerate(LAYERS):
         if part in layer:
             return i
-    raise AssertionError(f"part {part!r} is in no layer: add it to LAYERS and to the README's layout")
+    raise AssertionError(f"part {part!r} is in no layer: add it to LAYERS and to the layout in docs/layout.md")
 
 
 def test_every_import_goes_down():

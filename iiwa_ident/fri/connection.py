@@ -2,7 +2,7 @@
 
 KUKA's robot controller sends a monitoring message every send period; the
 client answers each one to the address it came from (section "Protocol" of
-the README). :class:`FriConnection` owns the UDP socket and the client's
+docs/fri.md). :class:`FriConnection` owns the UDP socket and the client's
 half of the message headers:
 
 * Only datagrams from the configured robot address are accepted; the rest

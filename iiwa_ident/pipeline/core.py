@@ -77,7 +77,7 @@ class PipelineSettings:
 
     @classmethod
     def full(cls) -> "PipelineSettings":
-        """The default: the paper's experiments at the lengths the README's figures were measured with."""
+        """The default: the paper's experiments at the lengths the documented figures were measured with."""
         return cls()
 
     @classmethod
