@@ -190,6 +190,19 @@ class TestConfigFile:
         with pytest.raises(ConfigError, match=rf"c\.toml: {key}: missing"):
             read_config(path)
 
+    def test_two_ripple_periods_refused(self, config, tmp_path):
+        # A file (with a consistent hash) whose spatial filter and lookup table disagree on rho would
+        # compensate two periods: refused, naming both copies.
+        config = copy.deepcopy(config)
+        config.ripple = RippleTable(0.01963, np.array([0.0, 1e-5, 0.0, -1e-5]))
+        data = config_to_dict(config)
+        data["filter"]["period_rad"] = 0.0197
+        data["sha256"] = content_sha256(data)
+        path = tmp_path / "c.toml"
+        path.write_text(dumps_toml(data))
+        with pytest.raises(ConfigError, match=r"c\.toml: filter\.period_rad: differs from ripple\.period_rad"):
+            read_config(path)
+
     def test_wrong_robot_setting_refused(self, config, tmp_path):
         data = config_to_dict(config)
         data["robot"]["client_command_mode"] = "POSITION"

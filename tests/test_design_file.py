@@ -120,6 +120,8 @@ class TestDesignFromDict:
         ("filter.beta", _DELETE, "filter.beta: missing"),
         ("filter.v_min_rad_s", 0.0, "filter.v_min_rad_s: must be positive"),
         ("torque_observer.KI", 30.0, "torque_observer.KI: differs from model.parameters.KI"),
+        # one period for the spatial filter and the lookup table
+        ("filter.period_rad", 0.0197, "filter.period_rad: differs from model.ripple.period_rad"),
         ("model.parameters.Jc.value", -1.0, "model.parameters.Jc.value: must be positive"),
         ("model.parameters.K.unit", "N/m", "model.parameters.K.unit: expected 'Nm/rad'"),
         ("model.parameters.Td", 0.005, "model.parameters.Td: expected a table"),

@@ -483,6 +483,10 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
         if lut.ndim != 1 or len(lut) < 4:
             raise r.fail("ripple.lut", "expected a list of at least 4 deflections [rad]")
         ripple = RippleTable(r.number("ripple.period_rad", positive=True), lut)
+        if abs(flt.period_rad - ripple.period_rad) > 1e-12 * ripple.period_rad:
+            # The spatial filter and the lookup table would compensate two different periods.
+            raise r.fail("filter.period_rad", f"differs from ripple.period_rad ({ripple.period_rad:.9g}): the "
+                         "spatial filter and the lookup table must use one period")
     KI = r.number("torque_observer.KI", positive=True)
     K = r.number("torque_observer.K", positive=True)
     Jl = r.number("torque_observer.Jl", positive=True)

@@ -353,6 +353,10 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
         ripple = RippleTable(period, lut)
     flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True),
                          r.number("filter.period_rad", positive=True))
+    if ripple is not None and abs(flt.period_rad - ripple.period_rad) > 1e-12 * ripple.period_rad:
+        # The spatial filter and the lookup table would compensate two different periods.
+        raise r.fail("filter.period_rad", f"differs from model.ripple.period_rad ({ripple.period_rad:.9g}): the "
+                     "spatial filter and the lookup table must use one period")
     KI = r.number("torque_observer.KI", positive=True)
     if abs(KI - values["KI"]) > 1e-12 * max(1.0, KI):
         raise r.fail("torque_observer.KI", f"differs from model.parameters.KI ({values['KI']:g})")
