@@ -67,7 +67,9 @@ from iiwa_ident.design.paper import (
 )
 from iiwa_ident.design.spatial_filter import (
     DESIGN_BETA,
+    PAPER_BETA,
     RIPPLE_PERIOD_RAD,
+    V_MIN_RAD_S,
     SpatialFilter,
     gamma_weight,
     ripple_bandpass_coefficients,
@@ -88,5 +90,5 @@ __all__ = [
     "design_json",
     "link_speed",
     "table1_parameters",
-    "DESIGN_BETA", "RIPPLE_PERIOD_RAD",
+    "DESIGN_BETA", "PAPER_BETA", "V_MIN_RAD_S", "RIPPLE_PERIOD_RAD",
 ]

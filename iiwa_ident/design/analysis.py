@@ -89,6 +89,7 @@ from iiwa_ident.design.controller import (
 )
 from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.spatial_filter import (
+    V_MIN_RAD_S,
     DESIGN_BETA,
     RIPPLE_PERIOD_RAD,
     SpatialFilter,
@@ -197,7 +198,7 @@ class AdditiveTorqueControl(TorqueControl):
     kind = "additive"
 
     def __init__(self, design: AdditiveDesign, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = DEFAULT_BETA,
-                 v_min: float = 0.2, ripple: RippleTable | None = None, dt: float = 1e-3) -> None:
+                 v_min: float = V_MIN_RAD_S, ripple: RippleTable | None = None, dt: float = 1e-3) -> None:
         self.design = design
         self.cycle = ControlCycle(AdditiveController(design), period_rad, beta, v_min, dt, ripple)
 
@@ -208,7 +209,7 @@ class AdditiveTorqueControl(TorqueControl):
 
     @classmethod
     def from_model(cls, model: JointModel, design: AdditiveDesign | None = None, beta: float = DEFAULT_BETA,
-                   v_min: float = 0.2, **design_kwargs) -> "AdditiveTorqueControl":
+                   v_min: float = V_MIN_RAD_S, **design_kwargs) -> "AdditiveTorqueControl":
         """The controller for ``model`` (:func:`analysis_design` unless ``design`` is given)."""
         if design is None:
             design = analysis_design(model, **design_kwargs)
@@ -228,7 +229,7 @@ class AdditiveTorqueControl(TorqueControl):
 
 
 def make_controller(kind: str, model: JointModel, design: AdditiveDesign | None = None,
-                    beta: float = DEFAULT_BETA, v_min: float = 0.2) -> TorqueControl:
+                    beta: float = DEFAULT_BETA, v_min: float = V_MIN_RAD_S) -> TorqueControl:
     """``"builtin"`` or ``"additive"`` controller for ``model`` (filter ``beta`` [-], ``v_min`` [rad/s])."""
     if kind == "builtin":
         return BuiltinTorqueControl()

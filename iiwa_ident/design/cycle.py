@@ -22,7 +22,7 @@ records that state and commands nothing.
 from __future__ import annotations
 
 from iiwa_ident.design.controller import AdditiveController
-from iiwa_ident.design.spatial_filter import SpatialFilter
+from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S, SpatialFilter
 from iiwa_ident.ident import RippleTable
 from iiwa_ident.model import RIPPLE_PERIOD_RAD, MomentumObserver
 from iiwa_ident.robot import Measurement
@@ -68,8 +68,8 @@ class ControlCycle:
     0.0
     """
 
-    def __init__(self, controller: AdditiveController, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = 5.0,
-                 v_min: float = 0.2, dt: float = 1e-3, ripple: RippleTable | None = None, K: float | None = None,
+    def __init__(self, controller: AdditiveController, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = DESIGN_BETA,
+                 v_min: float = V_MIN_RAD_S, dt: float = 1e-3, ripple: RippleTable | None = None, K: float | None = None,
                  KI: float | None = None, Jl: float | None = None) -> None:
         self.controller = controller
         self.ripple = ripple

@@ -97,7 +97,7 @@ from iiwa_ident.design.controller import (
     _scaling,
     check_poles,
 )
-from iiwa_ident.design.spatial_filter import DESIGN_BETA
+from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import JointModel, RippleTable
 from iiwa_ident.model import PARAMETER_UNITS, RIPPLE_PERIOD_RAD
@@ -140,7 +140,7 @@ class FilterSettings:
     """
 
     beta: float = DESIGN_BETA
-    v_min_rad_s: float = 0.2
+    v_min_rad_s: float = V_MIN_RAD_S
     period_rad: float = RIPPLE_PERIOD_RAD
 
 
@@ -177,8 +177,8 @@ class DesignRecord:
 
 
 def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointModel,
-                model_path: str | os.PathLike | None = None, beta: float = DESIGN_BETA, v_min_rad_s: float = 0.2,
-                description: str = "") -> DesignRecord:
+                model_path: str | os.PathLike | None = None, beta: float = DESIGN_BETA,
+                v_min_rad_s: float = V_MIN_RAD_S, description: str = "") -> DesignRecord:
     """Bundle a design with its model reference and filter settings.
 
     Parameters

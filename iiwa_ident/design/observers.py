@@ -40,7 +40,7 @@ from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.model import MomentumObserver
-from iiwa_ident.design.spatial_filter import SpatialFilter
+from iiwa_ident.design.spatial_filter import PAPER_BETA, V_MIN_RAD_S, SpatialFilter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import joint_position, link_position
 from iiwa_ident.ident import JointModel
@@ -204,7 +204,7 @@ class FilteredObserver(LinkVelocityObserver):
     name = "filtered"
     label = "link velocity + spatial filter, eq (14)"
 
-    def __init__(self, model: JointModel, dt: float = 1e-3, beta: float = 5.0, v_min: float = 0.2) -> None:
+    def __init__(self, model: JointModel, dt: float = 1e-3, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S) -> None:
         if model.ripple is None:
             raise IiwaIdentError("observer: the spatially filtered observer needs the model's ripple table "
                                  "(run the ripple identification first)")
@@ -241,7 +241,7 @@ def _dt(dataset: Dataset) -> float:
     return 1.0 / dataset.sample_rate_hz
 
 
-def run_observers(dataset: Dataset, model: JointModel, beta: float = 5.0, v_min: float = 0.2) -> dict[str, np.ndarray]:
+def run_observers(dataset: Dataset, model: JointModel, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S) -> dict[str, np.ndarray]:
     """The three estimates [Nm] for a record, by observer name (``filtered`` only with a ripple table)."""
     dt = _dt(dataset)
     out = {"builtin": BuiltinObserver(model, dt).run(dataset),
@@ -277,8 +277,8 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
 
 
-def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: float = 0.5, beta: float = 5.0,
-                      v_min: float = 0.2, estimates: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: float = 0.5, beta: float = PAPER_BETA,
+                      v_min: float = V_MIN_RAD_S, estimates: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
     """RMS errors of the three observers against the F/T reference of a hand-guided record (Fig. 7).
 
     Parameters

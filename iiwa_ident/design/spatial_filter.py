@@ -73,6 +73,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from iiwa_ident._defaults import DESIGN_BETA  # one definition, light for the CLI's help
+
+#: The paper's beta of the spatial filter, eq (14) [-]: the default of the filter and of the paper's
+#: observer comparison (Fig. 7); what a design deploys is :data:`DESIGN_BETA`.
+PAPER_BETA = 5.0
+#: Speed below which the filter fades out, gamma of eq (12) [rad/s].
+V_MIN_RAD_S = 0.2
 from iiwa_ident.ident import find_passes
 from iiwa_ident.model import RIPPLE_PERIOD_RAD
 
@@ -82,6 +88,8 @@ if TYPE_CHECKING:
 __all__ = [
     "RIPPLE_PERIOD_RAD",
     "DESIGN_BETA",
+    "PAPER_BETA",
+    "V_MIN_RAD_S",
     "SpatialFilter",
     "ripple_bandpass_coefficients",
     "gamma_weight",
@@ -117,7 +125,7 @@ def ripple_bandpass_coefficients(period_rad: float, beta: float, delta_rad: floa
     return b, a
 
 
-def gamma_weight(speed_rad_s: np.ndarray | float, v_min: float = 0.2) -> np.ndarray | float:
+def gamma_weight(speed_rad_s: np.ndarray | float, v_min: float = V_MIN_RAD_S) -> np.ndarray | float:
     """Eq (12): the weight gamma of the filter from the joint speed [rad/s] (``v_min`` [rad/s])."""
     if v_min <= 0:
         return np.ones_like(np.asarray(speed_rad_s, float)) if np.ndim(speed_rad_s) else 1.0
@@ -126,8 +134,8 @@ def gamma_weight(speed_rad_s: np.ndarray | float, v_min: float = 0.2) -> np.ndar
 
 
 def spatial_filter_response(freq_hz: np.ndarray | float, speed_rad_s: float, dt: float = 1e-3,
-                            period_rad: float = RIPPLE_PERIOD_RAD, beta: float = 5.0,
-                            v_min: float = 0.2) -> np.ndarray:
+                            period_rad: float = RIPPLE_PERIOD_RAD, beta: float = PAPER_BETA,
+                            v_min: float = V_MIN_RAD_S) -> np.ndarray:
     """Frequency response of the discrete filter in time, at a constant speed.
 
     At a constant speed every sample advances ``Delta = |v| dt`` and the
@@ -210,7 +218,7 @@ class SpatialFilter:
     whole record from a fresh state and gives the same numbers.
     """
 
-    def __init__(self, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = 5.0, v_min: float = 0.2,
+    def __init__(self, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S,
                  dt: float = 1e-3, velocity_cutoff_hz: float = 20.0) -> None:
         if period_rad <= 0 or beta <= 0 or v_min < 0 or dt <= 0 or velocity_cutoff_hz <= 0:
             raise ValueError("spatial filter: period, beta, dt and the cutoff must be positive, v_min >= 0")

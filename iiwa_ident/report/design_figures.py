@@ -9,7 +9,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from iiwa_ident.datasets import Dataset  # noqa: E402
-from iiwa_ident.design import compare_observers, link_speed, observer_lag, run_observers  # noqa: E402
+from iiwa_ident.design import (  # noqa: E402
+    PAPER_BETA,
+    V_MIN_RAD_S,
+    compare_observers,
+    link_speed,
+    observer_lag,
+    run_observers,
+)
 from iiwa_ident.design import (  # noqa: E402
     RIPPLE_PERIOD_RAD,
     SpatialFilter,
@@ -33,8 +40,8 @@ def _amplitude_spectrum(x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
     return np.fft.rfftfreq(len(x), dt), spec
 
 
-def spatial_filter_figure(dataset: Dataset, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = 5.0,
-                          v_min: float = 0.2, speeds: tuple[float, ...] = (0.3, 0.6, 1.2),
+def spatial_filter_figure(dataset: Dataset, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = PAPER_BETA,
+                          v_min: float = V_MIN_RAD_S, speeds: tuple[float, ...] = (0.3, 0.6, 1.2),
                           periods_shown: float = 8.0) -> plt.Figure:
     """Joint torque before and after the spatial filter at several speeds, and the filter's response.
 
@@ -130,7 +137,7 @@ def spatial_filter_figure(dataset: Dataset, period_rad: float = RIPPLE_PERIOD_RA
     return fig
 
 
-def observer_figure(dataset: Dataset, model: JointModel, beta: float = 5.0, v_min: float = 0.2,
+def observer_figure(dataset: Dataset, model: JointModel, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S,
                     speed_threshold: float = 0.5, zoom_s: float = 1.0) -> plt.Figure:
     """External-torque estimates of the three observers against the F/T reference (like Fig. 7).
 
