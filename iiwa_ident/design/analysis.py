@@ -96,7 +96,7 @@ from iiwa_ident.design.spatial_filter import (
 )
 from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
 from iiwa_ident.ident import joint_position
-from iiwa_ident.ident import JointModel, RippleTable, table1_model
+from iiwa_ident.ident import JointModel, RippleTable, ripple_period, table1_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.references import square
 from iiwa_ident.robot import Command, Measurement
@@ -213,7 +213,7 @@ class AdditiveTorqueControl(TorqueControl):
         """The controller for ``model`` (:func:`analysis_design` unless ``design`` is given)."""
         if design is None:
             design = analysis_design(model, **design_kwargs)
-        period = model.ripple.period_rad if model.ripple is not None else RIPPLE_PERIOD_RAD
+        period = ripple_period(model.ripple)
         return cls(design, period, beta, v_min, model.ripple, design.sample_time_s)
 
     @property
@@ -375,7 +375,7 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
                         sig["tau_j"], sig["q_m"], tau_ext_ref, stopped=ds.experiment_attrs.get("stopped_reason", ""))
     dt = robot.sample_time_s
     ripple = model.ripple if model is not None else getattr(controller, "ripple", None)
-    period = ripple.period_rad if ripple is not None else RIPPLE_PERIOD_RAD
+    period = ripple_period(ripple)
     theta = np.asarray(joint_position(run.q_m, ripple), float)
     run.tau_j_filt = SpatialFilter(period, beta=beta, dt=dt).apply(run.tau_j, theta)
     return run

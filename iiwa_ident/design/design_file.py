@@ -99,7 +99,7 @@ from iiwa_ident.design.controller import (
 )
 from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, RippleTable
+from iiwa_ident.ident import JointModel, RippleTable, ripple_period
 from iiwa_ident.model import PARAMETER_UNITS, RIPPLE_PERIOD_RAD
 from iiwa_ident.model import JointParameters, ParameterError
 
@@ -196,7 +196,7 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
     sha = None
     if model_path is not None:
         sha = hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
-    period = model.ripple.period_rad if model.ripple is not None else RIPPLE_PERIOD_RAD
+    period = ripple_period(model.ripple)
     return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")),
                         filter=FilterSettings(float(beta), float(v_min_rad_s), float(period)),
                         ripple=model.ripple, model_file=None if model_path is None else str(model_path),

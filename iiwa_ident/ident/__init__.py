@@ -10,6 +10,7 @@ from iiwa_ident.ident.model_file import (
     Parameter,
     RippleTable,
     Source,
+    ripple_period,
     model_from_dict,
     read_model,
     PARAMETER_ORIGINS,
@@ -37,7 +38,7 @@ from iiwa_ident.ident.starting_model import (
 )
 from iiwa_ident.ident.tf_fit import FitResult
 
-__all__ = ["JointModel", "ModelError", "PARAMETER_ORIGINS", "Parameter", "RippleTable", "Source", "model_from_dict", "read_model",
+__all__ = ["JointModel", "ModelError", "PARAMETER_ORIGINS", "Parameter", "RippleTable", "ripple_period", "Source", "model_from_dict", "read_model",
            "table1_model", "write_model", "BlaFit", "joint_position", "link_position", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description", "ResidualTest",

@@ -57,12 +57,13 @@ import numpy as np
 from iiwa_ident import tool_version
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, PARAMETER_UNITS
+from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, PARAMETER_UNITS, RIPPLE_PERIOD_RAD
 
 __all__ = [
     "ModelError",
     "Parameter",
     "RippleTable",
+    "ripple_period",
     "Source",
     "JointModel",
     "read_model",
@@ -144,6 +145,12 @@ class RippleTable:
         frac = x - i0
         i0 %= n
         return (1.0 - frac) * lut[i0] + frac * lut[(i0 + 1) % n]
+
+
+def ripple_period(table: RippleTable | None) -> float:
+    """The ripple's period [rad]: the table's, or the paper's rho where there is no table (a design or filter
+    on a model without an identified ripple)."""
+    return table.period_rad if table is not None else RIPPLE_PERIOD_RAD
 
 
 @dataclass
