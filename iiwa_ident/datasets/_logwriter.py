@@ -181,10 +181,16 @@ class LogWriter:
 
     Examples
     --------
-    >>> with LogWriter("run.h5", ["t", "q_m", "tau_j"], experiment="free",
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> from iiwa_ident.datasets import read_dataset
+    >>> path = Path(tempfile.mkdtemp()) / "run.h5"
+    >>> with LogWriter(path, ["t", "q_m", "tau_j"], experiment="free",
     ...                source="robot", joint=3, sample_rate_hz=1000.0) as log:
-    ...     for k in range(1000):
-    ...         log.append((k / 1000.0, 0.0, 0.0))
+    ...     kept = [log.append((k / 1000.0, 0.0, 0.0)) for k in range(1000)]
+    >>> all(kept), read_dataset(path).n_samples
+    (True, 1000)
+    >>> import shutil; shutil.rmtree(path.parent)
     """
 
     def __init__(
