@@ -40,3 +40,14 @@ def test_wider_where_the_residual_follows_the_command():
     doc = res.to_json()
     assert doc["model_rejected"] is True and "difference" in doc["std_robust_method"]
     assert all(math.isfinite(doc["parameters"][k]["std_robust"]) for k in PARAMETER_NAMES)
+
+
+def test_every_method_gives_it():
+    # Eq (4) alone compares with IDIM-IV, IDIM-IV with the output-error fit: each widened where rejected.
+    sc = draw_scenario(1)
+    ds = simulate_scenario(sc)
+    for method, other in (("eq4", "inverse-dynamics"), ("idim", "output-error")):
+        res = fit_joint([ds], method=method)
+        assert res.model_rejected, method
+        assert other in res.std_robust_method, (method, res.std_robust_method)
+        assert all(res.std_robust[k] >= res.std[k] > 0 for k in PARAMETER_NAMES), method

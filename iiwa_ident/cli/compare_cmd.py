@@ -13,7 +13,6 @@ from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["compare_cmd", "format_comparison"]
 
-_VERDICT = {True: "passed", False: "FAILED", None: "-"}
 
 
 def format_comparison(rows) -> str:
@@ -22,7 +21,7 @@ def format_comparison(rows) -> str:
     for r in rows:
         name = r.dataset if len(r.dataset) <= 30 else "..." + r.dataset[-27:]
         lines.append(f"  {name:<32}{r.channel:<9}{r.fit_pct:>9.1f}{r.rms_nm:>10.4g}  "
-                     f"{_VERDICT[r.passed]:<8}{r.tests.summary()}")
+                     f"{r.verdict:<8}{r.tests.summary()}")
     if any(r.channel == "command" for r in rows):
         lines.append("command channel: an output-error residual carries the sensor noise through the torque loop, "
                      "coloured even for an exact model: its whiteness is shown, the model is judged by its "

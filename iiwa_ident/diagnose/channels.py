@@ -16,7 +16,7 @@ import numpy as np
 from iiwa_ident.diagnose.predict import Context
 from iiwa_ident.ident import INDEPENDENCE, LEVEL, MAX_LAG, ResidualTests, residual_tests
 
-__all__ = ["FEEDBACK_EXPERIMENTS", "ChannelComparison", "channel_comparison", "fit_percent"]
+__all__ = ["FEEDBACK_EXPERIMENTS", "ChannelComparison", "channel_comparison", "fit_percent", "verdict_text"]
 
 #: Experiments whose torque command is computed from the measurements (a tracking PD in torque mode, an
 #: outer loop on the F/T sensor): the residual feeds back into the command, so the command correlates with
@@ -41,6 +41,12 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
     y, y_hat = np.asarray(y, float), np.asarray(y_hat, float)
     spread = float(np.linalg.norm(y - y.mean()))
     return 100.0 * (1.0 - float(np.linalg.norm(y - y_hat)) / spread) if spread > 0 else float("nan")
+
+
+def verdict_text(passed: bool | None) -> str:
+    """How a channel's verdict is written everywhere: ``pass``, ``FAIL`` or ``-`` (not judged: too few samples,
+    or a command computed from the measurements)."""
+    return {True: "pass", False: "FAIL", None: "-"}[passed]
 
 
 @dataclass
@@ -95,6 +101,11 @@ class ChannelComparison:
         command computed from the measurements)."""
         judged = [t.passed for t in self.tests.tests if t.name in self.model_tests]
         return all(judged) if judged else None
+
+    @property
+    def verdict(self) -> str:
+        """:attr:`passed` as written (:func:`verdict_text`)."""
+        return verdict_text(self.passed)
 
     def to_json(self) -> dict[str, Any]:
         return {"dataset": self.dataset, "channel": self.channel, "fit_pct": self.fit_pct, "rms_nm": self.rms_nm,

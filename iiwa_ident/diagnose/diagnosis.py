@@ -228,17 +228,13 @@ class Diagnosis:
             fits = tests = ""
             if c.before is not None and c.after is not None:
                 fits = f"{c.before.fit_pct:>11.1f}%{c.after.fit_pct:>7.1f}%"
-                tests = f"  {_verdict(c.before.passed)} -> {_verdict(c.after.passed)}"
+                tests = f"  {c.before.verdict} -> {c.after.verdict}"
             lines.append(f"  {c.dataset[:27]:<28}{c.channel:<10}{c.rms_before:>16.4f}{c.rms_after:>12.4f}"
                          f"{c.gain_pct:>7.1f}%{fits}{tests}")
         lines.append("  (link: error of a model-based external-torque estimate; command: joint-torque response "
                      "the model cannot predict from the command; RMS held out, fit % and residual tests in-sample; '-': not "
                      "judged, too short or a command computed from the measurements)")
         return "\n".join(lines)
-
-
-def _verdict(passed: bool | None) -> str:
-    return {True: "pass", False: "FAIL", None: "-"}[passed]
 
 
 def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:

@@ -145,14 +145,14 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
     if method == "eq4":
         result = fit_transfer_function(datasets)
         result.method = "eq4"
-        if result.model_rejected:
+        other = None
+        if result.model_rejected:  # a second estimate only where the std needs it
             try:
                 other = fit_idim(datasets)
-                _model_error_std(result, other.parameters, other.std, "the inverse-dynamics (IDIM-IV) estimate")
             except IiwaIdentError:
-                _model_error_std(result, None, None, "")
-        else:
-            _model_error_std(result, None, None, "")
+                pass
+        _model_error_std(result, other and other.parameters, other and other.std,
+                         "the inverse-dynamics (IDIM-IV) estimate")
         return result
     if ripple_table is not None:
         ripple_period_rad = ripple_table.period_rad
@@ -211,19 +211,16 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
                 fallback.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
                                          "the inverse-dynamics values are kept")
                 result, method = fallback, "idim"
-    if not result.model_rejected:
-        _model_error_std(result, None, None, "")
-    elif method == "idim":
-        if oe is None:
+    if method != "idim":
+        _model_error_std(result, idim.parameters, idim.std, "the inverse-dynamics (IDIM-IV) estimate")
+    else:
+        if oe is None and result.model_rejected:  # the output-error estimate only where the std needs it
             try:
                 oe = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs,
                                            ripple=terms)
             except IiwaIdentError:
-                oe = None
-        _model_error_std(result, None if oe is None else oe.parameters, None if oe is None else oe.std,
-                         "the output-error estimate")
-    else:
-        _model_error_std(result, idim.parameters, idim.std, "the inverse-dynamics (IDIM-IV) estimate")
+                pass
+        _model_error_std(result, oe and oe.parameters, oe and oe.std, "the output-error estimate")
     result.method = method
     result.effects = idim.effects
     result.lines_hz = idim.lines_hz

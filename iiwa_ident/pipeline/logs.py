@@ -273,7 +273,7 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
                                                if e["name"] not in {x["name"] for x in start.effects})})
         ctx.progress(f"  {ds.path.stem}: predicted from the other runs {before:.3g} -> {after:.3g} Nm RMS; "
                      + "; ".join(f"{c.channel} fit {c.fit_pct:.1f} %, residual tests "
-                                 f"{ {True: 'passed', False: 'failed', None: 'not run'}[c.passed]}" for c in checks))
+                                 f"{c.verdict}" for c in checks))
     write_atomic(ctx.path("held_out_json"), json.dumps({"runs": rows}, indent=2) + "\n")
     return {"runs": rows}
 

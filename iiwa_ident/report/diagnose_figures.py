@@ -121,12 +121,11 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     # The model's own effects the data contradicted (left out of the extended model), with their gain.
     rows += [[f"(replaced: {r['old']} -> {' + '.join(r['new']) or 'nothing'})", "replaced", "", "",
               f"{r['gain_pct']:.1f}", "", ""] for r in d.replaced]
-    verdicts = {True: "pass", False: "FAIL", None: "-"}
     for c in d.channels:
         fits = tests = ""
         if c.before is not None and c.after is not None:
             fits = f"{c.before.fit_pct:.1f} / {c.after.fit_pct:.1f}"
-            tests = f"{verdicts[c.before.passed]} / {verdicts[c.after.passed]}"
+            tests = f"{c.before.verdict} / {c.after.verdict}"
         rows.append([f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}",
                      f"{c.gain_pct:.1f}", fits, tests])
     fig, ax = plt.subplots(figsize=(11, 0.6 + 0.3 * (len(rows) + 1)))

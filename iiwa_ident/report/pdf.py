@@ -638,6 +638,8 @@ def _held_out_page(doc: dict[str, Any]) -> Page | None:
     def draw() -> plt.Figure:
         import numpy as np
 
+        from iiwa_ident.diagnose import verdict_text
+
         fig, ax = plt.subplots(figsize=(11, 6))
         x = np.arange(len(rows))
         before = [r["before_nm"] for r in rows]
@@ -648,7 +650,7 @@ def _held_out_page(doc: dict[str, Any]) -> Page | None:
             if r.get("ratio") is not None:
                 fit = r.get("fit_pct", {}).get("link")
                 tests = r.get("residual_tests_passed", {}).get("link")
-                said = {True: "pass", False: "fail", None: "not run"}.get(tests, "not run")
+                said = verdict_text(tests)
                 extra = "" if fit is None else f"\nfit {fit:.0f} %, tests {said}"
                 ax.annotate(f"{100 * r['ratio']:.0f} %{extra}", (i + 0.2, r["after_nm"]), ha="center", va="bottom",
                             fontsize=8)
