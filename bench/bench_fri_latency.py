@@ -40,7 +40,7 @@ from iiwa_ident.design.analysis import identified_model
 from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
 from iiwa_ident.fri import protocol as P
-from iiwa_ident.fri.emulator import DEFAULT_JOINT_POSITIONS
+from iiwa_ident.emulator import DEFAULT_JOINT_POSITIONS
 from iiwa_ident.model import JointParameters
 
 HERE = Path(__file__).resolve().parent

@@ -20,10 +20,10 @@ from iiwa_ident.deploy import deploy
 from iiwa_ident.design.analysis import identified_model
 from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
-from iiwa_ident.fri.emulator import EmulatorConfig, spawn_emulator
+from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
 from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.fri.runtime import run_controller
-from iiwa_ident.fri.tasks import make_task
+from iiwa_ident.runtime import run_controller
+from iiwa_ident.runtime import make_task
 from iiwa_ident.model import JointParameters
 
 

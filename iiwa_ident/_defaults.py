@@ -32,5 +32,5 @@ PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
 PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
 #: UDP port the FRI client listens on (:mod:`iiwa_ident.fri.connection`).
 DEFAULT_PORT = 30200
-#: Task names of the deployed runtime (:mod:`iiwa_ident.fri.tasks`).
+#: Task names of the deployed runtime (:mod:`iiwa_ident.runtime.tasks`).
 TASKS = ("zero", "constant", "step", "sine", "chirp", "multisine", "kappa")

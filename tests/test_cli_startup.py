@@ -28,3 +28,11 @@ def test_help_imports_no_numerical_library():
     assert "iiwa_ident.cli.design_cmd" in mods
     for name in NOT_AT_START:
         assert name not in mods, name
+
+
+def test_the_emulator_process_does_not_load_the_controller_design():
+    """The robot side (its own process in every closed-loop test) needs the messages and the simulator only."""
+    mods = _imported_by("import iiwa_ident.emulator")
+    for name in ("iiwa_ident.design", "iiwa_ident.deploy", "iiwa_ident.runtime", "iiwa_ident.ident", "control",
+                 "matplotlib"):
+        assert name not in mods, name

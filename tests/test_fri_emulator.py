@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import read_dataset, read_truth
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.fri.emulator import (
+from iiwa_ident.emulator import (
     DEFAULT_JOINT_POSITIONS,
     EmulatorConfig,
     Faults,

@@ -28,11 +28,11 @@ from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.fri.emulator import EmulatorConfig, Faults, spawn_emulator
+from iiwa_ident.emulator import EmulatorConfig, Faults, spawn_emulator
 from iiwa_ident.fri.protocol import ClientCommandMode, SessionState, decode_monitoring
 from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.fri.runtime import run_controller
-from iiwa_ident.fri.tasks import make_task
+from iiwa_ident.runtime import run_controller
+from iiwa_ident.runtime import make_task
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command
 from iiwa_ident.sim import SimulatedJoint, default_plant

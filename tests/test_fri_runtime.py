@@ -32,8 +32,8 @@ from iiwa_ident.fri.protocol import (
     encode_monitoring,
 )
 from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.fri.runtime import ControllerRuntime, Watchdog
-from iiwa_ident.fri.tasks import TASKS, KappaTask, TaskInput, make_task
+from iiwa_ident.runtime import ControllerRuntime, Watchdog
+from iiwa_ident.runtime import TASKS, KappaTask, TaskInput, make_task
 from iiwa_ident.ident.model_file import read_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command, Measurement
@@ -442,7 +442,7 @@ def test_report_says_when_no_log_file_was_kept(tmp_path):
     # A robot that vanished after one cycle: the writer keeps no file of one row, and the summary said
     # "log: 1 rows in run.h5" for a file that was not there.
     from iiwa_ident.cli.run_cmd import format_report
-    from iiwa_ident.fri.runtime import RunReport
+    from iiwa_ident.runtime import RunReport
 
     gone = RunReport(cycles=0, duration_s=0.0, stop_reason="FRI: no message from the robot for 500 ms", logged=1,
                      log=str(tmp_path / "run.h5"))

@@ -21,13 +21,14 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("iiwa_ident", "errors", "_toml", "_schema", "_json", "_realtime", "_blas", "_defaults"),
     ("model", "references", "robot"),
     ("description",),
+    ("fri",),
     ("datasets",),
     ("sim",),
     ("excite",),
     ("ident",),
     ("design",),
     ("deploy", "diagnose"),
-    ("fri",),
+    ("runtime", "emulator"),
     ("pipeline",),
     ("report",),
     ("cli",),
@@ -95,8 +96,8 @@ def test_every_part_has_a_layer():
 
 
 #: Packages whose ``__init__`` is their public API: other parts import them only as a package.
-PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "pipeline",
-              "report")
+PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "runtime",
+              "emulator", "pipeline", "report")
 
 
 def test_packages_are_imported_through_their_public_api():

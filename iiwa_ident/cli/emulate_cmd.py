@@ -13,8 +13,7 @@ from iiwa_ident.cli._app import app, fail, parse_pose, write_json
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
-    from iiwa_ident.fri import EmulatorConfig
-    from iiwa_ident.fri import EmulatorReport
+    from iiwa_ident.emulator import EmulatorConfig, EmulatorReport
 
 __all__ = ["emulate_cmd", "format_summary"]
 
@@ -70,15 +69,8 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
             record, max_time, hand_speed, lockstep=False, stalls=(), pose=None) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
-    from iiwa_ident.fri import (
-        AGENTS,
-        ClientCommandMode,
-        ControlMode,
-        DEFAULT_JOINT_POSITIONS,
-        EmulatorConfig,
-        Faults,
-        parse_host_port,
-    )
+    from iiwa_ident.emulator import AGENTS, DEFAULT_JOINT_POSITIONS, EmulatorConfig, Faults
+    from iiwa_ident.fri import ClientCommandMode, ControlMode, parse_host_port
     from iiwa_ident.sim import load_plant
 
     if mode not in ("torque", "position"):
@@ -189,7 +181,7 @@ def emulate_cmd(
       iiwa-ident emulate --duration 10 --stall 2.0:30 --stall 6.5:200
       iiwa-ident emulate --duration 30 --pose 160,30,0,-90,0,60,0
     """
-    from iiwa_ident.fri import RobotEmulator
+    from iiwa_ident.emulator import RobotEmulator
 
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,

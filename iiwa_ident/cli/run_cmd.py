@@ -12,7 +12,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident._defaults import DEFAULT_PORT, TASKS
 
 if TYPE_CHECKING:
-    from iiwa_ident.fri import RunReport
+    from iiwa_ident.runtime import RunReport
 
 __all__ = ["run_cmd", "format_report"]
 
@@ -91,7 +91,8 @@ def run_cmd(
       iiwa-ident run --config controller.toml --target sim --task step --amplitude 10 --log step.h5
       iiwa-ident run --config controller.toml --target sim --task multisine --amplitude 5 --frequency 1 --f1 40 --period 2 --log ms.h5
     """
-    from iiwa_ident.fri import FriRobot, Watchdog, make_task, parse_host_port, run_controller
+    from iiwa_ident.fri import FriRobot, parse_host_port
+    from iiwa_ident.runtime import Watchdog, make_task, run_controller
     from iiwa_ident.robot import RobotInterface
     from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
     from iiwa_ident.deploy import read_config

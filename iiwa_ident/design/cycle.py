@@ -2,7 +2,7 @@
 
 :class:`ControlCycle` is stepped once per 1 kHz sample by the closed-loop
 analysis on the simulated joint (:mod:`iiwa_ident.design.analysis`) and by
-the FRI runtime on the robot (:mod:`iiwa_ident.fri.runtime`, which adds the
+the FRI runtime on the robot (:mod:`iiwa_ident.runtime`, which adds the
 task, the watchdog and the limits around it). Per sample:
 
 1. position correction, eqs (8)-(9): ``theta_j = q_m - f(q_m)``,

@@ -651,7 +651,7 @@ def run_pipeline(workdir: str | Path, target: str = "sim", plant: str | Path | N
         Stages not to run (recorded as skipped, as are the stages that need them).
     realtime : bool
         Sim target: run the validation's robot emulator in real time instead
-        of in lockstep (:mod:`iiwa_ident.fri.emulator`, "Lockstep"). Lockstep
+        of in lockstep (:mod:`iiwa_ident.emulator.clocks`, "Lockstep"). Lockstep
         figures are exactly repeatable and independent of the machine's load;
         real time adds what a loaded machine does to the loop.
 

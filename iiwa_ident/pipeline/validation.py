@@ -5,7 +5,7 @@ loopback (simulated target) or against the robot (robot target). The
 built-in controller is the robot's own torque loop, driven by the task's
 reference as the torque command (``record`` of a :class:`StepTorque` or
 :class:`SineTorque`); the additive controller is the deployed config run by
-:func:`iiwa_ident.fri.runtime.run_controller` with the same reference. The
+:func:`iiwa_ident.runtime.run_controller` with the same reference. The
 kappa check runs ``tau_r = kappa tau_ext`` on the runtime's own external-torque
 estimate with the emulator's human arm, at 60 % of the built-in controller's
 linear margin (about the paper's measured 4.6): a live check that the
@@ -33,8 +33,9 @@ from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.deploy import ControllerConfig
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import SineTorque, StepTorque, record
-from iiwa_ident.fri import FriRobot, Watchdog, make_task, run_controller
+from iiwa_ident.fri import FriRobot
 from iiwa_ident.references import sine, square
+from iiwa_ident.runtime import Watchdog, make_task, run_controller
 from iiwa_ident.sim import Plant
 
 __all__ = ["ValidationSettings", "run_validation", "tracking_metrics", "oscillation_windows", "reference_of",
@@ -249,7 +250,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         Progress messages.
     lockstep : bool
         Sim target: the emulator runs in lockstep (it waits for each answer,
-        on a virtual clock; :mod:`iiwa_ident.fri.emulator`), so the figures
+        on a virtual clock; :mod:`iiwa_ident.emulator`), so the figures
         are exactly repeatable and do not depend on the machine's load; the
         runs, each with its own emulator, then go two at a time. False:
         in real time, as the robot would; a loaded machine then shows up as
@@ -267,7 +268,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         additive run: the runtime's median compute time per cycle [us], the
         one figure that depends on the machine).
     """
-    from iiwa_ident.fri import EmulatorConfig, spawn_emulator
+    from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
 
     outdir.mkdir(parents=True, exist_ok=True)
     s = settings

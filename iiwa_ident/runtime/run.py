@@ -11,7 +11,7 @@ Per cycle, for the controlled joint (:meth:`ControllerRuntime.cycle`):
 
 :func:`run_controller` drives the cycle against any
 :class:`~iiwa_ident.robot.RobotInterface` (the robot through
-:class:`~iiwa_ident.fri.robot.FriRobot`, the emulator the same way, or the
+:class:`~iiwa_ident.fri.FriRobot`, the emulator the same way, or the
 simulated joint directly), logs every cycle through the background
 :class:`~iiwa_ident.datasets.LogWriter` and stops cleanly on SIGINT
 and SIGTERM.
@@ -52,7 +52,7 @@ from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy import ControllerConfig, controller_from_config
 from iiwa_ident.design import ControlCycle
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
-from iiwa_ident.fri.tasks import Task, TaskInput
+from iiwa_ident.runtime.tasks import Task, TaskInput
 from iiwa_ident.robot import Command, Measurement, RobotInterface
 
 __all__ = ["LOG_SIGNALS", "Watchdog", "ControllerRuntime", "RunReport", "run_controller"]
@@ -294,7 +294,7 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     config : ControllerConfig
         The deployed controller; its joint must be the robot's.
     robot : RobotInterface
-        :class:`~iiwa_ident.fri.robot.FriRobot` (robot or emulator) or a simulated joint.
+        :class:`~iiwa_ident.fri.FriRobot` (robot or emulator) or a simulated joint.
     task : Task
         The reference program.
     duration_s : float
