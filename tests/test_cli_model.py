@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import Dataset, write_dataset
 from iiwa_ident.description import describe_joint
-from iiwa_ident.ident import read_model, starting_model, table1_model
+from iiwa_ident.ident import read_model, starting_model
+from iiwa_ident.model import table1_model
 from iiwa_ident.sim import make_effect
 
 

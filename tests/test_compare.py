@@ -16,8 +16,9 @@ from iiwa_ident.datasets import write_dataset
 from iiwa_ident.diagnose import compare, fit_percent
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident import table1_model, write_model
-from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.ident import write_model
+from iiwa_ident.model import table1_model
+from iiwa_ident.sim import SimulatedJoint, plant_from_model
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
@@ -28,7 +29,7 @@ def chirp():
     model = table1_model()
     model.parameters["K"].value *= rng.uniform(0.8, 1.2)
     model.parameters["Td"].value = rng.uniform(0.003, 0.007)
-    return model, record(SimulatedJoint(model.to_plant(), seed=int(rng.integers(100))), Chirp(0.5, 100, 6, 8, 3, 30))
+    return model, record(SimulatedJoint(plant_from_model(model), seed=int(rng.integers(100))), Chirp(0.5, 100, 6, 8, 3, 30))
 
 
 def test_the_model_that_made_the_data_passes(chirp):
@@ -104,7 +105,7 @@ def test_the_fit_reports_its_residual_tests(tmp_path):
     from iiwa_ident.ident import fit_model
     from iiwa_ident.sim import default_plant
 
-    exact = write_dataset(tmp_path / "exact.h5", record(SimulatedJoint(table1_model().to_plant(), seed=3),
+    exact = write_dataset(tmp_path / "exact.h5", record(SimulatedJoint(plant_from_model(table1_model()), seed=3),
                                                         Chirp(0.5, 100, 8, 8, 3, 30)))
     _, res = fit_model([exact])
     assert len(res.residual_tests) == 1 and res.residual_tests[0].passed, res.residual_tests[0].summary()
@@ -125,7 +126,7 @@ def test_the_bode_band_says_its_width(tmp_path):
     from iiwa_ident.ident import fit_model
     from iiwa_ident.report.fit_figures import bode_figure
 
-    data = write_dataset(tmp_path / "c.h5", record(SimulatedJoint(table1_model().to_plant(), seed=4),
+    data = write_dataset(tmp_path / "c.h5", record(SimulatedJoint(plant_from_model(table1_model()), seed=4),
                                                    Chirp(0.5, 100, 8, 8, 3, 30)))
     _, res = fit_model([data])
     fig = bode_figure(res, 0)

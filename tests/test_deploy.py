@@ -27,7 +27,8 @@ from iiwa_ident.deploy import (
 )
 from iiwa_ident.design.controller import design_controller, outer_loop_margins
 from iiwa_ident.design.design_file import make_record
-from iiwa_ident.ident.model_file import RippleTable, Source, read_model
+from iiwa_ident.ident import read_model
+from iiwa_ident.model import RippleTable, Source
 from iiwa_ident.model import JointParameters
 
 TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"
@@ -202,6 +203,30 @@ class TestConfigFile:
         path.write_text(dumps_toml(data))
         with pytest.raises(ConfigError, match=r"c\.toml: filter\.period_rad: differs from ripple\.period_rad"):
             read_config(path)
+
+    @pytest.mark.parametrize("lut, message", [
+        ([0.0, 1e-5], r"ripple\.lut: expected a list of at least 4 deflections"),
+        ([0.0, "x", 0.0, 0.0], r"ripple\.lut\[1\]: expected a number"),
+        ([0.0, 1e-5, 0.0, 1e999], r"ripple\.lut\[3\]: must be finite"),
+    ])
+    def test_ripple_table_read_as_the_model_file_reads_it(self, config, tmp_path, lut, message):
+        # One reader of a ripple table (RippleTable.from_mapping) for the model, design and controller files.
+        from iiwa_ident.ident import model_from_dict
+        from iiwa_ident.model import ModelError, table1_model
+
+        config = copy.deepcopy(config)
+        config.ripple = RippleTable(config.filter.period_rad, np.array([0.0, 1e-5, 0.0, -1e-5]))
+        data = config_to_dict(config)
+        data["ripple"]["lut"] = lut
+        data["sha256"] = content_sha256(data)
+        path = tmp_path / "c.toml"
+        path.write_text(dumps_toml(data))
+        with pytest.raises(ConfigError, match=r"c\.toml: " + message):
+            read_config(path)
+        model = table1_model().to_dict()
+        model["ripple"] = {"period_rad": 0.0196, "lut": lut}
+        with pytest.raises(ModelError, match=r"m\.toml: " + message):
+            model_from_dict(model, "m.toml: ")
 
     def test_wrong_robot_setting_refused(self, config, tmp_path):
         data = config_to_dict(config)

@@ -20,7 +20,7 @@ from iiwa_ident.design.analysis import (
     step_response,
     tracking_errors,
 )
-from iiwa_ident.ident.model_file import table1_model
+from iiwa_ident.model import table1_model
 from iiwa_ident.report.control_figures import kappa_figure, pole_figure, tracking_figure
 from iiwa_ident.robot import Measurement
 

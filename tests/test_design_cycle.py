@@ -9,7 +9,7 @@ import pytest
 
 import iiwa_ident.design.cycle as cycle_module
 from iiwa_ident.design import AdditiveController, ControlCycle, design_controller, table1_parameters
-from iiwa_ident.ident import RippleTable
+from iiwa_ident.model import RippleTable
 from iiwa_ident.robot import Measurement
 
 PARAMS, _ = table1_parameters()

@@ -22,7 +22,8 @@ from iiwa_ident.design.design_file import (
     read_design,
     write_design,
 )
-from iiwa_ident.ident.model_file import RippleTable, table1_model, write_model
+from iiwa_ident.ident import write_model
+from iiwa_ident.model import RippleTable, table1_model
 from iiwa_ident.model import JointParameters
 
 TABLE1 = JointParameters(1.03, 55.0, 18500.0, 5.6, 0.005)

@@ -19,7 +19,7 @@ from iiwa_ident.design.spatial_filter import (
     spatial_filter_response,
 )
 from iiwa_ident.excite import ConstantVelocity, record
-from iiwa_ident.ident.model_file import RippleTable, table1_model
+from iiwa_ident.model import RippleTable, table1_model
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 RHO = RIPPLE_PERIOD_RAD

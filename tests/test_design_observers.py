@@ -19,7 +19,7 @@ from iiwa_ident.design.observers import (
 )
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
-from iiwa_ident.ident.model_file import RippleTable, table1_model
+from iiwa_ident.model import RippleTable, table1_model
 from iiwa_ident.ident.ripple import identify_ripple
 from iiwa_ident.sim import SimulatedJoint, default_plant
 

@@ -15,8 +15,9 @@ from iiwa_ident.diagnose import CANDIDATES, CandidateEffect, build_context, diag
 from iiwa_ident.diagnose.benchmark import Case, case_model, score_case, simulate_case
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, record
-from iiwa_ident.ident import ModelError, dataset_model, model_from_dict, read_model, table1_model, write_model
-from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.ident import dataset_model, model_from_dict, read_model, write_model
+from iiwa_ident.model import ModelError, table1_model
+from iiwa_ident.sim import SimulatedJoint, plant_from_model
 from iiwa_ident.sim.effects import make_effect
 
 PAPER_RHO = 0.01963
@@ -65,7 +66,7 @@ class TestPrediction:
                 assert np.sqrt(np.mean(r ** 2)) < 0.08, (ds.experiment, ch)
 
     def test_position_mode_has_link_channel_only(self):
-        ds = record(SimulatedJoint(table1_model().to_plant().without_effects(), seed=1),
+        ds = record(SimulatedJoint(plant_from_model(table1_model()).without_effects(), seed=1),
                     ConstantVelocity([0.5], range_rad=0.4, mode="position"), record_every=5)
         ctx = build_context(ds, table1_model())
         assert ctx.channels == ["link"] and ctx.dt == pytest.approx(0.005)
@@ -97,7 +98,7 @@ class TestSingleEffects:
 
     def test_position_controlled_200hz(self):
         # A position-mode run at 200 Hz (no command channel) with an unknown payload.
-        plant = table1_model().to_plant().without_effects().with_effects(
+        plant = plant_from_model(table1_model()).without_effects().with_effects(
             make_effect("position_dependent_load", {"amplitude_nm": 5.0, "phase_rad": -0.5, "compensated": 0.0}))
         ds = record(SimulatedJoint(plant, seed=3), ConstantVelocity([0.3, 0.8], range_rad=1.0, mode="position"),
                     record_every=5)
@@ -171,7 +172,7 @@ class TestExtendedModel:
         write_model(tmp_path / "m.toml", m)
         back = read_model(tmp_path / "m.toml")
         assert back.effects == m.effects
-        plant = back.to_plant()
+        plant = plant_from_model(back)
         assert plant.effect("link_friction").values["coulomb_nm"] == 1.0
         trace = SimulatedJoint(plant, seed=1).run_open_loop(tau_c=np.full(500, 3.0))
         assert np.all(np.isfinite(trace.measured["tau_j"]))
@@ -300,7 +301,7 @@ class TestCli:
         # Torque-commanded runs tell where the loop sees the offset: here all of it (none on the log only).
         assert ext.effects == [{"name": "torque_sensor_offset", "offset_nm": pytest.approx(-0.8, abs=0.05),
                                 "logged_nm": pytest.approx(0.0, abs=0.05)}]
-        trace = SimulatedJoint(ext.to_plant(), seed=1).run_open_loop(tau_c=np.full(300, 2.0))
+        trace = SimulatedJoint(plant_from_model(ext), seed=1).run_open_loop(tau_c=np.full(300, 2.0))
         assert np.all(np.isfinite(trace.measured["tau_j"]))
         figs = {p.name for p in (tmp / "fig").iterdir()}
         assert {"diagnose_gain_table.png", "diagnose_evidence_torque_sensor_offset.png"} <= figs

@@ -8,7 +8,7 @@ import pytest
 from iiwa_ident.diagnose.apart import ApartCase, draw_apart_case, simulate_apart_case
 from iiwa_ident.diagnose.benchmark import final_effects
 from iiwa_ident.diagnose.predict import build_context
-from iiwa_ident.ident import table1_model
+from iiwa_ident.model import table1_model
 
 
 def _model(dynamics):

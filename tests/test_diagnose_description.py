@@ -11,7 +11,7 @@ import pytest
 from iiwa_ident.diagnose import diagnose
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
 from iiwa_ident.ident import physical_ranges, starting_model
-from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.sim import SimulatedJoint, plant_from_model
 
 
 def _runs(plant_model, joint: int, seed: int):
@@ -20,7 +20,7 @@ def _runs(plant_model, joint: int, seed: int):
     out = []
     for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=1.2, mode="position"),
                                  HandGuided(duration_s=8.0))):
-        ds = record(SimulatedJoint(plant_model.to_plant(), seed=seed + i), program, record_every=5 if i == 0 else 1)
+        ds = record(SimulatedJoint(plant_from_model(plant_model), seed=seed + i), program, record_every=5 if i == 0 else 1)
         ds.joint = joint
         ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
         out.append(ds)
@@ -57,7 +57,7 @@ def test_ranges_follow_the_description():
     assert r2.Jl_kgm2[0] == pytest.approx(r2.Jl_described_kgm2 / 2)
     assert r6.Jl_kgm2[1] < r2.Jl_kgm2[0]  # a wrist joint's possible inertias lie below a shoulder's
     assert physical_ranges(starting_model("iiwa14", 1)).load_nm == (0.0, 0.0)
-    from iiwa_ident.ident import table1_model
+    from iiwa_ident.model import table1_model
 
     assert physical_ranges(table1_model()) is None  # no pose: judged by sign only, as before
 
@@ -65,10 +65,10 @@ def test_ranges_follow_the_description():
 def test_runs_at_one_speed_name_the_friction_at_that_speed():
     # Back and forth at 0.4 rad/s only: Coulomb 1.5 Nm and viscous 2 Nm s/rad cannot be told apart, their sum at
     # that speed (2.3 Nm) can. Named as a Coulomb friction of 2.3 Nm, and said so.
-    from iiwa_ident.ident import table1_model
+    from iiwa_ident.model import table1_model
     from iiwa_ident.sim import make_effect
 
-    plant = table1_model().to_plant().without_effects().with_effects(
+    plant = plant_from_model(table1_model()).without_effects().with_effects(
         make_effect("link_friction", {"coulomb_nm": 1.5, "viscous_nms_rad": 2.0}))
     ds = record(SimulatedJoint(plant, seed=4), ConstantVelocity([0.4], range_rad=1.2, repeats=2, mode="position"),
                 record_every=5)
@@ -85,10 +85,10 @@ def test_an_offset_and_a_friction_that_pass_only_together(monkeypatch):
     # Long passes back and forth at one speed: each held-out stretch of time holds mostly one direction, so an
     # offset alone or a friction alone gains on some folds and loses on others; the two together gain on all.
     from iiwa_ident.diagnose import select
-    from iiwa_ident.ident import table1_model
+    from iiwa_ident.model import table1_model
     from iiwa_ident.sim import make_effect
 
-    plant = table1_model().to_plant().without_effects().with_effects(
+    plant = plant_from_model(table1_model()).without_effects().with_effects(
         make_effect("link_friction", {"coulomb_nm": 1.0, "viscous_nms_rad": 0.0}),
         make_effect("torque_sensor_offset", {"offset_nm": 0.7}))
     ds = record(SimulatedJoint(plant, seed=8), ConstantVelocity([0.2], range_rad=1.5, repeats=2, mode="position"),

@@ -21,7 +21,8 @@ from iiwa_ident.cli import app
 from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident import read_model, table1_model, write_model
+from iiwa_ident.ident import read_model, write_model
+from iiwa_ident.model import table1_model
 from iiwa_ident.ident.joint_fit import fit_joint, fit_model
 from iiwa_ident.ident.tf_fit import cramer_rao_std, fit_transfer_function, initial_estimate
 from iiwa_ident.model import discretize, simulate_outputs

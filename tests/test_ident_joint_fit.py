@@ -16,6 +16,7 @@ from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
 from iiwa_ident.ident.tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
+from iiwa_ident.sim import plant_from_model
 
 _REL = 0.03
 _TD_S = 0.5e-3
@@ -202,7 +203,7 @@ def test_cli_reports_effects_and_the_model_file_keeps_them(tmp_path):
     kept = {e["name"]: e for e in model.effects}
     assert kept["torque_sensor_offset"]["offset_nm"] == pytest.approx(off["value"])
     # The fitted model file simulates with its effects, in the simulator's own vocabulary.
-    plant = model.to_plant()
+    plant = plant_from_model(model)
     assert plant.effect("torque_sensor_offset").values["offset_nm"] == pytest.approx(off["value"])
     names = model.fit["effect_std_names"]
     assert "torque_sensor_offset.offset_nm" in names

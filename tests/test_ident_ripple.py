@@ -15,8 +15,9 @@ from iiwa_ident.cli.ripple_cmd import format_ripple
 from iiwa_ident.datasets import Dataset, import_columns, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record
-from iiwa_ident.ident import RippleTable, read_model
-from iiwa_ident.ident.correction import joint_position, link_position
+from iiwa_ident.ident import read_model
+from iiwa_ident.model import RippleTable
+from iiwa_ident.model import joint_position, link_position
 from iiwa_ident.ident.ripple import deflection, identify_ripple
 from iiwa_ident.sim import SimulatedJoint, TransmissionRipple, default_plant
 

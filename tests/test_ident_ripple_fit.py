@@ -11,7 +11,7 @@ from conftest import quiet, smooth_command
 from scipy.signal import lsim
 
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident.model_file import RippleTable
+from iiwa_ident.model import RippleTable
 from iiwa_ident.ident.tf_fit import RippleTerms, fit_transfer_function
 from iiwa_ident.model import discretize
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response

@@ -160,7 +160,8 @@ def test_the_simulated_report_says_so():
 
 def test_datasets_without_a_pose_need_a_model(tmp_path):
     from iiwa_ident.datasets import write_dataset
-    from iiwa_ident.ident import table1_model, write_model
+    from iiwa_ident.ident import write_model
+    from iiwa_ident.model import table1_model
 
     paths = []
     for k, speed in enumerate((0.4, 0.8)):

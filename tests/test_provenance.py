@@ -12,7 +12,7 @@ from iiwa_ident.datasets import Dataset, dataset_warnings, torque_sign_problem
 from iiwa_ident.description import gravity_sinusoid
 from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.ident import starting_model
-from iiwa_ident.sim import SimulatedJoint
+from iiwa_ident.sim import SimulatedJoint, plant_from_model
 
 
 def _sweep(joint: int, pose, sign: float, seed: int = 0) -> Dataset:
@@ -89,7 +89,7 @@ def test_the_simulator_reads_the_convention():
     # The project's simulator, running the description's joint 4 (its gravity load, which the robot's model
     # compensates), logs a torque of the convention's sign.
     model = starting_model("iiwa14", 4)
-    ds = record(SimulatedJoint(model.to_plant(), seed=2), ConstantVelocity([0.4], range_rad=1.0, mode="position"),
+    ds = record(SimulatedJoint(plant_from_model(model), seed=2), ConstantVelocity([0.4], range_rad=1.0, mode="position"),
                 record_every=5)
     ds.joint = 4  # the simulated joint stands for joint 4 here
     ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))

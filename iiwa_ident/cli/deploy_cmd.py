@@ -13,7 +13,7 @@ from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
     from iiwa_ident.design import DesignRecord
-    from iiwa_ident.ident import JointModel
+    from iiwa_ident.model import JointModel
 
 __all__ = ["deploy_cmd", "find_model"]
 

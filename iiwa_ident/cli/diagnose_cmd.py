@@ -44,7 +44,8 @@ def diagnose_cmd(
     Example:
       iiwa-ident diagnose --model model.toml --json diagnose.json --out model_ext.toml chirp.h5 cv.h5 hand.h5
     """
-    from iiwa_ident.ident import Source, check_model_matches, dataset_model, read_model, write_model
+    from iiwa_ident.ident import check_model_matches, dataset_model, read_model, write_model
+    from iiwa_ident.model import Source
     from iiwa_ident.datasets import read_dataset, sha256_file
 
     from iiwa_ident.diagnose import diagnose

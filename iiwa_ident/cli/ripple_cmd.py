@@ -118,7 +118,8 @@ def ripple_cmd(
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
       iiwa-ident ripple cv.h5 --model model.toml --out model_ripple.toml --json ripple.json
     """
-    from iiwa_ident.ident import Source, check_model_matches, dataset_model, identify_ripple, read_model, write_model
+    from iiwa_ident.ident import check_model_matches, dataset_model, identify_ripple, read_model, write_model
+    from iiwa_ident.model import Source
     from iiwa_ident.datasets import read_dataset, sha256_file
 
     try:

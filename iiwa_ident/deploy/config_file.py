@@ -109,7 +109,7 @@ from iiwa_ident.design import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveControll
 from iiwa_ident.design import DesignRecord, FilterSettings
 from iiwa_ident._schema import TableReader
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, RippleTable, Source
+from iiwa_ident.model import JointModel, RippleTable, Source
 from iiwa_ident.robot import ROBOT_MODELS, joint_limits
 
 __all__ = [
@@ -479,10 +479,7 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
                          r.number("filter.period_rad", positive=True))
     ripple = None
     if "ripple" in data:
-        lut = r.array("ripple.lut")
-        if lut.ndim != 1 or len(lut) < 4:
-            raise r.fail("ripple.lut", "expected a list of at least 4 deflections [rad]")
-        ripple = RippleTable(r.number("ripple.period_rad", positive=True), lut)
+        ripple = RippleTable.from_mapping(r.table("ripple"), f"{r.where}ripple", r.error)
         if abs(flt.period_rad - ripple.period_rad) > 1e-12 * ripple.period_rad:
             # The spatial filter and the lookup table would compensate two different periods.
             raise r.fail("filter.period_rad", f"differs from ripple.period_rad ({ripple.period_rad:.9g}): the "

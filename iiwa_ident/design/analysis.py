@@ -95,8 +95,8 @@ from iiwa_ident.design.spatial_filter import (
     SpatialFilter,
 )
 from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
-from iiwa_ident.ident import joint_position
-from iiwa_ident.ident import JointModel, RippleTable, ripple_period, table1_model
+from iiwa_ident.model import joint_position
+from iiwa_ident.model import JointModel, RippleTable, ripple_period, table1_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.references import square
 from iiwa_ident.robot import Command, Measurement
@@ -252,7 +252,7 @@ def identified_model(plant: Plant | None = None, seed: int = 1, base: JointModel
     res = identify_ripple([ds])
     model = base or table1_model()
     if res.detected:
-        model.ripple = RippleTable(res.period_rad, res.lut)
+        model.ripple = res.table()
     return model
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S, SpatialFilter
-from iiwa_ident.ident import RippleTable
+from iiwa_ident.model import RippleTable
 from iiwa_ident.model import RIPPLE_PERIOD_RAD, MomentumObserver
 from iiwa_ident.robot import Measurement
 

@@ -99,7 +99,7 @@ from iiwa_ident.design.controller import (
 )
 from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, RippleTable, ripple_period
+from iiwa_ident.model import JointModel, RippleTable, ripple_period
 from iiwa_ident.model import PARAMETER_UNITS, RIPPLE_PERIOD_RAD
 from iiwa_ident.model import JointParameters, ParameterError
 
@@ -344,13 +344,8 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
         sha = r.string("model.sha256")
         if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
             raise r.fail("model.sha256", "expected 64 lower-case hex digits")
-    ripple = None
-    if r.table("model.ripple", required=False) is not None:
-        period = r.number("model.ripple.period_rad", positive=True)
-        lut = r.array("model.ripple.lut")
-        if lut.ndim != 1 or len(lut) < 4:
-            raise r.fail("model.ripple.lut", "expected a list of at least 4 deflections [rad]")
-        ripple = RippleTable(period, lut)
+    raw_ripple = r.table("model.ripple", required=False)
+    ripple = None if raw_ripple is None else RippleTable.from_mapping(raw_ripple, f"{r.where}model.ripple", r.error)
     flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True),
                          r.number("filter.period_rad", positive=True))
     if ripple is not None and abs(flt.period_rad - ripple.period_rad) > 1e-12 * ripple.period_rad:

@@ -42,8 +42,8 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.model import MomentumObserver
 from iiwa_ident.design.spatial_filter import PAPER_BETA, V_MIN_RAD_S, SpatialFilter
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import joint_position, link_position
-from iiwa_ident.ident import JointModel
+from iiwa_ident.model import joint_position, link_position
+from iiwa_ident.model import JointModel
 
 __all__ = [
     "ExternalTorqueObserver",

@@ -101,7 +101,8 @@ def table1_parameters() -> tuple[JointParameters, str]:
 
     Returns the parameters and where they came from.
     """
-    from iiwa_ident.ident import read_model, table1_model
+    from iiwa_ident.ident import read_model
+    from iiwa_ident.model import table1_model
 
     if _TABLE1_FILE.is_file():
         return JointParameters.from_model(read_model(_TABLE1_FILE)), "datasets/paper-table1.toml"

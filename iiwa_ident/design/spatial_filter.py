@@ -83,7 +83,7 @@ from iiwa_ident.ident import find_passes
 from iiwa_ident.model import RIPPLE_PERIOD_RAD
 
 if TYPE_CHECKING:
-    from iiwa_ident.ident import JointModel
+    from iiwa_ident.model import JointModel
 
 __all__ = [
     "RIPPLE_PERIOD_RAD",

@@ -35,8 +35,9 @@ import numpy as np
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
-from iiwa_ident.ident import JointModel, fit_model, table1_model
-from iiwa_ident.sim import make_effect
+from iiwa_ident.ident import fit_model
+from iiwa_ident.model import JointModel, table1_model
+from iiwa_ident.sim import make_effect, plant_from_model
 
 __all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
            "score_case", "run_case", "final_effects", "user_protocol", "run_user_case"]
@@ -106,7 +107,7 @@ def simulate_case(case: Case, model: JointModel | None = None, chirp_s: float = 
     (:func:`~iiwa_ident.excite.scenarios.simulate_hidden_effects`), on the model's dynamics (the case's by
     default)."""
     sc = HiddenEffectScenario(case.seed, case.hidden, dict(case.dynamics), list(case.reshaped))
-    return simulate_hidden_effects(sc, (model or case_model(case)).to_plant(), chirp_s)
+    return simulate_hidden_effects(sc, plant_from_model(model or case_model(case)), chirp_s)
 
 
 def _within(value: float, truth: float, tol: tuple[float, float], angle: bool = False) -> bool:

@@ -63,7 +63,8 @@ from scipy import optimize, signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, PhysicalRanges, RippleTable, line_ratio
+from iiwa_ident.ident import PhysicalRanges, line_ratio
+from iiwa_ident.model import JointModel, RippleTable
 from iiwa_ident.sim import EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TransmissionRipple, make_effect
 from iiwa_ident.sim import own_dataset_columns
 

@@ -12,7 +12,7 @@ from typing import Sequence
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison, fit_percent
 from iiwa_ident.diagnose.diagnosis import _residuals
-from iiwa_ident.ident import JointModel
+from iiwa_ident.model import JointModel
 
 __all__ = ["ChannelComparison", "compare", "fit_percent"]
 

@@ -9,7 +9,7 @@
 3. The named effects are refitted on all data and added to a copy of the
    model: the ripple as a :class:`~iiwa_ident.ident.model_file.RippleTable`,
    a delay as a corrected ``Td``, the others as ``[[effects]]`` tables the
-   simulator runs (:meth:`JointModel.to_plant`).
+   simulator runs (:func:`~iiwa_ident.sim.plant_from_model`).
 4. The gain is measured on held-out data: residual RMS [Nm] before and after
    per dataset and channel, and per effect (with and without it, on the
    blocks it acts on). The link channel's RMS is the error of a model-based
@@ -32,7 +32,8 @@ from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import JointModel, PhysicalRanges, against_description, check_model_matches, physical_ranges
+from iiwa_ident.ident import PhysicalRanges, against_description, check_model_matches, physical_ranges
+from iiwa_ident.model import JointModel
 
 __all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]

@@ -59,7 +59,7 @@ import numpy as np
 from scipy import signal
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.ident import JointModel
+from iiwa_ident.model import JointModel
 from iiwa_ident.model import polynomials, sample_means
 from iiwa_ident.sim import INJECTIONS as EFFECT_POINTS
 

@@ -1,22 +1,13 @@
-"""Identification: the joint model file, the transfer-function fit and the ripple identification."""
+"""Identification: the joint model file's reader and writer, the joint fit and the ripple identification.
+
+The model's types (:class:`~iiwa_ident.model.JointModel`, :class:`~iiwa_ident.model.RippleTable`) and the
+position correction live in :mod:`iiwa_ident.model`.
+"""
 
 from iiwa_ident.ident.bla import BlaFit
-from iiwa_ident.ident.correction import joint_position, link_position
 from iiwa_ident.ident.joint_fit import METHODS, fit_joint, fit_model
 from iiwa_ident.ident.lines import line_ratio
-from iiwa_ident.ident.model_file import (
-    JointModel,
-    ModelError,
-    Parameter,
-    RippleTable,
-    Source,
-    ripple_period,
-    model_from_dict,
-    read_model,
-    PARAMETER_ORIGINS,
-    table1_model,
-    write_model,
-)
+from iiwa_ident.ident.model_file import model_from_dict, read_model, write_model
 from iiwa_ident.ident.resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
 from iiwa_ident.ident.ripple import (
     PERIOD_MAX_RAD,
@@ -38,8 +29,7 @@ from iiwa_ident.ident.starting_model import (
 )
 from iiwa_ident.ident.tf_fit import FitResult
 
-__all__ = ["JointModel", "ModelError", "PARAMETER_ORIGINS", "Parameter", "RippleTable", "ripple_period", "Source", "model_from_dict", "read_model",
-           "table1_model", "write_model", "BlaFit", "joint_position", "link_position", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult",
+__all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description", "ResidualTest",
            "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG"]

@@ -33,7 +33,8 @@ from iiwa_ident.ident.idim import (
     LinkEffectEstimate,
     fit_idim,
 )
-from iiwa_ident.ident.model_file import JointModel, Parameter, RippleTable, Source, read_model, table1_model
+from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.model import JointModel, Parameter, RippleTable, Source, table1_model
 from iiwa_ident.ident.starting_model import check_model_matches
 from iiwa_ident.model import PARAMETER_UNITS
 from iiwa_ident.ident.tf_fit import (

@@ -162,7 +162,7 @@ class RippleResult:
     def table(self):
         """The model file's ripple table of this result (:class:`~iiwa_ident.ident.RippleTable`: the period,
         the lookup table and how they were found), or None when nothing was detected."""
-        from iiwa_ident.ident.model_file import RippleTable
+        from iiwa_ident.model import RippleTable
 
         if not self.detected:
             return None

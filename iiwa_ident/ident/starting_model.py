@@ -17,7 +17,7 @@ import numpy as np
 from iiwa_ident.datasets import Dataset, dataset_pose
 from iiwa_ident.description import describe_joint
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.model_file import JointModel, Parameter, table1_model
+from iiwa_ident.model import JointModel, Parameter, table1_model
 
 __all__ = ["starting_model", "dataset_model", "check_model_matches", "PhysicalRanges", "physical_ranges",
            "against_description", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD", "DESCRIPTION_FACTOR"]

@@ -94,7 +94,7 @@ from scipy.linalg import cho_factor, cho_solve
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
-from iiwa_ident.ident.model_file import RippleTable
+from iiwa_ident.model import RippleTable
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
 from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, sample_means, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values

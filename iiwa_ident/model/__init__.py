@@ -17,6 +17,12 @@ zoh, delayed_hold, state_matrices, DiscreteModel, discretize, simulate_outputs
 MomentumObserver
     The robot's external-torque observer, eq (13), as the robot and the runtime run it
     (:mod:`iiwa_ident.model._observer`).
+JointModel, Parameter, RippleTable, Source, ModelError, ripple_period, table1_model, PARAMETER_ORIGINS,
+MODEL_FORMAT, MODEL_FORMAT_VERSION
+    The model file's types: what ``fit`` identifies and every later stage reads
+    (:mod:`iiwa_ident.model._joint_model`; read and written by :mod:`iiwa_ident.ident`).
+joint_position, link_position
+    The position correction of eqs (8)-(9) with the ripple table (:mod:`iiwa_ident.model._correction`).
 """
 
 from iiwa_ident.model._eq4 import (
@@ -27,6 +33,19 @@ from iiwa_ident.model._eq4 import (
     polynomials,
     resonance_hz,
     transfer_function,
+)
+from iiwa_ident.model._correction import joint_position, link_position
+from iiwa_ident.model._joint_model import (
+    MODEL_FORMAT,
+    MODEL_FORMAT_VERSION,
+    PARAMETER_ORIGINS,
+    JointModel,
+    ModelError,
+    Parameter,
+    RippleTable,
+    Source,
+    ripple_period,
+    table1_model,
 )
 from iiwa_ident.model._observer import MomentumObserver
 from iiwa_ident.model._sampled import (
@@ -75,4 +94,16 @@ __all__ = [
     "discretize",
     "simulate_outputs",
     "MomentumObserver",
+    "JointModel",
+    "Parameter",
+    "RippleTable",
+    "Source",
+    "ModelError",
+    "ripple_period",
+    "table1_model",
+    "PARAMETER_ORIGINS",
+    "MODEL_FORMAT",
+    "MODEL_FORMAT_VERSION",
+    "joint_position",
+    "link_position",
 ]

@@ -294,7 +294,8 @@ def _stage_hand(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import Source, fit_model, identify_ripple, model_from_dict, write_model
+    from iiwa_ident.ident import fit_model, identify_ripple, model_from_dict, write_model
+    from iiwa_ident.model import Source
 
     base = ctx.results["model"]
     data = [ctx.results["cv"]] + ([ctx.results["qs"]] if "qs" in ctx.results else [])
@@ -435,7 +436,8 @@ def record_diagnosis(ctx: PipelineContext, result: Any, data: list[Path]) -> dic
     """Write a diagnosis's extended model (its sources: the diagnosed files, named from the work folder) and
     ``diagnose.json``; keep it in the context; return its headline figures."""
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import Source, write_model
+    from iiwa_ident.ident import write_model
+    from iiwa_ident.model import Source
 
     ext = result.extended
     ext.sources = [s for s in ext.sources if s.role != "diagnose"] + [

@@ -199,7 +199,8 @@ def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import Source, dataset_model, identify_ripple, write_model
+    from iiwa_ident.ident import dataset_model, identify_ripple, write_model
+    from iiwa_ident.model import Source
 
     runs = _runs(ctx)
     given = ctx.results.get("log_model")

@@ -23,7 +23,7 @@ from iiwa_ident.design import (  # noqa: E402
     ripple_line_cut,
     spatial_filter_response,
 )
-from iiwa_ident.ident import JointModel  # noqa: E402
+from iiwa_ident.model import JointModel  # noqa: E402
 
 __all__ = ["spatial_filter_figure", "observer_figure"]
 

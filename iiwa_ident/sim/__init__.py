@@ -2,8 +2,8 @@
 
 Public API
 ----------
-Plant, load_plant, default_plant, save_plant, plant_from_dict
-    The plant description and its TOML file format (:mod:`iiwa_ident.sim.plant`).
+Plant, load_plant, default_plant, save_plant, plant_from_dict, plant_from_model
+    The plant description, its TOML file format and the plant of a joint model (:mod:`iiwa_ident.sim.plant`).
 Effect, EFFECTS, register_effect, make_effect and the effect classes
     Switchable plant effects, the simulator's hooks and the estimators' regressors in one class each
     (:mod:`iiwa_ident.sim.effects`; EffectSignals, Column, INJECTIONS, own_dataset_columns).
@@ -35,6 +35,7 @@ from iiwa_ident.sim.plant import (
     default_plant,
     load_plant,
     plant_from_dict,
+    plant_from_model,
     save_plant,
 )
 
@@ -43,7 +44,7 @@ __all__ = [
     "own_dataset_columns",
     "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "TorqueSensorOffset",
     "TorqueSensorScale", "PeriodicDisturbance", "InputDelay",
-    "Plant", "default_plant", "load_plant", "plant_from_dict", "save_plant",
+    "Plant", "default_plant", "load_plant", "plant_from_dict", "plant_from_model", "save_plant",
     "SimulatedJoint", "SimTrace", "ExternalAgent",
     "ImpedanceAgent",
 ]

@@ -35,11 +35,11 @@ from typing import Any
 
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import PlantError
-from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, Param
+from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, JointModel, Param
 from iiwa_ident.robot import ROBOT_MODELS, JointLimits, joint_limits
 from iiwa_ident.sim.effects import Effect, _check_number, make_effect
 
-__all__ = ["Plant", "load_plant", "default_plant", "plant_from_dict", "save_plant", "PLANT_FORMAT", "SECTIONS"]
+__all__ = ["Plant", "load_plant", "default_plant", "plant_from_dict", "plant_from_model", "save_plant", "PLANT_FORMAT", "SECTIONS"]
 
 PLANT_FORMAT = "iiwa-ident-plant"
 PLANT_FORMAT_VERSION = 1
@@ -235,3 +235,40 @@ def default_plant() -> Plant:
 def save_plant(plant: Plant, path: str | os.PathLike) -> Path:
     """Write ``plant`` as a plant TOML file (atomically)."""
     return write_atomic(path, dumps_toml(plant.to_dict()))
+
+
+def plant_from_model(model: JointModel, base: Plant | None = None) -> Plant:
+    """A plant with a joint model's dynamics, its ripple table (if any) and its extra effects.
+
+    Parameters
+    ----------
+    model : JointModel
+        The identified (or starting) model.
+    base : Plant, optional
+        The plant whose other settings (cycle, noise, limits, effects other
+        than the ripple) are kept (default: :func:`default_plant`).
+
+    Returns
+    -------
+    Plant
+        A new plant; ``base`` is not changed.
+
+    Examples
+    --------
+    >>> from iiwa_ident.model import table1_model
+    >>> plant_from_model(table1_model()).dynamics["K"]
+    18500.0
+    """
+    from iiwa_ident.sim.effects import TransmissionRipple
+
+    plant = (base or default_plant()).without_effects("transmission_ripple")
+    for name in ("Jc", "bc", "K", "Jl", "Td"):
+        plant.dynamics[name] = model.value(name)
+    plant.internal["KI"] = model.value("KI")
+    if model.ripple is not None:
+        plant = plant.with_effects(TransmissionRipple({"period_rad": model.ripple.period_rad,
+                                                      "lut": [float(v) for v in model.ripple.lut]}))
+    if model.effects:
+        plant = plant.with_effects(*[make_effect(e["name"], {k: v for k, v in e.items() if k != "name"})
+                                     for e in model.effects])
+    return plant

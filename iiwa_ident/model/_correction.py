@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from iiwa_ident.ident.model_file import RippleTable
+from iiwa_ident.model._joint_model import RippleTable
 
 __all__ = ["joint_position", "link_position"]
 
