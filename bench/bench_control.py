@@ -18,6 +18,7 @@ from iiwa_ident.design.analysis import (
     sine_tracking,
 )
 from iiwa_ident.report.control_figures import kappa_figure, pole_figure, tracking_figure
+from iiwa_ident.design import FilterSettings
 
 
 def main(outdir: str = "/tmp") -> None:
@@ -45,9 +46,10 @@ def main(outdir: str = "/tmp") -> None:
     for pf in (50.0, 250.0):
         design = analysis_design(model, prefilter_hz=pf)
         for beta in (5.0, 2.0):
-            ctrl = AdditiveTorqueControl.from_model(model, design, beta=beta)
-            e = sine_tracking(ctrl, None, 15.0, 25.0, model=model, beta=beta).errors
-            k = kappa_margin("additive", None, model=model, design=design, beta=beta, rel_tol=0.08)
+            flt = FilterSettings(beta=beta)
+            ctrl = AdditiveTorqueControl.from_model(model, design, filter=flt)
+            e = sine_tracking(ctrl, None, 15.0, 25.0, model=model, filter=flt).errors
+            k = kappa_margin("additive", None, model=model, design=design, filter=flt, rel_tol=0.08)
             print(f"{pf:12g} {beta:4g}  {e.filt_peak:14.2f}  {k.kappa_max:10.2f}")
 
 

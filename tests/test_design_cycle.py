@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import iiwa_ident.design.cycle as cycle_module
-from iiwa_ident.design import AdditiveController, ControlCycle, design_controller, table1_parameters
+from iiwa_ident.design import DESIGN_BETA, AdditiveController, ControlCycle, FilterSettings, design_controller, table1_parameters
 from iiwa_ident.model import RippleTable
 from iiwa_ident.robot import Measurement
 
@@ -36,8 +36,8 @@ def test_a_constant_torque_offset_changes_nothing():
     tau_j = rng.normal(0, 0.5, n) + 3 * np.sin(np.linspace(0, 20, n))
     tau_r = 4 * np.sign(np.sin(np.linspace(0, 9, n)))
     table = RippleTable(0.2, 1e-4 * np.sin(np.linspace(0, 2 * np.pi, 16, endpoint=False)))
-    a = _run(_cycle(ripple=table, period_rad=0.2), q_m, tau_j, tau_r)
-    b = _run(_cycle(ripple=table, period_rad=0.2), q_m, tau_j + 17.5, tau_r)
+    a = _run(_cycle(ripple=table), q_m, tau_j, tau_r)
+    b = _run(_cycle(ripple=table), q_m, tau_j + 17.5, tau_r)
     assert a[0] == 0.0 and b[0] == 0.0
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
 
@@ -73,3 +73,12 @@ def test_restart_forgets_the_past():
     fresh = _cycle()
     m = [Measurement(k * 1e-3, 0.2, 0.3 * k, 0.0) for k in range(5)]
     assert [c.step(x, 1.0) for x in m] == [fresh.step(x, 1.0) for x in m]
+
+
+def test_one_period_for_the_filter_and_the_lookup_table():
+    table = RippleTable(0.2, 1e-4 * np.sin(np.linspace(0, 2 * np.pi, 16, endpoint=False)))
+    assert _cycle(ripple=table).torque_filter.period_rad == 0.2  # the filter takes the table's period
+    assert _cycle(ripple=table, filter=FilterSettings(beta=5.0, period_rad=0.2)).torque_filter.beta == 5.0
+    with pytest.raises(ValueError, match="differs from the lookup table's"):
+        _cycle(ripple=table, filter=FilterSettings(period_rad=0.21))
+    assert _cycle().filter.beta == DESIGN_BETA  # the design's beta by default, as the runtime deploys it

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from iiwa_ident._toml import dumps_toml
+from iiwa_ident.design import FilterSettings
 from iiwa_ident.design.controller import HumanArm, OuterLoopMargins, design_controller
 from iiwa_ident.design.design_file import (
     DESIGN_FORMAT,
     DesignFileError,
-    FilterSettings,
     design_from_dict,
     design_to_dict,
     make_record,
@@ -35,7 +35,7 @@ MARGINS = OuterLoopMargins(builtin=7.78, additive=23.0, arm=HumanArm(300.0, 40.0
 def record_dict():
     model = table1_model()
     model.ripple = RippleTable(0.01963, np.sin(np.linspace(0, 2 * np.pi, 16, endpoint=False)) * 5e-5)
-    rec = make_record(design_controller(TABLE1), MARGINS, model, beta=4.0, v_min_rad_s=0.3)
+    rec = make_record(design_controller(TABLE1), MARGINS, model, filter=FilterSettings(4.0, 0.3))
     return design_to_dict(rec)
 
 
@@ -51,7 +51,7 @@ class TestWriteDesign:
         write_model(model_path, model)
         design = design_controller(TABLE1)
         margins = OuterLoopMargins(7.5, math.inf, HumanArm(250.0, 30.0, 0.2), 50.0)
-        rec = make_record(design, margins, model, model_path, beta=5.0, v_min_rad_s=0.2, description="test")
+        rec = make_record(design, margins, model, model_path, FilterSettings(5.0, 0.2), description="test")
         path = write_design(tmp_path / "design.toml", rec)
         back = read_design(path)
         d, b = design, back.design

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from iiwa_ident.datasets import Dataset
+from iiwa_ident.design import FilterSettings
 from iiwa_ident.design.observers import (
     OBSERVERS,
     BuiltinObserver,
@@ -92,7 +93,7 @@ class TestFilteredObserver:
         model.ripple = RippleTable(0.01963, 4e-5 * np.sin(2 * np.pi * np.arange(64) / 64))
         t, q_m, tau_j, _ = _synthetic(1200)
         q_m = q_m + 0.6 * t  # moving, so the filter works
-        obs = FilteredObserver(model, DT, beta=3.0)
+        obs = FilteredObserver(model, DT, FilterSettings(beta=3.0))
         seq = [obs.update(q, tj) for q, tj in zip(q_m, tau_j)]
         np.testing.assert_allclose(seq, obs.run((q_m, tau_j)), rtol=1e-12, atol=1e-9)
         obs.reset()
@@ -102,7 +103,7 @@ class TestFilteredObserver:
         model = table1_model()
         model.ripple = RippleTable(0.01963, np.zeros(16))
         assert list(OBSERVERS) == ["builtin", "improved", "filtered"]
-        assert isinstance(make_observer("filtered", model, DT, beta=2.0), FilteredObserver)
+        assert isinstance(make_observer("filtered", model, DT, filter=FilterSettings(beta=2.0)), FilteredObserver)
         with pytest.raises(IiwaIdentError):
             make_observer("kalman", model)
 
@@ -144,7 +145,7 @@ def hand_guided():
 
 @pytest.fixture(scope="module")
 def comparison(hand_guided, model):
-    return {beta: compare_observers(hand_guided, model, beta=beta) for beta in (5.0, 2.0)}
+    return {beta: compare_observers(hand_guided, model, filter=FilterSettings(beta=beta)) for beta in (5.0, 2.0)}
 
 
 class TestBuiltinOnSimulation:

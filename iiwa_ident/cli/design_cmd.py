@@ -127,6 +127,7 @@ def design_cmd(
         design_json,
         exact_delay_spectral_radius,
         format_reproduction,
+        FilterSettings,
         make_record,
         outer_loop_margins,
         paper_reproduction,
@@ -155,7 +156,7 @@ def design_cmd(
             t1, source = table1_parameters()
             typer.echo("")
             typer.echo(format_reproduction(paper_reproduction(t1), source))
-        write_design(out, make_record(design, margins, the_model, model, beta=beta, v_min_rad_s=v_min))
+        write_design(out, make_record(design, margins, the_model, model, FilterSettings(beta, v_min)))
         typer.echo(f"wrote {out}")
         if json_out is not None:
             write_json(json_out, design_json(design, margins))

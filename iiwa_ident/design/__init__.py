@@ -2,8 +2,8 @@
 
 Public API
 ----------
-SpatialFilter, spatial_filter_response, ripple_bandpass_coefficients, gamma_weight, ripple_line_cut
-    The spatial filter of eqs (10)-(12) (:mod:`iiwa_ident.design.spatial_filter`).
+SpatialFilter, FilterSettings, spatial_filter_response, ripple_bandpass_coefficients, gamma_weight, ripple_line_cut
+    The spatial filter and its settings of eqs (10)-(12) (:mod:`iiwa_ident.design.spatial_filter`).
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
 run_observers, compare_observers, observer_lag
     The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
@@ -12,7 +12,7 @@ PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_de
     The additive torque controller of section V.B (:mod:`iiwa_ident.design.controller`).
 ControlCycle
     Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
-DesignRecord, FilterSettings, DesignFileError, make_record, read_design, write_design
+DesignRecord, DesignFileError, make_record, read_design, write_design
     The design file (:mod:`iiwa_ident.design.design_file`).
 paper_reproduction, format_reproduction
     The paper's numbers beside the computed ones (:mod:`iiwa_ident.design.paper`).
@@ -42,7 +42,6 @@ from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.design_file import (
     DesignFileError,
     DesignRecord,
-    FilterSettings,
     design_json,
     make_record,
     read_design,
@@ -70,6 +69,8 @@ from iiwa_ident.design.spatial_filter import (
     PAPER_BETA,
     RIPPLE_PERIOD_RAD,
     V_MIN_RAD_S,
+    FilterSettings,
+    PAPER_FILTER,
     SpatialFilter,
     gamma_weight,
     ripple_bandpass_coefficients,
@@ -83,7 +84,7 @@ __all__ = [
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",
     "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
-    "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "DesignFileError", "make_record", "read_design",
+    "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "PAPER_FILTER", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",
     "ClosedLoopRun", "KappaMargin", "ControlCycle",
     "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "SAMPLE_TIME_S", "builtin_poles", "check_poles", "natural_frequency_damping",

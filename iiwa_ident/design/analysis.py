@@ -88,15 +88,10 @@ from iiwa_ident.design.controller import (
     kappa_max,
 )
 from iiwa_ident.design.cycle import ControlCycle
-from iiwa_ident.design.spatial_filter import (
-    V_MIN_RAD_S,
-    DESIGN_BETA,
-    RIPPLE_PERIOD_RAD,
-    SpatialFilter,
-)
+from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
 from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
 from iiwa_ident.model import joint_position
-from iiwa_ident.model import JointModel, RippleTable, ripple_period, table1_model
+from iiwa_ident.model import JointModel, RippleTable, table1_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.references import square
 from iiwa_ident.robot import Command, Measurement
@@ -126,14 +121,10 @@ __all__ = [
     "kappa_trial",
     "kappa_margin",
     "compare_controllers",
-    "DEFAULT_BETA",
     "ANALYSIS_PREFILTER_HZ",
     "analysis_design",
 ]
 
-#: Spatial-filter bandwidth used by the analysis [-]: the design default (see
-#: :data:`~iiwa_ident.design.spatial_filter.DESIGN_BETA`).
-DEFAULT_BETA = DESIGN_BETA
 #: Reference pre-filter of the feed-forward of eq (22) used by the analysis [Hz]: the design default.
 ANALYSIS_PREFILTER_HZ = DEFAULT_PREFILTER_HZ
 
@@ -185,10 +176,8 @@ class AdditiveTorqueControl(TorqueControl):
     ----------
     design : AdditiveDesign
         The controller design.
-    period_rad : float
-        Ripple period rho the filter works at [rad].
-    beta, v_min : float
-        Filter bandwidth of eq (10) [-] and fade-out speed of eq (12) [rad/s].
+    filter : FilterSettings, optional
+        The spatial filter (default: the design's beta and v_min at the lookup table's period).
     ripple : RippleTable, optional
         Lookup table of eq (8) for the joint position the filter runs along.
     dt : float
@@ -197,10 +186,10 @@ class AdditiveTorqueControl(TorqueControl):
 
     kind = "additive"
 
-    def __init__(self, design: AdditiveDesign, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = DEFAULT_BETA,
-                 v_min: float = V_MIN_RAD_S, ripple: RippleTable | None = None, dt: float = 1e-3) -> None:
+    def __init__(self, design: AdditiveDesign, filter: FilterSettings | None = None, ripple: RippleTable | None = None,
+                 dt: float = 1e-3) -> None:
         self.design = design
-        self.cycle = ControlCycle(AdditiveController(design), period_rad, beta, v_min, dt, ripple)
+        self.cycle = ControlCycle(AdditiveController(design), filter, dt, ripple)
 
     @property
     def ripple(self) -> RippleTable | None:
@@ -208,13 +197,12 @@ class AdditiveTorqueControl(TorqueControl):
         return self.cycle.ripple
 
     @classmethod
-    def from_model(cls, model: JointModel, design: AdditiveDesign | None = None, beta: float = DEFAULT_BETA,
-                   v_min: float = V_MIN_RAD_S, **design_kwargs) -> "AdditiveTorqueControl":
+    def from_model(cls, model: JointModel, design: AdditiveDesign | None = None, filter: FilterSettings | None = None,
+                   **design_kwargs) -> "AdditiveTorqueControl":
         """The controller for ``model`` (:func:`analysis_design` unless ``design`` is given)."""
         if design is None:
             design = analysis_design(model, **design_kwargs)
-        period = ripple_period(model.ripple)
-        return cls(design, period, beta, v_min, model.ripple, design.sample_time_s)
+        return cls(design, filter, model.ripple, design.sample_time_s)
 
     @property
     def tau_j_filt(self) -> float:
@@ -229,12 +217,12 @@ class AdditiveTorqueControl(TorqueControl):
 
 
 def make_controller(kind: str, model: JointModel, design: AdditiveDesign | None = None,
-                    beta: float = DEFAULT_BETA, v_min: float = V_MIN_RAD_S) -> TorqueControl:
-    """``"builtin"`` or ``"additive"`` controller for ``model`` (filter ``beta`` [-], ``v_min`` [rad/s])."""
+                    filter: FilterSettings | None = None) -> TorqueControl:
+    """``"builtin"`` or ``"additive"`` controller for ``model`` (the additive one's spatial filter: ``filter``)."""
     if kind == "builtin":
         return BuiltinTorqueControl()
     if kind == "additive":
-        return AdditiveTorqueControl.from_model(model, design, beta=beta, v_min=v_min)
+        return AdditiveTorqueControl.from_model(model, design, filter=filter)
     raise ValueError(f"controller kind must be 'builtin' or 'additive', got {kind!r}")
 
 
@@ -329,7 +317,7 @@ class _ClosedLoop(Experiment):
 def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: Callable[[float], float],
                     duration_s: float, *, seed: int = 0, hold_stiffness: float = 30.0, hold_damping: float = 10.0,
                     kappa: float = 0.0, agent: ImpedanceAgent | None = None, model: JointModel | None = None,
-                    beta: float = DEFAULT_BETA) -> ClosedLoopRun:
+                    filter: FilterSettings | None = None) -> ClosedLoopRun:
     """Run ``controller`` on a simulated joint for ``duration_s``.
 
     ``tau_r = r(t) - hold_stiffness (q - q0) - hold_damping v + kappa tau_ext_ref``
@@ -356,8 +344,8 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
         External agent acting on the link.
     model : JointModel, optional
         Model whose ripple table gives theta_j (eq (8)) for the offline filtered torque.
-    beta : float
-        Spatial-filter bandwidth of the offline filtered torque [-].
+    filter : FilterSettings, optional
+        The spatial filter's settings (default: the design's beta and v_min).
 
     Returns
     -------
@@ -375,9 +363,8 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
                         sig["tau_j"], sig["q_m"], tau_ext_ref, stopped=ds.experiment_attrs.get("stopped_reason", ""))
     dt = robot.sample_time_s
     ripple = model.ripple if model is not None else getattr(controller, "ripple", None)
-    period = ripple_period(ripple)
     theta = np.asarray(joint_position(run.q_m, ripple), float)
-    run.tau_j_filt = SpatialFilter(period, beta=beta, dt=dt).apply(run.tau_j, theta)
+    run.tau_j_filt = SpatialFilter.from_settings(filter or FilterSettings(), dt, ripple).apply(run.tau_j, theta)
     return run
 
 
@@ -493,7 +480,7 @@ class StepResult:
 
 def step_response(controller: TorqueControl, plant: Plant | None = None, amplitude_nm: float = 10.0,
                   period_s: float = 1.0, cycles: int = 2, *, band: float = 0.05, settle_s: float = 0.3,
-                  seed: int = 0, model: JointModel | None = None, beta: float = DEFAULT_BETA,
+                  seed: int = 0, model: JointModel | None = None, filter: FilterSettings | None = None,
                   hold_stiffness: float = 30.0, hold_damping: float = 10.0,
                   agent_stiffness: float | None = None, delay_s: float = 0.005) -> StepResult:
     """Square-wave steps between ``+amplitude`` and ``-amplitude`` (Fig. 8).
@@ -521,8 +508,8 @@ def step_response(controller: TorqueControl, plant: Plant | None = None, amplitu
         Noise seed.
     model : JointModel, optional
         Model with the ripple table for the offline filtered torque.
-    beta : float
-        Bandwidth of that filter [-].
+    filter : FilterSettings, optional
+        The spatial filter's settings (default: the design's beta and v_min).
     hold_stiffness, hold_damping : float
         Client position hold [Nm/rad], [Nm s/rad] (module docstring).
     agent_stiffness : float, optional
@@ -540,7 +527,7 @@ def step_response(controller: TorqueControl, plant: Plant | None = None, amplitu
     if agent is not None:
         hold_stiffness = hold_damping = 0.0
     run = run_closed_loop(controller, plant, ref, duration, seed=seed, hold_stiffness=hold_stiffness,
-                          hold_damping=hold_damping, agent=agent, model=model, beta=beta)
+                          hold_damping=hold_damping, agent=agent, model=model, filter=filter)
     dly = int(round(delay_s / run.dt))
     n_half = int(round(half / run.dt))
     edges = np.arange(0, len(run.t), n_half)
@@ -594,7 +581,7 @@ class SineResult:
 
 def sine_tracking(controller: TorqueControl, plant: Plant | None = None, amplitude_nm: float = 5.0,
                   frequency_hz: float = 0.25, duration_s: float | None = None, *, settle_s: float | None = None,
-                  seed: int = 0, model: JointModel | None = None, beta: float = DEFAULT_BETA,
+                  seed: int = 0, model: JointModel | None = None, filter: FilterSettings | None = None,
                   hold_stiffness: float = 30.0, hold_damping: float = 10.0,
                   agent_stiffness: float | None = None, delay_s: float = 0.005) -> SineResult:
     """Track ``r(t) = A sin(2 pi f t)`` (Fig. 9) and report the steady-state errors.
@@ -611,7 +598,7 @@ def sine_tracking(controller: TorqueControl, plant: Plant | None = None, amplitu
         Duration [s] (default: two periods, at least 2 s).
     settle_s : float, optional
         Start of the steady-state window [s] (default: half the duration).
-    seed, model, beta, hold_stiffness, hold_damping, agent_stiffness, delay_s
+    seed, model, filter, hold_stiffness, hold_damping, agent_stiffness, delay_s
         As in :func:`step_response`.
     """
     if duration_s is None:
@@ -627,7 +614,7 @@ def sine_tracking(controller: TorqueControl, plant: Plant | None = None, amplitu
     if agent is not None:
         hold_stiffness = hold_damping = 0.0
     run = run_closed_loop(controller, plant, ref, duration_s, seed=seed, hold_stiffness=hold_stiffness,
-                          hold_damping=hold_damping, agent=agent, model=model, beta=beta)
+                          hold_damping=hold_damping, agent=agent, model=model, filter=filter)
     errors = tracking_errors(run, settle_s, delay_s)
     return SineResult(run, errors, amplitude_nm, frequency_hz, settle_s)
 
@@ -773,7 +760,7 @@ class KappaMargin:
 
 def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm = HumanArm(), *,
                  model: JointModel | None = None, design: AdditiveDesign | None = None,
-                 beta: float = DEFAULT_BETA, rel_tol: float = 0.05, kappa_limit: float = 60.0,
+                 filter: FilterSettings | None = None, rel_tol: float = 0.05, kappa_limit: float = 60.0,
                  seed: int = 0, **trial_kwargs) -> KappaMargin:
     """Largest stable outer-loop gain ``kappa`` of ``tau_r = kappa tau_ext`` found by simulation.
 
@@ -794,8 +781,8 @@ def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm
         Model for the design and the filter (default: Table I with an identified ripple table).
     design : AdditiveDesign, optional
         Additive design (default: :func:`analysis_design` on ``model``).
-    beta : float
-        Spatial-filter bandwidth [-].
+    filter : FilterSettings, optional
+        The spatial filter's settings (default: the design's beta and v_min).
     rel_tol : float
         Relative width of the final bracket [-].
     kappa_limit : float
@@ -810,7 +797,7 @@ def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm
     params = JointParameters.from_model(model)
     if controller_kind == "additive" and design is None:
         design = analysis_design(model)
-    controller = make_controller(controller_kind, model, design, beta)
+    controller = make_controller(controller_kind, model, design, filter)
     linear = kappa_max(params, design if controller_kind == "additive" else None, arm, kappa_limit=kappa_limit)
     trials: list[KappaTrial] = []
 
@@ -854,7 +841,7 @@ def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm
 # ---------------------------------------------------------------------------
 def compare_controllers(model: JointModel | None = None, plant: Plant | None = None, *,
                         design: AdditiveDesign | None = None, arm: HumanArm = HumanArm(),
-                        beta: float = DEFAULT_BETA, step_amplitude_nm: float = 10.0,
+                        filter: FilterSettings | None = None, step_amplitude_nm: float = 10.0,
                         sines: tuple[tuple[float, float], ...] = ((5.0, 0.25), (15.0, 25.0)),
                         margins: bool = True, seed: int = 0, rel_tol: float = 0.05) -> dict:
     """Built-in against additive on the simulated joint: poles, steps, sines and kappa margins.
@@ -870,8 +857,8 @@ def compare_controllers(model: JointModel | None = None, plant: Plant | None = N
         Additive design (default: :func:`analysis_design`, the paper's poles on ``model``).
     arm : HumanArm
         Hand for the kappa margins.
-    beta : float
-        Spatial-filter bandwidth [-] (paper: 5).
+    filter : FilterSettings, optional
+        The spatial filter's settings (default: the design's beta and v_min).
     step_amplitude_nm : float
         Square-wave amplitude [Nm].
     sines : tuple of (amplitude [Nm], frequency [Hz])
@@ -898,23 +885,23 @@ def compare_controllers(model: JointModel | None = None, plant: Plant | None = N
     params = JointParameters.from_model(model)
     design = design or analysis_design(model)
     kinds = ("builtin", "additive")
-    ctrls = {k: make_controller(k, model, design, beta) for k in kinds}
+    ctrls = {k: make_controller(k, model, design, filter) for k in kinds}
     out: dict = {
-        "beta": beta, "model": model, "design": design,
+        "beta": (filter or FilterSettings()).beta, "model": model, "design": design,
         "poles": {"builtin": builtin_poles(params), "additive": np.asarray(design.poles),
                   "observer": np.asarray(design.observer_poles),
                   "additive_closed_loop": np.asarray(design.additive_poles)},
         "step": {}, "sine": {}, "kappa": {}, "kappa_linear": {},
     }
     for k in kinds:
-        out["step"][k] = step_response(ctrls[k], plant, step_amplitude_nm, seed=seed, model=model, beta=beta)
-        out["sine"][k] = [sine_tracking(ctrls[k], plant, a, f, seed=seed, model=model, beta=beta) for a, f in sines]
+        out["step"][k] = step_response(ctrls[k], plant, step_amplitude_nm, seed=seed, model=model, filter=filter)
+        out["sine"][k] = [sine_tracking(ctrls[k], plant, a, f, seed=seed, model=model, filter=filter) for a, f in sines]
         out["kappa_linear"][k] = kappa_max(params, design if k == "additive" else None, arm)
     lb, la = out["kappa_linear"]["builtin"], out["kappa_linear"]["additive"]
     out["kappa_linear_ratio"] = la / lb if lb > 0 else math.inf
     if margins:
         for k in kinds:
-            out["kappa"][k] = kappa_margin(k, plant, arm, model=model, design=design, beta=beta, seed=seed,
+            out["kappa"][k] = kappa_margin(k, plant, arm, model=model, design=design, filter=filter, seed=seed,
                                            rel_tol=rel_tol)
         kb, ka = out["kappa"]["builtin"].kappa_max, out["kappa"]["additive"].kappa_max
         out["kappa_ratio"] = ka / kb if kb > 0 else math.inf

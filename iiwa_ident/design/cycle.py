@@ -22,9 +22,9 @@ records that state and commands nothing.
 from __future__ import annotations
 
 from iiwa_ident.design.controller import AdditiveController
-from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S, SpatialFilter
+from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
 from iiwa_ident.model import RippleTable
-from iiwa_ident.model import RIPPLE_PERIOD_RAD, MomentumObserver
+from iiwa_ident.model import MomentumObserver
 from iiwa_ident.robot import Measurement
 
 __all__ = ["ControlCycle"]
@@ -37,12 +37,9 @@ class ControlCycle:
     ----------
     controller : AdditiveController
         The discrete additive controller of eqs (16)-(18).
-    period_rad : float
-        Ripple period rho the spatial filters work at [rad].
-    beta : float
-        Spatial-filter bandwidth, eq (10) [-].
-    v_min : float
-        Speed below which the filtering fades out, eq (12) [rad/s].
+    filter : FilterSettings, optional
+        The spatial filters' beta, v_min and period (default: the design's beta and v_min at the
+        lookup table's period; a period other than the table's is refused with ValueError).
     dt : float
         Sample time [s].
     ripple : RippleTable, optional
@@ -68,17 +65,19 @@ class ControlCycle:
     0.0
     """
 
-    def __init__(self, controller: AdditiveController, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = DESIGN_BETA,
-                 v_min: float = V_MIN_RAD_S, dt: float = 1e-3, ripple: RippleTable | None = None, K: float | None = None,
-                 KI: float | None = None, Jl: float | None = None) -> None:
+    def __init__(self, controller: AdditiveController, filter: FilterSettings | None = None, dt: float = 1e-3,
+                 ripple: RippleTable | None = None, K: float | None = None, KI: float | None = None,
+                 Jl: float | None = None) -> None:
         self.controller = controller
         self.ripple = ripple
         self.dt = float(dt)
-        self.torque_filter = SpatialFilter(period_rad, beta=beta, v_min=v_min, dt=dt)
+        #: The spatial filters' settings, the period fixed beside the lookup table (one rho for both).
+        self.filter = (filter or FilterSettings()).along(ripple)
+        self.torque_filter = SpatialFilter.from_settings(self.filter, dt)
         with_observer = K is not None and KI is not None and Jl is not None
         self._K = float(K) if K is not None else None
         self.observer = MomentumObserver(KI, Jl, dt) if with_observer else None
-        self.observer_filter = SpatialFilter(period_rad, beta=beta, v_min=v_min, dt=dt) if with_observer else None
+        self.observer_filter = SpatialFilter.from_settings(self.filter, dt) if with_observer else None
         self.started = False
         self.tau_offset = 0.0  #: tau_J at the (re)start [Nm]
         self.theta_j = 0.0  #: joint position of eq (8) at the last sample [rad]

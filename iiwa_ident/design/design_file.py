@@ -97,17 +97,16 @@ from iiwa_ident.design.controller import (
     _scaling,
     check_poles,
 )
-from iiwa_ident.design.spatial_filter import DESIGN_BETA, V_MIN_RAD_S
+from iiwa_ident.design.spatial_filter import FilterSettings
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointModel, RippleTable, ripple_period
-from iiwa_ident.model import PARAMETER_UNITS, RIPPLE_PERIOD_RAD
+from iiwa_ident.model import JointModel, RippleTable
+from iiwa_ident.model import PARAMETER_UNITS
 from iiwa_ident.model import JointParameters, ParameterError
 
 __all__ = [
     "DESIGN_FORMAT",
     "DESIGN_FORMAT_VERSION",
     "DesignFileError",
-    "FilterSettings",
     "DesignRecord",
     "make_record",
     "design_to_dict",
@@ -123,25 +122,6 @@ DESIGN_FORMAT_VERSION = 1
 
 class DesignFileError(IiwaIdentError):
     """A design file is missing, unreadable or invalid."""
-
-
-@dataclass(frozen=True)
-class FilterSettings:
-    """Spatial-filter settings of eqs (10)-(12).
-
-    Attributes
-    ----------
-    beta : float
-        Band-pass sharpness [-] (paper: 5; default :data:`~iiwa_ident.design.spatial_filter.DESIGN_BETA`).
-    v_min_rad_s : float
-        Speed below which the filter fades out [rad/s] (paper: 0.2).
-    period_rad : float
-        Ripple period rho [rad].
-    """
-
-    beta: float = DESIGN_BETA
-    v_min_rad_s: float = V_MIN_RAD_S
-    period_rad: float = RIPPLE_PERIOD_RAD
 
 
 @dataclass
@@ -177,8 +157,8 @@ class DesignRecord:
 
 
 def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointModel,
-                model_path: str | os.PathLike | None = None, beta: float = DESIGN_BETA,
-                v_min_rad_s: float = V_MIN_RAD_S, description: str = "") -> DesignRecord:
+                model_path: str | os.PathLike | None = None, filter: FilterSettings | None = None,
+                description: str = "") -> DesignRecord:
     """Bundle a design with its model reference and filter settings.
 
     Parameters
@@ -190,15 +170,18 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
         The model the design is based on (KI and the ripple table are taken from it).
     model_path : path, optional
         Its file; recorded with its sha256.
-    beta, v_min_rad_s : float
-        Spatial-filter settings [-], [rad/s].
+    filter : FilterSettings, optional
+        The spatial filter's beta and v_min (default: the design's); its period is the ripple table's
+        (a different one is refused).
     """
     sha = None
     if model_path is not None:
         sha = hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
-    period = ripple_period(model.ripple)
-    return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")),
-                        filter=FilterSettings(float(beta), float(v_min_rad_s), float(period)),
+    try:
+        settings = (filter or FilterSettings()).along(model.ripple)
+    except ValueError as err:
+        raise DesignError(str(err)) from None
+    return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")), filter=settings,
                         ripple=model.ripple, model_file=None if model_path is None else str(model_path),
                         model_sha256=sha, description=description, tool_version=tool_version())
 

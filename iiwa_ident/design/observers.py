@@ -40,7 +40,7 @@ from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.model import MomentumObserver
-from iiwa_ident.design.spatial_filter import PAPER_BETA, V_MIN_RAD_S, SpatialFilter
+from iiwa_ident.design.spatial_filter import PAPER_FILTER, FilterSettings, SpatialFilter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import joint_position, link_position
 from iiwa_ident.model import JointModel
@@ -195,20 +195,18 @@ class FilteredObserver(LinkVelocityObserver):
         Must have a ripple table (its period sets the filter).
     dt : float
         Sample time [s].
-    beta : float
-        Band-pass bandwidth of eq (10) [-].
-    v_min : float
-        Fade-out speed of eq (12) [rad/s].
+    filter : FilterSettings
+        The spatial filter (default: the paper's beta and v_min); its period is the table's.
     """
 
     name = "filtered"
     label = "link velocity + spatial filter, eq (14)"
 
-    def __init__(self, model: JointModel, dt: float = 1e-3, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S) -> None:
+    def __init__(self, model: JointModel, dt: float = 1e-3, filter: FilterSettings = PAPER_FILTER) -> None:
         if model.ripple is None:
             raise IiwaIdentError("observer: the spatially filtered observer needs the model's ripple table "
                                  "(run the ripple identification first)")
-        self.filter = SpatialFilter(model.ripple.period_rad, beta=beta, v_min=v_min, dt=dt)
+        self.filter = SpatialFilter.from_settings(filter, dt, model.ripple)
         super().__init__(model, dt)
 
     def reset(self) -> None:
@@ -241,13 +239,14 @@ def _dt(dataset: Dataset) -> float:
     return 1.0 / dataset.sample_rate_hz
 
 
-def run_observers(dataset: Dataset, model: JointModel, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S) -> dict[str, np.ndarray]:
-    """The three estimates [Nm] for a record, by observer name (``filtered`` only with a ripple table)."""
+def run_observers(dataset: Dataset, model: JointModel, filter: FilterSettings = PAPER_FILTER) -> dict[str, np.ndarray]:
+    """The three estimates [Nm] for a record, by observer name (``filtered``, with the spatial filter ``filter``,
+    only with a ripple table)."""
     dt = _dt(dataset)
     out = {"builtin": BuiltinObserver(model, dt).run(dataset),
            "improved": LinkVelocityObserver(model, dt).run(dataset)}
     if model.ripple is not None:
-        out["filtered"] = FilteredObserver(model, dt, beta=beta, v_min=v_min).run(dataset)
+        out["filtered"] = FilteredObserver(model, dt, filter).run(dataset)
     return out
 
 
@@ -277,8 +276,9 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
 
 
-def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: float = 0.5, beta: float = PAPER_BETA,
-                      v_min: float = V_MIN_RAD_S, estimates: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: float = 0.5,
+                      filter: FilterSettings = PAPER_FILTER,
+                      estimates: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
     """RMS errors of the three observers against the F/T reference of a hand-guided record (Fig. 7).
 
     Parameters
@@ -290,8 +290,8 @@ def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: floa
         K, Jl, KI and the ripple table (its period sets the spatial filter).
     speed_threshold : float
         Link speed [rad/s] above which samples count as fast.
-    beta, v_min : float
-        Spatial-filter parameters of eqs (10) and (12) [-], [rad/s].
+    filter : FilterSettings
+        The spatial filter of eqs (10)-(12) (default: the paper's; a design's ``record.filter`` as deployed).
     estimates : dict, optional
         Estimates already computed by :func:`run_observers`.
 
@@ -315,7 +315,7 @@ def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: floa
     if not dataset.has("tau_ext_ref"):
         raise IiwaIdentError("compare observers: the record has no external torque reference (tau_ext_ref)")
     dt = _dt(dataset)
-    est = dict(estimates) if estimates is not None else run_observers(dataset, model, beta, v_min)
+    est = dict(estimates) if estimates is not None else run_observers(dataset, model, filter)
     if dataset.has("tau_ext_fri"):
         est["fri"] = np.asarray(dataset["tau_ext_fri"], float)
     ref = np.asarray(dataset["tau_ext_ref"], float)
@@ -332,8 +332,8 @@ def compare_observers(dataset: Dataset, model: JointModel, speed_threshold: floa
         "fast_fraction": float(fast.mean()),
         "n_samples": int(len(ref)),
         "observer_gain_rad_s": model.value("KI"),
-        "beta": float(beta),
-        "v_min_rad_s": float(v_min),
+        "beta": float(filter.beta),
+        "v_min_rad_s": float(filter.v_min_rad_s),
     }
     if "filtered" in rows:
         b, f = rows["builtin"], rows["filtered"]

@@ -337,7 +337,6 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.design import (
-        DESIGN_BETA,
         design_controller,
         design_json,
         make_record,
@@ -349,17 +348,17 @@ def _stage_design(ctx: PipelineContext) -> dict[str, Any]:
     model = ctx.results["model_ripple"]
     design = design_controller(JointParameters.from_model(model))
     margins = outer_loop_margins(design)
-    record = make_record(design, margins, model, ctx.path("model_ripple"), beta=DESIGN_BETA)
+    record = make_record(design, margins, model, ctx.path("model_ripple"))  # the design's filter
     write_design(ctx.path("design"), record)
     write_atomic(ctx.path("design_json"), json.dumps(design_json(design, margins), indent=2) + "\n")
     ctx.results.update(design=record)
     out: dict[str, Any] = {"kappa_max_builtin": _num(margins.builtin), "kappa_max_additive": _num(margins.additive),
-                           "kappa_ratio": _num(margins.ratio), "beta": DESIGN_BETA}
+                           "kappa_ratio": _num(margins.ratio), "beta": record.filter.beta}
     hand = ctx.results.get("hand")
     if hand is not None and hand.has("tau_ext_ref"):
         from iiwa_ident.design import compare_observers
 
-        obs = compare_observers(hand, model, beta=record.filter.beta, v_min=record.filter.v_min_rad_s)  # as deployed
+        obs = compare_observers(hand, model, filter=record.filter)  # as deployed
         write_atomic(ctx.path("observers_json"), json.dumps(_jsonable(obs), indent=2) + "\n")
         ctx.results["observers"] = obs
         rows = obs["observers"]

@@ -10,15 +10,14 @@ import numpy as np  # noqa: E402
 
 from iiwa_ident.datasets import Dataset  # noqa: E402
 from iiwa_ident.design import (  # noqa: E402
-    PAPER_BETA,
-    V_MIN_RAD_S,
+    PAPER_FILTER,
+    FilterSettings,
     compare_observers,
     link_speed,
     observer_lag,
     run_observers,
 )
 from iiwa_ident.design import (  # noqa: E402
-    RIPPLE_PERIOD_RAD,
     SpatialFilter,
     ripple_line_cut,
     spatial_filter_response,
@@ -40,19 +39,16 @@ def _amplitude_spectrum(x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
     return np.fft.rfftfreq(len(x), dt), spec
 
 
-def spatial_filter_figure(dataset: Dataset, period_rad: float = RIPPLE_PERIOD_RAD, beta: float = PAPER_BETA,
-                          v_min: float = V_MIN_RAD_S, speeds: tuple[float, ...] = (0.3, 0.6, 1.2),
-                          periods_shown: float = 8.0) -> plt.Figure:
+def spatial_filter_figure(dataset: Dataset, filter: FilterSettings = PAPER_FILTER,
+                          speeds: tuple[float, ...] = (0.3, 0.6, 1.2), periods_shown: float = 8.0) -> plt.Figure:
     """Joint torque before and after the spatial filter at several speeds, and the filter's response.
 
     Parameters
     ----------
     dataset : Dataset
         A constant-velocity record (``t``, ``q_m``, ``tau_j``).
-    period_rad : float
-        Ripple period rho the filter works at [rad].
-    beta, v_min : float
-        Filter parameters of eqs (10) and (12) [-], [rad/s].
+    filter : FilterSettings
+        The spatial filter of eqs (10)-(12) (a design's ``record.filter``; default: the paper's at its rho).
     speeds : tuple of float
         Speeds to show [rad/s]; each row takes the longest pass within 10 % of it.
     periods_shown : float
@@ -67,7 +63,9 @@ def spatial_filter_figure(dataset: Dataset, period_rad: float = RIPPLE_PERIOD_RA
     """
     t, q, tau = (np.asarray(dataset[k], float) for k in ("t", "q_m", "tau_j"))
     dt = 1.0 / dataset.sample_rate_hz
-    filtered = SpatialFilter(period_rad, beta=beta, v_min=v_min, dt=dt).apply(tau, q)
+    spatial = SpatialFilter.from_settings(filter, dt)
+    period_rad, beta, v_min = spatial.period_rad, spatial.beta, spatial.v_min
+    filtered = spatial.apply(tau, q)
     passes = ripple_line_cut(t, q, tau, filtered, period_rad)
     fig = plt.figure(figsize=(11, 3.0 * len(speeds) + 3.2))
     grid = fig.add_gridspec(len(speeds) + 1, 2, width_ratios=(1.2, 1.0))
@@ -137,7 +135,7 @@ def spatial_filter_figure(dataset: Dataset, period_rad: float = RIPPLE_PERIOD_RA
     return fig
 
 
-def observer_figure(dataset: Dataset, model: JointModel, beta: float = PAPER_BETA, v_min: float = V_MIN_RAD_S,
+def observer_figure(dataset: Dataset, model: JointModel, filter: FilterSettings = PAPER_FILTER,
                     speed_threshold: float = 0.5, zoom_s: float = 1.0) -> plt.Figure:
     """External-torque estimates of the three observers against the F/T reference (like Fig. 7).
 
@@ -147,8 +145,8 @@ def observer_figure(dataset: Dataset, model: JointModel, beta: float = PAPER_BET
         A hand-guided record with ``tau_ext_ref``.
     model : JointModel
         K, Jl, KI and the ripple table.
-    beta, v_min : float
-        Spatial-filter parameters [-], [rad/s].
+    filter : FilterSettings
+        The spatial filter of the filtered observer (default: the paper's).
     speed_threshold : float
         Link speed marking fast motion in the RMS table [rad/s].
     zoom_s : float
@@ -163,8 +161,8 @@ def observer_figure(dataset: Dataset, model: JointModel, beta: float = PAPER_BET
     t = np.asarray(dataset["t"], float)
     ref = np.asarray(dataset["tau_ext_ref"], float)
     dt = 1.0 / dataset.sample_rate_hz
-    est = run_observers(dataset, model, beta, v_min)
-    table = compare_observers(dataset, model, speed_threshold, beta, v_min, estimates=est)
+    est = run_observers(dataset, model, filter)
+    table = compare_observers(dataset, model, speed_threshold, filter, estimates=est)
     speed = link_speed(dataset, model)
     lagged = observer_lag(ref, model.value("KI"), dt)
 
@@ -204,7 +202,7 @@ def observer_figure(dataset: Dataset, model: JointModel, beta: float = PAPER_BET
     if "ratio_fast" in table:
         ratio = (f"Built-in / filtered at |v| > {speed_threshold} rad/s: {table['ratio_fast']:.2f}x against the "
                  f"reference, {table['ratio_lagged_fast']:.1f}x against the lagged reference "
-                 f"({100 * table['fast_fraction']:.0f}% of samples fast, β = {beta:g}).\n")
+                 f"({100 * table['fast_fraction']:.0f}% of samples fast, β = {filter.beta:g}).\n")
     fig.text(0.01, 0.005, "\n".join(lines) + "\n" + ratio +
              "Look for: the built-in estimate oscillating at the ripple frequency when the link is fast; the eq (9) "
              "estimates following the\nlagged reference. All three lag the F/T torque by eq (13)'s first-order "

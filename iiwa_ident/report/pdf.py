@@ -527,15 +527,14 @@ def _design_pages(r: dict[str, Any]) -> list[Page]:
                           f"after the spatial filter (beta = {rec.filter.beta:g}) at each speed, the spectra and the "
                           "filter's response. Look for the ripple line cut by tens of dB while slower torque "
                           "passes unchanged.",
-                          lambda: spatial_filter_figure(cv, rec.filter.period_rad, beta=rec.filter.beta,
-                                                        speeds=speeds or (0.3, 0.6, 1.2))))
+                          lambda: spatial_filter_figure(cv, rec.filter, speeds=speeds or (0.3, 0.6, 1.2))))
     hand = r.get("hand")
     if hand is not None and model is not None and hand.has("tau_ext_ref"):
         pages.append(Page("design", "External-torque observers (like Fig. 7)", "The built-in observer of eq (13), "
                           "the improved one on the link velocity of eq (9) and the spatially filtered one, against "
                           "the F/T reference during hand guiding. Look at the zoom on fast motion: the built-in "
                           "estimate carries the ripple, the improved ones do not.",
-                          lambda: observer_figure(hand, model, beta=rec.filter.beta, v_min=rec.filter.v_min_rad_s)))
+                          lambda: observer_figure(hand, model, rec.filter)))
     d = rec.design
     poles = {"poles": {"builtin": builtin_poles(d.params), "additive": np.asarray(d.poles),
                        "observer": np.asarray(d.observer_poles)}}
