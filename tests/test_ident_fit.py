@@ -24,7 +24,8 @@ from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, write_model
 from iiwa_ident.model import table1_model
 from iiwa_ident.ident.joint_fit import fit_joint, fit_model
-from iiwa_ident.ident.tf_fit import cramer_rao_std, fit_transfer_function, initial_estimate
+from iiwa_ident.ident.initial import initial_estimate
+from iiwa_ident.ident.tf_fit import cramer_rao_std, fit_transfer_function
 from iiwa_ident.model import discretize, simulate_outputs
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant

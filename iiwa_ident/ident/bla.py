@@ -33,6 +33,7 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.frf import levy_fit
 
 __all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arrays", "BlaFit", "fit_bla",
            "sampled_response", "LINK_TERMS", "SMOOTH_LINES"]
@@ -279,14 +280,12 @@ def _smoothed(var: np.ndarray, G: np.ndarray, width: int = SMOOTH_LINES) -> np.n
 
 def _start(bla: BestLinearApproximation, T: float) -> dict[str, float]:
     """Start values from the BLA alone: delay by a grid on eq (4)'s rational fit, scale from q_m / tau_j."""
-    from iiwa_ident.ident.tf_fit import _levy
-
     f = bla.f_hz
     s = 2j * np.pi * f
     G0 = bla.G[0] / np.sinc(f * T) * np.exp(s * T / 2)  # undo the hold's half-sample lag and sinc gain
     best = None
     for td in np.arange(0.0, 0.05 + 1e-12, 0.1e-3):
-        out = _levy(G0 * np.exp(s * td), s)
+        out = levy_fit(G0 * np.exp(s * td), s)
         if out is not None and (best is None or out[1] < best[0]):
             best = (out[1], td, out[0])
     if best is None:

@@ -654,3 +654,24 @@ def nonlinear_share(harm: HarmonicResponses, bands: list[tuple[float, float]] | 
             share = math.nan if ks == [1] else float(np.nansum(shares[1:]))
         result.append(NonlinearBand(float(lo), float(hi), share, shares, ks))
     return result
+
+
+def levy_fit(G: np.ndarray, s: np.ndarray, iterations: int = 6) -> tuple[np.ndarray, float] | None:
+    """Sanathanan-Koerner (iterated Levy) fit of ``(a s + b0) / (s^2 + a s + a0)`` to ``G``; returns ((a, b0, a0), rel. error)."""
+    weight = 1.0 / np.abs(G * s**2)
+    x = None
+    for _ in range(iterations):
+        # a s (1 - G) + b0 - a0 G = G s^2, weighted towards the relative error of G.
+        M = np.column_stack([s * (1 - G), np.ones_like(G), -G]) * weight[:, None]
+        rhs = G * s**2 * weight
+        Mr = np.vstack([M.real, M.imag])
+        rr = np.concatenate([rhs.real, rhs.imag])
+        x, *_ = np.linalg.lstsq(Mr, rr, rcond=None)
+        a, b0, a0 = x
+        den = s**2 + a * s + a0
+        weight = 1.0 / np.maximum(np.abs(den * G), 1e-300)
+    a, b0, a0 = x
+    if a <= 0 or b0 <= 0 or a0 <= b0:
+        return None
+    model = (a * s + b0) / (s**2 + a * s + a0)
+    return x, float(np.sqrt(np.mean(np.abs(model / G - 1) ** 2)))

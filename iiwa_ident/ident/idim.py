@@ -71,7 +71,7 @@ Aliasing, sticking, identifiability
 -----------------------------------
 The hold's images above the Nyquist limit drive the joint too and fold back
 onto the samples; after the first pass their predicted response is taken
-out of ``tau_j`` and ``q_m`` (:func:`_dealiased`). Where Coulomb friction
+out of ``tau_j`` and ``q_m`` (:func:`dealiased`). Where Coulomb friction
 shows, a link slower than :data:`STICK_VELOCITY_RAD_S` may stick and its
 friction is then whatever balances the other torques: a second fit leaves
 those samples out, and the fit with the smaller relative std of ``K`` and
@@ -96,12 +96,10 @@ variable approach for industrial robot identification", IEEE TCST 22(1), 2014.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
-from scipy import fft as _fft
-from scipy.fft import next_fast_len
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
@@ -112,7 +110,21 @@ from iiwa_ident.ident.lines import (
     fit_sinusoid,
     line_ratio,
 )
-from iiwa_ident.ident.tf_fit import _check_joints, _prepare, _Record
+from iiwa_ident.ident.idim_rows import (
+    Lines,
+    Narrowband,
+    Prepared,
+    dealiased,
+    motor_delayed,
+    motor_rows,
+    motor_static,
+    prepare_like,
+    prepare_rows,
+    ripple_basis,
+    ripple_link_columns,
+)
+from iiwa_ident.ident.initial import MAX_DELAY_S
+from iiwa_ident.ident.records import FitRecord, prepare_records
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response, resonance_hz
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
@@ -152,14 +164,9 @@ RIPPLE_CHI2 = 38.0
 LINE_RATIO = 50.0
 #: Most spectral lines fitted (a hum and its harmonics).
 MAX_LINES = 6
-_EDGE_S = 0.25
 _K0 = 1e4  # stiffness [Nm/rad] of eq (9) in the link equation's first pass (a joint's order; refined after it)
 _STICK_REACH = 1.0  # filter time constants around a sticking sample that its error reaches
-_BLOCK_S = 0.25
 _IV_ITERATIONS = 3
-_MAX_TD_S = 0.05
-_ORDER = 4
-_FC_MAX = 0.2  # highest filter cut-off [fs]: above it the hold's images alias onto the samples
 
 
 @dataclass
@@ -231,275 +238,6 @@ class IdimResult:
         return next((e for e in self.effects if e.name == name), None)
 
 
-class _Spectral:
-    """Even extension, zero-phase low-pass and exact differentiation of one record's signals."""
-
-    def __init__(self, n: int, T: float, fc: float) -> None:
-        self.n, self.T = n, T
-        # The even extension ends where it starts, so padding with the first value keeps it continuous.
-        self.N = next_fast_len(2 * n, real=True)
-        f = _fft.rfftfreq(self.N, T)
-        self.f = f
-        self.jw = 2j * np.pi * f
-        self.hold = np.sinc(f * T)  # the zero-order hold's gain
-        self.lp = 1.0 / np.sqrt(1.0 + (f / fc) ** (2 * _ORDER))
-        # A wider low-pass for the signals nonlinear regressors are computed from: the regressor
-        # is filtered afterwards, like every other term (tanh(L w) is not L tanh(w)).
-        self.wide = 1.0 / np.sqrt(1.0 + (f / min(2.0 * fc, 0.45 / T)) ** (2 * _ORDER))
-
-    def spectrum(self, x: np.ndarray, wide: bool = False) -> np.ndarray:
-        ext = np.concatenate([x, x[::-1], np.full(self.N - 2 * self.n, x[0])])
-        return _fft.rfft(ext) * (self.wide if wide else self.lp)
-
-    def filtered(self, x: np.ndarray) -> np.ndarray:
-        """``x`` through the low-pass (for regressors computed sample by sample)."""
-        return self.back(self.spectrum(x))
-
-    def back(self, X: np.ndarray, order: int = 0) -> np.ndarray:
-        if order:
-            X = X * self.jw ** order
-        return _fft.irfft(X, self.N)[:self.n]
-
-    def held_delayed(self, U: np.ndarray, delay_s: float) -> np.ndarray:
-        """Spectrum of a zero-order-held command, delayed by ``delay_s``."""
-        return U * self.hold * np.exp(-self.jw * (delay_s + 0.5 * self.T))
-
-
-@dataclass
-class _Prepared:
-    rec: _Record
-    sp: _Spectral
-    fc: float
-    U: np.ndarray
-    keep: np.ndarray
-    block: np.ndarray
-    tau_s: np.ndarray
-    dtau_s: np.ndarray
-    ddtau_s: np.ndarray
-    q: np.ndarray  # absolute motor position, filtered [rad]
-    dq: np.ndarray
-    ddq: np.ndarray
-    q_w: np.ndarray  # motor position, velocity, torque reading and its rate through the wider low-pass
-    dq_w: np.ndarray
-    tau_w: np.ndarray
-    dtau_w: np.ndarray
-    g_cols: list[np.ndarray] = field(default_factory=list)  # the robot model's terms, filtered (see _motor_rows)
-    ddq_w: np.ndarray | None = None
-    ripple: tuple[float, int] | None = None  # (period [rad], harmonics) of the ripple columns below
-    rm_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's motor-side reaction, filtered
-    rl_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's link acceleration, filtered
-    lines: _Lines | None = None  # spectral lines fitted as free sinusoids (see _line_search)
-    line_cols: list[np.ndarray] = field(default_factory=list)  # their sin, cos through the low-pass
-    motor_static: np.ndarray | None = field(default=None, repr=False)  # see _motor_static
-
-
-@dataclass(frozen=True)
-class _Lines:
-    """Spectral lines [Hz] of the torque reading, with the record's slot among ``count`` records (each record
-    has its own amplitudes and phases: recordings share no time origin)."""
-
-    freqs: tuple[float, ...]
-    slot: int
-    count: int
-
-    def block(self, cols: list[np.ndarray], k: np.ndarray) -> np.ndarray:
-        """The rows ``k`` of every record's line columns: this record's filled, the others' zero."""
-        out = np.zeros((int(np.count_nonzero(k)), 2 * len(self.freqs) * self.count))
-        if cols:
-            w = 2 * len(self.freqs)
-            out[:, self.slot * w:(self.slot + 1) * w] = np.column_stack([c[k] for c in cols])
-        return out
-
-    def names(self) -> list[str]:
-        return [f"line{j + 1}_{sc}_{r + 1}" for r in range(self.count) for j in range(len(self.freqs)) for sc in "sc"]
-
-
-def _prepared(rec: _Record, ripple: tuple[float, int] | None = None, lines: _Lines | None = None) -> _Prepared:
-    fs = 1.0 / rec.T
-    fc = min(1.3 * rec.f_hi, _FC_MAX * fs)
-    sp = _Spectral(rec.n, rec.T, fc)
-    TS = sp.spectrum(rec.tau)
-    Q = sp.spectrum(rec.q)
-    edge = int(math.ceil((_EDGE_S + 4.0 / fc + _MAX_TD_S) / rec.T))
-    keep = np.zeros(rec.n, bool)
-    keep[edge:rec.n - edge] = True
-    if keep.sum() < 10:
-        raise IiwaIdentError(f"{rec.label}: too short for the inverse-dynamics fit")
-    per_block = max(1, int(round(_BLOCK_S / rec.T)))
-    block = np.arange(rec.n) // per_block
-    TSw, Qw = sp.spectrum(rec.tau, wide=True), sp.spectrum(rec.q, wide=True)
-    q_w, dq_w, ddq_w, tau_w = rec.q0 + sp.back(Qw), sp.back(Qw, 1), sp.back(Qw, 2), sp.back(TSw)
-    dtau_w = sp.back(TSw, 1)
-    if lines is not None:
-        # The link's angle and speed (eq (9)) from the reading without its lines: a 0.4 Nm hum at 114 Hz
-        # adds 0.08 rad/s to omega_l through tau_s' / K, and the friction's tanh turned it into a
-        # torque of its own (K 15 % off).
-        for f in lines.freqs:
-            h, dh = _line_of(sp, TSw, f, keep, block)
-            tau_w, dtau_w = tau_w - h, dtau_w - dh
-    p = _Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
-                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, tau_w, dtau_w,
-                  _robot_model_terms(sp, q_w, dq_w), ddq_w)
-    if ripple is not None:
-        p.ripple = ripple
-        p.rm_cols, p.rl_cols = _ripple_terms(p, *ripple)
-    if lines is not None and lines.freqs:
-        p.lines = lines
-        t = np.arange(rec.n) * rec.T
-        for f in lines.freqs:
-            p.line_cols += [sp.filtered(np.sin(2 * np.pi * f * t)), sp.filtered(np.cos(2 * np.pi * f * t))]
-    return p
-
-
-#: Half-width of the band around a line in which its sinusoid is fitted to the reading [Hz].
-_LINE_BAND_HZ = 1.0
-
-
-class _Narrowband:
-    """A signal's band within :data:`_LINE_BAND_HZ` of a frequency, on the kept samples, with block weights:
-    the chirp passes the band once and loudly, a line stays; weighted by the inverse of each block's power
-    there, the chirp's passage does not pull the line's frequency or amplitude."""
-
-    def __init__(self, sp: _Spectral, X: np.ndarray, f: float, keep: np.ndarray, block: np.ndarray) -> None:
-        self.x = sp.back(np.where(np.abs(sp.f - f) <= _LINE_BAND_HZ, X, 0.0))[keep]
-        self.w = block_weights(self.x, block[keep])
-        self.t = np.nonzero(keep)[0] * sp.T
-
-    def fit(self, f: float) -> tuple[np.ndarray, float]:
-        return fit_sinusoid(self.x, self.w, self.t, f)
-
-
-def _line_of(sp: _Spectral, X: np.ndarray, f: float, keep: np.ndarray, block: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """The sinusoid at ``f`` [Hz] in the signal of spectrum ``X`` (see :class:`_Narrowband`), over the whole
-    record, and its derivative."""
-    (a, c), _ = _Narrowband(sp, X, f, keep, block).fit(f)
-    t = np.arange(sp.n) * sp.T
-    s, co = np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)
-    return a * s + c * co, 2 * np.pi * f * (a * co - c * s)
-
-
-def _again(rec: _Record, like: _Prepared) -> _Prepared:
-    """``rec`` prepared with the same ripple and line columns as ``like``."""
-    return _prepared(rec, like.ripple, like.lines)
-
-
-def _ripple_basis(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, period: float, harmonics: int):
-    """Per harmonic k: (w_k, cos, sin, (cos)'', (sin)'') of ``w_k q_m`` with ``w_k = 2 pi k / period``.
-
-    The second time derivatives by the chain rule from the motor's motion, so that they are exact at the
-    samples even where the ripple's lines lie above the filter's cut-off or the Nyquist limit.
-    """
-    w1 = 2.0 * math.pi / period
-    c1, s1 = np.cos(w1 * q), np.sin(w1 * q)
-    c, s = c1, s1
-    dq2 = dq * dq
-    for k in range(1, harmonics + 1):
-        w = k * w1
-        yield w, c, s, -w * s * ddq - w * w * c * dq2, w * c * ddq - w * w * s * dq2
-        c, s = c * c1 - s * s1, s * c1 + c * s1
-
-
-def _ripple_link_columns(p: _Prepared, period: float, harmonics: int) -> list[np.ndarray]:
-    """The link equation's ripple columns alone (see :func:`_ripple_terms`)."""
-    flt = p.sp.filtered
-    cols = []
-    for _, _, _, ddc, dds in _ripple_basis(p.q_w, p.dq_w, p.ddq_w, period, harmonics):
-        cols += [-flt(ddc), -flt(dds)]
-    return cols
-
-
-def _ripple_terms(p: _Prepared, period: float, harmonics: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """The ripple's columns of the motor and the link equation, through the low-pass.
-
-    With ``f(q_m) = sum_k a_k cos(w_k q_m) + b_k sin(w_k q_m)`` (eq (5)), the link angle is
-    ``theta_l = q_m - f(q_m) - tau_j / K``, which adds ``-Jl f''`` to the link equation (coefficients
-    ``Jl a_k, Jl b_k``), and the motor feels the reaction ``tau_j f'(q_m)``, which adds ``-tau_s f'`` to
-    the motor equation (coefficients ``a_k, b_k``).
-    """
-    flt = p.sp.filtered
-    motor, link = [], []
-    for w, c, s, ddc, dds in _ripple_basis(p.q_w, p.dq_w, p.ddq_w, period, harmonics):
-        motor += [flt(p.tau_w * w * s), flt(-p.tau_w * w * c)]
-        link += [-flt(ddc), -flt(dds)]
-    return motor, link
-
-
-def _robot_model_terms(sp: _Spectral, q: np.ndarray, dq: np.ndarray) -> list[np.ndarray]:
-    """sin q, cos q, q' cos q, -q' sin q through the low-pass: the motor equation's gravity-model columns."""
-    sq, cq = np.sin(q), np.cos(q)
-    return [sp.filtered(r) for r in (sq, cq, dq * cq, -dq * sq)]
-
-
-def _dealiased(rec: _Record, prm: dict[str, float], td: float) -> _Record:
-    """``rec`` with the model's prediction of the hold's aliased images taken out of ``tau_j`` and ``q_m``.
-
-    The robot holds its command over a cycle; the hold's images at ``f + k fs`` drive the joint too, and
-    sampling folds their response back onto ``f``. A continuous-time equation fitted to the samples sees
-    them as a gain and phase error that grows towards the Nyquist limit (a few per cent of ``bc`` when the
-    chirp reaches ``0.2 fs``). Their size follows from the sampled command and eq (4)'s two transfer
-    functions at the current estimate (terms ``k = +-1 .. +-4``); the link-side torques are slow and are not
-    folded back.
-    """
-    K, Jl = prm["K"], prm["Jl"]
-    T, n = rec.T, rec.n
-    N = next_fast_len(2 * n, real=True)
-    f = _fft.rfftfreq(N, T)
-    fs = 1.0 / T
-    U = _fft.rfft(rec.u - float(np.mean(rec.u)), N)
-    A_tau = np.zeros_like(U)
-    A_q = np.zeros_like(U)
-    delayed = {**prm, "Td": td}
-    for k in (-4, -3, -2, -1, 1, 2, 3, 4):
-        fk = f + k * fs
-        s = 2j * np.pi * fk
-        h_tau = frequency_response(delayed, fk) * np.sinc(fk * T) * np.exp(-0.5 * s * T)
-        A_tau += h_tau
-        A_q += h_tau * (1.0 / K + 1.0 / (Jl * s**2))  # eqs (2)-(3): q_m = tau_j / K + theta_l
-    tau_alias = _fft.irfft(A_tau * U, N)[:n]
-    q_alias = _fft.irfft(A_q * U, N)[:n]
-    return replace(rec, tau=rec.tau - tau_alias, q=rec.q - q_alias)
-
-
-def _motor_rows(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(y, Phi, Z) of the motor equation at delay ``td`` on the kept samples.
-
-    Columns: Jc, beta, then the robot model's g_m: sin q, cos q, 1, and beta g_m': q' cos q, -q' sin q.
-    """
-    y, c, z = _motor_delayed(p, td, tau_hat)
-    S = _motor_static(p)
-    Phi = np.column_stack([S[:, :1], c, S[:, 1:]])
-    Z = Phi.copy()
-    Z[:, 1] = z
-    return y, Phi, Z
-
-
-def _motor_delayed(p: _Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The motor equation's parts that depend on the delay ``td``: ``y``, the beta column and its instrument."""
-    Ud = p.sp.held_delayed(p.U, td)
-    u, du = p.sp.back(Ud), p.sp.back(Ud, 1)
-    k = p.keep
-    c = (p.dtau_s - du)[k]
-    z = c if tau_hat is None else (tau_hat[0] - du)[k]
-    return (u - p.tau_s)[k], c, z
-
-
-def _motor_static(p: _Prepared) -> np.ndarray:
-    """The motor equation's columns that do not depend on the delay (all but beta's), built once per prepared
-    record: Jc, the robot model's g_m and beta g_m', the ripple's reaction and the lines."""
-    if p.motor_static is None:
-        k = p.keep
-        g = [c[k] for c in p.g_cols]
-        cols = [p.ddq[k], g[0], g[1], np.ones(int(k.sum())), g[2], g[3]] + [c[k] for c in p.rm_cols]
-        S = np.column_stack(cols)
-        if p.lines is not None:
-            S = np.column_stack([S, p.lines.block(p.line_cols, k)])
-        p.motor_static = S
-    return p.motor_static
-
-
 class _DelayCost:
     """The motor equation's IV residual sum of squares as a function of the delay, for one record.
 
@@ -507,14 +245,14 @@ class _DelayCost:
     so each delay costs two inverse FFTs and a few matrix-vector products instead of the whole regression.
     """
 
-    def __init__(self, p: _Prepared, tau_hat: tuple[np.ndarray, np.ndarray] | None) -> None:
+    def __init__(self, p: Prepared, tau_hat: tuple[np.ndarray, np.ndarray] | None) -> None:
         self.p, self.tau_hat = p, tau_hat
-        self.S = _motor_static(p)
+        self.S = motor_static(p)
         self.gram = self.S.T @ self.S
         self.scale = _column_scale(self.S)
 
     def __call__(self, td: float) -> float:
-        y, c, z = _motor_delayed(self.p, td, self.tau_hat)
+        y, c, z = motor_delayed(self.p, td, self.tau_hat)
         S = self.S
         m = S.shape[1]
         St_c = S.T @ c
@@ -528,7 +266,7 @@ class _DelayCost:
         return float(e @ e)
 
 
-def _link_rows(p: _Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.ndarray] | None = None,
+def _link_rows(p: Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.ndarray] | None = None,
                moving: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
     """(y, Phi, Z, names, samples) of the link equation, ``theta_l`` and ``omega_l`` from eq (9) at stiffness ``K``.
 
@@ -558,7 +296,7 @@ def _link_rows(p: _Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.
     return p.tau_s[k], Phi, Z, names, k
 
 
-def _moving(omega: np.ndarray, p: "_Prepared") -> np.ndarray:
+def _moving(omega: np.ndarray, p: "Prepared") -> np.ndarray:
     """Samples far from a sticking link: the friction model says nothing about the torque of a link at rest.
 
     A link slower than :data:`STICK_VELOCITY_RAD_S` may stick, and its friction is then whatever balances
@@ -571,7 +309,7 @@ def _moving(omega: np.ndarray, p: "_Prepared") -> np.ndarray:
     return ~slow
 
 
-def _stick_masks(preps: list[_Prepared], K: float) -> list[np.ndarray] | None:
+def _stick_masks(preps: list[Prepared], K: float) -> list[np.ndarray] | None:
     """Per record, the samples far from sticking, or ``None`` when too few would remain.
 
     Fixed once (at the stiffness of the fit on every sample) so that the link equation's rows do not
@@ -601,7 +339,7 @@ def _iv_solve(ZtPhi: np.ndarray, Zty: np.ndarray, scale: np.ndarray) -> np.ndarr
     return x / scale
 
 
-def _delay(preps: list[_Prepared], tau_hat: list | None, lo: float = 0.0, hi: float = _MAX_TD_S) -> float:
+def _delay(preps: list[Prepared], tau_hat: list | None, lo: float = 0.0, hi: float = MAX_DELAY_S) -> float:
     """Delay minimising the motor equation's residual, summed over the records."""
 
     costs_of = [_DelayCost(p, None if tau_hat is None else tau_hat[i]) for i, p in enumerate(preps)]
@@ -626,7 +364,7 @@ def _gravity_model(xm: np.ndarray, q: np.ndarray) -> np.ndarray:
     return xm[2] * np.sin(q) + xm[3] * np.cos(q) + xm[4]
 
 
-def _predicted_torque(p: _Prepared, prm: dict[str, float], td: float, xm: np.ndarray, link_torque: np.ndarray
+def _predicted_torque(p: Prepared, prm: dict[str, float], td: float, xm: np.ndarray, link_torque: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(tau_j', tau_j'') the model predicts from the command and the estimated link and gravity torques."""
     U = p.sp.held_delayed(p.U, td) - p.sp.spectrum(_gravity_model(xm, p.q_w))  # delayed already: as a torque added inside the robot
@@ -661,14 +399,13 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
     """
     if not datasets:
         raise IiwaIdentError("fit needs at least one dataset")
-    records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
-    _check_joints(records)
-    preps = [_prepared(r) for r in records]
+    records = prepare_records(datasets)
+    preps = [prepare_rows(r) for r in records]
     span = max(float(np.ptp(p.q[p.keep])) for p in preps)
     load = "sinusoid" if span >= LOAD_MIN_RANGE_RAD else "gradient"
     lines = _line_search(preps, load)
     if lines:
-        preps = [_prepared(r, None, _Lines(lines, i, len(records))) for i, r in enumerate(records)]
+        preps = [prepare_rows(r, None, Lines(lines, i, len(records))) for i, r in enumerate(records)]
     result = _without_sticking(_solve(records, preps, load, span, None), records, preps, load, span)
     found = (ripple_period_rad, None) if ripple_period_rad is not None else \
         _ripple_search(preps, result.parameters["K"], load)
@@ -692,7 +429,7 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
     return _identified(result, records)
 
 
-def _link_residual(preps: list[_Prepared], K: float, load: str) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
+def _link_residual(preps: list[Prepared], K: float, load: str) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
     """The link equation's rows per record at stiffness ``K``, stacked ``y`` and ``Phi``, and the residual of
     their least-squares fit (no physical check: a search only needs what the columns leave)."""
     rows = [_link_rows(p, K, load) for p in preps]
@@ -701,7 +438,7 @@ def _link_residual(preps: list[_Prepared], K: float, load: str) -> tuple[list, n
     return rows, y, Phi, y - Phi @ _iv(y, Phi, Phi)
 
 
-def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
+def _line_search(preps: list[Prepared], load: str) -> tuple[float, ...]:
     """Frequencies [Hz] of the spectral lines in the link equation's residual, strongest first.
 
     A disturbance of the torque reading periodic in time (a hum ``h``) enters the link equation as
@@ -754,7 +491,7 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
         # The frequency from the reading itself: in the residual the line also passed through the
         # friction's tanh, whose intermodulation pulled it by 0.007 Hz (0.6 rad over a 13 s record).
         step = 1.0 / longest
-        bands = [_Narrowband(p.sp, X, float(grid[i]), p.keep, p.block) for p, X in zip(preps, readings)]
+        bands = [Narrowband(p.sp, X, float(grid[i]), p.keep, p.block) for p, X in zip(preps, readings)]
         best = minimize_scalar(lambda f: -sum(nb.fit(f)[1] for nb in bands),
                                bounds=(grid[i] - step, grid[i] + step), method="bounded",
                                options={"xatol": 1e-4 * step})
@@ -764,7 +501,7 @@ def _line_search(preps: list[_Prepared], load: str) -> tuple[float, ...]:
     return tuple(found)
 
 
-def _with_ripple(records: list[_Record], like: list[_Prepared], load: str, span: float, period: float,
+def _with_ripple(records: list[FitRecord], like: list[Prepared], load: str, span: float, period: float,
                  harmonics: int, td0: float) -> IdimResult | None:
     """The fit with the ripple's columns, or ``None`` when the ripple is not significant in it.
 
@@ -772,7 +509,7 @@ def _with_ripple(records: list[_Record], like: list[_Prepared], load: str, span:
     them (the ripple barely moves it; searched only around it).
     """
     ripple = (period, harmonics)
-    preps = [_prepared(r, ripple, p.lines) for r, p in zip(records, like)]
+    preps = [prepare_rows(r, ripple, p.lines) for r, p in zip(records, like)]
     try:
         res = _without_sticking(_solve(records, preps, load, span, None, td0), records, preps, load, span)
     except IiwaIdentError:
@@ -792,7 +529,7 @@ def _odd_wald(effect: LinkEffectEstimate) -> float:
     return total
 
 
-def _ripple_search(preps: list[_Prepared], K: float, load: str) -> tuple[float, float | None] | None:
+def _ripple_search(preps: list[Prepared], K: float, load: str) -> tuple[float, float | None] | None:
     """The ripple's period [rad] from the link equation's residual, or ``None`` when it explains little;
     with it, twice that period refined with twice the harmonics, where its other lines add at least
     :data:`RIPPLE_HALF_SHARE` (else ``None``).
@@ -824,7 +561,7 @@ def _ripple_search(preps: list[_Prepared], K: float, load: str) -> tuple[float, 
 
     def summed(nu: float) -> float:
         out = 0.0
-        for _, _, _, ddc, dds in _ripple_basis(q, dq, ddq, 1.0 / nu, 2):
+        for _, _, _, ddc, dds in ripple_basis(q, dq, ddq, 1.0 / nu, 2):
             G = np.array([[ddc @ ddc, ddc @ dds], [ddc @ dds, dds @ dds]])
             b = np.array([ddc @ e, dds @ e])
             if np.linalg.det(G) > 0:
@@ -832,7 +569,7 @@ def _ripple_search(preps: list[_Prepared], K: float, load: str) -> tuple[float, 
         return out
 
     def columns(nu: float, harmonics: int) -> np.ndarray:
-        return np.concatenate([np.column_stack(_ripple_link_columns(p, 1.0 / nu, harmonics))[k]
+        return np.concatenate([np.column_stack(ripple_link_columns(p, 1.0 / nu, harmonics))[k]
                                for p, k in zip(preps, masks)])
 
     def joint(nu: float, harmonics: int = RIPPLE_HARMONICS) -> float:
@@ -866,7 +603,7 @@ def _ripple_search(preps: list[_Prepared], K: float, load: str) -> tuple[float, 
     return 1.0 / nu, None if half is None else 1.0 / half
 
 
-def _without_sticking(everything: IdimResult, records: list[_Record], preps: list[_Prepared], load: str,
+def _without_sticking(everything: IdimResult, records: list[FitRecord], preps: list[Prepared], load: str,
                       span: float) -> IdimResult:
     coulomb = everything.effect("link_friction")
     if coulomb is None or not coulomb.values["coulomb_nm"] > STICK_COULOMB_NM:
@@ -874,7 +611,7 @@ def _without_sticking(everything: IdimResult, records: list[_Record], preps: lis
     # Coulomb friction shows: the same fit without the samples where the link may stick. A link at rest
     # makes its friction whatever balances the other torques, so those samples bias the link equation; but
     # leaving out most of a record costs precision. The fit with the smaller relative std of K and Jl wins.
-    final = [_again(_dealiased(r, everything.parameters, everything.parameters["Td"]), p)
+    final = [prepare_like(dealiased(r, everything.parameters, everything.parameters["Td"]), p)
              for r, p in zip(records, preps)]
     masks = _stick_masks(final, everything.parameters["K"])
     if masks is None:
@@ -886,7 +623,7 @@ def _without_sticking(everything: IdimResult, records: list[_Record], preps: lis
     return min((everything, moving), key=_relative_std)
 
 
-def _identified(res: IdimResult, records: list[_Record]) -> IdimResult:
+def _identified(res: IdimResult, records: list[FitRecord]) -> IdimResult:
     """``res``, or a refusal naming the parameter the data do not determine and why.
 
     ``K`` and ``Jl`` separate only where the joint's compliance shows, at and above the resonance: a chirp
@@ -914,16 +651,16 @@ def _relative_std(res: IdimResult) -> float:
     return max(res.std["K"] / res.parameters["K"], res.std["Jl"] / res.parameters["Jl"])
 
 
-def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: float,
+def _solve(records: list[FitRecord], preps: list[Prepared], load: str, span: float,
            stick: list[np.ndarray] | None, td0: float | None = None) -> IdimResult:
     """IV iterations with the delay search and the alias correction; ``stick``: per record the samples the
     link equation uses (``None``: all); ``td0``: a delay found before (searched only around it)."""
     tau_hat: list | None = None
     K = _K0
-    td = _delay(preps, None) if td0 is None else _delay(preps, None, max(td0 - 2e-3, 0.0), min(td0 + 2e-3, _MAX_TD_S))
+    td = _delay(preps, None) if td0 is None else _delay(preps, None, max(td0 - 2e-3, 0.0), min(td0 + 2e-3, MAX_DELAY_S))
     for it in range(_IV_ITERATIONS + 1):
         # Motor equation over all records.
-        rows = [_motor_rows(p, td, None if tau_hat is None else tau_hat[i]) for i, p in enumerate(preps)]
+        rows = [motor_rows(p, td, None if tau_hat is None else tau_hat[i]) for i, p in enumerate(preps)]
         y_m, Phi_m, Z_m = (np.concatenate(z) for z in zip(*rows))
         xm = _iv(y_m, Phi_m, Z_m)
         # Link equation; K enters theta_l and omega_l through eq (9): a few fixed-point passes.
@@ -943,17 +680,17 @@ def _solve(records: list[_Record], preps: list[_Prepared], load: str, span: floa
         if it == _IV_ITERATIONS:
             break
         if it < 2:  # the hold's aliased images out of the samples, at the estimate so far
-            preps = [_again(_dealiased(r, prm, td), p) for r, p in zip(records, preps)]
+            preps = [prepare_like(dealiased(r, prm, td), p) for r, p in zip(records, preps)]
         tau_hat = []
         for p in preps:
             lt = _link_torque(p, prm["K"], xl, names, load)
             tau_hat.append(_predicted_torque(p, prm, td, xm, lt))
-        td = _delay(preps, tau_hat, max(td - 2e-3, 0.0), min(td + 2e-3, _MAX_TD_S))
+        td = _delay(preps, tau_hat, max(td - 2e-3, 0.0), min(td + 2e-3, MAX_DELAY_S))
     prm["Td"] = td
     return _finish(preps, records, prm, xm, xl, names, load, tau_hat, span, stick)
 
 
-def _physical(xm: np.ndarray, xl: np.ndarray, records: list[_Record]) -> dict[str, float]:
+def _physical(xm: np.ndarray, xl: np.ndarray, records: list[FitRecord]) -> dict[str, float]:
     """Jc, bc, K, Jl from the two equations' coefficients, or a refusal naming the parameter."""
     rec = max(records, key=lambda r: r.n * r.T)
     band = f"{rec.f_lo:.3g}-{rec.f_hi:.3g} Hz"
@@ -971,7 +708,7 @@ def _physical(xm: np.ndarray, xl: np.ndarray, records: list[_Record]) -> dict[st
     return {"Jc": Jc, "bc": max(beta, 0.0) * K, "K": K, "Jl": Jl}
 
 
-def _link_torque(p: _Prepared, K: float, xl: np.ndarray, names: list[str], load: str) -> np.ndarray:
+def _link_torque(p: Prepared, K: float, xl: np.ndarray, names: list[str], load: str) -> np.ndarray:
     """The estimated friction and load torque on the link over the whole record [Nm]."""
     theta = p.q_w - p.tau_w / K
     omega = p.dq_w - p.dtau_w / K
@@ -984,7 +721,7 @@ def _link_torque(p: _Prepared, K: float, xl: np.ndarray, names: list[str], load:
     return out
 
 
-def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float], xm: np.ndarray, xl: np.ndarray,
+def _finish(preps: list[Prepared], records: list[FitRecord], prm: dict[str, float], xm: np.ndarray, xl: np.ndarray,
             names: list[str], load: str, tau_hat: list | None, span: float, stick: list[np.ndarray] | None) -> IdimResult:
     td = prm["Td"]
     K = prm["K"]
@@ -993,7 +730,7 @@ def _finish(preps: list[_Prepared], records: list[_Record], prm: dict[str, float
     offset = 0
     for i, p in enumerate(preps):
         th = None if tau_hat is None else tau_hat[i]
-        y, Phi, Z = _motor_rows(p, td, th)
+        y, Phi, Z = motor_rows(p, td, th)
         Ud = p.sp.held_delayed(p.U, td)
         du, ddu = p.sp.back(Ud, 1)[p.keep], p.sp.back(Ud, 2)[p.keep]
         col = -(du + xm[1] * ddu)  # d(model - y)/dTd with the sign of a regressor

@@ -88,24 +88,30 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from scipy.interpolate import BSpline, CubicSpline
+from scipy.interpolate import CubicSpline
 from scipy.linalg import cho_factor, cho_solve
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
 from iiwa_ident.model import RippleTable
+from iiwa_ident.ident.initial import (
+    MAX_DELAY_S,
+    MIN_COHERENCE,
+    coherent_bands,
+    initial_candidates,
+    record_frf,
+    without_known,
+)
+from iiwa_ident.ident.records import FitRecord, prepare_record, prepare_records
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
-from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, sample_means, simulate_outputs
+from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values
 
 __all__ = [
-    "MIN_DURATION_S",
-    "MIN_COMMAND_STD_NM",
     "BandQuality",
     "FitResult",
     "output_residual_rms",
-    "initial_estimate",
     "fit_transfer_function",
     "cramer_rao_std",
     "STD_FISHER",
@@ -113,12 +119,6 @@ __all__ = [
     "RippleTerms",
 ]
 
-#: Shortest record the fit accepts [s].
-MIN_DURATION_S = 2.0
-#: Least variation of the torque command the fit accepts (std after removing the mean) [Nm].
-MIN_COMMAND_STD_NM = 0.5
-
-_BLOCK_S = 0.25  # length of the blocks with their own noise level [s]
 #: :attr:`FitResult.std_method` of the output-error fit.
 STD_FISHER = ("inverse Fisher information of the output-error fit, weighted by per-block noise levels "
               "estimated from the residuals; describes the noise, not unmodelled effects")
@@ -126,13 +126,11 @@ STD_FISHER = ("inverse Fisher information of the output-error fit, weighted by p
 STD_RIPPLE = ("; with the transmission ripple's coefficients fitted alongside, plus the sampled model's own error "
               "for the ripple's inputs (estimated by step doubling), and at least the block sandwich std")
 _SIGMA_FLOOR = 0.1  # a block's noise level is at least this fraction of its channel's RMS
-_COHERENT = 0.5  # a band with less coherence than this carries no usable information
 _LOW_COHERENCE = 0.8  # warn below this mean coherence in an octave band
 _NONLINEAR_WARN = 0.05  # warn when harmonics 2..5 carry more than this share of the output power
 _MISFIT_WARN = 5.0  # warn when the model misses H1 by more than this many standard deviations (RMS)
 _REL_STD_WARN = 0.05  # warn when a parameter's relative std exceeds this
 _TD_STD_WARN_S = 0.5e-3  # ... or the delay's std exceeds this
-_MAX_TD_S = 0.05  # upper bound of the delay search [s]
 _CONVERGED_SIGMA = 0.05  # the search stops when its Gauss-Newton step is below this many std
 _COLOURED_WARN = 3.0  # warn when the sandwich std exceeds the Fisher std by this factor (median)
 # Physical bounds of Jc, bc, K, Jl [SI] for the search: far outside any joint, but finite, so that
@@ -207,7 +205,7 @@ def _input_response(params: Any, T: float, kind: str, signal: np.ndarray, subste
     return discretize(params, T / substeps, kind).simulate(fine)[:, ::substeps]
 
 
-def _simulate_record(params: Any, rec: "_Record", substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
+def _simulate_record(params: Any, rec: "FitRecord", substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
     """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN.
 
     ``known``: the known torques' response at ``params`` when the caller has it (:func:`_known_response`).
@@ -216,308 +214,20 @@ def _simulate_record(params: Any, rec: "_Record", substeps: int = 1, known: np.n
         + (_known_response(params, rec, substeps) if known is None else known)
 
 
-def _known_response(params: Any, rec: "_Record", substeps: int = 1) -> np.ndarray:
+def _known_response(params: Any, rec: "FitRecord", substeps: int = 1) -> np.ndarray:
     """The outputs ``(2, n)`` of a record's known torques (zero without; NaN for a non-physical ``params``):
     no delay in them, so ``Td`` does not enter."""
     return _outputs(rec, lambda: sum((_input_response(params, rec.T, kind, signal, substeps)
                                       for kind, signal in rec.known), np.zeros((2, rec.n))))
 
 
-def _outputs(rec: "_Record", simulate: Callable[[], np.ndarray]) -> np.ndarray:
+def _outputs(rec: "FitRecord", simulate: Callable[[], np.ndarray]) -> np.ndarray:
     """``simulate()``, or NaN outputs ``(2, n)`` where the parameters describe no model."""
     try:
         with np.errstate(all="ignore"):
             return simulate()
     except (ValueError, OverflowError, ZeroDivisionError, np.linalg.LinAlgError):
         return np.full((2, rec.n), np.nan)
-
-
-# --------------------------------------------------------------------------
-# data preparation
-
-
-@dataclass
-class _Record:
-    """One dataset prepared for the fit."""
-
-    label: str
-    T: float
-    u: np.ndarray
-    tau: np.ndarray
-    q: np.ndarray
-    f_lo: float
-    f_hi: float
-    sweep: dict | None
-    drift_basis: Any  # scipy.sparse matrix (n, n_knots + 2)
-    block: np.ndarray
-    n_blocks: int
-    joint: int
-    spectra: list[_frf.CrossSpectra] | None = None
-    filled_cycles: int = 0
-    q0: float = 0.0  # the motor position at the first sample [rad] (``q`` starts at 0)
-    #: Known torques besides the command, as ``(input, signal [Nm])`` (see :data:`INPUTS`): the link-side
-    #: effects and the robot's gravity model, estimated beforehand from the measured motion.
-    known: list[tuple[str, np.ndarray]] = field(default_factory=list)
-    #: The ripple's Fourier basis as ``(deflection [rad], reaction [Nm])`` pairs, one per coefficient; their
-    #: coefficients are fitted with the parameters (projected out of the residual), see :class:`RippleTerms`.
-    ripple_basis: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    _ripple_inputs: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
-
-    @property
-    def n(self) -> int:
-        return self.u.shape[0]
-
-    def ripple_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The ripple basis as input matrices (n, columns), built once: deflection, reaction and their
-        :func:`~iiwa_ident.model.sample_means` (the inputs the sampled model sees, for every parameter set)."""
-        if self._ripple_inputs is None:
-            D = np.asfortranarray(np.column_stack([d for d, _ in self.ripple_basis]))
-            RX = np.asfortranarray(np.column_stack([rx for _, rx in self.ripple_basis]))
-            self._ripple_inputs = (D, RX, np.asfortranarray(sample_means(D)), np.asfortranarray(sample_means(RX)))
-        return self._ripple_inputs
-
-
-def _label(ds: Dataset, index: int) -> str:
-    return str(ds.path) if ds.path is not None else f"dataset {index + 1}"
-
-
-def _spline_basis(n: int, T: float, knot_s: float) -> np.ndarray:
-    """Cubic B-spline basis with knots every ``knot_s`` seconds over the record."""
-    t = np.arange(n) * T
-    span = t[-1]
-    n_int = max(1, int(math.ceil(span / knot_s)))
-    inner = np.linspace(0.0, span, n_int + 1)
-    knots = np.concatenate([[0.0] * 3, inner, [span] * 3])
-    return BSpline.design_matrix(t, knots, 3).tocsr()
-
-
-def _prepare(ds: Dataset, index: int) -> _Record:
-    label = _label(ds, index)
-    if not ds.has("tau_c"):
-        # Say what such a log can give and how to record what the fit needs.
-        raise IiwaIdentError(f"{label}: no torque command: fit needs a torque-commanded chirp (record one with "
-                             f"'iiwa-ident chirp --target robot --robot HOST --joint N'); a log without one still "
-                             f"gives 'ripple', 'diagnose' and 'pipeline --logs'")
-    t = np.asarray(ds.t, float)
-    if ds.duration_s < MIN_DURATION_S:
-        raise IiwaIdentError(f"{label}: too short for a fit ({ds.duration_s:.2f} s; need at least "
-                             f"{MIN_DURATION_S:g} s)")
-    dt = np.diff(t)
-    T = float(np.median(dt))
-    u = np.asarray(ds["tau_c"], float)
-    tau_j, q = np.asarray(ds["tau_j"], float), np.asarray(ds["q_m"], float)
-    filled = 0
-    if T <= 0 or np.max(np.abs(dt - T)) > 1e-3 * T:
-        u, tau_j, q, filled = _fill_lost_cycles(t, T, u, tau_j, q, label)
-    spread = float(np.std(u))
-    if spread < MIN_COMMAND_STD_NM:
-        raise IiwaIdentError(f"{label}: too little excitation: the torque command varies by only {spread:.3g} Nm "
-                             f"(std; need at least {MIN_COMMAND_STD_NM:g} Nm)")
-    attrs = ds.experiment_attrs
-    fs = 1.0 / T
-    sweep = None
-    keys = ("f0_hz", "f1_hz", "duration_s", "amplitude_nm")
-    if attrs.get("sweep") == "exponential" and all(k in attrs for k in keys):
-        sweep = {k: float(attrs[k]) for k in keys}
-        if sweep["f1_hz"] >= 0.5 * fs:
-            # A log decimated below the sweep's Nyquist rate has lost the command between samples.
-            raise IiwaIdentError(f"{label}: recorded at {fs:g} Hz, too slow for a sweep up to {sweep['f1_hz']:g} Hz: "
-                                 "fit needs the command of every robot cycle")
-        f_lo, f_hi = sweep["f0_hz"], min(sweep["f1_hz"], 0.45 * fs)
-    else:
-        f_lo, f_hi = 4.0 / ds.duration_s, 0.45 * fs
-    if not 0 < f_lo < f_hi:
-        raise IiwaIdentError(f"{label}: the excitation band {f_lo:g}-{f_hi:g} Hz is empty at {fs:g} Hz sampling")
-    knot = min(max(0.25 / f_lo, 0.1), 2.0)  # drift slower than a quarter of the lowest excitation
-    n = u.shape[0]
-    per_block = max(1, int(round(_BLOCK_S / T)))
-    block = np.minimum(np.arange(n) // per_block, max(n // per_block - 1, 0))
-    return _Record(label=label, T=T, u=u, tau=tau_j, q=q - q[0], f_lo=f_lo, f_hi=f_hi,
-                   sweep=sweep, drift_basis=_spline_basis(n, T, knot), block=block, n_blocks=int(block.max()) + 1,
-                   joint=int(ds.joint), filled_cycles=filled, q0=float(q[0]))
-
-
-#: Largest share of robot cycles a record may have lost and still be fitted [-].
-MAX_LOST_SHARE = 0.01
-#: Longest run of lost cycles that is filled [cycles].
-MAX_LOST_RUN = 5
-
-
-def _fill_lost_cycles(t: np.ndarray, T: float, u: np.ndarray, tau_j: np.ndarray, q: np.ndarray,
-                      label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Put a record with a few lost robot cycles (FRI) back on the uniform grid.
-
-    Over FRI a lost or late message leaves a gap of whole cycles in the log while the robot goes on
-    with the command it holds. The command is therefore known in the gap (the previous one) and the
-    measurements are interpolated linearly; at most :data:`MAX_LOST_SHARE` of the cycles and runs of
-    at most :data:`MAX_LOST_RUN` are accepted, so the interpolation stays far below the band fitted.
-    """
-    steps = np.diff(t) / T
-    whole = np.round(steps)
-    if T <= 0 or np.any(whole < 1) or np.max(np.abs(steps - whole)) > 0.05:
-        raise IiwaIdentError(f"{label}: sample times are not uniform; fit needs one command per sample")
-    lost = int(np.sum(whole - 1))
-    n = len(t) + lost
-    if whole.max() - 1 > MAX_LOST_RUN or lost > MAX_LOST_SHARE * n:
-        raise IiwaIdentError(f"{label}: {lost} robot cycles lost ({100 * lost / n:.2g} %, longest run "
-                             f"{int(whole.max()) - 1}); fit accepts at most {100 * MAX_LOST_SHARE:g} % in runs of "
-                             f"at most {MAX_LOST_RUN}: record again")
-    k = np.concatenate([[0], np.cumsum(whole)]).astype(int)
-    grid = np.arange(n)
-    held = np.searchsorted(k, grid, side="right") - 1  # the last recorded cycle at or before each cycle
-    return (u[held], np.interp(grid, k, tau_j), np.interp(grid, k, q), lost)
-
-
-def _check_joints(records: list[_Record]) -> None:
-    first = records[0]
-    for r in records[1:]:
-        if r.joint != first.joint:
-            raise IiwaIdentError(f"{r.label}: joint {r.joint}, but {first.label} is joint {first.joint}: "
-                                 "fit one joint at a time")
-
-
-# --------------------------------------------------------------------------
-# initial estimate
-
-
-def _levy(G: np.ndarray, s: np.ndarray, iterations: int = 6) -> tuple[np.ndarray, float] | None:
-    """Sanathanan-Koerner fit of ``(a s + b0) / (s^2 + a s + a0)`` to ``G``; returns ((a, b0, a0), rel. error)."""
-    weight = 1.0 / np.abs(G * s**2)
-    x = None
-    for _ in range(iterations):
-        # a s (1 - G) + b0 - a0 G = G s^2, weighted towards the relative error of G.
-        M = np.column_stack([s * (1 - G), np.ones_like(G), -G]) * weight[:, None]
-        rhs = G * s**2 * weight
-        Mr = np.vstack([M.real, M.imag])
-        rr = np.concatenate([rhs.real, rhs.imag])
-        x, *_ = np.linalg.lstsq(Mr, rr, rcond=None)
-        a, b0, a0 = x
-        den = s**2 + a * s + a0
-        weight = 1.0 / np.maximum(np.abs(den * G), 1e-300)
-    a, b0, a0 = x
-    if a <= 0 or b0 <= 0 or a0 <= b0:
-        return None
-    model = (a * s + b0) / (s**2 + a * s + a0)
-    return x, float(np.sqrt(np.mean(np.abs(model / G - 1) ** 2)))
-
-
-def _delay_candidates(est: _frf.FRFEstimate, T: float) -> list[tuple[float, np.ndarray, float]]:
-    """Delays whose phase best lets eq (4)'s rational part explain H1, best first."""
-    f = est.f_mean_hz
-    s = 2j * np.pi * f
-    # Undo the hold's half-sample lag and sinc gain so the rest is continuous-time.
-    G0 = est.H / np.sinc(f * T) * np.exp(s * T / 2)
-
-    def score(td: float) -> tuple[float, np.ndarray | None]:
-        out = _levy(G0 * np.exp(s * td), s)
-        return (math.inf, None) if out is None else (out[1], out[0])
-
-    coarse = np.arange(0.0, _MAX_TD_S + 1e-12, 0.25e-3)
-    scores = np.array([score(td)[0] for td in coarse])
-    # Local minima of the coarse score, refined on a fine grid.
-    order = [i for i in np.argsort(scores) if np.isfinite(scores[i])
-             and (i == 0 or scores[i] <= scores[i - 1]) and (i == len(coarse) - 1 or scores[i] <= scores[i + 1])]
-    out: list[tuple[float, np.ndarray, float]] = []
-    for i in order[:3]:
-        fine = np.linspace(max(coarse[i] - 0.25e-3, 0.0), coarse[i] + 0.25e-3, 11)
-        best = min(((score(td), td) for td in fine), key=lambda z: z[0][0])
-        (err, x), td = best
-        if x is not None:
-            out.append((float(td), x, float(err)))
-    out.sort(key=lambda z: z[2])
-    return out
-
-
-def initial_estimate(datasets: Sequence[Dataset]) -> list[dict[str, float]]:
-    """Start values from the data alone: delay candidates with the parameters they imply.
-
-    Parameters
-    ----------
-    datasets : sequence of Dataset
-        Torque-commanded chirps of one joint.
-
-    Returns
-    -------
-    list of dict
-        Up to three candidate parameter sets (``Jc, bc, K, Jl`` [SI],
-        ``Td`` [s]), best first, each with ``"levy_error"``: the relative
-        RMS error of the linear fit to H1.
-    """
-    records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
-    _check_joints(records)
-    return _initial(records)
-
-
-def _less_known(rec: _Record, params: dict[str, float]) -> _Record:
-    """``rec`` with the response to its known torques taken out of ``tau_j`` and ``q_m`` (itself without)."""
-    if not rec.known:
-        return rec
-    y = sum(discretize(params, rec.T, kind).simulate(signal) for kind, signal in rec.known)
-    return replace(rec, tau=rec.tau - y[0], q=rec.q - y[1], spectra=None, known=[])
-
-
-def _analyse(rec: _Record, delay_s: float = 0.0) -> tuple[_frf.FRFEstimate, _frf.FRFEstimate]:
-    """H1 of tau_c -> tau_j and tau_c -> q_m on the log grid of the record's band.
-
-    The record starts from rest with nothing commanded before, the same
-    assumption the time-domain model makes; half a long segment of that rest
-    is put in front, so the first segment sees the start as a step in both
-    input and output instead of an unexplained output transient.
-    """
-    fs = 1.0 / rec.T
-    if rec.spectra is None:
-        pad = _frf.welch_segment_length(rec.n, fs, rec.f_lo) // 2
-        u = np.concatenate([np.zeros(pad), rec.u])
-        ys = np.vstack([np.concatenate([np.full(pad, rec.tau[0]), rec.tau]),
-                        np.concatenate([np.zeros(pad), rec.q])])
-        rec.spectra = _frf.multi_resolution_spectra(u, ys, fs, rec.f_lo)
-    est_t = _frf.h1_estimate(None, None, fs, rec.f_lo, rec.f_hi, spectra=rec.spectra, output=0, delay_s=delay_s)
-    est_q = _frf.h1_estimate(None, None, fs, rec.f_lo, rec.f_hi, spectra=rec.spectra, output=1, delay_s=delay_s)
-    return est_t, est_q
-
-
-def _coherent(est: _frf.FRFEstimate) -> np.ndarray:
-    """Bands whose coherence is above 0.5 and significant at 1 % for their number of averages.
-
-    Between unrelated signals the pooled coherence of n independent terms
-    exceeds ``1 - alpha^(1/(n-1))`` with probability alpha only.
-    """
-    n = np.maximum(est.n_terms, 1.0 + 1e-9)
-    significant = 1.0 - 0.01 ** (1.0 / (n - 1.0))
-    return est.coherence > np.maximum(_COHERENT, significant)
-
-
-def _initial(records: list[_Record]) -> list[dict[str, float]]:
-    rec = max(records, key=lambda r: r.n * r.T)
-    est_t, est_q = _analyse(rec)
-    good = _coherent(est_t)
-    if good.sum() < 4:
-        raise IiwaIdentError(f"{rec.label}: no band with coherence above {_COHERENT} between tau_c and tau_j: "
-                             "nothing to fit")
-    sub = est_t.select(good)
-    cands = _delay_candidates(sub, rec.T)
-    if not cands:
-        raise IiwaIdentError(f"{rec.label}: the measured response does not look like eq (4) at any delay "
-                             "up to 50 ms; nothing to fit")
-    # Scale from q_m / tau_j = 1/K - 1/(Jl w^2) (real), using tau_c as the common instrument.
-    both = good & _coherent(est_q)
-    if both.sum() < 3:
-        raise IiwaIdentError(f"{rec.label}: q_m is not coherent with tau_c in enough bands to find the inertia scale")
-    R = est_q.H[both] / est_t.H[both]
-    w = 2 * np.pi * est_t.f_mean_hz[both]
-    M = np.column_stack([np.ones_like(w), -1.0 / w**2]) / np.abs(R)[:, None]
-    x, *_ = np.linalg.lstsq(M, R.real / np.abs(R), rcond=None)
-    inv_K, inv_Jl = x
-    if not inv_Jl > 0:
-        raise IiwaIdentError(f"{rec.label}: q_m does not follow the joint torque as a free link would "
-                             "(q_m / tau_j != 1/K + 1/(Jl s^2)); cannot find the inertia scale")
-    Jl = 1.0 / inv_Jl
-    out = []
-    for td, (a, b0, a0), err in cands:
-        Jc = Jl * (a0 / b0 - 1.0)
-        out.append({"Jc": float(Jc), "bc": float(a * Jc), "K": float(b0 * Jc), "Jl": float(Jl), "Td": float(td),
-                    "levy_error": float(err), "K_from_q_m": float(1.0 / inv_K) if inv_K > 0 else math.nan})
-    return out
 
 
 # --------------------------------------------------------------------------
@@ -534,7 +244,7 @@ class _Problem:
     and a small Cholesky solve per evaluation.
     """
 
-    def __init__(self, records: list[_Record], nuisance: bool = True) -> None:
+    def __init__(self, records: list[FitRecord], nuisance: bool = True) -> None:
         self.records = records
         self.nuisance = nuisance
         # Per record and channel: per-block noise std (starts uniform).
@@ -566,7 +276,7 @@ class _Problem:
             self._weights.append((w_t, w_q, float(np.sum(w_t**2)), cho_factor(gram)))
         self._responses: dict[tuple[int, str], tuple[tuple, Any]] = {}
 
-    def _project(self, r: _Record, e_t: np.ndarray, e_q: np.ndarray, weights: tuple) -> None:
+    def _project(self, r: FitRecord, e_t: np.ndarray, e_q: np.ndarray, weights: tuple) -> None:
         """Remove the weighted nuisance fits from ``e_t`` and ``e_q`` in place (vectors, or matrices of columns)."""
         if not self.nuisance:
             return
@@ -627,7 +337,7 @@ class _Problem:
         coef, *_ = np.linalg.lstsq(gram, C_t.T @ e_t + C_q.T @ e_q, rcond=None)
         return coef, np.concatenate([C_t @ coef, C_q @ coef]), Y @ coef
 
-    def _ripple_columns(self, p: Sequence[float], r: _Record, weights: tuple
+    def _ripple_columns(self, p: Sequence[float], r: FitRecord, weights: tuple
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The ripple columns' weighted, projected responses (tau_j, q_m), their Gram matrix and their
         response in signal units ``(2, n, columns)``; ``None`` where the model does not exist."""
@@ -736,7 +446,7 @@ def _solve(problem: _Problem, x0: np.ndarray, max_iterations: int = 40) -> _Solu
     Jacobian's own error decides the steps, which then mostly fail.
     """
     lower = np.array([*np.log(_LOWER), 0.0])
-    upper = np.array([*np.log(_UPPER), _MAX_TD_S * 1e3])
+    upper = np.array([*np.log(_UPPER), MAX_DELAY_S * 1e3])
     x = np.clip(np.asarray(x0, float), lower, upper)
     r = problem.residual(x)
     cost = 0.5 * float(np.sum(r * r))
@@ -847,7 +557,7 @@ class FitResult:
     warnings : list of str
         Things a user should know before trusting the result.
     initial : list of dict
-        The start candidates (see :func:`initial_estimate`).
+        The start candidates (see :func:`~iiwa_ident.ident.initial.initial_estimate`).
     labels : list of str
         The datasets' files.
     cost : float
@@ -982,13 +692,12 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
 
 
 def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np.ndarray]]] | None,
-             ripple: RippleTerms | None = None) -> list[_Record]:
+             ripple: RippleTerms | None = None) -> list[FitRecord]:
     """The fit's records of ``datasets`` with their known inputs and ripple terms (see
     :func:`fit_transfer_function`)."""
     if not datasets:
         raise IiwaIdentError("fit needs at least one dataset")
-    records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
-    _check_joints(records)
+    records = prepare_records(datasets)
     if known is not None:
         for rec, inputs in zip(records, known):
             for kind, signal in inputs:
@@ -1043,7 +752,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         Chirps with ``tau_c``, ``tau_j`` and ``q_m`` sampled once per command.
     initial : dict, optional
         Start values ``Jc, bc, K, Jl`` [SI], ``Td`` [s]; default
-        :func:`initial_estimate` (from the data only).
+        :func:`~iiwa_ident.ident.initial.initial_estimate` (from the data only).
     max_starts : int
         How many delay candidates to refine before keeping the best.
     outer_iterations : int
@@ -1074,11 +783,11 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     """
     records = _records(datasets, known, ripple)
     for rec in records:  # every file must carry information, not just the first
-        est_t, _ = _analyse(rec)
-        if int(np.sum(_coherent(est_t))) < 4:
-            raise IiwaIdentError(f"{rec.label}: no band with coherence above {_COHERENT} between tau_c and tau_j: "
+        est_t, _ = record_frf(rec)
+        if int(np.sum(coherent_bands(est_t))) < 4:
+            raise IiwaIdentError(f"{rec.label}: no band with coherence above {MIN_COHERENCE} between tau_c and tau_j: "
                                  "nothing to fit")
-    starts = _initial(records) if initial is None else [dict(initial)]
+    starts = initial_candidates(records) if initial is None else [dict(initial)]
     problem = _Problem(records)
 
     # Noise levels for comparing the starts: from the best start's residuals.
@@ -1149,10 +858,10 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         tests.append(residual_tests(e_t, rec.u) if len(e_t) == len(rec.u) else None)
         # With known torques (the fitted link-side effects) the model's linear part is compared with the
         # data less those torques' response: eq (4) alone is not the model then.
-        plain = _less_known(rec, values)
+        plain = without_known(rec, values)
         if y_ripple is not None:
             plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
-        est_t, _ = _analyse(plain, delay_s=values["Td"])
+        est_t, _ = record_frf(plain, delay_s=values["Td"])
         dm = discretize(values, rec.T)
         model = est_t.band_average(lambda f: dm.frequency_response(f)[0])
         frfs.append(est_t)
@@ -1232,7 +941,7 @@ def cramer_rao_std(params: Any, datasets: Sequence[Dataset], tau_noise_nm: float
     dict of str to float
         Bound on the std of ``Jc, bc, K, Jl`` [SI] and ``Td`` [s].
     """
-    records = [_prepare(ds, i) for i, ds in enumerate(datasets)]
+    records = [prepare_record(ds, i) for i, ds in enumerate(datasets)]
     problem = _Problem(records, nuisance=nuisance)
     problem.sigma = [[np.full(r.n_blocks, tau_noise_nm), np.full(r.n_blocks, q_noise_rad)] for r in records]
     problem.update_projections()
