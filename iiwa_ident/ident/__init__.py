@@ -9,11 +9,11 @@ from iiwa_ident.ident.joint_fit import METHODS, fit_joint, fit_model
 from iiwa_ident.ident.lines import line_ratio
 from iiwa_ident.ident.model_file import model_from_dict, read_model, write_model
 from iiwa_ident.ident.resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
+from iiwa_ident.ident.ripple_passes import find_passes
 from iiwa_ident.ident.ripple import (
     PERIOD_MAX_RAD,
     PERIOD_MIN_RAD,
     RippleResult,
-    find_passes,
     identify_ripple,
 )
 from iiwa_ident.ident.starting_model import (

@@ -27,86 +27,45 @@ statistic's floor on the data, for noise that is not independent between
 chunks). The period is refined
 by maximising the explained variance of a Fourier series in theta_m, and the
 table f(x_i), ``x_i = i rho / N``, is that series sampled.
+
+The passes and their deflection are :mod:`iiwa_ident.ident.ripple_passes`, the
+spectrum and its harmonic families :mod:`iiwa_ident.ident.ripple_spectrum`;
+here the period is refined, the table fitted and the runs combined.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize, stats
-from scipy.interpolate import BSpline
-from scipy.ndimage import maximum_filter1d, median_filter
 
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definition, light for the CLI's help
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
+from iiwa_ident.ident.ripple_spectrum import (
+    FAMILY_HARMONICS,
+    LineSpectrum,
+    cut_chunks,
+    false_alarm_probability,
+    hotelling,
+    line_search,
+    taper,
+)
 
 __all__ = [
     "ENCODER_TICK_RAD",
     "PERIOD_MIN_RAD",
     "PERIOD_MAX_RAD",
-    "FAMILY_HARMONICS",
-    "MIN_SUBHARMONIC_POWER",
-    "Pass",
     "MethodResult",
     "RippleResult",
-    "find_passes",
-    "deflection",
     "identify_ripple",
 ]
 
-#: Harmonics summed per candidate fundamental in the family search.
-FAMILY_HARMONICS = 5
-#: Least power, as a share of the family's strongest line, of the strongest line that only a subharmonic
-#: k0/m explains, for k0/m to be the period: lines down to a tenth of the dominant one's amplitude.
-MIN_SUBHARMONIC_POWER = 0.01
 #: Motor encoder quantisation of the iiwa (section III.B) [rad].
 ENCODER_TICK_RAD = 5.989e-8
-
-
-@dataclass
-class Pass:
-    """One stretch of constant-speed motion in one direction, without gaps.
-
-    Attributes
-    ----------
-    dataset : int
-        Index of the dataset it comes from.
-    method : str
-        ``"static"`` or ``"dynamic"``.
-    speed : float
-        Median signed speed [rad/s].
-    theta : numpy.ndarray
-        Motor position q_m of the kept samples [rad].
-    f : numpy.ndarray
-        Deflection estimate at those samples [rad].
-    t : numpy.ndarray
-        Sample times [s].
-    tau_hp : numpy.ndarray
-        High-passed joint torque [Nm] (for eq (6) checks).
-    nuisance : numpy.ndarray
-        Orthonormal basis of what is slow in time (projected out of ``f``);
-        fits project it out of their regressors too, so the estimate is the
-        joint least-squares one.
-    period_max : float
-        Longest period this pass resolves: half its travel, at most the search limit [rad].
-    weight : float
-        Inverse noise standard deviation of the pass [1/rad], set by the fit.
-    """
-
-    dataset: int
-    method: str
-    speed: float
-    theta: np.ndarray
-    f: np.ndarray
-    t: np.ndarray
-    tau_hp: np.ndarray
-    nuisance: np.ndarray
-    period_max: float
-    weight: float = 1.0
 
 
 @dataclass
@@ -200,233 +159,7 @@ class RippleResult:
         }
 
 
-# --------------------------------------------------------------------------- passes
-
-def _smooth_velocity(t: np.ndarray, q: np.ndarray, window_s: float = 0.05) -> np.ndarray:
-    dt = np.median(np.diff(t))
-    v = np.gradient(q, t)
-    n = max(1, int(round(window_s / dt)))
-    if n > 1:
-        kernel = np.ones(n) / n
-        v = np.convolve(np.pad(v, (n // 2, n - 1 - n // 2), mode="edge"), kernel, mode="valid")
-    return v
-
-
-def find_passes(t: np.ndarray, q: np.ndarray, min_speed: float, min_travel: float,
-                tolerance: float = 0.15) -> list[tuple[int, int]]:
-    """Index ranges ``[i0, i1)`` of constant-speed motion in one direction without time gaps.
-
-    A sample belongs to a pass when the smoothed speed is above ``min_speed``
-    [rad/s] and within ``tolerance`` of the move's plateau speed; a pass
-    must travel at least ``min_travel`` [rad].
-    """
-    dt = np.median(np.diff(t))
-    v = _smooth_velocity(t, q)
-    gap = np.r_[False, np.diff(t) > 1.5 * dt]
-    moving = np.abs(v) >= min_speed
-    out = []
-    i = 0
-    n = len(t)
-    while i < n:
-        if not moving[i]:
-            i += 1
-            continue
-        j = i + 1
-        sgn = np.sign(v[i])
-        while j < n and moving[j] and np.sign(v[j]) == sgn and not gap[j]:
-            j += 1
-        # Keep the constant-speed core: samples within tolerance of the plateau speed (the
-        # median would be pulled down by the acceleration ramps of a short move).
-        seg = v[i:j]
-        plateau = sgn * np.percentile(np.abs(seg), 90)
-        ok = np.abs(seg - plateau) <= tolerance * abs(plateau)
-        k = 0
-        while k < len(seg):
-            if not ok[k]:
-                k += 1
-                continue
-            m = k
-            while m < len(seg) and ok[m]:
-                m += 1
-            if abs(q[i + m - 1] - q[i + k]) >= min_travel:
-                out.append((i + k, i + m))
-            k = m
-        i = j
-    return out
-
-
-def _smooth_basis(t: np.ndarray, knot_spacing: float) -> np.ndarray:
-    """Cubic B-spline basis over ``t`` with knots about ``knot_spacing`` apart (plus a constant)."""
-    t0, t1 = float(t[0]), float(t[-1])
-    n_int = max(1, int(math.ceil((t1 - t0) / knot_spacing)))
-    inner = np.linspace(t0, t1, n_int + 1)
-    knots = np.r_[[t0] * 3, inner, [t1] * 3]
-    return BSpline.design_matrix(np.clip(t, t0, t1), knots, 3).toarray()
-
-
-def _pass_deflection(t: np.ndarray, q: np.ndarray, tau: np.ndarray, q_l: np.ndarray | None, K: float,
-                     Jl: float | None, f_cut: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Deflection estimate, high-passed torque and nuisance basis of one pass.
-
-    ``q - tau/K - theta_l`` with theta_l the measured link position (static)
-    or the double integral of tau/J_l (dynamic: the link's own motion under
-    the joint torque, eq (2); zero when ``Jl`` is None, the link's motion
-    neglected); whatever is slow in time (integration
-    constants, friction, gravity, the tracking controller) lies in the span
-    of a cubic spline with knots 1/f_cut apart, which is projected out. It
-    passes every period shorter than the search limit essentially untouched.
-    """
-    Q, _ = np.linalg.qr(_smooth_basis(t, 1.0 / f_cut))
-    if q_l is None and Jl is None:
-        theta_l = np.zeros_like(q)
-    elif q_l is None:
-        tc = t - t[0]
-        acc = (tau - tau.mean()) / Jl
-        vel = np.r_[0.0, np.cumsum(0.5 * (acc[1:] + acc[:-1]) * np.diff(tc))]
-        theta_l = np.r_[0.0, np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(tc))]
-    else:
-        theta_l = q_l
-    raw = q - tau / K - theta_l
-    return raw - Q @ (Q.T @ raw), tau - Q @ (Q.T @ tau), Q
-
-
-def _spread_repeated_stamps(t: np.ndarray) -> np.ndarray:
-    """Time stamps with each run of repeated stamps spread evenly towards the next distinct one.
-
-    Real 200 Hz logs stamp a few consecutive samples alike (the logger, not the robot, repeats a
-    stamp); the samples were taken a period apart, and a velocity or an integral over a zero time
-    step would be infinite.
-    """
-    t = np.asarray(t, dtype=float)
-    same = np.r_[False, np.diff(t) <= 0.0]
-    if not same.any():
-        return t
-    out = t.copy()
-    i, n = 1, len(t)
-    while i < n:
-        if not same[i]:
-            i += 1
-            continue
-        j = i
-        while j < n and same[j]:
-            j += 1
-        # Samples i-1 .. j-1 share a stamp; spread them up to the next distinct one (or one period on).
-        t0 = out[i - 1]
-        t1 = t[j] if j < n else t0 + (j - i + 1) * float(np.median(np.diff(t[~same])))
-        out[i - 1:j] = t0 + (t1 - t0) * np.arange(j - i + 1) / (j - i + 1)
-        i = j
-    return out
-
-
-def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: float, min_speed: float,
-               min_travel: float, method: str | None = None, link_motion: str = "restored") -> list[Pass]:
-    """The passes of one dataset with their deflection estimates.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        Constant-velocity run (dynamic method) or quasi-static run with
-        ``q_l_ref`` (static method).
-    K, Jl : float
-        Stiffness [Nm/rad] and link inertia [kg m^2] of the model.
-    period_max : float
-        Longest period searched [rad]; a pass resolves periods up to half
-        its travel, and its high-pass keeps every period it resolves.
-    min_speed : float
-        Slowest motion used [rad/s].
-    min_travel : float
-        Shortest pass kept [rad].
-    method : str, optional
-        Force ``"static"`` or ``"dynamic"`` (default: static for quasi_static runs).
-    link_motion : str
-        Dynamic method: ``"restored"`` (the link's own motion from the torque and ``Jl``, eq (2))
-        or ``"neglected"`` (theta_l taken as constant over the pass).
-    """
-    if link_motion not in ("restored", "neglected"):
-        raise IiwaIdentError(f"ripple: link_motion must be restored or neglected, got {link_motion!r}")
-    t, q, tau = _spread_repeated_stamps(dataset["t"]), dataset["q_m"], dataset["tau_j"]
-    if method is None:
-        method = "static" if dataset.experiment == "quasi_static" else "dynamic"
-    if method == "static" and not dataset.has("q_l_ref"):
-        raise IiwaIdentError(f"{dataset.path or 'dataset'}: the static method needs the link reference q_l_ref")
-    q_l = dataset["q_l_ref"] if method == "static" else None
-    out = []
-    for i0, i1 in find_passes(t, q, min_speed, min_travel=min_travel):
-        if i1 - i0 < 16:
-            continue
-        speed = float(np.median(np.diff(q[i0:i1]) / np.diff(t[i0:i1])))
-        longest = min(period_max, abs(q[i1 - 1] - q[i0]) / 2)
-        f_cut = 0.5 * abs(speed) / longest
-        f, th, Q = _pass_deflection(t[i0:i1], q[i0:i1], tau[i0:i1], None if q_l is None else q_l[i0:i1], K,
-                                    Jl if link_motion == "restored" else None, f_cut)
-        out.append(Pass(index, method, speed, q[i0:i1], f, t[i0:i1], th, Q, longest))
-    return out
-
-
-# --------------------------------------------------------------------------- spectrum
-
-def _chunks(passes: list[Pass], span: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """Cut passes into chunks of at least two of their longest periods (about span / 8).
-
-    Each chunk is ``(theta, f, k_min)``: it speaks only for spatial
-    frequencies above ``k_min`` = 1 / (its pass's longest period).
-    """
-    out = []
-    for p in passes:
-        travel = abs(p.theta[-1] - p.theta[0])
-        n = max(1, int(travel // max(2.0 * p.period_max, span / 8)))
-        for idx in np.array_split(np.arange(len(p.theta)), n):
-            if len(idx) >= 8:
-                out.append((p.theta[idx], p.f[idx], 1.0 / p.period_max))
-    return out
-
-
-def _chunk_coefficients(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Hann-tapered complex Fourier coefficients of each chunk at ``k`` [cycles/rad], and validity.
-
-    The taper keeps strong slow leftovers from leaking into the ripple band;
-    a chunk is valid at k only above its pass's ``k_min``. ``k`` must be a
-    uniform grid: the phasors are advanced by one grid step at a time.
-    """
-    sizes = [len(f) for _, f, _ in chunks]
-    starts = np.r_[0, np.cumsum(sizes)[:-1]]
-    theta = np.concatenate([th for th, _, _ in chunks])
-    x = np.empty(len(theta))
-    norm = np.empty(len(chunks))
-    for i, (_, f, _) in enumerate(chunks):
-        w = _taper(len(f))
-        x[starts[i]:starts[i] + len(f)] = (f - np.average(f, weights=w)) * w
-        norm[i] = 2.0 / w.sum()
-    dk = k[1] - k[0] if len(k) > 1 else 0.0
-    phasor = np.exp(-2j * np.pi * k[0] * theta)
-    step = np.exp(-2j * np.pi * dk * theta)
-    coefs = np.empty((len(chunks), len(k)), dtype=complex)
-    for m in range(len(k)):
-        if m and m % 256 == 0:  # re-anchor to keep rounding from accumulating
-            phasor = np.exp(-2j * np.pi * k[m] * theta)
-        coefs[:, m] = np.add.reduceat(x * phasor, starts) * norm
-        phasor *= step
-    valid = k[None, :] >= np.array([k_min for _, _, k_min in chunks])[:, None]
-    coefs[~valid] = 0.0
-    return coefs, valid
-
-
-def _hotelling(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Hotelling T^2 of the chunks' Fourier coefficients at ``k`` [cycles/rad].
-
-    Returns T^2, the power of the mean coefficient, and the number of chunks
-    that speak for each k (chunks of short passes are left out at long periods).
-    """
-    coefs, valid = _chunk_coefficients(chunks, k)
-    count = valid.sum(axis=0)
-    n = np.maximum(count, 1)
-    mean = coefs.sum(axis=0) / n
-    spread = np.where(valid, np.abs(coefs - mean) ** 2, 0.0).sum(axis=0)
-    var = spread / np.maximum(count - 1, 1) / n
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t2 = np.where(count >= 3, np.abs(mean) ** 2 / var, 0.0)
-    return np.nan_to_num(t2, nan=0.0, posinf=0.0), np.abs(mean) ** 2, count
-
+# --------------------------------------------------------------------------- refinement
 
 def _best_k(passes: list[Pass], k_c: float, half: float, harmonics: int, rtol: float, grid: int = 9) -> float:
     """Spatial frequency in ``k_c +- half`` that minimises the grouped Fourier fit's residual [cycles/rad].
@@ -470,15 +203,6 @@ def _period_std(passes: list[Pass], k_hat: float, harmonics: int, half: float, p
     return std
 
 
-def _false_alarm(t2: float, n: int, m_eff: float) -> float:
-    """Probability that noise alone gives a maximum statistic this large among m_eff frequencies.
-
-    With n chunks of independent circular noise, T^2 = |mean|^2 / (s^2 / n) follows F(2, 2(n-1)).
-    """
-    p = float(stats.f.sf(t2, 2, 2 * (n - 1))) if n > 1 else 1.0
-    return float(min(1.0, -math.expm1(m_eff * math.log1p(-min(p, 1 - 1e-16)))))
-
-
 # --------------------------------------------------------------------------- fits
 
 def _design(theta: np.ndarray, period: float, harmonics: int) -> np.ndarray:
@@ -496,14 +220,6 @@ def _design(theta: np.ndarray, period: float, harmonics: int) -> np.ndarray:
         out[:, k] = z.real
         out[:, harmonics + k] = z.imag
     return out
-
-
-@functools.lru_cache(maxsize=256)
-def _taper(n: int) -> np.ndarray:
-    """Hann window of n samples without its zero end points (read-only: one array per length, shared)."""
-    w = np.hanning(n + 2)[1:-1]
-    w.flags.writeable = False
-    return w
 
 
 def _group(p: Pass) -> tuple:
@@ -535,7 +251,7 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
     blocks, data = [], []
     for p in passes:
         A = _design(p.theta, period, harmonics)
-        w = p.weight * np.sqrt(_taper(len(p.f)))
+        w = p.weight * np.sqrt(taper(len(p.f)))
         blocks.append(w[:, None] * (A - p.nuisance @ (p.nuisance.T @ A)))
         data.append(w * p.f)
     A = np.vstack(blocks)
@@ -587,7 +303,7 @@ def _set_weights(passes: list[Pass], period: float, harmonics: int) -> None:
         A = _design(p.theta, period, harmonics)
         r = p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef
         dt = float(np.median(np.diff(p.t)))
-        spec = np.abs(np.fft.rfft(r * _taper(len(r)))) ** 2
+        spec = np.abs(np.fft.rfft(r * taper(len(r)))) ** 2
         freqs = np.fft.rfftfreq(len(r), dt)
         f_r = abs(p.speed) / period
         band = (freqs >= 0.7 * f_r) & (freqs <= min(1.3 * harmonics * f_r, freqs[-1]))
@@ -636,243 +352,12 @@ def _circular_shift(reference: np.ndarray, other: np.ndarray) -> int:
 # --------------------------------------------------------------------------- main entry
 
 @dataclass
-class _LineSpectrum:
-    """Hotelling spectrum of a set of passes over the searched spatial frequencies."""
-
-    k: np.ndarray
-    t2: np.ndarray
-    power: np.ndarray
-    count: np.ndarray
-    dk: float
-    i_best: int
-    warnings: list[str]
-    #: The most significant harmonic family (see :func:`_family`).
-    family: "_Family | None" = None
-    #: Grid steps to one and a half over the chunk length (:func:`_lobe_reach`).
-    lobe_reach: int = 0
-
-    def false_alarm(self, j: int, tries: float | None = None) -> float:
-        """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
-        return _false_alarm(float(self.t2[j]), int(self.count[j]), len(self.k) / 4.0 if tries is None else tries)
-
-    def detection_false_alarm(self, estimates: int = 1) -> float:
-        """False-alarm probability of the search: the strongest line or the strongest family, whichever is
-        the more significant, each corrected for the frequencies searched, then (Bonferroni) for the two
-        tests and for the ``estimates`` deflection estimates the strongest is chosen from."""
-        tries = len(self.k) / 4.0
-        p_fam = math.exp(self.family.log_p) if self.family is not None else 1.0
-        fam = float(min(1.0, -math.expm1(tries * math.log1p(-min(p_fam, 1 - 1e-16))))) if p_fam > 0 else 0.0
-        return min(1.0, 2.0 * estimates * min(self.false_alarm(self.i_best), fam))
-
-
-def _line_search(passes: list[Pass], period_min: float, period_max: float) -> _LineSpectrum:
-    warnings = []
-    # A period is told from a slow trend only within a pass that travels two of them.
-    longest = max(p.period_max for p in passes)
-    if longest < period_max:
-        warnings.append(f"the longest pass travels {2 * longest:.3g} rad: periods searched up to {longest:.3g} rad")
-        period_max = longest
-    span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
-    chunks = _chunks(passes, span)
-    if len(chunks) < 3:
-        raise IiwaIdentError(f"ripple: too little motion: {len(chunks)} usable stretches (need 3 or more); "
-                             "record longer runs, both directions or more speeds")
-    # Spatial frequency grid: 4 points per resolution cell 1/span.
-    dk = 1.0 / (4.0 * span)
-    k = np.arange(1.0 / period_max, 1.0 / period_min + dk, dk)
-    t2_raw, power, count = _hotelling(chunks, k)
-    # Real logs have noise that is correlated between neighbouring chunks (slow oscillations,
-    # gravity and friction leftovers), which lifts the whole T^2 floor above its F(2, 2(n-1))
-    # law. Calibrate with the local median (ln 2 under that law), never making a line more
-    # significant than the law says.
-    floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
-    t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
-    spec = _LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings, lobe_reach=_lobe_reach(chunks, dk))
-    spec.family = _family(spec)
-    return spec
-
-
-def _lobe_reach(chunks, dk: float) -> int:
-    """Grid steps to a line's neighbours one and a half over the chunk length away (see :func:`_family`)."""
-    length = float(np.median([np.ptp(th) for th, _, _ in chunks]))
-    return int(math.ceil(1.5 / max(length, 1e-12) / dk))
-
-
-def _line_pvalues(spec: _LineSpectrum) -> np.ndarray:
-    """Per-frequency p-value of the calibrated T^2 under "no line" (F(2, 2(n-1)), 1 where too few chunks)."""
-    n = spec.count
-    with np.errstate(invalid="ignore"):
-        p = np.where(n >= 3, stats.f.sf(spec.t2, 2, 2 * np.maximum(n - 1, 1)), 1.0)
-    return np.clip(np.nan_to_num(p, nan=1.0), 1e-300, 1.0)
-
-
-def _window_logp(log_p: np.ndarray, half: int) -> np.ndarray:
-    """Best log p within +-half grid points, corrected for the window's ~(2 half + 1) / 4 independent cells."""
-    best = -maximum_filter1d(-log_p, size=2 * half + 1, mode="nearest")
-    cells = max(1.0, (2 * half + 1) / 4.0)
-    with np.errstate(divide="ignore"):
-        corrected = np.log(-np.expm1(cells * np.log1p(-np.exp(np.minimum(best, -1e-12)))))
-    return np.maximum(corrected, best)
-
-
-def _lines_logp(spec: "_LineSpectrum", log_p: np.ndarray, ks: list[float], hs: list[int]) -> float:
-    """Fisher log p-value of the lines at spatial frequencies ``ks`` (harmonic numbers ``hs`` set their
-    windows); 0 when none lies in the band."""
-    total, dof = 0.0, 0
-    for kk, h in zip(ks, hs):
-        i = int(round((kk - spec.k[0]) / spec.dk))
-        if 0 <= i < len(spec.k):
-            total += -2.0 * float(_window_logp(log_p[max(0, i - 4):i + 5], 1 + h // 2)[min(i, 4)])
-            dof += 2
-    return float(stats.chi2.logsf(total, dof)) if dof else 0.0
-
-
-def _peak_power(spec: "_LineSpectrum", kk: float, half: int) -> float:
-    """Largest power of the mean coefficient within +-half grid points of ``kk``."""
-    i = int(round((kk - spec.k[0]) / spec.dk))
-    lo, hi = max(0, i - half), min(len(spec.k), i + half + 1)
-    return float(spec.power[lo:hi].max()) if lo < hi else 0.0
-
-
-def _family(spec: "_LineSpectrum") -> "_Family":
-    """The most significant harmonic family of the spectrum.
-
-    Harmonic summation: for each candidate fundamental k0 the lines at h k0 (h = 1 ..
-    FAMILY_HARMONICS, inside the band) are combined by Fisher's method, each line's p-value the
-    best within the harmonic's uncertainty (h k0 is known to about h/2 grid steps) and corrected
-    for that window. A fundamental weaker than its harmonics, or absent, still collects them. Lines
-    are measured at the exact motor positions, so a harmonic above a pass's Nyquist limit is
-    unfolded by the pass's own speed, and its mirror images form no family.
-
-    A family and its subharmonic k0/m can collect the same lines; so the fundamental is then moved
-    up to m k0 (m = 2, 3, 5) while the lines that only k0 explains are not jointly significant, and
-    down to k0 / m when the lines that only k0 / m explains are (Fisher p below 1e-3 both ways) and
-    carry at least MIN_SUBHARMONIC_POWER of the family's strongest line; a weaker significant
-    subharmonic family is kept as a note (a once-per-motor-revolution effect, for example).
-    """
-    k, dk = spec.k, spec.dk
-    log_p = np.log(_line_pvalues(spec))
-    # Only local peaks count as lines: a strong line is consistent across chunks on its flanks too (its
-    # T^2 is broad), and a family of flank points would otherwise beat it. Nor does a peak whose
-    # power is below 1e-3 of the strongest (the taper's sidelobes are at 7e-4).
-    peak = log_p <= -maximum_filter1d(-log_p, size=5, mode="nearest")
-    peak &= spec.power >= 1e-3 * spec.power[int(np.argmin(log_p))]
-    log_p = np.where(peak, log_p, 0.0)
-    n_k = len(k)
-    k_lo = k[0]
-    score = np.zeros(n_k)
-    dof = np.zeros(n_k)
-    for h in range(1, FAMILY_HARMONICS + 1):
-        idx = np.round((h * k - k_lo) / dk).astype(int)
-        inside = idx < n_k
-        if not inside.any():
-            break
-        lp = _window_logp(log_p, 1 + h // 2)
-        score[inside] += -2.0 * lp[idx[inside]]
-        dof[inside] += 2.0
-    fam_logp = stats.chi2.logsf(score, np.maximum(dof, 2.0))
-    j0 = int(np.argmin(fam_logp))
-    alpha = math.log(1e-3)
-
-    def strongest(kk: float) -> float:
-        return max(_peak_power(spec, h * kk, 1 + h // 2) for h in range(1, FAMILY_HARMONICS + 1)
-                   if h * kk <= k[-1])
-
-    # A line's chunk coefficients are phase-aligned one over the chunk length from it too (the Hann
-    # taper's first neighbours, at half its amplitude). On a clean line, whose spread between chunks is
-    # its own, T^2 cannot tell these neighbours from the line: of fundamentals there about as significant
-    # (half the log p-value or more), the one whose lines carry the most power is the line.
-    if spec.lobe_reach:
-        lo, hi = max(0, j0 - spec.lobe_reach), min(n_k, j0 + spec.lobe_reach + 1)
-        near = [j for j in range(lo, hi) if fam_logp[j] <= 0.5 * fam_logp[j0] < 0]
-        if len(near) > 1:
-            j0 = max(near, key=lambda j: strongest(float(k[j])))
-    k0 = float(k[j0])
-
-    def own_lines(kk: float, m: int) -> tuple[bool, float]:
-        """Whether the lines of kk that m kk does not explain are significant, and their largest power."""
-        own = [h for h in range(1, m * FAMILY_HARMONICS + 1) if h % m and h * kk <= k[-1]][:FAMILY_HARMONICS]
-        if not own:
-            return False, 0.0
-        significant = _lines_logp(spec, log_p, [h * kk for h in own], own) < alpha
-        return significant, max(_peak_power(spec, h * kk, 1 + h // 2) for h in own)
-
-    def peaks(kk: float, h_last: int):
-        """(h, window half-width, index of the best line) for the harmonics of kk inside the band."""
-        for h in range(1, h_last + 1):
-            i = int(round((h * kk - k_lo) / dk))
-            if i >= n_k:
-                return
-            half = 1 + h // 2
-            lo = max(0, i - half)
-            yield h, half, lo + int(np.argmin(log_p[lo:i + half + 1]))
-
-    def recentre(kk: float) -> float:
-        """kk moved onto its family's most significant line (divided by its harmonic number): a
-        fundamental on the grid is off by up to half a step, and its multiples by h times that."""
-        best_lp, best_k = 0.0, kk
-        for h, _, j in peaks(kk, FAMILY_HARMONICS):
-            if log_p[j] < best_lp:
-                best_lp, best_k = float(log_p[j]), float(k[j]) / h
-        return best_k
-
-    k0 = recentre(k0)
-    # Up while k0's own lines are not significant or carry less than MIN_SUBHARMONIC_POWER of the
-    # family's strongest line, then down once where a subharmonic's own lines are and do.
-    weak_sub = None
-    moved = True
-    while moved:
-        moved = False
-        for m in (2, 3, 5):
-            if m * k0 > k[-1]:
-                continue
-            significant, power = own_lines(k0, m)
-            if not significant or power < MIN_SUBHARMONIC_POWER * strongest(m * k0):
-                if significant:
-                    weak_sub = (k0, power / strongest(m * k0))
-                k0, moved = recentre(m * k0), True
-                break
-    for m in (2, 3):
-        kk = k0 / m
-        if kk < k_lo:
-            continue
-        significant, power = own_lines(kk, m)
-        if significant:
-            if power >= MIN_SUBHARMONIC_POWER * strongest(k0):
-                k0, weak_sub = recentre(kk), None
-                break
-            weak_sub = (kk, power / strongest(k0))
-    # The family's most significant line among its first 8 harmonics: where the period is best located.
-    h_strong, i_strong = 1, int(np.clip(round((k0 - k_lo) / dk), 0, n_k - 1))
-    for h, _, j in peaks(k0, 8):
-        if h == 1 or log_p[j] < log_p[i_strong]:
-            h_strong, i_strong = h, j
-    return _Family(h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
-
-
-@dataclass
-class _Family:
-    """A harmonic family found by :func:`_family` (indices into the spectrum's grid)."""
-
-    h_strong: int
-    i_strong: int
-    log_p: float
-    #: A significant subharmonic family too weak to be the period: (spatial frequency, power share).
-    weak_subharmonic: tuple[float, float] | None = None
-
-    def bracket(self, k: np.ndarray, dk: float) -> tuple[float, float]:
-        """Centre and half-width [cycles/rad] of the fundamental's refinement: the strongest line, located
-        to about a grid step, divided by its harmonic number."""
-        return float(k[self.i_strong] / self.h_strong), 1.5 * dk / self.h_strong
-
-
-@dataclass
 class _Candidate:
     """One deflection estimate (a choice of link motion) with its line and refined period."""
 
     name: str
     passes: list[Pass]
-    spectrum: _LineSpectrum
+    spectrum: LineSpectrum
     period: float | None = None
     period_std: float = math.inf
     #: Why the line found is not a detection although it is significant ('' when it is one).
@@ -923,20 +408,20 @@ def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, Jl: float, p
     if not passes:
         return ""
     span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
-    chunks = _chunks(passes, span)
+    chunks = cut_chunks(passes, span)
     dk = 1.0 / (4.0 * span)
     k_line = 1.0 / c.period
-    _, power_line, _ = _hotelling(chunks, np.array([k_line]))
+    _, power_line, _ = hotelling(chunks, np.array([k_line]))
     for m in (2, 3):
         kk = k_line / m
         if 1.0 / kk <= period_max or 1.0 / kk > max(p.period_max for p in passes):
             continue
         grid = kk + dk * np.arange(-25, 26)
-        t2, power, count = _hotelling(chunks, grid[grid > 0])
+        t2, power, count = hotelling(chunks, grid[grid > 0])
         centre = int(np.argmin(np.abs(grid[grid > 0] - kk)))
         floor = float(np.median(t2))
         t2_c = float(t2[centre]) * min(1.0, math.log(2.0) / max(floor, 1e-300))
-        if _false_alarm(t2_c, int(count[centre]), 4.0) < false_alarm and power[centre] >= 0.1 * power_line[0]:
+        if false_alarm_probability(t2_c, int(count[centre]), 4.0) < false_alarm and power[centre] >= 0.1 * power_line[0]:
             return (f"the line at {c.period:.4g} rad looks like harmonic {m} of a period of {1 / kk:.4g} rad, "
                     f"longer than the longest searched ({period_max:.4g} rad): not a detection; widen "
                     "--period-max")
@@ -1031,7 +516,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
 
 def _median_speed(ds: Dataset) -> float:
     """The run's median speed [rad/s]."""
-    return float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(_spread_repeated_stamps(ds["t"])))))
+    return float(np.median(np.abs(np.diff(ds["q_m"]) / np.diff(spread_repeated_stamps(ds["t"])))))
 
 
 def _beyond_nyquist(r: RippleResult, ds: Dataset, speed: float) -> str:
@@ -1256,7 +741,7 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
                                  f"{4 * period_min:g} rad) to identify a position-periodic deflection from")
         dynamic = any(p.method == "dynamic" for p in passes)
         name = motion if dynamic else "measured"
-        candidates.append(_Candidate(name, passes, _line_search(passes, period_min, period_max),
+        candidates.append(_Candidate(name, passes, line_search(passes, period_min, period_max),
                                      link_motion=motion))
         if not dynamic:
             break  # static passes only: the link is measured, nothing to choose

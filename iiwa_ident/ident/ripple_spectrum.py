@@ -1,0 +1,341 @@
+"""The ripple search's spectrum: Hotelling's T^2 of the passes' chunks and the harmonic families in it.
+
+Passes are cut into chunks; at each spatial frequency the chunks' tapered
+Fourier coefficients of the deflection are tested for a common phase-locked
+component (Hotelling's T^2, an F(2, 2(n-1)) law under "no line", calibrated
+on the data's floor). :func:`line_search` gives the spectrum with its most
+significant harmonic family (:func:`family`), from which
+:mod:`iiwa_ident.ident.ripple` refines the period.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+from scipy.ndimage import maximum_filter1d, median_filter
+
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident.ripple_passes import Pass
+
+__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'Family', 'LineSpectrum', 'chunk_coefficients', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'taper', 'window_logp']
+
+#: Harmonics summed per candidate fundamental in the family search.
+FAMILY_HARMONICS = 5
+#: Least power, as a share of the family's strongest line, of the strongest line that only a subharmonic
+#: k0/m explains, for k0/m to be the period: lines down to a tenth of the dominant one's amplitude.
+MIN_SUBHARMONIC_POWER = 0.01
+
+
+def cut_chunks(passes: list[Pass], span: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Cut passes into chunks of at least two of their longest periods (about span / 8).
+
+    Each chunk is ``(theta, f, k_min)``: it speaks only for spatial
+    frequencies above ``k_min`` = 1 / (its pass's longest period).
+    """
+    out = []
+    for p in passes:
+        travel = abs(p.theta[-1] - p.theta[0])
+        n = max(1, int(travel // max(2.0 * p.period_max, span / 8)))
+        for idx in np.array_split(np.arange(len(p.theta)), n):
+            if len(idx) >= 8:
+                out.append((p.theta[idx], p.f[idx], 1.0 / p.period_max))
+    return out
+
+
+def chunk_coefficients(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hann-tapered complex Fourier coefficients of each chunk at ``k`` [cycles/rad], and validity.
+
+    The taper keeps strong slow leftovers from leaking into the ripple band;
+    a chunk is valid at k only above its pass's ``k_min``. ``k`` must be a
+    uniform grid: the phasors are advanced by one grid step at a time.
+    """
+    sizes = [len(f) for _, f, _ in chunks]
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    theta = np.concatenate([th for th, _, _ in chunks])
+    x = np.empty(len(theta))
+    norm = np.empty(len(chunks))
+    for i, (_, f, _) in enumerate(chunks):
+        w = taper(len(f))
+        x[starts[i]:starts[i] + len(f)] = (f - np.average(f, weights=w)) * w
+        norm[i] = 2.0 / w.sum()
+    dk = k[1] - k[0] if len(k) > 1 else 0.0
+    phasor = np.exp(-2j * np.pi * k[0] * theta)
+    step = np.exp(-2j * np.pi * dk * theta)
+    coefs = np.empty((len(chunks), len(k)), dtype=complex)
+    for m in range(len(k)):
+        if m and m % 256 == 0:  # re-anchor to keep rounding from accumulating
+            phasor = np.exp(-2j * np.pi * k[m] * theta)
+        coefs[:, m] = np.add.reduceat(x * phasor, starts) * norm
+        phasor *= step
+    valid = k[None, :] >= np.array([k_min for _, _, k_min in chunks])[:, None]
+    coefs[~valid] = 0.0
+    return coefs, valid
+
+
+def hotelling(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hotelling T^2 of the chunks' Fourier coefficients at ``k`` [cycles/rad].
+
+    Returns T^2, the power of the mean coefficient, and the number of chunks
+    that speak for each k (chunks of short passes are left out at long periods).
+    """
+    coefs, valid = chunk_coefficients(chunks, k)
+    count = valid.sum(axis=0)
+    n = np.maximum(count, 1)
+    mean = coefs.sum(axis=0) / n
+    spread = np.where(valid, np.abs(coefs - mean) ** 2, 0.0).sum(axis=0)
+    var = spread / np.maximum(count - 1, 1) / n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t2 = np.where(count >= 3, np.abs(mean) ** 2 / var, 0.0)
+    return np.nan_to_num(t2, nan=0.0, posinf=0.0), np.abs(mean) ** 2, count
+
+
+@functools.lru_cache(maxsize=256)
+def taper(n: int) -> np.ndarray:
+    """Hann window of n samples without its zero end points (read-only: one array per length, shared)."""
+    w = np.hanning(n + 2)[1:-1]
+    w.flags.writeable = False
+    return w
+
+
+def false_alarm_probability(t2: float, n: int, m_eff: float) -> float:
+    """Probability that noise alone gives a maximum statistic this large among m_eff frequencies.
+
+    With n chunks of independent circular noise, T^2 = |mean|^2 / (s^2 / n) follows F(2, 2(n-1)).
+    """
+    p = float(stats.f.sf(t2, 2, 2 * (n - 1))) if n > 1 else 1.0
+    return float(min(1.0, -math.expm1(m_eff * math.log1p(-min(p, 1 - 1e-16)))))
+
+
+@dataclass
+class LineSpectrum:
+    """Hotelling spectrum of a set of passes over the searched spatial frequencies."""
+
+    k: np.ndarray
+    t2: np.ndarray
+    power: np.ndarray
+    count: np.ndarray
+    dk: float
+    i_best: int
+    warnings: list[str]
+    #: The most significant harmonic family (see :func:`harmonic_family`).
+    family: "Family | None" = None
+    #: Grid steps to one and a half over the chunk length (:func:`lobe_reach`).
+    lobe_reach: int = 0
+
+    def false_alarm(self, j: int, tries: float | None = None) -> float:
+        """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
+        return false_alarm_probability(float(self.t2[j]), int(self.count[j]), len(self.k) / 4.0 if tries is None else tries)
+
+    def detection_false_alarm(self, estimates: int = 1) -> float:
+        """False-alarm probability of the search: the strongest line or the strongest family, whichever is
+        the more significant, each corrected for the frequencies searched, then (Bonferroni) for the two
+        tests and for the ``estimates`` deflection estimates the strongest is chosen from."""
+        tries = len(self.k) / 4.0
+        p_fam = math.exp(self.family.log_p) if self.family is not None else 1.0
+        fam = float(min(1.0, -math.expm1(tries * math.log1p(-min(p_fam, 1 - 1e-16))))) if p_fam > 0 else 0.0
+        return min(1.0, 2.0 * estimates * min(self.false_alarm(self.i_best), fam))
+
+
+def line_search(passes: list[Pass], period_min: float, period_max: float) -> LineSpectrum:
+    warnings = []
+    # A period is told from a slow trend only within a pass that travels two of them.
+    longest = max(p.period_max for p in passes)
+    if longest < period_max:
+        warnings.append(f"the longest pass travels {2 * longest:.3g} rad: periods searched up to {longest:.3g} rad")
+        period_max = longest
+    span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
+    chunks = cut_chunks(passes, span)
+    if len(chunks) < 3:
+        raise IiwaIdentError(f"ripple: too little motion: {len(chunks)} usable stretches (need 3 or more); "
+                             "record longer runs, both directions or more speeds")
+    # Spatial frequency grid: 4 points per resolution cell 1/span.
+    dk = 1.0 / (4.0 * span)
+    k = np.arange(1.0 / period_max, 1.0 / period_min + dk, dk)
+    t2_raw, power, count = hotelling(chunks, k)
+    # Real logs have noise that is correlated between neighbouring chunks (slow oscillations,
+    # gravity and friction leftovers), which lifts the whole T^2 floor above its F(2, 2(n-1))
+    # law. Calibrate with the local median (ln 2 under that law), never making a line more
+    # significant than the law says.
+    floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
+    t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
+    spec = LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings, lobe_reach=lobe_reach(chunks, dk))
+    spec.family = harmonic_family(spec)
+    return spec
+
+
+def lobe_reach(chunks, dk: float) -> int:
+    """Grid steps to a line's neighbours one and a half over the chunk length away (see :func:`harmonic_family`)."""
+    length = float(np.median([np.ptp(th) for th, _, _ in chunks]))
+    return int(math.ceil(1.5 / max(length, 1e-12) / dk))
+
+
+def line_pvalues(spec: LineSpectrum) -> np.ndarray:
+    """Per-frequency p-value of the calibrated T^2 under "no line" (F(2, 2(n-1)), 1 where too few chunks)."""
+    n = spec.count
+    with np.errstate(invalid="ignore"):
+        p = np.where(n >= 3, stats.f.sf(spec.t2, 2, 2 * np.maximum(n - 1, 1)), 1.0)
+    return np.clip(np.nan_to_num(p, nan=1.0), 1e-300, 1.0)
+
+
+def window_logp(log_p: np.ndarray, half: int) -> np.ndarray:
+    """Best log p within +-half grid points, corrected for the window's ~(2 half + 1) / 4 independent cells."""
+    best = -maximum_filter1d(-log_p, size=2 * half + 1, mode="nearest")
+    cells = max(1.0, (2 * half + 1) / 4.0)
+    with np.errstate(divide="ignore"):
+        corrected = np.log(-np.expm1(cells * np.log1p(-np.exp(np.minimum(best, -1e-12)))))
+    return np.maximum(corrected, best)
+
+
+def lines_logp(spec: "LineSpectrum", log_p: np.ndarray, ks: list[float], hs: list[int]) -> float:
+    """Fisher log p-value of the lines at spatial frequencies ``ks`` (harmonic numbers ``hs`` set their
+    windows); 0 when none lies in the band."""
+    total, dof = 0.0, 0
+    for kk, h in zip(ks, hs):
+        i = int(round((kk - spec.k[0]) / spec.dk))
+        if 0 <= i < len(spec.k):
+            total += -2.0 * float(window_logp(log_p[max(0, i - 4):i + 5], 1 + h // 2)[min(i, 4)])
+            dof += 2
+    return float(stats.chi2.logsf(total, dof)) if dof else 0.0
+
+
+def peak_power(spec: "LineSpectrum", kk: float, half: int) -> float:
+    """Largest power of the mean coefficient within +-half grid points of ``kk``."""
+    i = int(round((kk - spec.k[0]) / spec.dk))
+    lo, hi = max(0, i - half), min(len(spec.k), i + half + 1)
+    return float(spec.power[lo:hi].max()) if lo < hi else 0.0
+
+
+def harmonic_family(spec: "LineSpectrum") -> "Family":
+    """The most significant harmonic family of the spectrum.
+
+    Harmonic summation: for each candidate fundamental k0 the lines at h k0 (h = 1 ..
+    FAMILY_HARMONICS, inside the band) are combined by Fisher's method, each line's p-value the
+    best within the harmonic's uncertainty (h k0 is known to about h/2 grid steps) and corrected
+    for that window. A fundamental weaker than its harmonics, or absent, still collects them. Lines
+    are measured at the exact motor positions, so a harmonic above a pass's Nyquist limit is
+    unfolded by the pass's own speed, and its mirror images form no family.
+
+    A family and its subharmonic k0/m can collect the same lines; so the fundamental is then moved
+    up to m k0 (m = 2, 3, 5) while the lines that only k0 explains are not jointly significant, and
+    down to k0 / m when the lines that only k0 / m explains are (Fisher p below 1e-3 both ways) and
+    carry at least MIN_SUBHARMONIC_POWER of the family's strongest line; a weaker significant
+    subharmonic family is kept as a note (a once-per-motor-revolution effect, for example).
+    """
+    k, dk = spec.k, spec.dk
+    log_p = np.log(line_pvalues(spec))
+    # Only local peaks count as lines: a strong line is consistent across chunks on its flanks too (its
+    # T^2 is broad), and a family of flank points would otherwise beat it. Nor does a peak whose
+    # power is below 1e-3 of the strongest (the taper's sidelobes are at 7e-4).
+    peak = log_p <= -maximum_filter1d(-log_p, size=5, mode="nearest")
+    peak &= spec.power >= 1e-3 * spec.power[int(np.argmin(log_p))]
+    log_p = np.where(peak, log_p, 0.0)
+    n_k = len(k)
+    k_lo = k[0]
+    score = np.zeros(n_k)
+    dof = np.zeros(n_k)
+    for h in range(1, FAMILY_HARMONICS + 1):
+        idx = np.round((h * k - k_lo) / dk).astype(int)
+        inside = idx < n_k
+        if not inside.any():
+            break
+        lp = window_logp(log_p, 1 + h // 2)
+        score[inside] += -2.0 * lp[idx[inside]]
+        dof[inside] += 2.0
+    fam_logp = stats.chi2.logsf(score, np.maximum(dof, 2.0))
+    j0 = int(np.argmin(fam_logp))
+    alpha = math.log(1e-3)
+
+    def strongest(kk: float) -> float:
+        return max(peak_power(spec, h * kk, 1 + h // 2) for h in range(1, FAMILY_HARMONICS + 1)
+                   if h * kk <= k[-1])
+
+    # A line's chunk coefficients are phase-aligned one over the chunk length from it too (the Hann
+    # taper's first neighbours, at half its amplitude). On a clean line, whose spread between chunks is
+    # its own, T^2 cannot tell these neighbours from the line: of fundamentals there about as significant
+    # (half the log p-value or more), the one whose lines carry the most power is the line.
+    if spec.lobe_reach:
+        lo, hi = max(0, j0 - spec.lobe_reach), min(n_k, j0 + spec.lobe_reach + 1)
+        near = [j for j in range(lo, hi) if fam_logp[j] <= 0.5 * fam_logp[j0] < 0]
+        if len(near) > 1:
+            j0 = max(near, key=lambda j: strongest(float(k[j])))
+    k0 = float(k[j0])
+
+    def own_lines(kk: float, m: int) -> tuple[bool, float]:
+        """Whether the lines of kk that m kk does not explain are significant, and their largest power."""
+        own = [h for h in range(1, m * FAMILY_HARMONICS + 1) if h % m and h * kk <= k[-1]][:FAMILY_HARMONICS]
+        if not own:
+            return False, 0.0
+        significant = lines_logp(spec, log_p, [h * kk for h in own], own) < alpha
+        return significant, max(peak_power(spec, h * kk, 1 + h // 2) for h in own)
+
+    def peaks(kk: float, h_last: int):
+        """(h, window half-width, index of the best line) for the harmonics of kk inside the band."""
+        for h in range(1, h_last + 1):
+            i = int(round((h * kk - k_lo) / dk))
+            if i >= n_k:
+                return
+            half = 1 + h // 2
+            lo = max(0, i - half)
+            yield h, half, lo + int(np.argmin(log_p[lo:i + half + 1]))
+
+    def recentre(kk: float) -> float:
+        """kk moved onto its family's most significant line (divided by its harmonic number): a
+        fundamental on the grid is off by up to half a step, and its multiples by h times that."""
+        best_lp, best_k = 0.0, kk
+        for h, _, j in peaks(kk, FAMILY_HARMONICS):
+            if log_p[j] < best_lp:
+                best_lp, best_k = float(log_p[j]), float(k[j]) / h
+        return best_k
+
+    k0 = recentre(k0)
+    # Up while k0's own lines are not significant or carry less than MIN_SUBHARMONIC_POWER of the
+    # family's strongest line, then down once where a subharmonic's own lines are and do.
+    weak_sub = None
+    moved = True
+    while moved:
+        moved = False
+        for m in (2, 3, 5):
+            if m * k0 > k[-1]:
+                continue
+            significant, power = own_lines(k0, m)
+            if not significant or power < MIN_SUBHARMONIC_POWER * strongest(m * k0):
+                if significant:
+                    weak_sub = (k0, power / strongest(m * k0))
+                k0, moved = recentre(m * k0), True
+                break
+    for m in (2, 3):
+        kk = k0 / m
+        if kk < k_lo:
+            continue
+        significant, power = own_lines(kk, m)
+        if significant:
+            if power >= MIN_SUBHARMONIC_POWER * strongest(k0):
+                k0, weak_sub = recentre(kk), None
+                break
+            weak_sub = (kk, power / strongest(k0))
+    # The family's most significant line among its first 8 harmonics: where the period is best located.
+    h_strong, i_strong = 1, int(np.clip(round((k0 - k_lo) / dk), 0, n_k - 1))
+    for h, _, j in peaks(k0, 8):
+        if h == 1 or log_p[j] < log_p[i_strong]:
+            h_strong, i_strong = h, j
+    return Family(h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
+
+
+@dataclass
+class Family:
+    """A harmonic family found by :func:`harmonic_family` (indices into the spectrum's grid)."""
+
+    h_strong: int
+    i_strong: int
+    log_p: float
+    #: A significant subharmonic family too weak to be the period: (spatial frequency, power share).
+    weak_subharmonic: tuple[float, float] | None = None
+
+    def bracket(self, k: np.ndarray, dk: float) -> tuple[float, float]:
+        """Centre and half-width [cycles/rad] of the fundamental's refinement: the strongest line, located
+        to about a grid step, divided by its harmonic number."""
+        return float(k[self.i_strong] / self.h_strong), 1.5 * dk / self.h_strong
