@@ -18,13 +18,13 @@ __all__ = ["DESIGN_BETA", "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "PERIOD_M
 #: with beta = 5 (2.8x the built-in 7.6) and 26-28 with beta = 2 (3.5-3.7x), and below the notch ``1 - H^2``
 #: boosts a 2 Hz torque at 0.3 rad/s by 1.24 dB with beta = 5, 0.17 dB with 2.
 DESIGN_BETA = 2.0
-#: Reference pre-filter of the feed-forward, natural frequency (:mod:`iiwa_ident.design.controller`) [Hz].
+#: Reference pre-filter of the feed-forward, natural frequency (:mod:`iiwa_ident.design.additive`) [Hz].
 #: 250 Hz keeps eq (22) close to the paper's unfiltered inverse below 50 Hz (0.2 rad of lag at 25 Hz; 50 Hz
 #: would lag a 25 Hz reference by 0.93 rad, ~12 Nm of error at 15 Nm). An ideal step through it commands
 #: ~7x its height at the peak, which is why the runtime rate-limits the reference
 #: (:mod:`iiwa_ident.deploy.checks`, ``reference_range``).
 DEFAULT_PREFILTER_HZ = 250.0
-#: Ways of combining ``Kr`` and the feed-forward (:mod:`iiwa_ident.design.controller`).
+#: Ways of combining ``Kr`` and the feed-forward (:mod:`iiwa_ident.design.additive`).
 FEEDFORWARD_MODES = ("reference", "paper", "none")
 #: Search range of the ripple's period (:mod:`iiwa_ident.ident.ripple`): 2000 down to 50 cycles per motor
 #: revolution (the paper's joint has 320; other gear ratios have other counts) [rad].

@@ -8,26 +8,28 @@ import control as ct
 import numpy as np
 import pytest
 
-from iiwa_ident.design.controller import (
+from iiwa_ident.design.additive import (
     FEEDFORWARD_MODES,
     PAPER_OBSERVER_POLES,
     PAPER_POLES,
-    AdditiveController,
     DesignError,
-    HumanArm,
     _close_on_model,
     _dc,
-    arm_plant,
     builtin_poles,
     check_poles,
     design_controller,
-    exact_delay_spectral_radius,
     feedforward_transfer_function,
-    kappa_max,
     natural_frequency_damping,
+    realisation,
+)
+from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design.margins import (
+    HumanArm,
+    arm_plant,
+    exact_delay_spectral_radius,
+    kappa_max,
     outer_loop_margins,
     outer_loop_matrix,
-    realisation,
 )
 from iiwa_ident.design.paper import (
     PAPER_VALUES,

@@ -12,7 +12,8 @@ import pytest
 
 from iiwa_ident._toml import dumps_toml
 from iiwa_ident.design import FilterSettings
-from iiwa_ident.design.controller import HumanArm, OuterLoopMargins, design_controller
+from iiwa_ident.design.additive import design_controller
+from iiwa_ident.design.margins import HumanArm, OuterLoopMargins
 from iiwa_ident.design.design_file import (
     DESIGN_FORMAT,
     DesignFileError,

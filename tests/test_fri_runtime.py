@@ -13,7 +13,8 @@ import pytest
 
 from iiwa_ident.deploy import deploy
 from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.controller import design_controller, outer_loop_margins
+from iiwa_ident.design.additive import design_controller
+from iiwa_ident.design.margins import outer_loop_margins
 from iiwa_ident.design.design_file import make_record
 from iiwa_ident.design.spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop

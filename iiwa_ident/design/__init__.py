@@ -9,7 +9,9 @@ run_observers, compare_observers, observer_lag
     The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
 HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
 PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius
-    The additive torque controller of section V.B (:mod:`iiwa_ident.design.controller`).
+    The additive torque controller of section V.B: its design (:mod:`iiwa_ident.design.additive`), the
+    controller one sample at a time (:mod:`iiwa_ident.design.controller`) and the outer-loop margin
+    (:mod:`iiwa_ident.design.margins`).
 ControlCycle
     Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
 DesignRecord, DesignFileError, make_record, read_design, write_design
@@ -19,23 +21,25 @@ paper_reproduction, format_reproduction
 """
 
 from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin
-from iiwa_ident.design.controller import (
+from iiwa_ident.design.additive import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
     PAPER_OBSERVER_POLES,
     PAPER_POLES,
     SAMPLE_TIME_S,
-    AdditiveController,
     AdditiveDesign,
     DesignError,
-    HumanArm,
-    OuterLoopMargins,
     builtin_poles,
     check_poles,
     design_controller,
+    natural_frequency_damping,
+)
+from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design.margins import (
+    HumanArm,
+    OuterLoopMargins,
     exact_delay_spectral_radius,
     kappa_max,
-    natural_frequency_damping,
     outer_loop_margins,
 )
 from iiwa_ident.design.cycle import ControlCycle

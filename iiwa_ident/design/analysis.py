@@ -36,7 +36,7 @@ Outer-loop gain margin
 ----------------------
 :func:`kappa_margin` closes ``tau_r = kappa tau_ext`` on the F/T reference
 ``tau_ext_ref`` while an :class:`~iiwa_ident.sim.agents.ImpedanceAgent`
-(hand stiffness and damping of :class:`~iiwa_ident.design.controller.HumanArm`)
+(hand stiffness and damping of :class:`~iiwa_ident.design.margins.HumanArm`)
 moves the link along a slow sine, so that the joint never stands still (the
 robot suppresses torque control at standstill below 1 Nm) and the ripple is
 excited as in a real interaction. A run is judged unstable (:func:`judge_stability`)
@@ -44,7 +44,7 @@ when the oscillatory part of tau_J (above ``highpass_hz``) grows from the
 first to the last hand period by more than ``growth_limit`` and is above a
 noise floor, when it exceeds an absolute level, or when the limit guard
 stops the run. The largest stable ``kappa`` is bracketed around the linear
-prediction :func:`~iiwa_ident.design.controller.kappa_max` and bisected.
+prediction :func:`~iiwa_ident.design.margins.kappa_max` and bisected.
 
 Measured on the default plant (Table I, ripple on, identified ripple table)
 -----------------------------------------------------------------------------
@@ -78,15 +78,9 @@ from typing import Callable
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from iiwa_ident.design.controller import (
-    DEFAULT_PREFILTER_HZ,
-    AdditiveController,
-    AdditiveDesign,
-    HumanArm,
-    builtin_poles,
-    design_controller,
-    kappa_max,
-)
+from iiwa_ident.design.additive import DEFAULT_PREFILTER_HZ, AdditiveDesign, builtin_poles, design_controller
+from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design.margins import HumanArm, kappa_max
 from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
 from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
@@ -746,7 +740,7 @@ class KappaMargin:
     kappa_unstable : float
         Smallest gain judged unstable [-] (inf if none).
     linear : float
-        Linear prediction of :func:`~iiwa_ident.design.controller.kappa_max` (no ripple, no filter) [-].
+        Linear prediction of :func:`~iiwa_ident.design.margins.kappa_max` (no ripple, no filter) [-].
     trials : list of KappaTrial
         Every run, in the order made.
     """
@@ -764,7 +758,7 @@ def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm
                  seed: int = 0, **trial_kwargs) -> KappaMargin:
     """Largest stable outer-loop gain ``kappa`` of ``tau_r = kappa tau_ext`` found by simulation.
 
-    The bracket starts at the linear prediction (:func:`~iiwa_ident.design.controller.kappa_max`
+    The bracket starts at the linear prediction (:func:`~iiwa_ident.design.margins.kappa_max`
     on the model, with the same arm), widens by factors of 1.5 until it holds
     a stable and an unstable gain, then bisects (geometrically) until their
     ratio is below ``1 + rel_tol``.
