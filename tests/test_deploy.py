@@ -237,3 +237,24 @@ class TestConfigFile:
         path.write_text(dumps_toml(data))
         with pytest.raises(ConfigError, match="robot.client_command_mode"):
             read_config(path)
+
+
+class TestDeployTarget:
+    """One rule for the robot model and joint, used by `deploy` and the pipeline."""
+
+    def test_the_model_decides_and_requests_must_agree(self):
+        from iiwa_ident.deploy import DeployError, deploy_target
+        from iiwa_ident.model import table1_model
+
+        model = table1_model()
+        model.robot_model, model.joint = "iiwa7", 6
+        assert deploy_target(model) == ("iiwa7", 6)
+        assert deploy_target(model, "iiwa7", 6) == ("iiwa7", 6)
+        with pytest.raises(DeployError, match="--robot-model iiwa14 contradicts the model file"):
+            deploy_target(model, "iiwa14")
+        with pytest.raises(DeployError, match=r"--joint 1 contradicts the model file \(joint 6\)"):
+            deploy_target(model, joint=1)
+        model.robot_model = model.joint = None
+        with pytest.raises(DeployError, match="pass --robot-model and --joint"):
+            deploy_target(model, "iiwa7")
+        assert deploy_target(None, "iiwa7", 3) == ("iiwa7", 3)

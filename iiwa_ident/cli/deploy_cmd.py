@@ -82,7 +82,7 @@ def deploy_cmd(
       iiwa-ident deploy --design design.toml --out controller.toml
       iiwa-ident deploy --design design.toml --out controller.toml --torque-limit 100 --json deploy.json
     """
-    from iiwa_ident.deploy import DeployError, config_json, deploy, write_config
+    from iiwa_ident.deploy import config_json, deploy, deploy_target, write_config
     from iiwa_ident.design import read_design
     from iiwa_ident.datasets import sha256_file
 
@@ -92,17 +92,7 @@ def deploy_cmd(
             _positive(value, option)
         record = read_design(design)
         model, _ = find_model(record, design)
-        known_model = model.robot_model if model is not None else None
-        known_joint = model.joint if model is not None else None
-        if robot_model is not None and known_model is not None and robot_model != known_model:
-            raise DeployError(f"--robot-model {robot_model} contradicts the model file ({known_model})")
-        if joint is not None and known_joint is not None and joint != known_joint:
-            raise DeployError(f"--joint {joint} contradicts the model file (joint {known_joint})")
-        robot_model = robot_model or known_model
-        joint = joint if joint is not None else known_joint
-        if robot_model is None or joint is None:
-            raise DeployError("cannot tell the robot model and joint from the design's model file; "
-                              "pass --robot-model and --joint")
+        robot_model, joint = deploy_target(model, robot_model, joint)
         config = deploy(record, robot_model, joint, torque_limit=torque_limit, rate_limit=rate_limit,
                         velocity_limit=velocity_limit, reference_rate_limit=reference_rate, design_file=str(design), design_sha256=sha256_file(design),
                         model=model)

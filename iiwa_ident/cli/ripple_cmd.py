@@ -118,7 +118,7 @@ def ripple_cmd(
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
       iiwa-ident ripple cv.h5 --model model.toml --out model_ripple.toml --json ripple.json
     """
-    from iiwa_ident.ident import check_model_matches, dataset_model, identify_ripple, read_model, write_model
+    from iiwa_ident.ident import check_model_matches, dataset_model, read_model, ripple_model, write_model
     from iiwa_ident.model import Source
     from iiwa_ident.datasets import read_dataset, sha256_file
 
@@ -130,14 +130,12 @@ def ripple_cmd(
         else:
             base = dataset_model(datasets, borrow=True)
         with progress(f"searching the ripple's period in {len(datasets)} run(s)"):
-            result = identify_ripple(datasets, K=base.value("K"), Jl=base.value("Jl"), period_min=period_min,
-                                     period_max=period_max, bins=bins, link_motion=link_motion)
+            model_out, result = ripple_model(base, datasets, [Source(str(p), sha256_file(p), "ripple") for p in data],
+                                             period_min=period_min, period_max=period_max, bins=bins,
+                                             link_motion=link_motion)
         typer.echo(format_ripple(result))
         if out:
-            base.ripple = result.table()
-            base.sources = [s for s in base.sources if s.role != "ripple"] + [
-                Source(str(p), sha256_file(p), "ripple") for p in data]
-            write_model(out, base)
+            write_model(out, model_out)
             typer.echo(f"wrote {out}")
         if json_out:
             write_json(json_out, result.to_json())

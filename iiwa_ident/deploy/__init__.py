@@ -36,6 +36,7 @@ from iiwa_ident.deploy.config_file import (
     content_sha256,
     controller_from_config,
     deploy,
+    deploy_target,
     read_config,
     write_config,
 )
@@ -66,6 +67,7 @@ __all__ = [
     "content_sha256",
     "controller_from_config",
     "deploy",
+    "deploy_target",
     "read_config",
     "write_config",
     "config_json",

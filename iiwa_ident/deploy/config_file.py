@@ -551,6 +551,54 @@ def _option(value: float | None, default: float, name: str) -> float:
     return float(value)
 
 
+def deploy_target(model: JointModel | None, robot_model: str | None = None, joint: int | None = None
+                  ) -> tuple[str, int]:
+    """The robot model and joint a controller is deployed to: one rule for every caller.
+
+    The model file says which joint it describes; a robot model or joint asked for besides must agree
+    with it, and where the model does not say, it must be asked for.
+
+    Parameters
+    ----------
+    model : JointModel or None
+        The model the design came from (None: not found).
+    robot_model, joint : optional
+        What the user asked for (``--robot-model``, ``--joint``).
+
+    Returns
+    -------
+    (str, int)
+        Robot model and joint.
+
+    Raises
+    ------
+    DeployError
+        When a request contradicts the model, or neither says.
+
+    Examples
+    --------
+    >>> from iiwa_ident.model import table1_model
+    >>> deploy_target(table1_model())
+    ('iiwa14', 1)
+    >>> deploy_target(table1_model(), joint=2)
+    Traceback (most recent call last):
+    ...
+    iiwa_ident.deploy.checks.DeployError: --joint 2 contradicts the model file (joint 1)
+    """
+    known_model = model.robot_model if model is not None else None
+    known_joint = model.joint if model is not None else None
+    if robot_model is not None and known_model is not None and robot_model != known_model:
+        raise DeployError(f"--robot-model {robot_model} contradicts the model file ({known_model})")
+    if joint is not None and known_joint is not None and joint != known_joint:
+        raise DeployError(f"--joint {joint} contradicts the model file (joint {known_joint})")
+    robot_model = robot_model or known_model
+    joint = joint if joint is not None else known_joint
+    if robot_model is None or joint is None:
+        raise DeployError("cannot tell the robot model and joint from the design's model file; "
+                          "pass --robot-model and --joint")
+    return robot_model, int(joint)
+
+
 def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: float | None = None,
            rate_limit: float | None = None, velocity_limit: float | None = None,
            reference_rate_limit: float | None = None,

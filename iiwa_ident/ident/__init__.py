@@ -15,6 +15,7 @@ from iiwa_ident.ident.ripple import (
     PERIOD_MIN_RAD,
     RippleResult,
     identify_ripple,
+    ripple_model,
 )
 from iiwa_ident.ident.starting_model import (
     DESCRIPTION_FACTOR,
@@ -29,7 +30,7 @@ from iiwa_ident.ident.starting_model import (
 )
 from iiwa_ident.ident.tf_fit import FitResult
 
-__all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "FitResult",
+__all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "ripple_model", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description", "ResidualTest",
            "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG"]

@@ -35,8 +35,10 @@ here the period is refined, the table fitted and the runs combined.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import optimize, stats
@@ -44,6 +46,7 @@ from scipy import optimize, stats
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definition, light for the CLI's help
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.model import JointModel, RippleTable, Source
 from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
 from iiwa_ident.ident.ripple_spectrum import (
     FAMILY_HARMONICS,
@@ -62,6 +65,7 @@ __all__ = [
     "MethodResult",
     "RippleResult",
     "identify_ripple",
+    "ripple_model",
 ]
 
 #: Motor encoder quantisation of the iiwa (section III.B) [rad].
@@ -121,8 +125,6 @@ class RippleResult:
     def table(self):
         """The model file's ripple table of this result (:class:`~iiwa_ident.ident.RippleTable`: the period,
         the lookup table and how they were found), or None when nothing was detected."""
-        from iiwa_ident.model import RippleTable
-
         if not self.detected:
             return None
         return RippleTable(self.period_rad, self.lut, {
@@ -512,6 +514,35 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
             row["note"] = f"{beyond}: its period rests mostly on that line, where an alias is possible"
         runs.append(row)
     return _combine_runs(pooled, runs, datasets, options)
+
+
+def ripple_model(base: JointModel, datasets: list[Dataset], sources: Sequence[Source] = (),
+                 **options: Any) -> tuple[JointModel, RippleResult]:
+    """The ripple stage of ``iiwa-ident ripple`` and both pipelines: search with the model's K and Jl, and the
+    model with the lookup table found.
+
+    Parameters
+    ----------
+    base : JointModel
+        The joint's model (its K and Jl restore the link's motion); not changed.
+    datasets : list of Dataset
+        Constant-velocity or quasi-static runs of that joint.
+    sources : sequence of Source
+        The runs as the model file names them (role ``"ripple"``); they replace earlier ripple sources.
+    **options
+        Passed to :func:`identify_ripple` (period range, bins, link motion, ...).
+
+    Returns
+    -------
+    model : JointModel
+        A copy of ``base`` with :meth:`RippleResult.table` (None when nothing was detected) and the sources.
+    result : RippleResult
+    """
+    result = identify_ripple(datasets, K=base.value("K"), Jl=base.value("Jl"), **options)
+    model = copy.deepcopy(base)
+    model.ripple = result.table()
+    model.sources = [s for s in model.sources if s.role != "ripple"] + list(sources)
+    return model, result
 
 
 def _median_speed(ds: Dataset) -> float:

@@ -294,16 +294,14 @@ def _stage_hand(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import fit_model, identify_ripple, model_from_dict, write_model
+    from iiwa_ident.ident import fit_model, ripple_model, write_model
     from iiwa_ident.model import Source
 
     base = ctx.results["model"]
     data = [ctx.results["cv"]] + ([ctx.results["qs"]] if "qs" in ctx.results else [])
     files = [ctx.path("cv")] + ([ctx.path("qs")] if "qs" in ctx.results else [])
-    r = identify_ripple(data, K=base.value("K"), Jl=base.value("Jl"))
-    model = model_from_dict(base.to_dict())
+    model, r = ripple_model(base, data, [Source(str(p.name), sha256_file(p), "ripple") for p in files])
     refit = None
-    model.ripple = r.table()
     if r.detected:
         # The chirp again, with the table's deflection in the output-error model (eq (5)): the first
         # fit had only the period it could find in the chirp itself.
@@ -312,8 +310,6 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
         refitted.sources = model.sources
         model = refitted
         write_atomic(ctx.path("fit_ripple_json"), json.dumps(refit.to_json(), indent=2) + "\n")
-    model.sources = [x for x in model.sources if x.role != "ripple"] + [
-        Source(str(p.name), sha256_file(p), "ripple") for p in files]
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
     ctx.results.update(ripple=r, model_ripple=model)
@@ -390,11 +386,14 @@ def _jsonable(x: Any) -> Any:
 
 def _stage_deploy(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.deploy import config_json, deploy, write_config
+    from iiwa_ident.deploy import config_json, deploy, deploy_target, write_config
 
     model = ctx.results["model_ripple"]
-    config = deploy(ctx.results["design"], model.robot_model or ctx.robot_model, model.joint or ctx.joint,
-                    design_file=FILES["design"], design_sha256=sha256_file(ctx.path("design")), model=model)
+    # The rule of `deploy`: on the robot the joint asked for must be the model's (on the simulator the plant's).
+    asked = (ctx.robot_model, ctx.joint) if ctx.target == "robot" else (None, None)
+    robot_model, joint = deploy_target(model, *asked)
+    config = deploy(ctx.results["design"], robot_model, joint, design_file=FILES["design"],
+                    design_sha256=sha256_file(ctx.path("design")), model=model)
     write_config(ctx.path("controller"), config)
     write_atomic(ctx.path("controller_json"),
                  json.dumps(config_json(config, Path(FILES["controller"])), indent=2) + "\n")

@@ -199,7 +199,7 @@ def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import dataset_model, identify_ripple, write_model
+    from iiwa_ident.ident import dataset_model, ripple_model, write_model
     from iiwa_ident.model import Source
 
     runs = _runs(ctx)
@@ -215,10 +215,8 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
         except IiwaIdentError as err:
             # Rough K and Jl do for the ripple search; the diagnosis refuses to judge a joint by another's model.
             model, ctx.results["start_problem"] = dataset_model(runs, borrow=True), str(err)
-    r = identify_ripple(runs, K=model.value("K"), Jl=model.value("Jl"))
-    model.ripple = r.table()
-    model.sources = [x for x in model.sources if x.role != "ripple"] + [
-        Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "ripple") for ds in runs]
+    model, r = ripple_model(model, runs, [Source(f"{RUNS_DIR}/{ds.path.name}", sha256_file(ds.path), "ripple")
+                                          for ds in runs])
     # The starting model with the table: what the diagnosis starts from (a fit replaces model_ripple later).
     write_model(ctx.path("model_start"), model)
     write_model(ctx.path("model_ripple"), model)
