@@ -13,7 +13,22 @@ import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["TableReader"]
+__all__ = ["TableReader", "check_format"]
+
+
+def check_format(data: dict[str, Any], where: str, name: str, version: int, error: type[IiwaIdentError],
+                 required: bool = True) -> None:
+    """Refuse a file whose ``format`` is not ``name`` or whose ``format_version`` is not ``version``.
+
+    ``required=False`` accepts a file that states neither (a hand-written plant file, say).
+    """
+    fmt = data.get("format", None if required else name)
+    if fmt != name:
+        raise error(f"{where}format: expected {name!r}, got {data.get('format')!r}")
+    got = data.get("format_version", None if required else version)
+    if got != version:
+        raise error(f"{where}format_version: unsupported version {data.get('format_version')!r} "
+                    f"(this tool reads {version})")
 
 
 class TableReader:
@@ -35,6 +50,10 @@ class TableReader:
 
     def fail(self, key: str, msg: str) -> IiwaIdentError:
         return self.error(f"{self.where}{key}: {msg}")
+
+    def check_format(self, name: str, version: int) -> None:
+        """:func:`check_format` of the whole mapping."""
+        check_format(self.data, self.where, name, version, self.error)
 
     def get(self, key: str, required: bool = True) -> Any:
         node: Any = self.data

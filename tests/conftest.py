@@ -13,6 +13,17 @@ REPO = Path(__file__).resolve().parents[1]
 REAL_LOGS = REPO.parent / "shared" / "data" / "real" / "iiwa14-constant-velocity"
 
 
+def real_constant_velocity(joint: int, run: str = "vel_p3"):
+    """One constant-velocity run of the real iiwa 14 logs as a dataset (skips where the logs are absent)."""
+    from iiwa_ident.datasets import import_columns
+
+    d = REAL_LOGS / f"joint{joint}" / run
+    if not d.exists():
+        pytest.skip(f"real iiwa 14 logs not found at {d}")
+    return import_columns({"t": d / "cur_traj_time_s.txt", "q_m": d / "joint_position_measured.txt",
+                           "tau_j": d / "joint_torque_measured.txt"}, joint=joint, experiment="constant_velocity")
+
+
 def quiet(plant: Plant) -> Plant:
     """The plant without sensor noise and encoder quantisation."""
     plant.sensors.update(tau_noise_nm=0.0, ft_noise_nm=0.0, link_encoder_noise_rad=0.0, encoder_tick_rad=0.0)

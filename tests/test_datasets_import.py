@@ -143,31 +143,27 @@ class TestImportColumns:
             import_columns(files, joint=1, experiment="free")
         one_line(excinfo, f"{tmp_path / 'nope.txt'}: file not found")
 
-    def test_unparsable_number_names_file_and_line(self, column_files):
-        files, _, _ = column_files
-        lines = files["q_m"].read_text().splitlines()
-        lines[4] = lines[4].replace("4", "4x", 1)
-        files["q_m"].write_text("\n".join(lines) + "\n")
-        with pytest.raises(DatasetError) as excinfo:
-            import_columns(files, joint=1, experiment="free")
-        one_line(excinfo, str(files["q_m"]), "line 5", "cannot parse")
+    @staticmethod
+    def _edit_line(path, index: int, edit) -> None:
+        lines = path.read_text().splitlines()
+        lines[index] = edit(lines[index])
+        path.write_text("\n".join(lines) + "\n")
 
-    def test_ragged_row(self, column_files):
+    @pytest.mark.parametrize("signal, line, edit, message", [
+        ("q_m", 4, lambda text: text.replace("4", "4x", 1), "cannot parse"),  # an unparsable number
+        ("tau_j", N, None, "expected 7 columns, found 3"),  # a ragged row appended
+        ("tau_j", 2, lambda text: "\t".join(["nan"] * 7), "non-finite"),
+    ])
+    def test_bad_number_or_row_names_file_and_line(self, column_files, signal, line, edit, message):
         files, _, _ = column_files
-        with files["tau_j"].open("a") as fh:
-            fh.write("1 2 3\n")
+        if edit is None:
+            with files[signal].open("a") as fh:
+                fh.write("1 2 3\n")
+        else:
+            self._edit_line(files[signal], line, edit)
         with pytest.raises(DatasetError) as excinfo:
             import_columns(files, joint=1, experiment="free")
-        one_line(excinfo, str(files["tau_j"]), f"line {N + 1}", "expected 7 columns, found 3")
-
-    def test_nan_in_file(self, column_files):
-        files, _, _ = column_files
-        lines = files["tau_j"].read_text().splitlines()
-        lines[2] = "\t".join(["nan"] * 7)
-        files["tau_j"].write_text("\n".join(lines) + "\n")
-        with pytest.raises(DatasetError) as excinfo:
-            import_columns(files, joint=1, experiment="free")
-        one_line(excinfo, str(files["tau_j"]), "line 3", "non-finite")
+        one_line(excinfo, str(files[signal]), f"line {line + 1}", message)
 
     def test_column_out_of_range(self, column_files):
         files, _, _ = column_files
@@ -182,19 +178,17 @@ class TestImportColumns:
             import_columns(files, joint=1, experiment="free")
         one_line(excinfo, "unequal length", f"has {N - 2} rows", "vel.txt")
 
-    def test_unknown_signal(self, column_files):
+    @pytest.mark.parametrize("rename, message", [(("tau_j", "torque"), "unknown signal 'torque'"),
+                                                 (("tau_j", None), "missing required signal 'tau_j'")])
+    def test_unknown_or_missing_signal(self, column_files, rename, message):
         files, _, _ = column_files
-        files["torque"] = files["tau_j"]
+        old, new = rename
+        path = files.pop(old)
+        if new is not None:
+            files[new] = path
         with pytest.raises(DatasetError) as excinfo:
             import_columns(files, joint=1, experiment="free")
-        one_line(excinfo, "unknown signal 'torque'")
-
-    def test_missing_required_signal(self, column_files):
-        files, _, _ = column_files
-        del files["tau_j"]
-        with pytest.raises(DatasetError) as excinfo:
-            import_columns(files, joint=1, experiment="free")
-        one_line(excinfo, "missing required signal 'tau_j'")
+        one_line(excinfo, message)
 
     def test_no_time_and_no_rate(self, column_files):
         files, _, _ = column_files

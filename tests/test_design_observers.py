@@ -7,17 +7,9 @@ import pytest
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.design import FilterSettings
-from iiwa_ident.design.observers import (
-    OBSERVERS,
-    BuiltinObserver,
-    FilteredObserver,
-    LinkVelocityObserver,
-    compare_observers,
-    link_speed,
-    make_observer,
-    observer_lag,
-    run_observers,
-)
+from iiwa_ident.design.observers import (OBSERVERS, BuiltinObserver, FilteredObserver, LinkVelocityObserver,
+                                         compare_observers, link_speed, make_observer, observer_lag,
+                                         run_observers)
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
 from iiwa_ident.model import RippleTable, table1_model

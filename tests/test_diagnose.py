@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from conftest import REAL_LOGS
+from conftest import real_constant_velocity
 from iiwa_ident.cli import app
-from iiwa_ident.datasets import import_columns, write_dataset
+from iiwa_ident.datasets import write_dataset
 from iiwa_ident.diagnose import CANDIDATES, CandidateEffect, build_context, diagnose, residual_rms
 from iiwa_ident.diagnose.benchmark import Case, case_model, score_case, simulate_case
 from iiwa_ident.errors import IiwaIdentError
@@ -47,12 +47,6 @@ def _named(d) -> dict:
     return {e.name: e.parameters for e in d.effects}
 
 
-def _real(joint: int):
-    d = REAL_LOGS / f"joint{joint}" / "vel_p3"
-    if not d.exists():
-        pytest.skip(f"real iiwa 14 logs not found at {d}")
-    return import_columns({"t": d / "cur_traj_time_s.txt", "q_m": d / "joint_position_measured.txt",
-                           "tau_j": d / "joint_torque_measured.txt"}, joint=joint, experiment="constant_velocity")
 
 
 class TestPrediction:
@@ -200,11 +194,11 @@ class TestExtendedModel:
 class TestRealLogs:
     def test_a_model_of_another_joint_is_refused(self):
         with pytest.raises(IiwaIdentError, match="a model of joint 1 on data of joint 2"):
-            diagnose([_real(2)], table1_model())
+            diagnose([real_constant_velocity(2)], table1_model())
 
     def test_joint2_ripple_named_with_the_papers_period(self):
         # 200 Hz, position-controlled, gravity and friction present, the description's starting model.
-        d = diagnose([_real(2)], dataset_model([_real(2)]))
+        d = diagnose([real_constant_velocity(2)], dataset_model([real_constant_velocity(2)]))
         ripple = d.effect("transmission_ripple")
         assert ripple is not None
         assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3
@@ -215,7 +209,7 @@ class TestRealLogs:
     def test_joint4_ripple_named_on_its_deflection_evidence(self):
         # Position-controlled: the ripple's torque signature is hundredths of a Nm (too small for the torque
         # channels to name it), its deflection in q_m is plain; the candidate's own evidence channel names it.
-        d = diagnose([_real(4)], dataset_model([_real(4)]))
+        d = diagnose([real_constant_velocity(4)], dataset_model([real_constant_velocity(4)]))
         ripple = d.effect("transmission_ripple")
         assert ripple is not None
         assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3

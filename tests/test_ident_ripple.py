@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from conftest import REAL_LOGS
+from conftest import real_constant_velocity
 from iiwa_ident.cli import app
 from iiwa_ident.cli.ripple_cmd import format_ripple
-from iiwa_ident.datasets import Dataset, import_columns, write_dataset
+from iiwa_ident.datasets import Dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record
 from iiwa_ident.ident import read_model
@@ -330,19 +330,13 @@ def test_a_clean_line_is_not_taken_for_its_chunk_neighbour(span, speed):
     assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 1e-3, (span, speed, r.cycles_per_rev)
 
 
-def _real(joint: int) -> Dataset:
-    d = REAL_LOGS / f"joint{joint}" / "vel_p3"
-    if not d.exists():
-        pytest.skip(f"real iiwa 14 logs not found at {d}")
-    return import_columns({"t": d / "cur_traj_time_s.txt", "q_m": d / "joint_position_measured.txt",
-                           "tau_j": d / "joint_torque_measured.txt"}, joint=joint, experiment="constant_velocity")
 
 
 class TestRealLogs:
     @pytest.mark.parametrize("joint", [2, 4])
     def test_finds_the_papers_period(self, joint):
         # 200 Hz, position-controlled, no torque command; ripple of hundredths of a Nm.
-        r = identify_ripple([_real(joint)])
+        r = identify_ripple([real_constant_velocity(joint)])
         assert r.detected
         assert abs(r.period_rad / PAPER_RHO - 1) < 2e-3
         assert abs(r.period_ticks - 327680) < 700

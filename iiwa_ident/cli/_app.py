@@ -12,7 +12,7 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["app", "fail", "json_text", "write_json", "parse_pose"]
+__all__ = ["app", "fail", "json_text", "write_json", "parse_pose", "json_option", "figures_option"]
 
 class _BracketsAsWritten(typer.core.TyperCommand):
     """A command whose help shows square brackets as written.
@@ -86,6 +86,16 @@ def _main(
     from iiwa_ident.cli._progress import set_quiet
 
     set_quiet(quiet)
+
+
+def json_option(what: str):
+    """The ``--json OUT`` option of a command: write ``what`` as JSON."""
+    return typer.Option("--json", help=f"Write {what} as JSON.")
+
+
+def figures_option(what: str = "PNG figures"):
+    """The ``--figures DIR`` option of a command: a folder for ``what``."""
+    return typer.Option("--figures", help=f"Folder for {what}.")
 
 
 def fail(message: str, code: int = 2) -> "typer.Exit":

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, write_json, json_option
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
@@ -39,7 +39,7 @@ def compare_cmd(
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file (from fit, ripple, diagnose or model; "
                                                   "default: the joint's starting model from the robot's "
                                                   "description at the datasets' pose).")] = None,
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the comparison as JSON.")] = None,
+    json_out: Annotated[Optional[Path], json_option("the comparison")] = None,
     figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for one PNG per dataset and "
                                                     "channel: measured and predicted, and the residual's "
                                                     "correlations with their bounds.")] = None,

@@ -8,7 +8,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, write_json, json_option
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
@@ -55,7 +55,7 @@ def _positive(value: float | None, option: str) -> None:
 def deploy_cmd(
     design: Annotated[Path, typer.Option("--design", help="Design TOML file (from 'iiwa-ident design').")],
     out: Annotated[Path, typer.Option("--out", help="Controller config TOML file to write.")],
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write a summary as JSON.")] = None,
+    json_out: Annotated[Optional[Path], json_option("a summary")] = None,
     torque_limit: Annotated[Optional[float], typer.Option("--torque-limit", help="Torque clamp [Nm] "
                                                           "(default: data sheet; may only be tighter).")] = None,
     rate_limit: Annotated[Optional[float], typer.Option("--rate-limit", help="Torque-rate clamp [Nm/s] "

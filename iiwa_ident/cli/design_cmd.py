@@ -8,7 +8,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, write_json, json_option
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, DESIGN_BETA, FEEDFORWARD_MODES
 
@@ -98,7 +98,7 @@ def design_cmd(
                                        "use the = form: --poles=-180+30j,-180-30j,-500+1j,-500-1j")] = "",
     observer_poles: Annotated[str, typer.Option("--observer-poles", help="4 observer poles [rad/s] "
                                                 "(default -620,-630,-1000,-1010).")] = "",
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the key numbers as JSON.")] = None,
+    json_out: Annotated[Optional[Path], json_option("the key numbers")] = None,
     paper: Annotated[bool, typer.Option("--paper", help="Also print the reproduction of the paper's section V "
                                         "numbers (Table I model, paper's poles).")] = False,
     feedforward: Annotated[str, typer.Option("--feedforward", help="How Kr and eq (22) combine: "

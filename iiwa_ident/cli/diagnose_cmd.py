@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, write_json, json_option, figures_option
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
@@ -21,8 +21,8 @@ def diagnose_cmd(
                                                                   "default: the joint's starting model from the "
                                                                   "robot's description at the datasets' pose).")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Extended model file to write.")] = None,
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the diagnosis as JSON.")] = None,
-    figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for PNG figures.")] = None,
+    json_out: Annotated[Optional[Path], json_option("the diagnosis")] = None,
+    figures: Annotated[Optional[Path], figures_option()] = None,
 ) -> None:
     """Compare the model with measurements, name the effects it misses, extend it and measure the gain.
 

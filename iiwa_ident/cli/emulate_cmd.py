@@ -9,7 +9,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 import typer
 
 from iiwa_ident._realtime import stop_signals
-from iiwa_ident.cli._app import app, fail, parse_pose, write_json
+from iiwa_ident.cli._app import app, fail, parse_pose, write_json, json_option
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
@@ -149,7 +149,7 @@ def emulate_cmd(
                                                    "simulated signal and the plant truth) here.")] = None,
     max_time: Annotated[Optional[float], typer.Option("--max-time", help="Stop after this many seconds of wall "
                                                       "time, whatever the session state.")] = None,
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the run report as JSON.")] = None,
+    json_out: Annotated[Optional[Path], json_option("the run report")] = None,
     lockstep: Annotated[bool, typer.Option("--lockstep", help="Wait for each answer, on a virtual clock: "
                                            "repeatable runs whatever the machine's load (no latency is "
                                            "measured).")] = False,

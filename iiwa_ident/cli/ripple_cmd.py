@@ -8,7 +8,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, write_json, json_option, figures_option
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD
@@ -92,8 +92,8 @@ def ripple_cmd(
                                                                   "starting model from the robot's description at "
                                                                   "the datasets' pose, else Table I borrowed).")] = None,
     out: Annotated[Optional[Path], typer.Option("--out", help="Model file to write, with the ripple table.")] = None,
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Write the result as JSON.")] = None,
-    figures: Annotated[Optional[Path], typer.Option("--figures", help="Folder for PNG figures.")] = None,
+    json_out: Annotated[Optional[Path], json_option("the result")] = None,
+    figures: Annotated[Optional[Path], figures_option()] = None,
     bins: Annotated[int, typer.Option("--bins", help="Lookup-table size.")] = 256,
     period_min: Annotated[float, typer.Option("--period-min", help="Shortest period searched [rad].",
                                               show_default=f"{PERIOD_MIN_RAD:.4g} rad, "

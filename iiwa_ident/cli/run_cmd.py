@@ -7,7 +7,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json
+from iiwa_ident.cli._app import app, fail, write_json, json_option
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident._defaults import DEFAULT_PORT, TASKS
 
@@ -73,7 +73,7 @@ def run_cmd(
     cpu: Annotated[Optional[int], typer.Option("--cpu", help="--realtime: CPU to pin the loop to (default: the "
                                                "highest one allowed).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="--target sim: seed of the sensor noise.")] = 0,
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the run report as JSON.")] = None,
+    json_out: Annotated[Optional[Path], json_option("the run report")] = None,
 ) -> None:
     """Execute a deployed controller at 1 kHz: eq (9) correction, spatial filter, improved observer,
     additive controller, task reference and limits, every cycle, with a watchdog and a log.

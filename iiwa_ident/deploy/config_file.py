@@ -95,16 +95,8 @@ import numpy as np
 
 from iiwa_ident._json import finite_or_none
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
-from iiwa_ident.deploy.checks import (
-    Check,
-    ControllerLimits,
-    DeployError,
-    check_design,
-    default_rate_limit,
-    default_reference_rate,
-    failed_checks,
-    reference_limit,
-)
+from iiwa_ident.deploy.checks import (Check, ControllerLimits, DeployError, check_design, default_rate_limit,
+                                     default_reference_rate, failed_checks, reference_limit)
 from iiwa_ident.design import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
 from iiwa_ident.design import DesignRecord, FilterSettings
 from iiwa_ident._schema import TableReader
@@ -396,10 +388,7 @@ def _check_keys(r: _Reader) -> None:
 def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
     """Validate a config mapping (format, keys, types, shapes, values, content hash) and build it."""
     r = _Reader(data, where)
-    if data.get("format") != CONFIG_FORMAT:
-        raise r.fail("format", f"expected {CONFIG_FORMAT!r}, got {data.get('format')!r}")
-    if data.get("format_version") != CONFIG_FORMAT_VERSION:
-        raise r.fail("format_version", f"unsupported version {data.get('format_version')!r} (this tool reads 1)")
+    r.check_format(CONFIG_FORMAT, CONFIG_FORMAT_VERSION)
     _check_keys(r)
     sha = r.sha("sha256")
     if content_sha256(data) != sha:

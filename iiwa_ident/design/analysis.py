@@ -582,10 +582,8 @@ def sine_tracking(controller: TorqueControl, plant: Plant | None = None, amplitu
 
     Parameters
     ----------
-    controller : TorqueControl
-        Built-in or additive.
-    plant : Plant, optional
-        Simulated plant (default plant, ripple on).
+    controller, plant
+        As for :func:`step_response`.
     amplitude_nm, frequency_hz : float
         Amplitude [Nm] and frequency [Hz] (paper: 5 Nm at 0.25 Hz, 15 Nm at 25 Hz).
     duration_s : float, optional

@@ -290,10 +290,7 @@ def _char_poly_close(M: np.ndarray, roots: np.ndarray, rtol: float) -> bool:
 def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
     """Validate a design-file mapping and build the :class:`DesignRecord`."""
     r = _Reader(data, where)
-    if data.get("format") != DESIGN_FORMAT:
-        raise r.fail("format", f"expected {DESIGN_FORMAT!r}, got {data.get('format')!r}")
-    if data.get("format_version") != DESIGN_FORMAT_VERSION:
-        raise r.fail("format_version", f"unsupported version {data.get('format_version')!r} (this tool reads 1)")
+    r.check_format(DESIGN_FORMAT, DESIGN_FORMAT_VERSION)
     _check_tables(r)
     T = r.number("sample_time_s", positive=True)
     mode = r.string("feedforward")

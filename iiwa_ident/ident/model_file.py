@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from iiwa_ident._schema import check_format
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.model import (
     MODEL_FORMAT,
@@ -45,10 +46,7 @@ def _number(where: str, value: Any) -> float:
 
 def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     """Validate a model-file mapping and build the :class:`JointModel`."""
-    if data.get("format") != MODEL_FORMAT:
-        raise ModelError(f"{where}format: expected {MODEL_FORMAT!r}, got {data.get('format')!r}")
-    if data.get("format_version") != MODEL_FORMAT_VERSION:
-        raise ModelError(f"{where}format_version: unsupported version {data.get('format_version')!r} (this tool reads 1)")
+    check_format(data, where, MODEL_FORMAT, MODEL_FORMAT_VERSION, ModelError)
     known = {"format", "format_version", "tool_version", "created_utc", "joint", "robot_model", "description",
              "parameters", "correlation", "ripple", "fit", "sources", "effects", "pose_rad"}
     for key in data:

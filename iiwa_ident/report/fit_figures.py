@@ -102,14 +102,7 @@ def bode_figure(result: FitResult, index: int = 0) -> Figure:
 
 
 def harmonics_figure(result: FitResult, index: int = 0) -> Figure | None:
-    """Harmonic responses of the sweep and the nonlinear share per octave band.
-
-    Parameters
-    ----------
-    result : FitResult
-        The fit.
-    index : int
-        Which dataset of the fit to show.
+    """Harmonic responses of the sweep and the nonlinear share per octave band (arguments as :func:`bode_figure`).
 
     Returns
     -------

@@ -20,6 +20,13 @@ def _notice(fig: plt.Figure, ax: plt.Axes, text: str) -> plt.Figure:
     return fig
 
 
+def _captioned(fig: plt.Figure, caption: str, bottom: float) -> plt.Figure:
+    """The figure with what to look for written below its axes (``bottom``: the caption's share of the height)."""
+    fig.text(0.01, 0.01, caption, fontsize=8)
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    return fig
+
+
 def spatial_spectrum_figure(result: RippleResult) -> plt.Figure:
     """Consistency (Hotelling T^2) and power of the deflection against the period, with the detected period."""
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
@@ -37,10 +44,8 @@ def spatial_spectrum_figure(result: RippleResult) -> plt.Figure:
     ax2.legend(loc="upper right")
     verdict = "detected" if result.detected else "none found"
     ax1.set_title(f"Spatial spectrum of the deflection ({verdict}, false-alarm probability {result.false_alarm:.1e})")
-    fig.text(0.01, 0.01, "Look for one sharp line standing above a flat floor; a position-periodic deflection is "
-             "phase-locked in every pass, noise is not.", fontsize=8)
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    return fig
+    return _captioned(fig, "Look for one sharp line standing above a flat floor; a position-periodic deflection is "
+                      "phase-locked in every pass, noise is not.", 0.03)
 
 
 def lookup_table_figure(result: RippleResult) -> plt.Figure:
@@ -71,10 +76,8 @@ def lookup_table_figure(result: RippleResult) -> plt.Figure:
     ax.set_ylabel("θm − θj [µrad]")
     ax.set_title(f"Transmission deflection f(θm mod ρ), ρ = {rho:.5f} rad")
     ax.legend(loc="upper right", fontsize=8)
-    fig.text(0.01, 0.01, "Dots: deflection folded modulo ρ, bin means; lines: lookup tables. "
-             "The methods should agree in shape and phase.", fontsize=8)
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
-    return fig
+    return _captioned(fig, "Dots: deflection folded modulo ρ, bin means; lines: lookup tables. "
+                      "The methods should agree in shape and phase.", 0.04)
 
 
 def velocity_frequency_figure(result: RippleResult) -> plt.Figure:

@@ -33,6 +33,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from iiwa_ident._schema import check_format
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
 from iiwa_ident.errors import PlantError
 from iiwa_ident.model import JOINT_PARAMETERS, OBSERVER_GAIN, JointModel, Param
@@ -181,10 +182,7 @@ def plant_from_dict(data: dict[str, Any], where: str = "") -> Plant:
     for key in data:
         if key not in top:
             raise PlantError(f"{where}{key}: unknown key (known: {', '.join(sorted(top))})")
-    if data.get("format", PLANT_FORMAT) != PLANT_FORMAT:
-        raise PlantError(f"{where}format: expected {PLANT_FORMAT!r}, got {data.get('format')!r}")
-    if data.get("format_version", PLANT_FORMAT_VERSION) != PLANT_FORMAT_VERSION:
-        raise PlantError(f"{where}format_version: unsupported version {data.get('format_version')!r} (this tool reads 1)")
+    check_format(data, where, PLANT_FORMAT, PLANT_FORMAT_VERSION, PlantError, required=False)
     robot = data.get("robot", {})
     if not isinstance(robot, dict):
         raise PlantError(f"{where}robot: expected a table")
