@@ -165,13 +165,28 @@ def builtin_poles(params: JointParameters) -> np.ndarray:
 
     About ``-26.7 +- 143.4j`` for Table I (the paper quotes -27.5 +- 143i).
     The pair with positive imaginary part comes first.
+
+    Examples
+    --------
+    >>> from iiwa_ident.design import table1_parameters
+    >>> p = builtin_poles(table1_parameters()[0])[0]
+    >>> round(float(p.real), 1), round(float(p.imag), 1)
+    (-26.7, 143.4)
+    >>> [round(float(x), 2) for x in natural_frequency_damping(p)]  # Hz, damping ratio
+    [23.21, 0.18]
     """
     r = np.roots([params.Jc * params.Jl, params.Jl * params.bc, (params.Jc + params.Jl) * params.K])
     return np.array(sorted(r.astype(complex), key=lambda z: (-z.imag, z.real)))
 
 
 def natural_frequency_damping(pole: complex) -> tuple[float, float]:
-    """Natural frequency [Hz] and damping ratio of a continuous pole [rad/s]."""
+    """Natural frequency [Hz] and damping ratio of a continuous pole [rad/s].
+
+    Examples
+    --------
+    >>> [round(x, 3) for x in natural_frequency_damping(-3 + 4j)]
+    [0.796, 0.6]
+    """
     wn = abs(pole)
     return wn / (2 * math.pi), (-pole.real / wn if wn > 0 else 1.0)
 

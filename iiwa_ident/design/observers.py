@@ -257,6 +257,11 @@ def observer_lag(tau: np.ndarray, KI: float, dt: float) -> np.ndarray:
     :class:`~iiwa_ident.model.MomentumObserver` reduces to
     ``tau_hat_{k+1} = tau_hat_k + KI dt (tau_k - tau_hat_k)``, ``tau_hat_0 = 0``:
     a first-order lag of time constant ``1 / KI`` [s].
+
+    Examples
+    --------
+    >>> [round(float(x), 4) for x in observer_lag(np.ones(4), KI=25.0, dt=1e-3)]  # a 1 Nm step
+    [0.0, 0.025, 0.0494, 0.0731]
     """
     a = KI * dt
     return lfilter([0.0, a], [1.0, -(1.0 - a)], np.asarray(tau, float))

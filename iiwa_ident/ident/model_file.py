@@ -45,7 +45,18 @@ def _number(where: str, value: Any) -> float:
 
 
 def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
-    """Validate a model-file mapping and build the :class:`JointModel`."""
+    """Validate a model-file mapping and build the :class:`JointModel`; errors name ``where`` and the key.
+
+    Examples
+    --------
+    >>> from iiwa_ident.model import table1_model
+    >>> data = table1_model().to_dict()
+    >>> data["parameters"]["K"]["value"] = -1.0
+    >>> model_from_dict(data, "m.toml: ")
+    Traceback (most recent call last):
+    ...
+    iiwa_ident.model._joint_model.ModelError: m.toml: parameters.K.value: must be positive, got -1
+    """
     check_format(data, where, MODEL_FORMAT, MODEL_FORMAT_VERSION, ModelError)
     known = {"format", "format_version", "tool_version", "created_utc", "joint", "robot_model", "description",
              "parameters", "correlation", "ripple", "fit", "sources", "effects", "pose_rad"}
@@ -147,7 +158,17 @@ def read_model(path: str | os.PathLike) -> JointModel:
 
 
 def write_model(path: str | os.PathLike, model: JointModel) -> Path:
-    """Write ``model`` atomically (validated by reading back what is written)."""
+    """Write ``model`` atomically (validated by reading back what is written).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from iiwa_ident.model import table1_model
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = write_model(Path(tmp) / "model.toml", table1_model())
+    ...     read_model(path).value("K")
+    18500.0
+    """
     data = model.to_dict()
     text = dumps_toml(data)
     import tomllib

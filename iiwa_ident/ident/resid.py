@@ -154,6 +154,18 @@ def residual_tests(residual: np.ndarray, u: np.ndarray | None = None, max_lag: i
     ------
     ValueError
         Fewer than ``4 max_lag`` samples, or ``u`` of another length.
+
+    Examples
+    --------
+    A residual that still holds the input three samples late fails independence at lag 3:
+
+    >>> rng = np.random.default_rng(0)
+    >>> u, e = rng.normal(size=4000), rng.normal(size=4000)
+    >>> [t.passed for t in residual_tests(e, u).tests]
+    [True, True]
+    >>> late = residual_tests(e + 0.5 * np.roll(u, 3), u).tests[1]
+    >>> late.passed, late.failing
+    (False, [3])
     """
     e = np.asarray(residual, float)
     e = e - e.mean()

@@ -19,6 +19,14 @@ def joint_position(q_m: np.ndarray | float, table: RippleTable | None) -> np.nda
     """Joint position theta_j [rad] from the motor-side position q_m [rad], eq (8).
 
     Without a table (no nonlinearity identified) theta_j = q_m.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from iiwa_ident.model import RippleTable
+    >>> table = RippleTable(0.02, np.array([0.0, 1e-5, 0.0, -1e-5]))  # f = 10 urad a quarter period in
+    >>> round(float(joint_position(0.005, table)), 9), joint_position(0.005, None)
+    (0.00499, 0.005)
     """
     if table is None:
         return q_m
@@ -27,5 +35,11 @@ def joint_position(q_m: np.ndarray | float, table: RippleTable | None) -> np.nda
 
 def link_position(q_m: np.ndarray | float, tau_j: np.ndarray | float, K: float,
                   table: RippleTable | None) -> np.ndarray | float:
-    """Link position theta_l [rad] from q_m [rad], the joint torque tau_j [Nm] and K [Nm/rad], eq (9)."""
+    """Link position theta_l [rad] from q_m [rad], the joint torque tau_j [Nm] and K [Nm/rad], eq (9).
+
+    Examples
+    --------
+    >>> round(link_position(0.1, 18.5, 18500.0, None), 6)  # 18.5 Nm twist the spring by 1 mrad
+    0.099
+    """
     return joint_position(q_m, table) - tau_j / K

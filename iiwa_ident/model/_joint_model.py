@@ -183,7 +183,15 @@ def _finite(where: str, value: Any, error: type[IiwaIdentError]) -> float:
 
 def ripple_period(table: RippleTable | None) -> float:
     """The ripple's period [rad]: the table's, or the paper's rho where there is no table (a design or filter
-    on a model without an identified ripple)."""
+    on a model without an identified ripple).
+
+    Examples
+    --------
+    >>> ripple_period(None)
+    0.01963
+    >>> ripple_period(RippleTable(0.0196, np.zeros(8)))
+    0.0196
+    """
     return table.period_rad if table is not None else RIPPLE_PERIOD_RAD
 
 
@@ -255,7 +263,14 @@ class JointModel:
 
 
 def table1_model() -> JointModel:
-    """The paper's Table I with Td = 5 ms and K_I = 25 rad/s (no uncertainties)."""
+    """The paper's Table I with Td = 5 ms and K_I = 25 rad/s (no uncertainties).
+
+    Examples
+    --------
+    >>> m = table1_model()
+    >>> m.robot_model, m.joint, m.value("K"), m.value("Td")
+    ('iiwa14', 1, 18500.0, 0.005)
+    """
     values = {p.name: p.default for p in (*JOINT_PARAMETERS, OBSERVER_GAIN)}  # Table I's defaults
     return JointModel(
         parameters={k: Parameter(v, None, PARAMETER_UNITS[k]) for k, v in values.items()},
