@@ -107,16 +107,35 @@ def import_cmd(
     ] = None,
     split_runs: Annotated[
         bool,
-        typer.Option("--split-runs", help="The log holds several runs (its time restarts): write one dataset "
-                                          "per run, named like --out with _run1, _run2, ... before the suffix."),
+        typer.Option("--split-runs", help="The log holds several runs (its time restarts; --rosbag: each stretch "
+                                          "of COMMANDING_ACTIVE): write one dataset per run, named like --out with "
+                                          "_run1, _run2, ... before the suffix."),
     ] = False,
+    rosbag: Annotated[
+        Optional[Path], typer.Option("--rosbag", metavar="BAG", help="ROS 2 bag of lbr_fri_ros2_stack (LBRState or "
+                                                                     "JointState; sqlite3 or MCAP).")
+    ] = None,
+    topic: Annotated[
+        Optional[str], typer.Option("--topic", help="--rosbag: the topic (default: the LBRState one, else "
+                                                    "JointState).")
+    ] = None,
+    lcm_log: Annotated[
+        Optional[Path], typer.Option("--lcm", metavar="LOG", help="LCM event log of Drake's iiwa driver "
+                                                                  "(lcmt_iiwa_status messages).")
+    ] = None,
+    channel: Annotated[
+        str, typer.Option("--channel", help="--lcm: the status channel.")
+    ] = "IIWA_STATUS",
 ) -> None:
     r"""Convert a recorded log into an iiwa-ident dataset file.
 
     Signals and units: t (s), q_m (rad), tau_j (Nm) are required (t may be
     replaced by --rate); optional tau_c, tau_ext_fri, tau_ext_ref (Nm),
     q_l_ref, q_cmd (rad), dq_m (rad/s). Give either --columns files (one row
-    per sample, one column per joint) or --csv with --map.
+    per sample, one column per joint), --csv with --map, or a message log:
+    --rosbag (lbr_fri_ros2_stack's LBRState or JointState) or --lcm (Drake's
+    lcmt_iiwa_status). Message logs are taken down to 50 Hz, with a warning
+    of what a rate below the robot's cycle cannot give.
 
     Example, a joint-2 constant-velocity log as common iiwa drivers export it
     (position-controlled, 200 Hz, so no tau_c):
@@ -130,6 +149,15 @@ def import_cmd(
           --columns dq_m=$D/joint_velocity_measured.txt \
           --out runs/j2_vel_p3.h5
 
+    lbr_fri_ros2_stack, recorded with ros2 bag record /lbr/state; --split-runs
+    writes one dataset per stretch in which the session was COMMANDING_ACTIVE:
+
+        iiwa-ident import --joint 2 --experiment constant_velocity --rosbag rosbag2_2026_11_26 --out j2.h5
+
+    Drake's driver, logged with lcm-logger:
+
+        iiwa-ident import --joint 2 --experiment constant_velocity --lcm lcmlog-2026-11-26.00 --out j2.h5
+
     A log whose time restarts holds several runs; --split-runs writes
     runs/j2_run1.h5, runs/j2_run2.h5, ...:
 
@@ -137,15 +165,33 @@ def import_cmd(
           --csv log.csv --map t=time --map q_m=q2 --map tau_j=tau2 \
           --split-runs --out runs/j2.h5
     """
-    from iiwa_ident.datasets import dataset_pose, import_columns, import_csv, note_warnings, write_dataset
+    from iiwa_ident.datasets import (dataset_pose, import_columns, import_csv, import_lcm, import_rosbag,
+                                     note_warnings, write_dataset)
 
     try:
         column_files = parse_pairs(columns, "--columns", "FILE")
         csv_map = parse_pairs(mapping, "--map", "COLUMN")
         factors = _parse_scale(scale)
-        if column_files and csv_file is not None:
-            raise IiwaIdentError("give either --columns or --csv, not both")
-        if csv_file is not None:
+        given = [name for name, v in (("--columns", column_files), ("--csv", csv_file), ("--rosbag", rosbag),
+                                      ("--lcm", lcm_log)) if v]
+        if len(given) > 1:
+            raise IiwaIdentError(f"give one of --columns, --csv, --rosbag or --lcm: {' and '.join(given)} given, not "
+                                 f"{'both' if len(given) == 2 else 'all'}")
+        log = rosbag or lcm_log
+        if log is not None:
+            option = "--rosbag" if rosbag is not None else "--lcm"
+            for value, other in ((csv_map, "--map"), (column, "--column"), (rate, "--rate"), (scale, "--scale"),
+                                 (split_runs and lcm_log is not None, "--split-runs"),
+                                 (topic and lcm_log is not None, "--topic")):
+                if value:
+                    raise IiwaIdentError(f"{other} does not apply to {option} (the messages carry time and units)")
+            if rosbag is not None:
+                datasets = import_rosbag(rosbag, joint=joint, experiment=experiment, topic=topic,
+                                         split_runs=split_runs, robot_model=robot)
+            else:
+                datasets = import_lcm(lcm_log, joint=joint, experiment=experiment, channel=channel,
+                                      robot_model=robot)
+        elif csv_file is not None:
             if not csv_map:
                 raise IiwaIdentError("--csv needs at least one --map SIGNAL=COLUMN")
             if column is not None:
@@ -163,7 +209,8 @@ def import_cmd(
                 column=column, scale=factors, split_runs=split_runs, robot_model=robot,
             )
         else:
-            raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE or --csv FILE --map SIGNAL=COLUMN")
+            raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE, --csv FILE --map SIGNAL=COLUMN, "
+                                 "--rosbag BAG or --lcm LOG")
         if not split_runs:
             datasets = [datasets]
             targets = [out]

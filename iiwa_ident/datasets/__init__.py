@@ -19,7 +19,10 @@ from iiwa_ident.datasets._format import (
     validate_dataset,
     write_dataset,
 )
-from iiwa_ident.datasets._import import MAX_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv, moving_joint_problem
+from iiwa_ident.datasets._import import (MAX_RATE_HZ, MIN_MESSAGE_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv,
+                                        moving_joint_problem)
+from iiwa_ident.datasets._lcmlog import IIWA_STATUS_CHANNEL, decode_iiwa_status, import_lcm, lcm_fingerprint
+from iiwa_ident.datasets._rosbag import LBR_STATE_MSG, LBR_STATE_TYPES, import_rosbag, ros_typestore
 from iiwa_ident.datasets._info import dataset_info, format_info
 from iiwa_ident.datasets._provenance import (
     IMPORT_WARNINGS_ATTR,
@@ -27,6 +30,7 @@ from iiwa_ident.datasets._provenance import (
     band_limited_problem,
     dataset_warnings,
     joint_velocity,
+    low_rate_problem,
     note_warnings,
     substituted_position_problem,
     time_gaps_problem,
@@ -44,6 +48,7 @@ __all__ = [
     "SOURCES",
     "MIN_RATE_HZ",
     "MAX_RATE_HZ",
+    "MIN_MESSAGE_RATE_HZ",
     "Dataset",
     "dataset_pose",
     "read_dataset",
@@ -53,6 +58,14 @@ __all__ = [
     "write_dataset",
     "import_columns",
     "import_csv",
+    "import_lcm",
+    "import_rosbag",
+    "ros_typestore",
+    "LBR_STATE_MSG",
+    "LBR_STATE_TYPES",
+    "IIWA_STATUS_CHANNEL",
+    "decode_iiwa_status",
+    "lcm_fingerprint",
     "moving_joint_problem",
     "LogWriter",
     "LogStats",
@@ -60,7 +73,7 @@ __all__ = [
     "dataset_info",
     "dataset_warnings",
     "joint_velocity",
-    "joint_velocity",
+    "low_rate_problem",
     "note_warnings",
     "IMPORT_WARNINGS_ATTR",
     "time_gaps_problem",

@@ -29,13 +29,16 @@ from iiwa_ident.datasets._format import (
 from iiwa_ident.errors import DatasetError
 from iiwa_ident.robot import ROBOT_MODELS
 
-__all__ = ["MIN_RATE_HZ", "MAX_RATE_HZ", "import_columns", "import_csv", "moving_joint_problem"]
+__all__ = ["MIN_RATE_HZ", "MAX_RATE_HZ", "MIN_MESSAGE_RATE_HZ", "import_columns", "import_csv", "moving_joint_problem"]
 
 #: FRI runs at 200 Hz to 1 kHz; other rates mean a wrong time column or
 #: a wrong unit, so they are refused. A 2 % tolerance absorbs clock jitter
 #: in the median sample period.
 MIN_RATE_HZ = 200.0 * 0.98
 MAX_RATE_HZ = 1000.0 * 1.02
+#: Message logs (ROS 2 bags, LCM) are often published below the robot's cycle (100-200 Hz); they are taken down
+#: to this rate, with a warning of what they cannot give (:func:`~iiwa_ident.datasets.low_rate_problem`).
+MIN_MESSAGE_RATE_HZ = 50.0 * 0.98
 
 # Signals an import must provide; t can be generated from a rate.
 _REQUIRED_IMPORTED = ("q_m", "tau_j")
@@ -150,8 +153,9 @@ def _assemble(
     split_runs: bool = False,
     robot_model: str | None = None,
     positions: np.ndarray | None = None,
+    min_rate_hz: float = MIN_RATE_HZ,
 ) -> Dataset | list[Dataset]:
-    """Scale, add or check time, check the rate and build the dataset.
+    """Scale, add or check time, check the rate (``min_rate_hz`` .. :data:`MAX_RATE_HZ`) and build the dataset.
 
     ``raw`` maps signal names (time under ``"t"``) to arrays and ``origin``
     maps them to a description of where they came from, for messages.
@@ -169,7 +173,7 @@ def _assemble(
             there = {name: f"{text}, run {k} (samples {a}-{b - 1})" for name, text in origin.items()}
             runs.append(_assemble({name: arr[a:b] for name, arr in raw.items()}, there, joint, experiment,
                                   sample_rate_hz, scale, f"{where}, run {k}", robot_model=robot_model,
-                                  positions=None if positions is None else positions[a:b]))
+                                  positions=None if positions is None else positions[a:b], min_rate_hz=min_rate_hz))
         return runs
     lengths = {name: arr.shape[0] for name, arr in raw.items()}
     if len(set(lengths.values())) > 1:
@@ -216,9 +220,10 @@ def _assemble(
         signals = {"t": np.arange(n, dtype=np.float64) / float(sample_rate_hz), **signals}
 
     rate = float(sample_rate_hz)
-    if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+    if not min_rate_hz <= rate <= MAX_RATE_HZ:
         hint = "" if given_rate else " (estimated from the time signal; check its unit or give the rate)"
-        raise DatasetError(f"{where}: sample rate {rate:.6g} Hz is outside 200 Hz..1 kHz (±2%){hint}")
+        raise DatasetError(f"{where}: sample rate {rate:.6g} Hz is outside {min_rate_hz / 0.98:.0f} Hz..1 kHz "
+                           f"(±2%){hint}")
 
     # Canonical order makes printed summaries and files predictable.
     ordered = {name: signals[name] for name in SIGNAL_UNITS if name in signals}

@@ -9,10 +9,11 @@ from __future__ import annotations
 import numpy as np
 
 from iiwa_ident.datasets._format import Dataset, dataset_pose
-from iiwa_ident.datasets._import import moving_joint_problem
+from iiwa_ident.datasets._import import MIN_RATE_HZ, moving_joint_problem
+from iiwa_ident.model import RIPPLE_PERIOD_RAD
 
 __all__ = ["joint_velocity", "torque_sign_problem", "time_gaps_problem", "band_limited_problem", "substituted_position_problem",
-           "dataset_warnings", "SIGN_MIN_GRAVITY_NM", "SIGN_MIN_FRICTION_NM", "GAP_FACTOR", "BAND_LIMITED_DB_PER_DECADE",
+           "low_rate_problem", "dataset_warnings", "SIGN_MIN_GRAVITY_NM", "SIGN_MIN_FRICTION_NM", "GAP_FACTOR", "BAND_LIMITED_DB_PER_DECADE",
            "BAND_LIMITED_FLOOR_DB", "IMPORT_WARNINGS_ATTR", "note_warnings"]
 
 #: The experiment attribute where ``import`` keeps what the checks found (one warning per line).
@@ -193,10 +194,24 @@ def substituted_position_problem(dataset: Dataset) -> str | None:
             "identified from it")
 
 
+def low_rate_problem(dataset: Dataset) -> str | None:
+    """A warning when the run was sampled below the robot's cycle (a message log published at 100-200 Hz, say):
+    what such data can and cannot give, or None at 200 Hz and above."""
+    fs = float(dataset.sample_rate_hz)
+    if fs >= MIN_RATE_HZ:
+        return None
+    nyquist = fs / 2
+    return (f"sampled at {fs:.4g} Hz, below the robot's 1 kHz cycle: nothing above {nyquist:.3g} Hz is seen "
+            f"(fit needs the command of every robot cycle and refuses the run; a ripple of the paper's period is "
+            f"seen at joint speeds up to {nyquist * RIPPLE_PERIOD_RAD:.2g} rad/s; the torque loop's resonance "
+            "is not); record the robot's cycle where the recorder allows it")
+
+
 def dataset_warnings(dataset: Dataset) -> list[str]:
-    """Every check's warning for ``dataset``: the joint given did not move, the torque's sign, samples lost,
+    """Every check's warning for ``dataset``: sampled below the robot's cycle, the joint given did not move,
+    the torque's sign, samples lost,
     a torque filtered before it was logged, a measured position that is the commanded one."""
-    checks = (moving_joint_problem, torque_sign_problem, time_gaps_problem, band_limited_problem,
+    checks = (low_rate_problem, moving_joint_problem, torque_sign_problem, time_gaps_problem, band_limited_problem,
               substituted_position_problem)
     return [w for w in (check(dataset) for check in checks) if w]
 
