@@ -111,21 +111,13 @@ def import_cmd(
                                           "of COMMANDING_ACTIVE): write one dataset per run, named like --out with "
                                           "_run1, _run2, ... before the suffix."),
     ] = False,
-    rosbag: Annotated[
-        Optional[Path], typer.Option("--rosbag", metavar="BAG", help="ROS 2 bag of lbr_fri_ros2_stack (LBRState or "
-                                                                     "JointState; sqlite3 or MCAP).")
-    ] = None,
-    topic: Annotated[
-        Optional[str], typer.Option("--topic", help="--rosbag: the topic (default: the LBRState one, else "
-                                                    "JointState).")
-    ] = None,
-    lcm_log: Annotated[
-        Optional[Path], typer.Option("--lcm", metavar="LOG", help="LCM event log of Drake's iiwa driver "
-                                                                  "(lcmt_iiwa_status messages).")
-    ] = None,
-    channel: Annotated[
-        str, typer.Option("--channel", help="--lcm: the status channel.")
-    ] = "IIWA_STATUS",
+    rosbag: Annotated[Optional[Path], typer.Option(
+        "--rosbag", metavar="BAG", help="ROS 2 bag of lbr_fri_ros2_stack (LBRState or JointState).")] = None,
+    topic: Annotated[Optional[str], typer.Option(
+        "--topic", help="--rosbag: the topic (default: the LBRState one, else JointState).")] = None,
+    lcm_log: Annotated[Optional[Path], typer.Option(
+        "--lcm", metavar="LOG", help="LCM event log of Drake's iiwa driver (lcmt_iiwa_status messages).")] = None,
+    channel: Annotated[str, typer.Option("--channel", help="--lcm: the status channel.")] = "IIWA_STATUS",
 ) -> None:
     r"""Convert a recorded log into an iiwa-ident dataset file.
 
