@@ -193,3 +193,27 @@ class TestImportCommand:
                                           "--experiment", "free", "--out", str(tmp_path / "o.h5")])
         assert result.exit_code != 0 and "--rate does not apply to --lcm" in result.output
         assert not (tmp_path / "o.h5").exists()
+
+
+def test_an_lcm_log_imports_into_a_dataset_that_ripple_and_diagnose_accept(lcm_types, tmp_path):
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+    from test_datasets_rosbag import _simulated_run
+
+    run = _simulated_run(200.0)
+    truth = {"utime": run["ns"] // 1000, "joint_position_measured": run["position"],
+             "joint_velocity_estimated": run["velocity"], "joint_position_commanded": run["position"] + 1e-4,
+             "joint_position_ipo": run["position"], "joint_torque_measured": run["torque"],
+             "joint_torque_commanded": run["commanded_torque"], "joint_torque_external": run["external_torque"]}
+    log = tmp_path / "lcmlog-00"
+    _write_log(log, *lcm_types, truth)
+    out = tmp_path / "run.h5"
+    runner = CliRunner()
+    result = runner.invoke(app, ["import", "--lcm", str(log), "--joint", "1", "--experiment", "constant_velocity",
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["ripple", str(out), "--json", str(tmp_path / "ripple.json")])
+    assert result.exit_code == 0 and "periodic transmission deflection detected" in result.stdout, result.output
+    result = runner.invoke(app, ["diagnose", str(out), "--json", str(tmp_path / "diagnose.json")])
+    assert result.exit_code == 0, result.output

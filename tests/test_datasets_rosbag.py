@@ -189,3 +189,15 @@ def test_a_bag_imports_into_a_dataset_that_ripple_and_diagnose_accept(tmp_path, 
     assert result.exit_code == 0, result.output
     result = runner.invoke(app, ["diagnose", str(run), "--json", str(tmp_path / "diagnose.json")])
     assert result.exit_code == 0, result.output
+
+
+def test_what_a_stack_log_cannot_give_is_said(tmp_path):
+    # Open-loop mode: the stack publishes the commanded positions as the measured ones; 100 Hz publishing.
+    truth = _simulated_run(100.0)
+    truth["commanded_position"] = truth["position"].copy()
+    bag = tmp_path / "bag"
+    _write_lbr_state(bag, "sqlite3", truth, np.full(len(truth["ns"]), 4), mode=1)
+    warnings = note_warnings(import_rosbag(bag, joint=1, experiment="constant_velocity"))
+    assert any("q_m equals q_cmd" in w for w in warnings), warnings
+    low = next(w for w in warnings if "below the robot's 1 kHz cycle" in w)
+    assert "100 Hz" in low and "fit needs the command of every robot cycle" in low and "cannot be told" in low

@@ -204,7 +204,8 @@ def low_rate_problem(dataset: Dataset) -> str | None:
     return (f"sampled at {fs:.4g} Hz, below the robot's 1 kHz cycle: nothing above {nyquist:.3g} Hz is seen "
             f"(fit needs the command of every robot cycle and refuses the run; a ripple of the paper's period is "
             f"seen at joint speeds up to {nyquist * RIPPLE_PERIOD_RAD:.2g} rad/s; the torque loop's resonance "
-            "is not); record the robot's cycle where the recorder allows it")
+            "is not; whether a driver low-passed the torque, as lbr_fri_ros2_stack can, cannot be told at this "
+            "rate); record the robot's cycle where the recorder allows it")
 
 
 def dataset_warnings(dataset: Dataset) -> list[str]:
