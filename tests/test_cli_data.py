@@ -200,3 +200,27 @@ def test_version():
 
     res = CliRunner().invoke(app, ["--version"])
     assert res.exit_code == 0 and res.output == f"iiwa-ident {version('iiwa-ident')}\n"
+
+
+class TestRobotName:
+    """A fleet's key: the robot a run was recorded on, named on import and by the experiments, shown by info."""
+
+    def test_import_and_simulate_keep_the_name_and_info_shows_it(self, tmp_path):
+        from iiwa_ident.datasets import read_dataset, robot_name
+
+        out = tmp_path / "cv.h5"
+        result = invoke("simulate", "constant_velocity", "--velocity", "0.3", "--range", "0.2", "--robot-name",
+                        "cell-3.left", "--out", str(out))
+        assert result.exit_code == 0, result.output
+        assert robot_name(read_dataset(out)) == "cell-3.left"
+        result = invoke("info", str(out))
+        assert "robot         cell-3.left" in result.stdout
+        result = invoke("info", str(out), "--json")
+        assert json.loads(result.stdout)["robot"] == "cell-3.left"
+
+    @pytest.mark.parametrize("name", ["", "../x", "a b", "x" * 65, "-lead"])
+    def test_bad_name_refused(self, tmp_path, name):
+        result = invoke("import", *real_joint2_args(), "--joint", "2", "--experiment", "constant_velocity",
+                        "--robot-name", name, "--out", str(tmp_path / "o.h5"))
+        assert_one_line_error(result, "robot name")
+        assert not (tmp_path / "o.h5").exists()

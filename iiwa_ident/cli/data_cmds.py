@@ -118,6 +118,8 @@ def import_cmd(
     lcm_log: Annotated[Optional[Path], typer.Option(
         "--lcm", metavar="LOG", help="LCM event log of Drake's iiwa driver (lcmt_iiwa_status messages).")] = None,
     channel: Annotated[str, typer.Option("--channel", help="--lcm: the status channel.")] = "IIWA_STATUS",
+    robot_name: Annotated[Optional[str], typer.Option(
+        "--robot-name", help="Name of the robot the log is of (kept in the dataset; a fleet's key).")] = None,
 ) -> None:
     r"""Convert a recorded log into an iiwa-ident dataset file.
 
@@ -158,7 +160,7 @@ def import_cmd(
           --split-runs --out runs/j2.h5
     """
     from iiwa_ident.datasets import (dataset_pose, import_columns, import_csv, import_lcm, import_rosbag,
-                                     note_warnings, write_dataset)
+                                     note_warnings, set_robot_name, write_dataset)
 
     try:
         column_files = parse_pairs(columns, "--columns", "FILE")
@@ -208,6 +210,8 @@ def import_cmd(
             targets = [out]
         else:
             targets = [out.with_name(f"{out.stem}_run{k}{out.suffix or '.h5'}") for k in range(1, len(datasets) + 1)]
+        for ds in datasets:
+            set_robot_name(ds, robot_name)
         warnings = [note_warnings(ds) for ds in datasets]
         # All runs or none, and no file already there lost: each run goes to a hidden file first and
         # the files are renamed over their targets only when every run is written.
@@ -228,7 +232,8 @@ def import_cmd(
     for path, dataset, problems in zip(written, datasets, warnings):
         robot_model, pose = dataset_pose(dataset)
         typer.echo(
-            f"wrote {path}: {dataset.experiment}, {robot_model} joint {dataset.joint}, "
+            f"wrote {path}: {dataset.experiment}, {robot_model} joint {dataset.joint}"
+            f"{f' of {robot_name}' if robot_name else ''}, "
             f"{dataset.n_samples} samples at {dataset.sample_rate_hz:.6g} Hz "
             f"({dataset.duration_s:.3f} s); signals: {', '.join(dataset.signals)}"
             + ("" if pose is None else "; pose " + ", ".join(f"{math.degrees(x):.1f}" for x in pose) + " deg")

@@ -46,11 +46,11 @@ def _robot_target(experiment: Experiment, robot: Optional[str], port: int, robot
 
 def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], seed: int, rate: float,
                   out: Path, q0: float = 0.0, robot: Optional[str] = None, port: int = 30200,
-                  robot_model: str = "iiwa14", joint: int = 1) -> None:
+                  robot_model: str = "iiwa14", joint: int = 1, robot_name: Optional[str] = None) -> None:
     """Run ``experiment`` on the simulated joint or on a robot over FRI, write the dataset, print its summary."""
     from iiwa_ident.robot import RobotInterface
     from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
-    from iiwa_ident.datasets import dataset_info, format_info, write_dataset
+    from iiwa_ident.datasets import dataset_info, format_info, set_robot_name, write_dataset
     from iiwa_ident.excite import record
 
     if target == "sim":
@@ -69,6 +69,7 @@ def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], se
     where = "simulated" if target == "sim" else "on the robot"
     with progress(f"{experiment.name} ({experiment.duration_s:.0f} s {where})") as shown:
         ds = record(target_robot, experiment, record_every=int(round(every)), progress=shown.advance)
+    set_robot_name(ds, robot_name)
     path = write_dataset(out, ds)
     typer.echo(format_info(dataset_info(ds)))
     if "stopped_reason" in ds.experiment_attrs:
@@ -80,6 +81,8 @@ _RobotOpt = Annotated[Optional[str], typer.Option("--robot", help="--target robo
 _PortOpt = Annotated[int, typer.Option("--port", help="--target robot: local FRI UDP port.")]
 _RobotModelOpt = Annotated[str, typer.Option("--robot-model", help="--target robot: iiwa7 | iiwa14.")]
 _JointOpt = Annotated[int, typer.Option("--joint", help="--target robot: joint under test, 1-7.")]
+_RobotNameOpt = Annotated[Optional[str], typer.Option("--robot-name", help="Name of the robot (kept in the dataset; "
+                                                                           "a fleet's key).")]
 
 
 @app.command("chirp")
@@ -99,6 +102,7 @@ def chirp_cmd(
     port: _PortOpt = 30200,
     robot_model: _RobotModelOpt = "iiwa14",
     joint: _JointOpt = 1,
+    robot_name: _RobotNameOpt = None,
 ) -> None:
     """Record an exponential chirp (torque-commanded) as a dataset.
 
@@ -113,7 +117,7 @@ def chirp_cmd(
 
     try:
         run_on_target(Chirp(f0, f1, duration, amplitude, bias, hold), target, plant, seed, rate, out,
-                      robot=robot, port=port, robot_model=robot_model, joint=joint)
+                      robot=robot, port=port, robot_model=robot_model, joint=joint, robot_name=robot_name)
     except IiwaIdentError as err:
         raise fail(str(err))
 
@@ -155,6 +159,7 @@ def simulate_cmd(
     port: _PortOpt = 30200,
     robot_model: _RobotModelOpt = "iiwa14",
     joint: _JointOpt = 1,
+    robot_name: _RobotNameOpt = None,
 ) -> None:
     """Run one of the other experiments on the simulated joint (or on the robot, --target robot).
 
@@ -181,7 +186,7 @@ def simulate_cmd(
             exp = _experiment(experiment, velocity, range_, repeats, mode, torque, duration, kappa, amplitude,
                               frequency, 1.0 if period is None else period, cycles)
         run_on_target(exp, target, plant, seed, rate, out, q0=q0, robot=robot, port=port,
-                      robot_model=robot_model, joint=joint)
+                      robot_model=robot_model, joint=joint, robot_name=robot_name)
     except IiwaIdentError as err:
         raise fail(str(err))
 

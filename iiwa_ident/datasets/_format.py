@@ -33,6 +33,7 @@ import hashlib
 import math
 import numbers
 import os
+import re
 import secrets
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -50,6 +51,9 @@ __all__ = [
     "EXPERIMENTS",
     "SOURCES",
     "SIGNAL_UNITS",
+    "ROBOT_NAME_ATTR",
+    "set_robot_name",
+    "robot_name",
     "REQUIRED_SIGNALS",
     "Dataset",
     "validate_dataset",
@@ -320,6 +324,39 @@ def _experiment_attrs_problem(attrs: Any) -> str | None:
     if robot is not None and not isinstance(robot, str):
         return "experiment attribute 'robot_model' must be a string"
     return None
+
+
+#: The experiment attribute naming the robot a run was recorded on (a fleet's key, with the joint).
+ROBOT_NAME_ATTR = "robot_name"
+_ROBOT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+def set_robot_name(dataset: Dataset, name: str | None) -> None:
+    """Name the robot ``dataset`` was recorded on (None: leave it unnamed).
+
+    A name is 1-64 letters, digits, ``.``, ``_`` or ``-`` starting with a letter or digit (it becomes part
+    of file names and table rows).
+
+    Examples
+    --------
+    >>> ds = Dataset(signals={"t": np.arange(3) * 1e-3, "q_m": np.zeros(3), "tau_j": np.zeros(3)},
+    ...              experiment="free", source="import", joint=2, sample_rate_hz=1000.0)
+    >>> set_robot_name(ds, "cell-3.left")
+    >>> robot_name(ds)
+    'cell-3.left'
+    """
+    if name is None:
+        return
+    if not isinstance(name, str) or not _ROBOT_NAME.fullmatch(name):
+        raise DatasetError(f"robot name {name!r}: expected 1-64 letters, digits, '.', '_' or '-', starting with a "
+                           "letter or digit")
+    dataset.experiment_attrs[ROBOT_NAME_ATTR] = name
+
+
+def robot_name(dataset: Dataset) -> str | None:
+    """The name of the robot the run was recorded on, or None where the dataset does not say."""
+    name = dataset.experiment_attrs.get(ROBOT_NAME_ATTR)
+    return None if name is None else str(name)
 
 
 def dataset_pose(dataset: Dataset) -> tuple[str | None, tuple[float, ...] | None]:

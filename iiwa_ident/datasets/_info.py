@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from iiwa_ident.datasets._format import SIGNAL_UNITS, Dataset
+from iiwa_ident.datasets._format import ROBOT_NAME_ATTR, SIGNAL_UNITS, Dataset, robot_name
 from iiwa_ident.datasets._provenance import IMPORT_WARNINGS_ATTR, dataset_warnings
 
 __all__ = ["dataset_info", "format_info"]
@@ -54,6 +54,7 @@ def dataset_info(ds: Dataset) -> dict[str, Any]:
         }
     return {
         "path": None if ds.path is None else str(ds.path),
+        "robot": robot_name(ds),
         "experiment": ds.experiment,
         "source": ds.source,
         "joint": int(ds.joint),
@@ -93,6 +94,8 @@ def format_info(info: dict[str, Any]) -> str:
     lines: list[str] = []
     if info.get("path"):
         lines.append(f"file          {info['path']}")
+    if info.get("robot"):
+        lines.append(f"robot         {info['robot']}")
     lines += [
         f"experiment    {info['experiment']}",
         f"source        {info['source']}",
@@ -103,7 +106,8 @@ def format_info(info: dict[str, Any]) -> str:
         f"created (UTC) {info['created_utc']}",
     ]
     # What import found is printed with the warnings below.
-    attrs = {k: v for k, v in (info.get("experiment_attrs") or {}).items() if k != IMPORT_WARNINGS_ATTR}
+    attrs = {k: v for k, v in (info.get("experiment_attrs") or {}).items()
+             if k not in (IMPORT_WARNINGS_ATTR, ROBOT_NAME_ATTR)}
     if attrs:
         lines.append("experiment attributes:")
         width = max(len(k) for k in attrs)
