@@ -19,7 +19,7 @@ def _imported_by(code: str) -> set[str]:
 
 def test_help_imports_no_numerical_library():
     commands = ["import", "info", "chirp", "simulate", "plant", "fit", "ripple", "design", "deploy", "run",
-                "diagnose", "compare", "model", "emulate", "pipeline", "report"]
+                "diagnose", "compare", "model", "emulate", "pipeline", "report", "fleet"]
     mods = _imported_by("from typer.testing import CliRunner\nfrom iiwa_ident.cli import app\n"
                         "assert CliRunner().invoke(app, ['--help']).exit_code == 0\n"
                         f"for c in {commands!r}:\n"

@@ -29,7 +29,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("design",),
     ("deploy", "diagnose"),
     ("runtime", "emulator"),
-    ("pipeline",),
+    ("pipeline", "fleet"),
     ("report",),
     ("cli",),
 )
@@ -97,7 +97,7 @@ def test_every_part_has_a_layer():
 
 #: Packages whose ``__init__`` is their public API: other parts import them only as a package.
 PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "runtime",
-              "emulator", "pipeline", "report")
+              "emulator", "pipeline", "fleet", "report")
 
 
 def test_packages_are_imported_through_their_public_api():

@@ -17,6 +17,7 @@ from iiwa_ident.cli import model_cmd as _model_cmd  # noqa: F401
 from iiwa_ident.cli import emulate_cmd as _emulate_cmd  # noqa: F401
 from iiwa_ident.cli import pipeline_cmd as _pipeline_cmd  # noqa: F401
 from iiwa_ident.cli import report_cmd as _report_cmd  # noqa: F401
+from iiwa_ident.cli import fleet_cmd as _fleet_cmd  # noqa: F401
 
 __all__ = ["app", "fail", "main"]
 

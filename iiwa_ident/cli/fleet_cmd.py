@@ -1,0 +1,59 @@
+"""``iiwa-ident fleet``: one stage on every robot's joints, in parallel on Dask."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from iiwa_ident._toml import write_atomic
+from iiwa_ident.cli._app import app, fail, json_option
+from iiwa_ident.cli._progress import progress
+from iiwa_ident.errors import IiwaIdentError
+
+__all__ = ["fleet_cmd"]
+
+
+@app.command("fleet")
+def fleet_cmd(
+    stage: Annotated[str, typer.Argument(help="ripple | diagnose | fit")],
+    data: Annotated[list[Path], typer.Argument(help="Datasets of any robots and joints (named with --robot-name).")],
+    scheduler: Annotated[Optional[str], typer.Option(
+        "--scheduler", help="Address of a running Dask scheduler (tcp://HOST:8786); default: a local cluster.")] = None,
+    workers: Annotated[int, typer.Option("--workers", help="Worker processes of the local cluster.")] = 2,
+    out: Annotated[Path, typer.Option("--out", help="Folder for each group's result (a re-run skips the "
+                                                    "finished groups) and the fleet table.")] = Path("fleet"),
+    json_out: Annotated[Optional[Path], json_option("the fleet's results")] = None,
+) -> None:
+    """Run a stage on every (robot, joint) group of datasets as Dask tasks, and write a fleet table.
+
+    Each group is one task; a bad file or a failing group is a row with its
+    one-line error, never the end of the fleet. Results are kept per group
+    under OUT/groups (named by the sha256 of the stage and the inputs), so a
+    second run does only what is new or failed.
+
+    Examples:
+      iiwa-ident fleet ripple runs/*.h5 --workers 4 --out fleet --json fleet.json
+      iiwa-ident fleet ripple runs/*.h5 --scheduler tcp://10.0.0.5:8786 --out fleet
+    """
+    from iiwa_ident.fleet import fleet_table, run_fleet
+
+    try:
+        with progress(f"fleet {stage}: {len(data)} dataset(s)") as shown:
+            doc = run_fleet(stage, data, out, scheduler=scheduler, workers=workers,
+                            progress=lambda done, total, label: (shown.say(f"fleet {stage}: {label}"),
+                                                                 shown.advance(done, total)))
+        table = fleet_table(doc)
+        write_atomic(Path(out) / "fleet.csv", table)
+        if json_out is not None:
+            write_atomic(json_out, json.dumps(doc, indent=2, default=str) + "\n")
+    except IiwaIdentError as err:
+        raise fail(str(err))
+    failed = sum(1 for g in doc["groups"] if g["error"])
+    typer.echo(table.rstrip("\n"))
+    typer.echo(f"{len(doc['groups'])} group(s) on {doc['engine']['workers']} worker(s), {doc['resumed']} taken from "
+               f"an earlier run, {failed} failed; {doc['wall_s']:.1f} s; table {Path(out) / 'fleet.csv'}")
+    if failed:
+        raise typer.Exit(1)
