@@ -10,7 +10,9 @@ assume), simulates each, runs :func:`iiwa_ident.ident.joint_fit.fit_joint` on it
 - the worst relative error per parameter and the coverage of the reported 3-std intervals,
 - how often the fit found the transmission ripple on draws with it (and its period error) and without it.
 
-Run: ``.venv/bin/python bench/bench_robustness.py fit [--draws 200] [--first 0] [--jobs 2]``.
+Run: ``.venv/bin/python bench/bench_robustness.py fit [--draws 200] [--first 0] [--jobs 2]``
+(every subcommand also takes ``--scheduler tcp://HOST:8786``: the draws as tasks on a Dask cluster, the
+engine of ``iiwa-ident fleet``).
 
 ``ripple``: draws ``--draws`` ripple scenarios and as many null ones
 (:func:`iiwa_ident.excite.scenarios.draw_ripple_scenario`: 100-800 cycles per revolution, harmonics stronger than
@@ -54,6 +56,7 @@ import sys
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor
+from typing import Callable
 
 import numpy as np
 
@@ -68,7 +71,7 @@ from iiwa_ident.excite.scenarios import (
     simulate_scenario_multisine,
 )
 
-__all__ = ["run_draw", "run_ripple_draw", "run_diagnose_draw", "run_user_draw", "main"]
+__all__ = ["run_draw", "run_ripple_draw", "run_diagnose_draw", "run_user_draw", "run_all", "main"]
 
 #: Relative period error counted as a hit, and the 95 % interval's half-width in std.
 RIPPLE_REL_TOL = 1e-3
@@ -89,6 +92,20 @@ def _guarded(call, out: dict):
         out.update(status="traceback", message=traceback.format_exc(limit=3))
     return None
 
+
+
+def run_all(fn: Callable[..., dict], *columns: list, jobs: int = 1, scheduler: str | None = None) -> list[dict]:
+    """``fn`` over the rows of ``columns``, in order: as Dask tasks on the scheduler at ``scheduler`` (the fleet's
+    engine; its workers need only iiwa_ident), else in ``jobs`` local processes, else here."""
+    if scheduler is not None:
+        from distributed import Client
+
+        with Client(scheduler) as client:
+            return client.gather(client.map(fn, *columns, pure=False))
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs) as pool:
+            return list(pool.map(fn, *columns))
+    return [fn(*row) for row in zip(*columns)]
 
 def run_draw(seed: int, method: str = "auto") -> dict:
     """Simulate and fit the scenario of ``seed`` with ``method``; return its outcome."""
@@ -134,11 +151,7 @@ def run_draw(seed: int, method: str = "auto") -> dict:
 def _fit(args: argparse.Namespace) -> int:
     seeds = list(range(args.first, args.first + args.draws))
     t0 = time.perf_counter()
-    if args.jobs > 1:
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = list(pool.map(run_draw, seeds, [args.method] * len(seeds)))
-    else:
-        rows = [run_draw(s, args.method) for s in seeds]
+    rows = run_all(run_draw, seeds, [args.method] * len(seeds), jobs=args.jobs, scheduler=args.scheduler)
     wall = time.perf_counter() - t0
     n = len(rows)
     count = {s: sum(r["status"] == s for r in rows) for s in ("pass", "miss", "refused", "traceback")}
@@ -201,18 +214,14 @@ def run_multisine_draw(seed: int) -> dict:
 def _coverage(args: argparse.Namespace) -> int:
     seeds = list(range(args.first, args.first + args.draws))
     for excitation in (("chirp", "multisine") if args.excitation == "both" else (args.excitation,)):
-        _coverage_of(excitation, seeds, args.jobs)
+        _coverage_of(excitation, seeds, args.jobs, args.scheduler)
     return 0
 
 
-def _coverage_of(excitation: str, seeds: list[int], jobs: int) -> None:
+def _coverage_of(excitation: str, seeds: list[int], jobs: int, scheduler: str | None = None) -> None:
     run = run_draw if excitation == "chirp" else run_multisine_draw
     t0 = time.perf_counter()
-    if jobs > 1:
-        with ProcessPoolExecutor(jobs) as pool:
-            rows = list(pool.map(run, seeds))
-    else:
-        rows = [run(s) for s in seeds]
+    rows = run_all(run, seeds, jobs=jobs, scheduler=scheduler)
     fitted = [r for r in rows if r["status"] in ("pass", "miss", "done")]
     print(f"coverage of the fit's 95 % intervals (1.96 std) on {excitation}s: {len(fitted)} fitted of {len(rows)} "
           f"draws (seeds {seeds[0]}-{seeds[-1]}), {time.perf_counter() - t0:.0f} s; target 90-98 %")
@@ -287,11 +296,7 @@ def _ripple(args: argparse.Namespace) -> int:
     seeds = list(range(args.first, args.first + args.draws))
     jobs = ([] if args.null_only else [(s, False) for s in seeds]) + [(s, True) for s in seeds]
     t0 = time.perf_counter()
-    if args.jobs > 1:
-        with ProcessPoolExecutor(args.jobs) as pool:
-            rows = list(pool.map(run_ripple_draw, *zip(*jobs)))
-    else:
-        rows = [run_ripple_draw(s, n) for s, n in jobs]
+    rows = run_all(run_ripple_draw, *map(list, zip(*jobs)), jobs=args.jobs, scheduler=args.scheduler)
     wall = time.perf_counter() - t0
     rip = [r for r in rows if not r["null"]]
     null = [r for r in rows if r["null"]]
@@ -366,14 +371,12 @@ def run_user_draw(seed: int, apart: bool) -> dict:
     return out
 
 
-def _cases(run, seeds: list[int], flag: bool, jobs: int) -> tuple[list[dict], list[dict], float]:
-    """``run(seed, flag)`` for every seed (in ``jobs`` processes): all rows, the scored ones, wall time [s]."""
+def _cases(run, seeds: list[int], flag: bool, jobs: int, scheduler: str | None = None
+           ) -> tuple[list[dict], list[dict], float]:
+    """``run(seed, flag)`` for every seed (in ``jobs`` processes or on a Dask scheduler): all rows, the scored
+    ones, wall time [s]."""
     t0 = time.perf_counter()
-    if jobs > 1:
-        with ProcessPoolExecutor(jobs) as pool:
-            rows = list(pool.map(run, seeds, [flag] * len(seeds)))
-    else:
-        rows = [run(s, flag) for s in seeds]
+    rows = run_all(run, seeds, [flag] * len(seeds), jobs=jobs, scheduler=scheduler)
     return rows, [r for r in rows if r["status"] in ("hit", "wrong")], time.perf_counter() - t0
 
 
@@ -400,7 +403,7 @@ def _user(args: argparse.Namespace, seeds: list[int]) -> None:
     from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
 
     for apart in {"both": (False, True), "project": (False,), "apart": (True,)}[args.path]:
-        rows, done, wall = _cases(run_user_draw, seeds, apart, args.jobs)
+        rows, done, wall = _cases(run_user_draw, seeds, apart, args.jobs, args.scheduler)
         n = len(rows)
         path = "a joint simulated apart" if apart else "the project's simulator"
         print(f"user's protocol (fit, then diagnose against the fitted model) on {path}: {n} cases (seeds "
@@ -436,7 +439,7 @@ def _diagnose(args: argparse.Namespace) -> int:
         _user(args, seeds)
         return 0
     for fit in (False, True):
-        rows, done, wall = _cases(run_diagnose_draw, seeds, fit, args.jobs)
+        rows, done, wall = _cases(run_diagnose_draw, seeds, fit, args.jobs, args.scheduler)
         n = len(rows)
         print(f"diagnosis against {'the chirp fit' if fit else 'the true eq (4)'}: {n} cases (seeds "
               f"{seeds[0]}-{seeds[-1]}), {wall:.0f} s; refused {sum(r['status'] == 'refused' for r in rows)}, "
@@ -489,6 +492,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="all protocols, or only the user's (fit, then diagnose)")
     dg.add_argument("--path", default="both", choices=("both", "project", "apart"),
                     help="data paths of the user's protocol: the project's simulator, the joint simulated apart")
+    for p in (f, rp, cv, dg):
+        p.add_argument("--scheduler", default=None, help="run the draws on this Dask scheduler (tcp://HOST:8786), "
+                                                         "the engine of iiwa-ident fleet")
     args = parser.parse_args(argv)
     return {"fit": _fit, "ripple": _ripple, "coverage": _coverage, "diagnose": _diagnose}[args.what](args)
 
