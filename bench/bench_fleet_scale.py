@@ -10,8 +10,8 @@ joints of the fleet carry 3x their ripple.
 A joint is flagged worn when its detected ripple's amplitude is more than twice the fleet's median for that
 joint (an undetected group's amplitude is no estimate).
 
-Prints: wall time, joint-runs per second per worker, peak memory per worker process (max RSS), and which
-joints were flagged against the worn ones.
+Prints: wall time, joint-runs per second per worker, the peak memory of a worker process over the run (max RSS),
+and which joints were flagged against the worn ones.
 """
 
 from __future__ import annotations
@@ -88,7 +88,12 @@ def main() -> None:
         print(f"fleet of {args.robots} robots x 7 joints x {args.runs} runs = {len(paths)} joint-runs simulated in "
               f"{time.perf_counter() - t0:.0f} s; worn: {sorted(worn)}")
         for workers in (1, 2):
-            doc = run_fleet("ripple", paths, Path(tmp) / f"fleet{workers}", workers=workers)
+            # The cluster started here, so that its workers' peak memory can be read after the whole run.
+            with LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None,
+                              env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+                              ) as cluster, Client(cluster) as client:
+                doc = run_fleet("ripple", paths, Path(tmp) / f"fleet{workers}", scheduler=cluster.scheduler_address)
+                rss = max(client.run(_peak_rss_mb).values())
             wall = doc["wall_s"]
             failed = [g for g in doc["groups"] if g["error"]]
             # Only a detected ripple's amplitude is an estimate; an undetected group's is the noise's best line.
@@ -103,13 +108,8 @@ def main() -> None:
             print(f"{workers} worker(s): {wall:.0f} s, {len(paths) / wall / workers:.2f} joint-runs per second per "
                   f"worker, {len(failed)} groups failed; ripple detected per joint size "
                   + ", ".join(f"A{'-A'.join(map(str, js))}: {n} of {args.robots * len(js)}" for js, n in detected.items())
-                  + f"; flagged {sorted(flagged)}; every worn joint and no other: {flagged == worn}")
-        print(f"peak memory of this process {_peak_rss_mb():.0f} MB (workers: see below)")
-        with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster, \
-                Client(cluster) as client:
-            run_fleet("ripple", paths[: 2 * args.runs], Path(tmp) / "mem", scheduler=cluster.scheduler_address)
-            rss = client.run(_peak_rss_mb)
-        print(f"peak memory of a worker process after two groups: {max(rss.values()):.0f} MB")
+                  + f"; peak memory of a worker {rss:.0f} MB; flagged {sorted(flagged)}; every worn joint and "
+                  f"no other: {flagged == worn}")
 
 
 if __name__ == "__main__":

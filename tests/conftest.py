@@ -99,3 +99,20 @@ def pytest_collection_modifyitems(session, config, items):
         return _LONG_FILES.index(name) if name in _LONG_FILES else len(_LONG_FILES)
 
     items.sort(key=rank)  # stable: the order inside each file is kept
+
+
+def import_then_ripple_and_diagnose(tmp_path, *import_args: str) -> None:
+    """``iiwa-ident import IMPORT_ARGS --out run.h5``, then ``ripple`` (a ripple detected) and ``diagnose`` on it."""
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+
+    run = tmp_path / "run.h5"
+    runner = CliRunner()
+    result = runner.invoke(app, ["import", *import_args, "--experiment", "constant_velocity", "--out", str(run)])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["ripple", str(run), "--json", str(tmp_path / "ripple.json")])
+    assert result.exit_code == 0 and "periodic transmission deflection detected" in result.stdout, result.output
+    result = runner.invoke(app, ["diagnose", str(run), "--json", str(tmp_path / "diagnose.json")])
+    assert result.exit_code == 0, result.output
+

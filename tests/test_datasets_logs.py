@@ -196,9 +196,7 @@ class TestImportCommand:
 
 
 def test_an_lcm_log_imports_into_a_dataset_that_ripple_and_diagnose_accept(lcm_types, tmp_path):
-    from typer.testing import CliRunner
-
-    from iiwa_ident.cli import app
+    from conftest import import_then_ripple_and_diagnose
     from test_datasets_rosbag import _simulated_run
 
     run = _simulated_run(200.0)
@@ -208,12 +206,4 @@ def test_an_lcm_log_imports_into_a_dataset_that_ripple_and_diagnose_accept(lcm_t
              "joint_torque_commanded": run["commanded_torque"], "joint_torque_external": run["external_torque"]}
     log = tmp_path / "lcmlog-00"
     _write_log(log, *lcm_types, truth)
-    out = tmp_path / "run.h5"
-    runner = CliRunner()
-    result = runner.invoke(app, ["import", "--lcm", str(log), "--joint", "1", "--experiment", "constant_velocity",
-                                 "--out", str(out)])
-    assert result.exit_code == 0, result.output
-    result = runner.invoke(app, ["ripple", str(out), "--json", str(tmp_path / "ripple.json")])
-    assert result.exit_code == 0 and "periodic transmission deflection detected" in result.stdout, result.output
-    result = runner.invoke(app, ["diagnose", str(out), "--json", str(tmp_path / "diagnose.json")])
-    assert result.exit_code == 0, result.output
+    import_then_ripple_and_diagnose(tmp_path, "--lcm", str(log), "--joint", "1")

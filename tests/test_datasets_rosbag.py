@@ -169,9 +169,7 @@ def _simulated_run(rate_hz: float):
 
 @pytest.mark.parametrize("kind", ["lbr_state", "joint_state"])
 def test_a_bag_imports_into_a_dataset_that_ripple_and_diagnose_accept(tmp_path, kind):
-    from typer.testing import CliRunner
-
-    from iiwa_ident.cli import app
+    from conftest import import_then_ripple_and_diagnose
 
     truth = _simulated_run(200.0)
     truth["commanded_position"][:, 0] += 1e-4  # the stack's command is not the measurement
@@ -180,15 +178,7 @@ def test_a_bag_imports_into_a_dataset_that_ripple_and_diagnose_accept(tmp_path, 
         _write_lbr_state(bag, "mcap", truth, np.full(len(truth["ns"]), 4), mode=1)
     else:
         _write_joint_state(bag, "sqlite3", truth)
-    run = tmp_path / "run.h5"
-    runner = CliRunner()
-    result = runner.invoke(app, ["import", "--rosbag", str(bag), "--joint", "1", "--experiment", "constant_velocity",
-                                 "--out", str(run)])
-    assert result.exit_code == 0, result.output
-    result = runner.invoke(app, ["ripple", str(run), "--json", str(tmp_path / "ripple.json")])
-    assert result.exit_code == 0, result.output
-    result = runner.invoke(app, ["diagnose", str(run), "--json", str(tmp_path / "diagnose.json")])
-    assert result.exit_code == 0, result.output
+    import_then_ripple_and_diagnose(tmp_path, "--rosbag", str(bag), "--joint", "1")
 
 
 def test_what_a_stack_log_cannot_give_is_said(tmp_path):

@@ -85,8 +85,22 @@ def test_command_writes_the_table_and_fails_when_a_group_failed(runs, tmp_path):
     result = CliRunner().invoke(app, ["fleet", "ripple", str(runs[0]), "--workers", "1", "--out",
                                       str(tmp_path / "f"), "--json", str(tmp_path / "f.json")])
     assert result.exit_code == 0, result.output
-    assert (tmp_path / "f" / "fleet.csv").read_text().splitlines()[1].startswith("cell-a,1,1,")
+    assert (tmp_path / "f.csv").read_text().splitlines()[1].startswith("cell-a,1,1,")  # beside the JSON
     assert json.loads((tmp_path / "f.json").read_text())["groups"][0]["robot"] == "cell-a"
     result = CliRunner().invoke(app, ["fleet", "ripple", str(tmp_path / "nope.h5"), "--workers", "1", "--out",
                                       str(tmp_path / "g")])
     assert result.exit_code == 1 and "nope.h5" in result.output
+    assert (tmp_path / "g" / "fleet.csv").exists()  # without --json the table is in OUT
+
+
+def test_workers_started_elsewhere_reach_relative_paths(runs, tmp_path, monkeypatch):
+    # A worker started in another working folder than the client's: relative paths given here must reach it.
+    from distributed import LocalCluster
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        monkeypatch.chdir(runs[0].parent)
+        doc = run_fleet("ripple", [runs[0].name], tmp_path / "rel", scheduler=cluster.scheduler_address)
+    assert doc["groups"][0]["error"] is None, doc["groups"][0]["error"]

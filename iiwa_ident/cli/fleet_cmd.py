@@ -24,15 +24,16 @@ def fleet_cmd(
         "--scheduler", help="Address of a running Dask scheduler (tcp://HOST:8786); default: a local cluster.")] = None,
     workers: Annotated[int, typer.Option("--workers", help="Worker processes of the local cluster.")] = 2,
     out: Annotated[Path, typer.Option("--out", help="Folder for each group's result (a re-run skips the "
-                                                    "finished groups) and the fleet table.")] = Path("fleet"),
-    json_out: Annotated[Optional[Path], json_option("the fleet's results")] = None,
+                                                    "finished groups).")] = Path("fleet"),
+    json_out: Annotated[Optional[Path], json_option("the fleet's results (and the table beside it, .csv)")] = None,
 ) -> None:
     """Run a stage on every (robot, joint) group of datasets as Dask tasks, and write a fleet table.
 
     Each group is one task; a bad file or a failing group is a row with its
     one-line error, never the end of the fleet. Results are kept per group
     under OUT/groups (named by the sha256 of the stage and the inputs), so a
-    second run does only what is new or failed.
+    second run does only what is new or failed. The table (CSV) is written
+    beside the --json file, or as OUT/fleet.csv without one.
 
     Examples:
       iiwa-ident fleet ripple runs/*.h5 --workers 4 --out fleet --json fleet.json
@@ -46,7 +47,9 @@ def fleet_cmd(
                             progress=lambda done, total, label: (shown.say(f"fleet {stage}: {label}"),
                                                                  shown.advance(done, total)))
         table = fleet_table(doc)
-        write_atomic(Path(out) / "fleet.csv", table)
+        # The table beside the JSON (in OUT without one).
+        table_path = Path(out) / "fleet.csv" if json_out is None else Path(json_out).with_suffix(".csv")
+        write_atomic(table_path, table)
         if json_out is not None:
             write_atomic(json_out, json.dumps(doc, indent=2, default=str) + "\n")
     except IiwaIdentError as err:
@@ -54,6 +57,6 @@ def fleet_cmd(
     failed = sum(1 for g in doc["groups"] if g["error"])
     typer.echo(table.rstrip("\n"))
     typer.echo(f"{len(doc['groups'])} group(s) on {doc['engine']['workers']} worker(s), {doc['resumed']} taken from "
-               f"an earlier run, {failed} failed; {doc['wall_s']:.1f} s; table {Path(out) / 'fleet.csv'}")
+               f"an earlier run, {failed} failed; {doc['wall_s']:.1f} s; table {table_path}")
     if failed:
         raise typer.Exit(1)

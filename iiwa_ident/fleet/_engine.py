@@ -109,8 +109,9 @@ def run_fleet(stage: str, paths: Sequence[str | Path], out_dir: str | Path, sche
         from distributed import as_completed
 
         with _engine(scheduler, workers) as (client, engine):
-            futures = {client.submit(run_group, stage, [str(p) for p in g.datasets], key=f"{stage}-{key}",
-                                     pure=False): (i, g, key) for i, g, key in todo}
+            # Absolute paths: a worker started elsewhere does not share this process's working folder.
+            futures = {client.submit(run_group, stage, [str(p.resolve()) for p in g.datasets],
+                                     key=f"{stage}-{key}", pure=False): (i, g, key) for i, g, key in todo}
             for future in as_completed(futures):
                 i, g, key = futures[future]
                 try:
