@@ -21,7 +21,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("iiwa_ident", "errors", "_toml", "_schema", "_json", "_realtime", "_blas", "_defaults"),
     ("model", "references", "robot"),
     ("description",),
-    ("fri",),
+    ("fri", "netft"),
     ("datasets",),
     ("sim",),
     ("excite",),
@@ -96,7 +96,7 @@ def test_every_part_has_a_layer():
 
 
 #: Packages whose ``__init__`` is their public API: other parts import them only as a package.
-PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "runtime",
+PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "netft", "runtime",
               "emulator", "pipeline", "fleet", "report")
 
 

@@ -11,7 +11,7 @@ ROBOTS, GRAVITY_M_S2
     The arms described; gravity.
 JointDescription, describe_joint
     One joint at a pose: ``Jl``, gravity load, limits, the figures' source.
-mass_matrix, gravity_torques, link_inertia, gravity_torque, gravity_sinusoid, check_pose
+mass_matrix, gravity_torques, link_inertia, gravity_torque, gravity_sinusoid, check_pose, flange_axis
     The arm's dynamics at a pose (:mod:`iiwa_ident.description._dynamics`).
 Link, ARM_LINKS, JOINT_TURNS_RPY, FLANGE_M, RATED_PAYLOAD_KG, SOURCES
     The published figures (:mod:`iiwa_ident.description._figures`).
@@ -23,6 +23,7 @@ from iiwa_ident.description._dynamics import (
     JointDescription,
     check_pose,
     describe_joint,
+    flange_axis,
     gravity_sinusoid,
     gravity_torque,
     gravity_torques,

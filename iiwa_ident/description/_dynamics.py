@@ -18,7 +18,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.robot import JointLimits, joint_limits
 
 __all__ = ["ROBOTS", "GRAVITY_M_S2", "JointDescription", "mass_matrix", "gravity_torques", "link_inertia",
-           "gravity_torque", "gravity_sinusoid", "describe_joint", "check_pose"]
+           "gravity_torque", "gravity_sinusoid", "describe_joint", "check_pose", "flange_axis"]
 
 #: The arms described.
 ROBOTS: tuple[str, ...] = tuple(sorted(ARM_LINKS))
@@ -152,6 +152,28 @@ def gravity_sinusoid(robot: str, joint: int, pose: Sequence[float] | np.ndarray,
     q[j] = math.pi / 2
     g90 = gravity_torque(robot, joint, q, payload_kg)  # A cos(phi)
     return math.hypot(g0, g90), math.atan2(g0, g90)
+
+
+def flange_axis(robot: str, joint: int, q: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(axis, lever)`` of ``joint`` (1-7) seen from the flange at pose ``q``, both in the flange's frame.
+
+    ``axis`` is the joint's unit axis, ``lever`` [m] the flange's origin relative to the joint's origin on
+    that axis: a force ``F`` [N] and moment ``M`` [Nm] acting at the flange load the joint with
+    ``axis . (lever x F + M)`` [Nm] (an F/T sensor mounted on the flange, its frame the flange's).
+
+    Examples
+    --------
+    >>> from iiwa_ident.description import flange_axis
+    >>> axis, lever = flange_axis("iiwa14", 7, [0.0] * 7)
+    >>> axis.round(12).tolist(), bool(abs(lever[:2]).max() < 1e-12)  # joint 7 turns the flange about its own z
+    ([0.0, 0.0, 1.0], True)
+    """
+    j = _joint(joint)
+    mujoco, model, data = _state(robot, q)
+    R = np.array(data.site_xmat[0], dtype=float).reshape(3, 3)  # flange -> world
+    axis_w = np.array(data.xaxis[j], dtype=float)
+    lever_w = np.array(data.site_xpos[0], dtype=float) - np.array(data.xanchor[j], dtype=float)
+    return R.T @ axis_w, R.T @ lever_w
 
 
 @dataclass(frozen=True)
