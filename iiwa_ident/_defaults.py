@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["DESIGN_BETA", "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "PERIOD_MIN_RAD", "PERIOD_MAX_RAD",
-           "DEFAULT_PORT", "TASKS"]
+           "DEFAULT_PORT", "TASKS", "TAU_EXT_SOURCES", "LOOPS"]
 
 #: beta of the filter a design deploys (:mod:`iiwa_ident.design.spatial_filter`; observer, eq (14), and
 #: controller feedback, eq (15)) [-]. The paper's 5 stays the default of ``SpatialFilter``; inside the torque
@@ -34,3 +34,8 @@ PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
 DEFAULT_PORT = 30200
 #: Task names of the deployed runtime (:mod:`iiwa_ident.runtime.tasks`).
 TASKS = ("zero", "constant", "step", "sine", "chirp", "multisine", "kappa")
+#: Where the runtime's external torque comes from (:mod:`iiwa_ident.runtime.run`): its own observer of eq (14),
+#: KUKA's estimate in the FRI monitoring message, or an F/T sensor over RDT.
+TAU_EXT_SOURCES = ("estimate", "fri", "ft")
+#: The torque loops the runtime can close: the additive controller, or the reference sent as the command.
+LOOPS = ("additive", "builtin")

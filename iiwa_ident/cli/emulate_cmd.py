@@ -67,10 +67,12 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 
 
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
-            record, max_time, hand_speed, lockstep=False, stalls=(), pose=None) -> EmulatorConfig:
+            record, max_time, hand_speed, lockstep=False, stalls=(), pose=None, ft_port=None, ft_rate=1000.0,
+            ft_cutoff=152.0, ft_lever=None) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
     from iiwa_ident.emulator import AGENTS, DEFAULT_JOINT_POSITIONS, EmulatorConfig, Faults
     from iiwa_ident.fri import ClientCommandMode, ControlMode, parse_host_port
+    from iiwa_ident.netft import NetFtSettings
     from iiwa_ident.sim import load_plant
 
     if mode not in ("torque", "position"):
@@ -104,6 +106,9 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         max_wall_s=max_time,
         lockstep=lockstep,
         stalls=tuple(_stall(text) for text in stalls),
+        ft_port=ft_port,
+        ft=NetFtSettings(rate_hz=ft_rate, cutoff_hz=ft_cutoff if ft_cutoff else None),
+        ft_lever_m=ft_lever,
     )
 
 
@@ -158,6 +163,16 @@ def emulate_cmd(
                                                        "a message (repeatable).")] = None,
     pose: Annotated[Optional[str], typer.Option("--pose", help="Start pose of the 7 joints, comma-separated "
                                                 "degrees (default 0,30,0,-90,0,60,0).")] = None,
+    ft_port: Annotated[Optional[int], typer.Option("--ft-port", help="Serve a Net F/T over RDT on this UDP port "
+                                                   "(the joint's external torque as a hand's wrench at the "
+                                                   "flange).")] = None,
+    ft_rate: Annotated[float, typer.Option("--ft-rate", help="--ft-port: the sensor's output rate [Hz], "
+                                           "up to 7000.")] = 1000.0,
+    ft_cutoff: Annotated[float, typer.Option("--ft-cutoff", help="--ft-port: the sensor's low-pass cut-off "
+                                             "[Hz] (0: no filter).")] = 152.0,
+    ft_lever: Annotated[Optional[float], typer.Option("--ft-lever", help="--ft-port: the sensor's lever arm "
+                                                      "[m] (default: the flange from the description at "
+                                                      "--pose).")] = None,
 ) -> None:
     """Emulate the robot controller's side of FRI at 1 kHz over UDP, with the simulated joint behind it.
 
@@ -180,18 +195,24 @@ def emulate_cmd(
       iiwa-ident emulate --lockstep --duration 5 --record robot.h5
       iiwa-ident emulate --duration 10 --stall 2.0:30 --stall 6.5:200
       iiwa-ident emulate --duration 30 --pose 160,30,0,-90,0,60,0
+      iiwa-ident emulate --agent hand --ft-port 49152 --ft-rate 1000 --ft-cutoff 152
     """
     from iiwa_ident.emulator import RobotEmulator
 
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
-                         agent, record, max_time, hand_speed, lockstep, stall or (), pose)
+                         agent, record, max_time, hand_speed, lockstep, stall or (), pose, ft_port, ft_rate,
+                         ft_cutoff, ft_lever)
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
         raise fail(str(err))
     host, port = emulator.address
     typer.echo(f"robot side on {host}:{port}, sending to {config.client[0]}:{config.client[1]} every "
                f"{config.send_period_ms} ms ({mode} mode); Ctrl-C to stop")
+    if emulator.ft_address is not None:
+        typer.echo(f"Net F/T (RDT) on {emulator.ft_address[0]}:{emulator.ft_address[1]}, "
+                   f"{config.ft.rate_hz:g} Hz, filter "
+                   + (f"{config.ft.cutoff_hz:g} Hz" if config.ft.cutoff_hz else "off"))
     with stop_signals(lambda *_: emulator.stop()):
         report = emulator.run()
     typer.echo(format_summary(report))

@@ -9,12 +9,52 @@ import typer
 
 from iiwa_ident.cli._app import app, fail, write_json, json_option
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident._defaults import DEFAULT_PORT, TASKS
+from iiwa_ident._defaults import DEFAULT_PORT, LOOPS, TASKS, TAU_EXT_SOURCES
 
 if TYPE_CHECKING:
     from iiwa_ident.runtime import RunReport
 
-__all__ = ["run_cmd", "format_report"]
+__all__ = ["run_cmd", "format_report", "make_sensor"]
+
+
+def make_sensor(tau_ext: str, ft: Optional[str], lever: Optional[float], counts_per_force: float,
+                counts_per_torque: float, fault_cycles: int):
+    """The F/T sensor of ``--tau-ext ft`` from the ``--ft*`` options (None for the other sources)."""
+    from iiwa_ident.fri import parse_host_port
+    from iiwa_ident.netft import RDT_PORT, Calibration, JointAxisProjection, NetFtSensor
+
+    if tau_ext not in TAU_EXT_SOURCES:
+        raise IiwaIdentError(f"--tau-ext {tau_ext!r}: expected one of {', '.join(TAU_EXT_SOURCES)}")
+    if tau_ext != "ft":
+        if ft is not None:
+            raise IiwaIdentError("--ft is read only with --tau-ext ft")
+        return None
+    if ft is None:
+        raise IiwaIdentError("--tau-ext ft needs the sensor's address: --ft HOST[:PORT]")
+    host, port = parse_host_port(ft, RDT_PORT, "--ft")
+    projection = JointAxisProjection.from_lever_arm(lever) if lever is not None else None
+    return NetFtSensor(host, projection, port, Calibration(counts_per_force, counts_per_torque), fault_cycles)
+
+
+def ft_options():
+    """The ``--ft*`` options of the commands that read an F/T sensor, as typer parameters."""
+    return dict(
+        ft=Annotated[Optional[str], typer.Option("--ft", help="--tau-ext ft: the Net F/T's HOST[:PORT] (RDT, "
+                                                 "port 49152).")],
+        ft_lever=Annotated[Optional[float], typer.Option("--ft-lever", help="--tau-ext ft: the sensor's lever "
+                                                         "arm about the joint's axis [m] (default: the flange's "
+                                                         "geometry from the description at the arm's pose).")],
+        ft_cpf=Annotated[float, typer.Option("--ft-counts-per-force", help="--tau-ext ft: the sensor's "
+                                             "counts per N.")],
+        ft_cpt=Annotated[float, typer.Option("--ft-counts-per-torque", help="--tau-ext ft: the sensor's "
+                                             "counts per Nm.")],
+        ft_fault=Annotated[int, typer.Option("--ft-fault-cycles", help="--tau-ext ft: cycles in a row "
+                                             "without a good record that ramp the loop down and end the "
+                                             "run.")],
+    )
+
+
+_FT = ft_options()
 
 
 def format_report(report: RunReport) -> str:
@@ -73,6 +113,17 @@ def run_cmd(
     cpu: Annotated[Optional[int], typer.Option("--cpu", help="--realtime: CPU to pin the loop to (default: the "
                                                "highest one allowed).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="--target sim: seed of the sensor noise.")] = 0,
+    tau_ext: Annotated[str, typer.Option("--tau-ext", help="The external torque of the kappa task: "
+                                         f"{' | '.join(TAU_EXT_SOURCES)} (the runtime's eq (14), KUKA's "
+                                         "estimate, a Net F/T).")] = "estimate",
+    loop: Annotated[str, typer.Option("--loop", help=f"{' | '.join(LOOPS)}: the deployed controller, or "
+                                      "the reference sent as the torque command (the robot's own "
+                                      "loop).")] = "additive",
+    ft: _FT["ft"] = None,
+    ft_lever: _FT["ft_lever"] = None,
+    ft_cpf: _FT["ft_cpf"] = 1e6,
+    ft_cpt: _FT["ft_cpt"] = 1e6,
+    ft_fault: _FT["ft_fault"] = 20,
     json_out: Annotated[Optional[Path], json_option("the run report")] = None,
 ) -> None:
     """Execute a deployed controller at 1 kHz: eq (9) correction, spatial filter, improved observer,
@@ -88,6 +139,8 @@ def run_cmd(
       iiwa-ident run --config controller.toml --robot 192.170.10.2 --task zero --duration 30 --log run.h5
       iiwa-ident run --config controller.toml --robot 127.0.0.1 --task sine --amplitude 15 --frequency 25 --log sine.h5
       iiwa-ident run --config controller.toml --robot 192.170.10.2 --task kappa --kappa 3 --log kappa.h5
+      iiwa-ident run --config controller.toml --robot 192.170.10.2 --task kappa --kappa 3 --tau-ext ft
+        --ft 192.168.1.1 --log kappa.h5
       iiwa-ident run --config controller.toml --target sim --task step --amplitude 10 --log step.h5
       iiwa-ident run --config controller.toml --target sim --task multisine --amplitude 5 --frequency 1 --f1 40 --period 2 --log ms.h5
     """
@@ -105,6 +158,12 @@ def run_cmd(
         if not 0 < silence < float("inf"):
             raise IiwaIdentError(f"--silence-limit must be a positive number of seconds, got {silence!r}")
         watchdog = Watchdog(cfg.sample_time_s, watchdog_cycles, ramp_ms * 1e-3)
+        if loop not in LOOPS:
+            raise IiwaIdentError(f"--loop {loop!r}: expected one of {', '.join(LOOPS)}")
+        sensor = make_sensor(tau_ext, ft, ft_lever, ft_cpf, ft_cpt, ft_fault)
+        if sensor is not None and target != "robot":
+            raise IiwaIdentError("--tau-ext ft reads a sensor over the network: run against the emulator "
+                                 "('iiwa-ident emulate --ft-port PORT') with --target robot")
         the_robot: RobotInterface
         if target == "robot":
             if not robot:
@@ -124,7 +183,8 @@ def run_cmd(
         else:
             raise IiwaIdentError(f"--target {target}: expected 'robot' or 'sim'")
         report = run_controller(cfg, the_robot, the_task, duration, log, watchdog=watchdog,
-                                progress=typer.echo, realtime=realtime and target == "robot", cpu=cpu)
+                                progress=typer.echo, realtime=realtime and target == "robot", cpu=cpu,
+                                tau_ext=tau_ext, sensor=sensor, loop=loop)
         typer.echo(format_report(report))
         if json_out is not None:
             write_json(json_out, report.as_dict())

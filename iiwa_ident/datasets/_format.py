@@ -96,6 +96,7 @@ SIGNAL_UNITS: dict[str, str] = {
     "tau_r": "Nm",  # reference torque of the controller
     "tau_j_filt": "Nm",  # spatially filtered joint torque (eq 15)
     "tau_ext_est": "Nm",  # client-side external torque estimate (eq 14)
+    "tau_ext_loop": "Nm",  # the external torque a run log's task saw (its --tau-ext source)
     "tau_add": "Nm",  # additive torque sent on top of the robot's controller
     "watchdog": "-",  # watchdog scale 0..1, 1 = normal
     "cycle_us": "us",  # compute time of the control cycle

@@ -21,6 +21,7 @@ from typing import Any
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import N_JOINTS, ClientCommandMode, ControlMode, OperationMode
+from iiwa_ident.netft import NetFtSettings
 from iiwa_ident.robot import joint_limits
 from iiwa_ident.sim import Plant, default_plant
 
@@ -204,6 +205,15 @@ class EmulatorConfig:
         the messages' time stamps keep the time, and the sequence counter
         does not jump (it counts messages sent), so a client sees the
         silence only in the time stamps (or on its own clock).
+    ft_port : int or None
+        Serve a Net F/T over RDT on this UDP port of the bind host (0: any free port), streaming
+        the simulated joint's external torque (its F/T reference, with the plant's F/T noise) as
+        the wrench of a hand pushing at a sensor on the flange (:mod:`iiwa_ident.netft`).
+    ft : NetFtSettings
+        The emulated sensor's output rate, filter and calibration.
+    ft_lever_m : float or None
+        The sensor's lever arm about the joint's axis [m]; None: the flange's geometry from the
+        robot's description at ``joint_positions``.
     """
 
     client: tuple[str, int] = ("127.0.0.1", 30200)
@@ -238,6 +248,9 @@ class EmulatorConfig:
     lockstep_latency_s: float = 0.2e-3
     lockstep_guard_s: float = 1.0
     stalls: tuple[tuple[float, float], ...] = ()
+    ft_port: int | None = None
+    ft: NetFtSettings = field(default_factory=NetFtSettings)
+    ft_lever_m: float | None = None
 
 
 def _finite(name: str, value: Any, low: float = 0.0, allow_none: bool = False, strict: bool = False) -> None:
@@ -313,6 +326,14 @@ def check_config(config: EmulatorConfig) -> None:
             raise IiwaIdentError(f"joint_positions[{i}] = {q:g} rad is outside joint {i + 1}'s range +-{limit:.3f} rad")
     resolve_address(config.client, "client", allow_any_port=False)
     resolve_address(config.bind, "bind", allow_any_port=True)
+    if config.ft_port is not None:
+        if not isinstance(config.ft_port, int) or not 0 <= config.ft_port <= 65535:
+            raise IiwaIdentError(f"ft_port must be a UDP port 0-65535, got {config.ft_port!r}")
+        if not plant.ft_sensor:
+            raise IiwaIdentError("an F/T sensor needs a plant with sensors.ft_sensor = true")
+        if not isinstance(config.ft, NetFtSettings):
+            raise IiwaIdentError("ft must be a NetFtSettings instance")
+        _finite("ft_lever_m", config.ft_lever_m, allow_none=True)
 
 
 def resolve_address(address: Any, name: str, allow_any_port: bool) -> tuple[str, int]:

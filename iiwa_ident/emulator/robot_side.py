@@ -139,6 +139,7 @@ from iiwa_ident.fri import (
     encode_monitoring,
     message_problem,
 )
+from iiwa_ident.netft import EmulatedNetFt, JointAxisProjection, RdtServer
 from iiwa_ident.robot import Command, Measurement
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
@@ -221,6 +222,17 @@ class RobotEmulator:
             raise IiwaIdentError(f"cannot bind the robot-side socket to {bind[0]}:{bind[1]}: {err.strerror}") from None
         self._sock.setblocking(False)
         self._address: tuple[str, int] = self._sock.getsockname()[:2]
+        self._ft: EmulatedNetFt | None = None
+        if config.ft_port is not None:
+            projection = (JointAxisProjection.from_lever_arm(config.ft_lever_m) if config.ft_lever_m is not None
+                          else JointAxisProjection.from_description(self._plant.robot_model, self._plant.joint,
+                                                                    self._pose))
+            try:
+                server = RdtServer((bind[0], config.ft_port))
+            except IiwaIdentError:
+                self._sock.close()
+                raise
+            self._ft = EmulatedNetFt(server, projection, config.ft, self._period)
         self._stop_requested = False
         self._ran = False
 
@@ -229,14 +241,21 @@ class RobotEmulator:
         """``(host, port)`` of the robot-side socket, the address the client answers to."""
         return self._address
 
+    @property
+    def ft_address(self) -> tuple[str, int] | None:
+        """``(host, port)`` of the emulated F/T sensor (None without one)."""
+        return self._ft.server.address if self._ft is not None else None
+
     def stop(self) -> None:
         """Ask :meth:`run` to close the session and return (thread- and signal-safe)."""
         # A single attribute store: safe from signal handlers and other threads.
         self._stop_requested = True
 
     def close(self) -> None:
-        """Close the socket (done by :meth:`run`; needed only if it never runs)."""
+        """Close the sockets (done by :meth:`run`; needed only if it never runs)."""
         self._sock.close()
+        if self._ft is not None:
+            self._ft.server.close()
 
     # -- run --------------------------------------------------------------
     def run(self) -> EmulatorReport:
@@ -264,7 +283,7 @@ class RobotEmulator:
             self._loop()
             self._finish()
         finally:
-            self._sock.close()
+            self.close()
             if freeze:
                 gc.unfreeze()
         return self._report
@@ -413,6 +432,9 @@ class RobotEmulator:
             self._meas = meas = self._robot.step(command)
             self._sim_k += 1
         self._positions = self._measured_positions(meas)
+        if self._ft is not None:
+            # The sensor streams on its own, before this cycle's monitoring message leaves.
+            self._ft.cycle(meas.tau_ext_ref if meas.tau_ext_ref is not None else 0.0)
         stalled = False
         if state == SessionState.COMMANDING_ACTIVE:
             n = self._active_cycles

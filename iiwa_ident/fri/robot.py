@@ -115,6 +115,13 @@ class FriRobot(RobotInterface):
             out["first_answer_s"] = self.stats.first_answer_s
         return out
 
+    @property
+    def pose(self) -> tuple[float, ...] | None:
+        """The measured positions of all joints in the current message [rad] (None before the first)."""
+        if self._msg is None:
+            return None
+        return tuple(float(q) for q in self._values(self._msg, "measured_joint_position"))
+
     def _state(self, msg: MonitoringMessage) -> int:
         return msg.connection_info.session_state if msg.HasField("connection_info") else SessionState.IDLE
 

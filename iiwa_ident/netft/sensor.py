@@ -7,7 +7,8 @@ What it counts, per :class:`SensorStats`:
 
 * records from another address (``foreign``), datagrams that are no record (``invalid``);
 * records whose RDT sequence is not newer than the last one (``stale``: duplicates, reordering), and
-  gaps in it (``lost``: records the network dropped);
+  gaps in it (``lost``: records the network dropped), counted from the second poll on (what queued up
+  or overflowed the socket before the loop read it is no loss of the stream);
 * records with a status word other than 0 (``bad_status``): the sensor reports a fault (saturation, a
   broken gauge, ...) and the record is not used;
 * cycles without a new good record (``silent_cycles``). After ``fault_cycles`` of them in a row
@@ -62,8 +63,9 @@ class NetFtSensor:
     ----------
     host : str
         The sensor's address.
-    projection : JointAxisProjection
-        The sensor-to-axis geometry.
+    projection : JointAxisProjection or None
+        The sensor-to-axis geometry; None until the caller sets :attr:`projection` (the runtime sets
+        it from the robot's description at the pose the arm holds when commanding starts).
     port : int
         The sensor's RDT port (49152).
     calibration : Calibration
@@ -74,7 +76,7 @@ class NetFtSensor:
         Ask the sensor for a software bias at :meth:`start` (the hand is off the arm then).
     """
 
-    def __init__(self, host: str, projection: JointAxisProjection, port: int = RDT_PORT,
+    def __init__(self, host: str, projection: JointAxisProjection | None, port: int = RDT_PORT,
                  calibration: Calibration = Calibration(), fault_cycles: int = 20, bias: bool = True) -> None:
         if int(fault_cycles) < 1:
             raise IiwaIdentError(f"F/T sensor: fault cycles must be >= 1, got {fault_cycles!r}")
@@ -89,6 +91,7 @@ class NetFtSensor:
         self.fault = ""  #: why the stream is no longer trusted ("" while it is)
         self._silent = 0
         self._last_seq: int | None = None
+        self._polled = False
         self._sock: socket.socket | None = None
 
     def start(self) -> None:
@@ -103,6 +106,24 @@ class NetFtSensor:
             self.stop()
             raise IiwaIdentError(f"F/T sensor at {self.address[0]}:{self.address[1]}: "
                                  f"{err.strerror or err}") from None
+
+    def flush(self) -> int:
+        """Discard what queued up before the loop starts reading (records older than its first cycle).
+
+        Returns the number of datagrams discarded; the next poll's records start the sequence anew.
+        """
+        n = 0
+        while self._sock is not None:
+            try:
+                self._sock.recvfrom(256)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                continue
+            n += 1
+        self._last_seq = None
+        self._polled = False
+        return n
 
     def poll(self) -> float | None:
         """Take what arrived since the last cycle: the newest good record's torque [Nm], or None.
@@ -135,7 +156,8 @@ class NetFtSensor:
                 if ahead == 0 or ahead >= _U32 // 2:
                     st.stale += 1
                     continue
-                st.lost += ahead - 1
+                if self._polled:
+                    st.lost += ahead - 1
             self._last_seq = rec.rdt_sequence
             st.received += 1
             if rec.status != 0:
@@ -143,6 +165,7 @@ class NetFtSensor:
                 st.last_status = rec.status
                 continue
             newest = rec
+        self._polled = True
         if newest is None:
             self._silent += 1
             st.silent_cycles += 1
@@ -153,6 +176,8 @@ class NetFtSensor:
                 self.fault = f"F/T sensor: {what} for {self._silent} cycles"
             return None
         self._silent = 0
+        if self.projection is None:
+            raise IiwaIdentError("F/T sensor: no projection onto the joint's axis was set")
         self.tau = self.projection.torque(self.calibration.wrench(newest.counts))
         return self.tau
 

@@ -52,14 +52,17 @@ from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy import ControllerConfig, controller_from_config
 from iiwa_ident.design import ControlCycle
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
+from iiwa_ident._defaults import LOOPS, TAU_EXT_SOURCES
+from iiwa_ident.description import flange_axis
+from iiwa_ident.netft import JointAxisProjection, NetFtSensor
 from iiwa_ident.runtime.tasks import Task, TaskInput
 from iiwa_ident.robot import Command, Measurement, RobotInterface
 
 __all__ = ["LOG_SIGNALS", "Watchdog", "ControllerRuntime", "RunReport", "run_controller"]
 
 #: Signals of a run log, in column order (dataset format v1 names).
-LOG_SIGNALS = ("t", "q_m", "tau_j", "tau_ext_fri", "tau_c", "tau_r", "tau_j_filt", "tau_ext_est", "watchdog",
-               "cycle_us")
+LOG_SIGNALS = ("t", "q_m", "tau_j", "tau_ext_fri", "tau_c", "tau_r", "tau_j_filt", "tau_ext_est", "tau_ext_loop",
+               "watchdog", "cycle_us")
 
 
 class Watchdog:
@@ -123,9 +126,29 @@ class ControllerRuntime:
         The reference program.
     watchdog : Watchdog, optional
         Default: 3 cycles, 20 ms ramp, 100 cycles to recover.
+    tau_ext : str
+        The external torque the task sees: ``"estimate"`` (the runtime's eq (14)), ``"fri"`` (KUKA's
+        estimate in the monitoring message, relative to its value at the start: it carries the
+        robot model's static error) or ``"ft"`` (``sensor``'s torque about the joint's axis).
+    sensor : NetFtSensor, optional
+        The F/T sensor of ``tau_ext="ft"``, started by the caller and polled once per cycle; its
+        fault (records missing or bad past its limit) ramps the output out and ends the run.
+    loop : str
+        ``"additive"``: the deployed controller, eqs (16)-(18); ``"builtin"``: the reference itself
+        is the command (the robot's own torque loop), with the same limits, watchdog and log.
     """
 
-    def __init__(self, config: ControllerConfig, task: Task, watchdog: Watchdog | None = None) -> None:
+    def __init__(self, config: ControllerConfig, task: Task, watchdog: Watchdog | None = None, *,
+                 tau_ext: str = "estimate", sensor: NetFtSensor | None = None, loop: str = "additive") -> None:
+        if tau_ext not in TAU_EXT_SOURCES:
+            raise IiwaIdentError(f"unknown external-torque source {tau_ext!r} (known: {', '.join(TAU_EXT_SOURCES)})")
+        if (tau_ext == "ft") != (sensor is not None):
+            raise IiwaIdentError("the F/T source needs a sensor, and a sensor is only read with the F/T source")
+        if loop not in LOOPS:
+            raise IiwaIdentError(f"unknown loop {loop!r} (known: {', '.join(LOOPS)})")
+        self.tau_ext_source, self.sensor, self.loop = tau_ext, sensor, loop
+        self._fri_offset = 0.0
+        self.tau_ext_loop = 0.0  #: the last cycle's external torque from the run's source [Nm]
         self.config, self.task = config, task
         self.dt = config.sample_time_s
         self.watchdog = watchdog or Watchdog(self.dt)
@@ -166,6 +189,7 @@ class ControllerRuntime:
         """Start (or restart after a watchdog trip) from rest at this measurement."""
         self.control.restart(meas)
         self._ref_prev = 0.0
+        self._fri_offset = meas.tau_ext_fri
 
     def cycle(self, meas: Measurement, gap_cycles: float = 1.0) -> float:
         """One cycle: measurement -> additive torque to send [Nm] (finite, within the limits).
@@ -188,9 +212,23 @@ class ControllerRuntime:
 
         if self.watchdog.update(meas.t, gap_cycles):
             self._restart(meas)
+        src = self.tau_ext_source
+        if src == "estimate":
+            tau_ext = control.tau_ext
+        elif src == "fri":
+            tau_ext = meas.tau_ext_fri - self._fri_offset
+        else:
+            self.sensor.poll()  # type: ignore[union-attr]
+            tau_ext = self.sensor.tau  # type: ignore[union-attr]
+            if self.sensor.fault:  # type: ignore[union-attr]
+                self.request_stop(self.sensor.fault)  # type: ignore[union-attr]
+        self.tau_ext_loop = tau_ext
         task_in = self._input
-        task_in.t, task_in.theta_j, task_in.tau_ext = meas.t, control.theta_j, control.tau_ext
+        task_in.t, task_in.theta_j, task_in.tau_ext = meas.t, control.theta_j, tau_ext
+        task_in.tau_j = meas.tau_j - control.tau_offset
         ref = self.task.reference(task_in)
+        if self.task.done:
+            self.request_stop(self.task.done)
         if not math.isfinite(ref):
             self.request_stop("the task gave a non-finite reference")
             ref = 0.0
@@ -198,7 +236,7 @@ class ControllerRuntime:
         ref = min(max(ref, self._ref_prev - self._dref_max), self._ref_prev + self._dref_max)
         ref = min(max(ref, -self._ref_max), self._ref_max)
         self._ref_prev = self.tau_r = ref
-        out = control.command(ref)  # eqs (16)-(18)
+        out = control.command(ref) if self.loop == "additive" else ref  # eqs (16)-(18), or the built-in loop
         if not math.isfinite(out):
             self.request_stop("the controller gave a non-finite torque")
             control.controller.reset()
@@ -243,6 +281,8 @@ class RunReport:
         Log file.
     first_answer_s : float or None
         FRI: time from opening the socket to the first answer to the robot [s].
+    sensor : dict
+        The F/T sensor's record counters (:class:`~iiwa_ident.netft.SensorStats`; empty without one).
     """
 
     cycles: int
@@ -255,13 +295,14 @@ class RunReport:
     connection: dict[str, int] = field(default_factory=dict)
     log: str = ""
     first_answer_s: float | None = None
+    sensor: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """JSON-ready form."""
         return {"cycles": self.cycles, "duration_s": self.duration_s, "stop_reason": self.stop_reason,
                 "watchdog_events": [[t, e] for t, e in self.watchdog_events], "compute_us": self.compute_us,
                 "logged": self.logged, "lost_log_rows": self.lost_log_rows, "connection": self.connection,
-                "log": self.log, "first_answer_s": self.first_answer_s}
+                "log": self.log, "first_answer_s": self.first_answer_s, "sensor": self.sensor}
 
 
 def _percentiles(ns: np.ndarray) -> dict[str, float]:
@@ -285,7 +326,8 @@ class _StopFlag:
 def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
                    log: str | Path, *, watchdog: Watchdog | None = None,
                    progress: Callable[[str], None] | None = None, realtime: bool = False,
-                   cpu: int | None = None) -> RunReport:
+                   cpu: int | None = None, tau_ext: str = "estimate", sensor: NetFtSensor | None = None,
+                   loop: str = "additive") -> RunReport:
     """Run ``task`` through the deployed controller on ``robot`` for ``duration_s`` [s], logging every cycle.
 
     Parameters
@@ -312,6 +354,11 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     cpu : int, optional
         With ``realtime``: the CPU (default: the highest one allowed; -1 leaves
         the affinity alone).
+    tau_ext, sensor, loop : str, NetFtSensor or None, str
+        The external-torque source, its F/T sensor and the torque loop (:class:`ControllerRuntime`);
+        the sensor is started with the run and stopped when it ends. A sensor without a projection
+        gets the flange's geometry from the robot's description at the pose the robot reports when
+        commanding starts (an interface without a pose is refused).
 
     Returns
     -------
@@ -325,9 +372,18 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise IiwaIdentError(f"duration must be positive, got {duration_s!r}")
     say = progress or (lambda _msg: None)
-    runtime = ControllerRuntime(config, task, watchdog)
+    if sensor is not None and sensor.projection is None:
+        if not hasattr(robot, "pose"):
+            raise IiwaIdentError("the F/T sensor's projection needs the arm's pose, which this robot interface "
+                                 "does not report: give the sensor's lever arm")
+        # Load the description's model now: at the first commanding message only its kinematics run.
+        flange_axis(config.robot_model, config.joint, [0.0] * 7)
+    runtime = ControllerRuntime(config, task, watchdog, tau_ext=tau_ext, sensor=sensor, loop=loop)
     dt = config.sample_time_s
-    attrs = {"controller_sha256": config.sha256, "duration_s": float(duration_s), **task.attrs()}
+    attrs = {"controller_sha256": config.sha256, "duration_s": float(duration_s), "tau_ext_source": tau_ext,
+             "loop": loop, **task.attrs()}
+    if sensor is not None:
+        attrs["ft_sensor"] = f"{sensor.address[0]}:{sensor.address[1]}"
     writer = LogWriter(log, LOG_SIGNALS, experiment="free", source=robot.source, joint=config.joint,
                        sample_rate_hz=1.0 / dt, experiment_attrs=attrs)
     n_max = int(round(duration_s / dt))
@@ -342,8 +398,15 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
         signals = _StopFlag()
         with stop_signals(signals), no_gc_pauses(), \
                 (realtime_process(cpu, say=say) if realtime else contextlib.nullcontext()):
+            if sensor is not None:
+                sensor.start()
             meas = robot.start()
-            say(f"commanding: {task.name} for {duration_s:g} s")
+            if sensor is not None:
+                if sensor.projection is None:
+                    sensor.projection = JointAxisProjection.from_description(
+                        config.robot_model, config.joint, robot.pose)  # type: ignore[attr-defined]
+                sensor.flush()  # records of the wait for commanding are no measurement of this run
+            say(f"commanding: {task.name} for {duration_s:g} s ({loop} loop, external torque: {tau_ext})")
             last_ns = time.perf_counter_ns()
             while True:
                 # Robot cycles since the previous message: lost, or skipped because they came late.
@@ -358,7 +421,7 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
                         say(f"watchdog at {t_ev:.3f} s: {text}")
                     events_seen = len(runtime.watchdog.events)
                 writer.append((meas.t, meas.q_m, meas.tau_j, meas.tau_ext_fri, tau, runtime.tau_r,
-                               runtime.tau_j_filt, runtime.tau_ext, runtime.watchdog.scale,
+                               runtime.tau_j_filt, runtime.tau_ext, runtime.tau_ext_loop, runtime.watchdog.scale,
                                compute[k - 1] / 1e3 if k else 0.0))
                 if runtime.finished or k >= len(compute):
                     break
@@ -375,10 +438,16 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
                 k += 1
     finally:
         robot.stop()
+        if sensor is not None:
+            sensor.stop()
         stats = writer.close({"stop_reason": reason or runtime.stop_reason,
-                              "watchdog_events": "; ".join(f"{t:.3f} s {e}" for t, e in runtime.watchdog.events)})
+                              "watchdog_events": "; ".join(f"{t:.3f} s {e}" for t, e in runtime.watchdog.events),
+                              **({"ft_projection": sensor.projection.source}
+                                 if sensor is not None and sensor.projection is not None else {}),
+                              **task.result_attrs()})
     reason = reason or runtime.stop_reason
     facts = robot.describe()
     return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, watchdog_events=list(runtime.watchdog.events),
                      compute_us=_percentiles(compute[:k]), logged=stats.written, lost_log_rows=stats.lost,
-                     connection=facts.get("connection", {}), log=str(log), first_answer_s=facts.get("first_answer_s"))
+                     connection=facts.get("connection", {}), log=str(log), first_answer_s=facts.get("first_answer_s"),
+                     sensor=sensor.stats.as_dict() if sensor is not None else {})

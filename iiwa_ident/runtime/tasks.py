@@ -37,13 +37,17 @@ class TaskInput:
     theta_j : float
         Joint position of eq (8) [rad].
     tau_ext : float
-        The runtime's external-torque estimate, eq (14) (improved observer,
-        spatially filtered) [Nm].
+        The external torque of the run's source [Nm]: the runtime's estimate of
+        eq (14) (improved observer, spatially filtered), KUKA's estimate, or the
+        F/T sensor's torque about the joint's axis (``iiwa-ident run --tau-ext``).
+    tau_j : float
+        The measured joint torque relative to its value at the start [Nm].
     """
 
     t: float
     theta_j: float
     tau_ext: float
+    tau_j: float = 0.0
 
 
 class Task(ABC):
@@ -51,6 +55,8 @@ class Task(ABC):
 
     #: Name on the command line and in the log.
     name: str = ""
+    #: Set by a task that has finished (the reason): the runtime ramps out and ends the run.
+    done: str = ""
 
     @abstractmethod
     def reference(self, s: TaskInput) -> float:
@@ -59,6 +65,10 @@ class Task(ABC):
     def attrs(self) -> dict[str, float | str]:
         """Parameters recorded in the log's ``/experiment`` attributes."""
         return {"task": self.name}
+
+    def result_attrs(self) -> dict:
+        """What the task found, added to the log's attributes when the run ends."""
+        return {}
 
 
 class ZeroTask(Task):
@@ -173,8 +183,9 @@ class MultisineTask(Task):
 class KappaTask(Task):
     """tau_r = kappa tau_ext (section V.C): the joint amplifies the torque a human applies.
 
-    The runtime's own estimate of eq (14) closes the loop (FRI carries no
-    F/T sensor); ``kappa`` = 0 is the transparent joint.
+    ``tau_ext`` is the run's source (``iiwa-ident run --tau-ext``: the runtime's
+    estimate of eq (14), KUKA's, or an F/T sensor); ``kappa`` = 0 is the
+    transparent joint.
     """
 
     kappa: float
