@@ -11,6 +11,7 @@ from iiwa_ident.cli import ripple_cmd as _ripple_cmd  # noqa: F401
 from iiwa_ident.cli import design_cmd as _design_cmd  # noqa: F401
 from iiwa_ident.cli import deploy_cmd as _deploy_cmd  # noqa: F401
 from iiwa_ident.cli import run_cmd as _run_cmd  # noqa: F401
+from iiwa_ident.cli import kappa_cmd as _kappa_cmd  # noqa: F401
 from iiwa_ident.cli import diagnose_cmd as _diagnose_cmd  # noqa: F401
 from iiwa_ident.cli import compare_cmd as _compare_cmd  # noqa: F401
 from iiwa_ident.cli import model_cmd as _model_cmd  # noqa: F401

@@ -8,10 +8,11 @@ ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver,
 run_observers, compare_observers, observer_lag
     The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
 HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
-PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius
+PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius,
+DeployedLoop, DeployedMargin, deployed_loop_matrix, deployed_kappa_max, deployed_margin
     The additive torque controller of section V.B: its design (:mod:`iiwa_ident.design.additive`), the
     controller one sample at a time (:mod:`iiwa_ident.design.controller`) and the outer-loop margin
-    (:mod:`iiwa_ident.design.margins`).
+    (:mod:`iiwa_ident.design.margins`; the loop as deployed: source, F/T filter, spatial filter).
 ControlCycle
     Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
 DesignRecord, DesignFileError, make_record, read_design, write_design
@@ -36,8 +37,13 @@ from iiwa_ident.design.additive import (
 )
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.design.margins import (
+    DeployedLoop,
+    DeployedMargin,
     HumanArm,
     OuterLoopMargins,
+    deployed_kappa_max,
+    deployed_loop_matrix,
+    deployed_margin,
     exact_delay_spectral_radius,
     kappa_max,
     outer_loop_margins,
@@ -88,6 +94,7 @@ __all__ = [
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",
     "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
+    "DeployedLoop", "DeployedMargin", "deployed_kappa_max", "deployed_loop_matrix", "deployed_margin",
     "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "PAPER_FILTER", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",
     "ClosedLoopRun", "KappaMargin", "ControlCycle",

@@ -29,14 +29,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple, Sequence
 
 import numpy as np
+from scipy.signal import tf2ss
 
+from iiwa_ident._defaults import TAU_EXT_SOURCES
 from iiwa_ident.design.additive import SAMPLE_TIME_S, AdditiveDesign, DesignError
-from iiwa_ident.model import JointParameters, coefficients, delayed_hold
+from iiwa_ident.design.spatial_filter import FilterSettings, gamma_weight, ripple_bandpass_coefficients
+from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointParameters, coefficients, delayed_hold
 
 __all__ = ["HumanArm", "OuterLoopMargins", "arm_plant", "outer_loop_matrix", "exact_delay_spectral_radius",
-           "kappa_max", "outer_loop_margins"]
+           "kappa_max", "outer_loop_margins", "DeployedLoop", "deployed_loop_matrix", "deployed_kappa_max",
+           "DeployedMargin", "deployed_margin"]
 
 
 @dataclass(frozen=True)
@@ -95,12 +100,23 @@ def arm_plant(params: JointParameters, arm: HumanArm) -> tuple[np.ndarray, np.nd
     return A, B, C
 
 
-def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray, T: float, delay: float,
-                  design: AdditiveDesign | None) -> np.ndarray:
-    """State matrix of a ZOH plant with input delay under ``tau_c = controller(C_r x, C_j x)``.
+class _Measurement(NamedTuple):
+    """A discrete system from the plant's state ``x`` to ``[tau_j seen, r]``: ``xf+ = Af xf + Bf x``,
+    ``y = Cf xf + Df x``."""
 
-    ``C_j x`` is the joint torque the controller measures, ``C_r x`` the
-    reference ``tau_r`` (already multiplied by the outer-loop gain).
+    Af: np.ndarray
+    Bf: np.ndarray
+    Cf: np.ndarray
+    Df: np.ndarray
+
+
+def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray, T: float, delay: float,
+                  design: AdditiveDesign | None, meas: "_Measurement | None" = None) -> np.ndarray:
+    """State matrix of a ZOH plant with input delay under ``tau_c = controller(r, tau_j)``.
+
+    Without ``meas`` the controller sees ``C_j x`` as the joint torque and ``C_r x`` as the reference
+    ``tau_r`` (already multiplied by the outer-loop gain). With ``meas``, a discrete system from the
+    plant's state to ``[tau_j seen, r]`` (sensors, observers, filters) stands between them.
     """
     Phi, G0, G1, d = delayed_hold(A, B, T, delay)
     m = d + (1 if np.any(G1) else 0)  # stored past commands u[k-1] .. u[k-m]
@@ -108,12 +124,19 @@ def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray
         Ac, Bc, Cc, Dc = np.zeros((0, 0)), np.zeros((0, 2)), np.zeros(0), np.array([1.0, 0.0])
     else:
         Ac, Bc, Cc, Dc = design.controller_matrices(discrete=True)
-    n, nc = A.shape[0], Ac.shape[0]
-    N = n + m + nc
-    # u[k] = Cc xc + Dc_r tau_r  (no feed-through from tau_j)
-    U = np.zeros(N)
-    U[:n] = Dc[0] * C_r
-    U[n + m:] = Cc
+    if meas is None:
+        meas = _Measurement(np.zeros((0, 0)), np.zeros((0, A.shape[0])), np.zeros((2, 0)), np.vstack([C_j, C_r]))
+    Af, Bf, Cf, Df = meas
+    n, nc, nf = A.shape[0], Ac.shape[0], Af.shape[0]
+    N = n + m + nc + nf
+    i_c, i_f = n + m, n + m + nc
+    # The controller's inputs [r, tau_j seen] as rows over X: y = Cf xf + Df x.
+    Y = np.zeros((2, N))
+    Y[:, :n] = Df[[1, 0]]
+    Y[:, i_f:] = Cf[[1, 0]]
+    # u[k] = Cc xc + Dc [r, tau_j]
+    U = Dc @ Y
+    U[i_c:i_f] += Cc
     M = np.zeros((N, N))
     M[:n, :n] = Phi
     for lag, gain in ((d, G0), (d + 1, G1)):
@@ -128,8 +151,11 @@ def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray
         for i in range(1, m):
             M[n + i, n + i - 1] = 1.0
     if nc:
-        M[n + m:, :n] = np.outer(Bc[:, 0], C_r) + np.outer(Bc[:, 1], C_j)
-        M[n + m:, n + m:] = Ac
+        M[i_c:i_f] = Bc @ Y
+        M[i_c:i_f, i_c:i_f] += Ac
+    if nf:
+        M[i_f:, :n] = Bf
+        M[i_f:, i_f:] = Af
     return M
 
 
@@ -214,9 +240,12 @@ def kappa_max(params: JointParameters, design: AdditiveDesign | None = None, arm
     float
         ``kappa_max`` (0.0 if the loop is unstable already at ``kappa = 0``).
     """
-    def stable(k: float) -> bool:
-        return _spectral_radius(outer_loop_matrix(params, k, design, arm)) < 1.0
+    return _largest_stable(lambda k: _spectral_radius(outer_loop_matrix(params, k, design, arm)) < 1.0,
+                           kappa_limit, resolution, tol)
 
+
+def _largest_stable(stable, kappa_limit: float, resolution: float, tol: float) -> float:
+    """Scan ``kappa`` upward in steps of ``resolution`` to the first unstable one, then bisect to ``tol``."""
     if not stable(0.0):
         return 0.0
     lo = 0.0
@@ -264,3 +293,210 @@ def outer_loop_margins(design: AdditiveDesign, arm: HumanArm = HumanArm(),
         additive=kappa_max(design.params, design, arm, kappa_limit),
         arm=arm, kappa_limit=kappa_limit,
     )
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The loop as deployed: where tau_ext comes from, the spatial filter, the F/T sensor's filter
+# ---------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DeployedLoop:
+    """What the deployed outer loop adds to the model of :func:`outer_loop_matrix`.
+
+    Attributes
+    ----------
+    source : str
+        Where ``tau_ext`` comes from: ``"ideal"`` (the true torque, the model of section V.C),
+        ``"ft"`` (a Net F/T: first-order low-pass at ``ft_cutoff_hz``, ``ft_rate_hz`` records per
+        second, the newest one read each cycle), ``"estimate"`` (the runtime's observer of eq (13)
+        on the link velocity of eq (9) with gain ``KI``, spatially filtered, eq (14)) or ``"fri"``
+        (the robot's own observer: eq (13) on the motor velocity with gain ``KI``).
+    ft_cutoff_hz : float or None
+        The F/T sensor's filter cut-off [Hz] (None: no filter).
+    ft_rate_hz : float
+        The F/T sensor's output rate [Hz]; at or above the loop's rate the filter runs on the samples
+        of one cycle, below it the hold is not modelled.
+    KI : float
+        Observer gain of ``"estimate"`` and ``"fri"`` [1/s].
+    filter : FilterSettings or None
+        The spatial filter of eqs (10)-(12) on the additive controller's torque feedback, eq (15), and
+        on the estimate, eq (14); None: no spatial filter (the model of section V.C). Its period must
+        be set.
+    speed_rad_s : float
+        The joint speed the spatial filter is taken at [rad/s]: at a constant speed it is a linear
+        time-invariant filter (a notch at the ripple frequency ``|v| / rho``, weighted by gamma).
+    """
+
+    source: str = "ideal"
+    ft_cutoff_hz: float | None = None
+    ft_rate_hz: float = 1000.0
+    KI: float = 25.0
+    filter: FilterSettings | None = None
+    speed_rad_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.source not in ("ideal", *TAU_EXT_SOURCES):
+            raise DesignError(f"unknown external-torque source {self.source!r}")
+        if self.filter is not None and self.filter.period_rad is None:
+            raise DesignError("the deployed loop's spatial filter needs its period")
+
+
+def _series(first: tuple, second: tuple) -> tuple:
+    """Discrete SISO systems in series: ``second(first(u))``, each ``(A, B, C, D)`` with 1-D B and C."""
+    A1, B1, C1, D1 = first
+    A2, B2, C2, D2 = second
+    n1, n2 = A1.shape[0], A2.shape[0]
+    A = np.zeros((n1 + n2, n1 + n2))
+    A[:n1, :n1] = A1
+    A[n1:, :n1] = np.outer(B2, C1)
+    A[n1:, n1:] = A2
+    B = np.concatenate([B1, B2 * D1])
+    C = np.concatenate([D2 * C1, C2])
+    return A, B, C, D2 * D1
+
+
+def _siso(b: np.ndarray, a: np.ndarray) -> tuple:
+    A, B, C, D = tf2ss(b, a)
+    return np.atleast_2d(A), np.asarray(B, float).ravel(), np.asarray(C, float).ravel(), float(np.ravel(D)[0])
+
+
+_ONE = (np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0)
+
+
+def _spatial_filter(settings: FilterSettings | None, speed: float, T: float) -> tuple:
+    """Eqs (10)-(12) at a constant speed: ``1 - gamma^2 H_bp(z)^2`` with the Tustin step ``|v| T``."""
+    if settings is None:
+        return _ONE
+    g = float(gamma_weight(abs(speed), settings.v_min_rad_s))
+    delta = abs(speed) * T
+    if g == 0.0 or delta == 0.0:
+        return _ONE
+    b, a = ripple_bandpass_coefficients(settings.period_rad or RIPPLE_PERIOD_RAD, settings.beta, delta)
+    num = np.polysub(np.polymul(a, a), g * g * np.polymul(b, b))
+    return _siso(num, np.polymul(a, a))
+
+
+def _observer(KI: float, Jl: float, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eq (13) as the runtime runs it (:class:`~iiwa_ident.model.MomentumObserver`): inputs ``[theta,
+    tau_j]``, states ``[theta_prev, S]``, output the estimate, velocity by the backward difference."""
+    A = np.array([[0.0, 0.0], [-KI * Jl, 1.0 - T * KI]])
+    B = np.array([[1.0, 0.0], [KI * Jl, T]])
+    C = np.array([-KI * Jl / T, -KI])
+    D = np.array([KI * Jl / T, 0.0])
+    return A, B, C, D
+
+
+def _measurement(params: JointParameters, arm: HumanArm, loop: DeployedLoop, T: float, additive: bool,
+                 C_j: np.ndarray, C_e: np.ndarray) -> _Measurement:
+    """The deployed loop's sensors, observers and filters as one :class:`_Measurement`."""
+    n = len(C_j)
+    C_theta_l = np.array([0.0, 0.0, 1.0, 0.0])
+    C_theta_m = np.array([1.0, 0.0, 0.0, 0.0])
+    spatial = _spatial_filter(loop.filter, loop.speed_rad_s, T)
+    # tau_j path: the additive controller's feedback is spatially filtered, eq (15).
+    tj = spatial if additive else _ONE
+    blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (A, B over x, C) of each part
+    rows_D = np.zeros((2, n))
+    rows_C: list[np.ndarray] = []
+
+    def add(A, Bx, C_out, which):
+        blocks.append((A, Bx, C_out, which))
+
+    A1, B1, C1, D1 = tj
+    add(A1, np.outer(B1, C_j), C1, 0)
+    rows_D[0] = D1 * C_j
+    # tau_ext path.
+    if loop.source in ("ideal", "ft"):
+        pole = 0.0
+        if loop.source == "ft" and loop.ft_cutoff_hz is not None:
+            records = max(1.0, loop.ft_rate_hz * T)
+            pole = math.exp(-2.0 * math.pi * loop.ft_cutoff_hz / loop.ft_rate_hz) ** records
+        if pole > 0.0:
+            add(np.array([[pole]]), np.outer([1.0 - pole], C_e), np.array([pole]), 1)
+            rows_D[1] = (1.0 - pole) * C_e
+        else:
+            rows_D[1] = C_e
+    else:
+        theta = C_theta_l if loop.source == "estimate" else C_theta_m
+        Ao, Bo, Co, Do = _observer(loop.KI, params.Jl, T)
+        Cin = np.vstack([theta, C_j])  # the observer's inputs over x
+        post = spatial if loop.source == "estimate" else _ONE
+        Ap, Bp, Cp, Dp = post
+        no, npost = Ao.shape[0], Ap.shape[0]
+        A = np.zeros((no + npost, no + npost))
+        A[:no, :no] = Ao
+        A[no:, :no] = np.outer(Bp, Co)
+        A[no:, no:] = Ap
+        Bx = np.vstack([Bo @ Cin, np.outer(Bp, Do @ Cin)])
+        C = np.concatenate([Dp * Co, Cp])
+        add(A, Bx, C, 1)
+        rows_D[1] = Dp * (Do @ Cin)
+    nf = sum(b[0].shape[0] for b in blocks)
+    Af, Bf, Cf = np.zeros((nf, nf)), np.zeros((nf, n)), np.zeros((2, nf))
+    i = 0
+    for A, Bx, C_out, which in blocks:
+        k = A.shape[0]
+        Af[i:i + k, i:i + k] = A
+        Bf[i:i + k] = Bx
+        Cf[which, i:i + k] = C_out
+        i += k
+    return _Measurement(Af, Bf, Cf, rows_D)
+
+
+def deployed_loop_matrix(params: JointParameters, kappa: float, design: AdditiveDesign | None = None,
+                         arm: HumanArm = HumanArm(), loop: DeployedLoop = DeployedLoop(),
+                         sample_time_s: float | None = None) -> np.ndarray:
+    """State matrix of ``tau_r = kappa tau_ext`` as deployed (:class:`DeployedLoop`).
+
+    As :func:`outer_loop_matrix`, with the external torque measured by the loop's source and the
+    additive controller's torque feedback through the spatial filter at ``loop.speed_rad_s``.
+    ``DeployedLoop()`` (the true torque, no filter) gives :func:`outer_loop_matrix`.
+    """
+    T = sample_time_s or (design.sample_time_s if design is not None else SAMPLE_TIME_S)
+    A, B, C = arm_plant(params, arm)
+    meas = _measurement(params, arm, loop, T, design is not None, C[0], C[1])
+    meas = meas._replace(Cf=meas.Cf * np.array([[1.0], [kappa]]), Df=meas.Df * np.array([[1.0], [kappa]]))
+    return _sampled_loop(A, B, C[0], kappa * C[1], T, params.Td, design, meas)
+
+
+def deployed_kappa_max(params: JointParameters, design: AdditiveDesign | None = None, arm: HumanArm = HumanArm(),
+                       loop: DeployedLoop = DeployedLoop(), kappa_limit: float = 100.0,
+                       resolution: float = 0.05, tol: float = 1e-4) -> float:
+    """:func:`kappa_max` of the loop as deployed (:func:`deployed_loop_matrix`)."""
+    return _largest_stable(lambda k: _spectral_radius(deployed_loop_matrix(params, k, design, arm, loop)) < 1.0,
+                           kappa_limit, resolution, tol)
+
+
+@dataclass(frozen=True)
+class DeployedMargin:
+    """The deployed loop's ``kappa_max`` over the speeds a run passes through.
+
+    Attributes
+    ----------
+    kappa_max : float
+        The smallest ``kappa_max`` over ``speeds`` [-]: the spatial filter varies with the speed, and a
+        loop that lingers where its margin is least goes unstable there.
+    at_speed_rad_s : float
+        The speed of that smallest margin [rad/s].
+    speeds_rad_s, by_speed : tuple of float
+        The speeds looked at and the margin at each.
+    """
+
+    kappa_max: float
+    at_speed_rad_s: float
+    speeds_rad_s: tuple[float, ...]
+    by_speed: tuple[float, ...]
+
+
+def deployed_margin(params: JointParameters, design: AdditiveDesign | None, arm: HumanArm, loop: DeployedLoop,
+                    speeds_rad_s: Sequence[float] = (0.0,), kappa_limit: float = 100.0) -> DeployedMargin:
+    """:func:`deployed_kappa_max` at each of ``speeds_rad_s`` [rad/s] and the least of them.
+
+    Without a spatial filter in the loop (or for the built-in loop with a source that does not use
+    it) the speed does not matter and one speed is computed.
+    """
+    uses_speed = loop.filter is not None and (design is not None or loop.source == "estimate")
+    speeds = tuple(float(v) for v in speeds_rad_s) if uses_speed else (0.0,)
+    values = tuple(deployed_kappa_max(params, design, arm, DeployedLoop(
+        loop.source, loop.ft_cutoff_hz, loop.ft_rate_hz, loop.KI, loop.filter, v), kappa_limit) for v in speeds)
+    i = int(np.argmin(values))
+    return DeployedMargin(values[i], speeds[i], speeds, values)

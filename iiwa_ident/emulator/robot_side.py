@@ -586,6 +586,8 @@ class RobotEmulator:
         self._q_prev = self._meas.q_m
         self._sim_k = 0
         self._restart_now = True
+        if self._ft is not None:
+            self._ft.restart(self._meas.tau_ext_ref or 0.0)
         self._positions = self._measured_positions(self._meas)
 
     def _active_time(self) -> float:

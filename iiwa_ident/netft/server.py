@@ -144,7 +144,17 @@ class EmulatedNetFt:
         self._k = 0
         self._y = np.zeros(6)
         self._bias = np.zeros(6)
+        self._biased = False
         self._started = False
+
+    def restart(self, tau_ext: float) -> None:
+        """The simulation restarted from rest at ``tau_ext`` [Nm]: the filter settles there, and a bias the
+        client asked for is taken again (the emulator restarts its joint when commanding first becomes
+        active; without this the bias would depend on when the request arrived)."""
+        self._y = self.projection.wrench(tau_ext)
+        self._started = True
+        if self._biased:
+            self._bias = self._y.copy()
 
     def cycle(self, tau_ext: float) -> None:
         """One control cycle with ``tau_ext`` [Nm] about the axis: the records of that cycle."""
@@ -163,4 +173,5 @@ class EmulatedNetFt:
             if srv.bias_requested:
                 srv.bias_requested = False
                 self._bias = self._y.copy()
+                self._biased = True
             srv.publish(self.settings.calibration.counts(self._y - self._bias))

@@ -10,6 +10,9 @@ format_summary, read_pipeline_json
     The closing summary; ``pipeline.json`` of a work folder.
 run_log_pipeline, find_log_runs, LOG_STAGES, LOG_FILES
     The pipeline on a robot's own logs (``--logs``): the runs it finds, its stages, the column files it reads.
+run_kappa_sweep, HoldingHand
+    The outer loop's gain margin measured live through FRI for both controllers, beside its linear
+    prediction (:mod:`iiwa_ident.pipeline.kappa`).
 run_validation, ValidationSettings, reference_of, oscillation_windows
     The closed-loop validation stage on its own: both controllers through FRI; its reference and the
     windows it judges oscillation on.
@@ -28,6 +31,7 @@ from iiwa_ident.pipeline.core import (
     read_pipeline_json,
     run_pipeline,
 )
+from iiwa_ident.pipeline.kappa import HoldingHand, run_kappa_sweep
 from iiwa_ident.pipeline.logs import LOG_FILES, LOG_STAGES, find_log_runs, run_log_pipeline
 from iiwa_ident.pipeline.validation import (
     ValidationSettings,
@@ -36,7 +40,7 @@ from iiwa_ident.pipeline.validation import (
     run_validation,
 )
 
-__all__ = ["FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
+__all__ = ["run_kappa_sweep", "HoldingHand", "FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
            "StageSkipped", "LOG_FILES", "LOG_STAGES", "find_log_runs", "run_log_pipeline",
            "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation",
            "oscillation_windows", "reference_of"]

@@ -193,6 +193,11 @@ class _LateFriRobot:
         self._robot = _robot(*self._args)
         return self._robot.start()
 
+    @property
+    def pose(self) -> tuple[float, ...] | None:
+        """The arm's measured pose once the session runs (:attr:`FriRobot.pose`)."""
+        return self._robot.pose if self._robot is not None else None
+
     def stop(self) -> None:
         if self._robot is not None:
             self._robot.stop()

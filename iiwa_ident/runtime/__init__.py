@@ -7,12 +7,15 @@ ControllerRuntime, Watchdog, RunReport, run_controller, LOG_SIGNALS
     (:mod:`iiwa_ident.runtime.run`).
 Task, TaskInput, TASKS, make_task, and the task classes
     What the runtime tracks (:mod:`iiwa_ident.runtime.tasks`).
+KappaSweep, SweepSettings, InstabilityDetector
+    The outer loop's gain margin measured live (:mod:`iiwa_ident.runtime.kappa`).
 
 The runtime drives any :class:`~iiwa_ident.robot.RobotInterface`: the robot
 through :class:`iiwa_ident.fri.FriRobot`, the emulator the same way, or the
 simulated joint directly.
 """
 
+from iiwa_ident.runtime.kappa import InstabilityDetector, KappaSweep, SweepSettings
 from iiwa_ident.runtime.run import LOG_SIGNALS, ControllerRuntime, RunReport, Watchdog, run_controller
 from iiwa_ident.runtime.tasks import (
     TASKS,
@@ -30,4 +33,4 @@ from iiwa_ident.runtime.tasks import (
 
 __all__ = ["LOG_SIGNALS", "ControllerRuntime", "RunReport", "Watchdog", "run_controller", "TASKS", "ChirpTask",
            "ConstantTask", "KappaTask", "MultisineTask", "SineTask", "StepTask", "Task", "TaskInput", "ZeroTask",
-           "make_task"]
+           "make_task", "KappaSweep", "SweepSettings", "InstabilityDetector"]

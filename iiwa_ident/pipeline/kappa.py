@@ -1,0 +1,251 @@
+"""The outer loop's gain margin measured live through FRI, for both controllers, beside its prediction.
+
+:func:`run_kappa_sweep` runs :class:`~iiwa_ident.runtime.KappaSweep` (``tau_r = kappa tau_ext`` with
+kappa raised stepwise until the run itself shows an instability, then ramped down) through the FRI
+runtime, first for the built-in loop (the reference sent as the torque command), then for the deployed
+additive controller, with the external torque from the chosen source (``ft``: a Net F/T over RDT;
+``estimate``: the runtime's eq (14); ``fri``: KUKA's estimate). On the simulated target each run has an
+emulator of its own in lockstep, with a hand holding the arm (slowly drifting, as a person's hand does
+while the loop is raised) and, for ``ft``, the emulated Net F/T; two runs give the same figures. On the
+robot a person holds the arm, and the sweep refuses to start unless told so.
+
+Beside each live margin stands the linear prediction for the same loop
+(:func:`~iiwa_ident.design.deployed_margin`): the design's model with the hand's impedance, the
+source's dynamics (the F/T sensor's filter and rate; the observer of eq (13) with its gain), FRI's
+delay, and the spatial filter at the speeds the run passed through (its least margin over them).
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from iiwa_ident.datasets import read_dataset
+from iiwa_ident.deploy import ControllerConfig
+from iiwa_ident.design import DeployedLoop, DesignRecord, HumanArm, deployed_margin
+from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
+from iiwa_ident.pipeline.validation import LOCKSTEP_GUARD_S, _LateFriRobot, free_udp_port
+from iiwa_ident.runtime import KappaSweep, SweepSettings, Watchdog, run_controller
+from iiwa_ident.sim import Plant, default_plant
+
+__all__ = ["HoldingHand", "run_kappa_sweep", "speeds_of_run", "live_margin", "CONTROLLERS"]
+
+#: The loops swept, in order.
+CONTROLLERS = ("builtin", "additive")
+
+
+@dataclass(frozen=True)
+class HoldingHand:
+    """The emulator's hand while the gain is raised: an arm impedance to a slowly drifting hand.
+
+    Attributes
+    ----------
+    stiffness_nm_rad, damping_nms_rad : float
+        Arm impedance about the joint's axis [Nm/rad], [Nm s/rad].
+    peak_speed_rad_s, range_rad : float
+        The hand's drift: peak speed [rad/s] and largest excursion [rad].
+    """
+
+    stiffness_nm_rad: float = 300.0
+    damping_nms_rad: float = 40.0
+    peak_speed_rad_s: float = 0.05
+    range_rad: float = 0.05
+
+    def arm(self) -> HumanArm:
+        return HumanArm(self.stiffness_nm_rad, self.damping_nms_rad)
+
+
+def speeds_of_run(path: Path, upto_s: float | None = None, quantile: float = 0.95, cutoff_hz: float = 20.0) -> float:
+    """The joint speed a run's log stays below ``quantile`` of the time [rad/s] (the spatial filter's
+    smoothing: a first-order low-pass at ``cutoff_hz`` of the position's difference), up to ``upto_s``."""
+    ds = read_dataset(path)
+    t = np.asarray(ds["t"], float)
+    q = np.asarray(ds["q_m"], float)
+    if len(t) < 3:
+        return 0.0
+    dt = float(np.median(np.diff(t)))
+    v = np.diff(q) / dt
+    a = 1.0 - math.exp(-2.0 * math.pi * cutoff_hz * dt)
+    from scipy.signal import lfilter
+    vs = lfilter([a], [1.0, a - 1.0], v)
+    if upto_s is not None:
+        vs = vs[: max(1, int((upto_s - t[0]) / dt))]
+    return float(np.quantile(np.abs(vs), quantile))
+
+
+def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRecord | None, tau_ext: str = "ft",
+                    target: str = "sim", plant: Plant | None = None, robot: tuple[str, int] | None = None,
+                    ft: tuple[str, int] | None = None, ft_settings: NetFtSettings = NetFtSettings(),
+                    ft_projection: JointAxisProjection | None = None,
+                    settings: SweepSettings = SweepSettings(), hand: HoldingHand = HoldingHand(),
+                    holding_the_arm: bool = False, lockstep: bool = True, seed: int = 21,
+                    say: Callable[[str], None] = lambda _m: None) -> dict[str, Any]:
+    """Measure the outer loop's live gain margin of both controllers and predict it (module docstring).
+
+    Parameters
+    ----------
+    config : ControllerConfig
+        The deployed additive controller (its limits and watchdog serve both loops).
+    outdir : Path
+        Folder of the run logs ``kappa_<controller>_<source>.h5``.
+    record : DesignRecord or None
+        The design the config was deployed from: its model makes the linear prediction (None: no
+        prediction).
+    tau_ext : str
+        ``"ft"``, ``"estimate"`` or ``"fri"``.
+    target : str
+        ``"sim"`` (the emulator on loopback, running ``plant``) or ``"robot"`` (at ``robot`` = (host,
+        local port), the F/T sensor at ``ft``).
+    ft_settings : NetFtSettings
+        The emulated sensor (sim target) and its filter in the prediction.
+    ft_projection : JointAxisProjection, optional
+        The sensor's geometry (default: the flange from the description at the pose FRI reports).
+    settings : SweepSettings
+        Kappa steps and the judgement of instability.
+    hand : HoldingHand
+        The emulator's hand (sim target); on the robot its arm impedance is the prediction's guess.
+    holding_the_arm : bool
+        Robot target: a person holds the arm (required).
+    lockstep : bool
+        Sim target: the emulator in lockstep (repeatable figures); both sweeps then run at once.
+    seed : int
+        The emulator's seed (noise, hand).
+    say : callable
+        Progress messages.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``tau_ext``, ``target``, ``clock``, ``settings``, ``hand``, per controller (``builtin``,
+        ``additive``): ``live_limit``, ``unstable_at``, ``reason``, ``stop_reason``, ``steps``, ``file``,
+        ``speed_p95_rad_s``, ``linear_limit``, ``linear_at_speed_rad_s``, ``linear_error_pct`` (against
+        the bracketed live margin, :func:`live_margin`); ``ratio_live`` (of the live limits) and
+        ``ratio_linear`` (additive / built-in; None where a figure is missing).
+    """
+    if target not in ("sim", "robot"):
+        raise IiwaIdentError(f"kappa sweep: target {target!r}, expected 'sim' or 'robot'")
+    if target == "robot":
+        if not holding_the_arm:
+            raise IiwaIdentError("kappa sweep on the robot: the loop amplifies the torque a person applies and is "
+                                 "driven until it oscillates; a person must hold the arm "
+                                 "(--i-am-holding-the-arm)")
+        if robot is None:
+            raise IiwaIdentError("kappa sweep on the robot needs the robot's address")
+        if tau_ext == "ft" and ft is None:
+            raise IiwaIdentError("kappa sweep with the F/T source needs the sensor's address")
+    plant = plant or default_plant()
+    if target == "sim" and tau_ext == "ft" and not plant.ft_sensor:
+        raise IiwaIdentError("kappa sweep with the F/T source on the simulated joint needs a plant with "
+                             "sensors.ft_sensor = true")
+    outdir.mkdir(parents=True, exist_ok=True)
+    lockstep = lockstep and target == "sim"
+    duration = settings.steps() * settings.hold_s + 1.0
+
+    @contextmanager
+    def robot_side() -> Iterator[tuple[tuple[str, int], tuple[str, int] | None]]:
+        if target != "sim":
+            yield robot, ft  # type: ignore[misc]
+            return
+        from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
+
+        port = free_udp_port()
+        ft_port = free_udp_port() if tau_ext == "ft" else None
+        cfg = EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=seed, lockstep=lockstep,
+                             lockstep_guard_s=LOCKSTEP_GUARD_S, agent="hand", duration_s=duration + 1.0,
+                             hand_peak_speed_rad_s=hand.peak_speed_rad_s, hand_range_rad=hand.range_rad,
+                             hand_stiffness_nm_rad=hand.stiffness_nm_rad, hand_damping_nms_rad=hand.damping_nms_rad,
+                             ft_port=ft_port, ft=ft_settings)
+        with spawn_emulator(cfg) as emu:
+            try:
+                yield ("127.0.0.1", port), (("127.0.0.1", ft_port) if ft_port else None)
+            finally:
+                emu.stop()
+                emu.join(30.0)
+
+    def sweep(loop: str) -> dict[str, Any]:
+        path = outdir / f"kappa_{loop}_{tau_ext}.h5"
+        task = KappaSweep(settings, config.sample_time_s)
+        with robot_side() as (fri_addr, ft_addr):
+            fri = _LateFriRobot(fri_addr[0], fri_addr[1], config.joint, config.robot_model, lockstep)
+            sensor = None
+            if tau_ext == "ft":
+                sensor = NetFtSensor(ft_addr[0], ft_projection, ft_addr[1], ft_settings.calibration)  # type: ignore[index]
+            rep = run_controller(config, fri, task, duration, path, tau_ext=tau_ext,  # type: ignore[arg-type]
+                                 sensor=sensor, loop=loop, watchdog=Watchdog(config.sample_time_s))
+        t_end = (task.steps[-1]["t_start_s"] if task.reason else None)
+        row: dict[str, Any] = {
+            "live_limit": task.live_limit, "unstable_at": task.unstable_at, "reason": task.reason,
+            "stop_reason": rep.stop_reason, "file": path.name, "watchdog_events": len(rep.watchdog_events),
+            "steps": [{"kappa": s["kappa"], "t_start_s": s["t_start_s"], "stable": s["stable"],
+                       "rms_max_nm": max(s["rms_nm"]) if s["rms_nm"] else None} for s in task.steps],
+            "sensor": rep.sensor,
+        }
+        if task.reason == "" and not rep.stop_reason.startswith("kappa sweep"):
+            row["reason"] = f"ended before a judgement: {rep.stop_reason}"
+        row["speed_p95_rad_s"] = speeds_of_run(path, t_end)
+        say(f"  {loop} loop, tau_ext from {tau_ext}: stable up to kappa {_fmt(task.live_limit)}, unstable at "
+            f"{_fmt(task.unstable_at)} ({task.reason or rep.stop_reason})")
+        return row
+
+    if lockstep:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            rows = dict(zip(CONTROLLERS, pool.map(sweep, CONTROLLERS)))
+    else:
+        rows = {loop: sweep(loop) for loop in CONTROLLERS}
+    arm = hand.arm() if target == "sim" else (record.margins.arm if record is not None else HumanArm())
+    for loop, row in rows.items():
+        row["linear_limit"] = row["linear_at_speed_rad_s"] = None
+        if record is None:
+            continue
+        the_loop = DeployedLoop(tau_ext, ft_settings.cutoff_hz, ft_settings.rate_hz, record.KI,
+                                record.filter.along(record.ripple))
+        v_hi = row["speed_p95_rad_s"]
+        speeds = np.linspace(0.0, v_hi, 6) if v_hi > 0 else [0.0]
+        m = deployed_margin(record.design.params, record.design if loop == "additive" else None, arm, the_loop,
+                            speeds)
+        row["linear_limit"] = _num(m.kappa_max)
+        row["linear_at_speed_rad_s"] = m.at_speed_rad_s
+        row["linear_error_pct"] = _error_pct(m.kappa_max, row["live_limit"], row["unstable_at"])
+    b, a = rows["builtin"], rows["additive"]
+    return {"tau_ext": tau_ext, "target": target, "clock": "lockstep" if lockstep else "realtime",
+            "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
+            "hand": {k: getattr(hand, k) for k in hand.__dataclass_fields__} if target == "sim" else "a person",
+            "ft": ({"rate_hz": ft_settings.rate_hz, "cutoff_hz": ft_settings.cutoff_hz} if tau_ext == "ft" else None),
+            "builtin": b, "additive": a,
+            "ratio_live": _ratio(a["live_limit"], b["live_limit"]),
+            "ratio_linear": _ratio(a["linear_limit"], b["linear_limit"])}
+
+
+def live_margin(live_limit: float | None, unstable_at: float | None) -> float | None:
+    """The live margin a sweep brackets: the geometric middle of the last stable and the first unstable
+    kappa (the last stable one when the sweep found no instability)."""
+    if live_limit is None:
+        return None
+    return math.sqrt(live_limit * unstable_at) if unstable_at is not None else live_limit
+
+
+def _error_pct(linear: float, live_limit: float | None, unstable_at: float | None) -> float | None:
+    """The prediction's error against the bracketed live margin [%]."""
+    live = live_margin(live_limit, unstable_at)
+    if live is None or not math.isfinite(linear):
+        return None
+    return float(100.0 * (linear - live) / live)
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    return float(a / b) if a is not None and b not in (None, 0) else None
+
+
+def _num(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
