@@ -15,6 +15,8 @@ import pytest
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.deploy import read_config
+from iiwa_ident.design import read_design
+from iiwa_ident.runtime import SweepSettings
 from iiwa_ident.pipeline import FILES, STAGES, ValidationSettings, run_pipeline, run_validation
 from iiwa_ident.report.pdf import build_report
 
@@ -49,8 +51,8 @@ class TestShortPipeline:
                     "diagnose_json", "model_ext", "pipeline_json", "report"):
             assert (workdir / FILES[key]).is_file(), FILES[key]
         logs = sorted(p.name for p in (workdir / "validation").glob("*.h5"))
-        assert logs == ["additive_kappa.h5", "additive_sine.h5", "additive_step.h5", "builtin_sine.h5",
-                        "builtin_step.h5"]
+        assert logs == ["additive_sine.h5", "additive_step.h5", "builtin_sine.h5", "builtin_step.h5",
+                        "kappa_additive_ft.h5", "kappa_builtin_ft.h5"]
 
     def test_the_diagnosis_of_the_simulated_joint_names_nothing(self, short_run):
         # The default plant's only effect is the ripple, which the ripple stage put into the model.
@@ -86,6 +88,11 @@ class TestShortPipeline:
         assert abs(h["rho_rad"] - 0.01963) < 1e-4
         assert all(abs(v["error_pct"]) < 5 for v in h["fit"].values()), h["fit"]
         assert h["kappa_linear"]["ratio"] > 2
+        # The live margins through FRI (F/T source): the paper's ratio, each predicted by the loop as deployed.
+        live = h["kappa_live"]["ft"]
+        assert live["ratio_live"] >= 3.0, live
+        for loop in ("builtin", "additive"):
+            assert abs(live[loop]["linear_error_pct"]) <= 15.0, live
         assert h["observer_improvement"] > 1.5
         assert set(h["tracking"]) == {"step", "sine"}
 
@@ -94,9 +101,14 @@ class TestShortPipeline:
         workdir, _, _ = short_run
         first = json.loads((workdir / "validation.json").read_text())
         assert first["clock"] == "lockstep"
+        settings = dict(first["settings"])
+        settings["kappa"] = SweepSettings(**{k: tuple(v) if isinstance(v, list) else v
+                                             for k, v in settings["kappa"].items()})
+        settings["kappa_sources"] = tuple(settings["kappa_sources"])
         again = run_validation(read_config(workdir / "controller.toml"), tmp_path,
                                kappa_margins=(first["kappa"]["linear_builtin"], first["kappa"]["linear_additive"]),
-                               delay_s=first["delay_s"], settings=ValidationSettings(**first["settings"]))
+                               delay_s=first["delay_s"], settings=ValidationSettings(**settings),
+                               record=read_design(workdir / "design.toml"))
         again = json.loads(json.dumps(again))  # as written: tuples become lists
         for key in ("runs", "tracking", "kappa", "emulator"):
             assert again[key] == first[key], key

@@ -31,8 +31,8 @@ def format_sweep(out: dict[str, Any]) -> str:
         lines.append(f"  {loop:9} {_f(r['live_limit']):>12} {_f(r['unstable_at']):>12} {_f(r['linear_limit']):>8} "
                      f"{err:>7}  {r['reason'] or r['stop_reason']}")
     lines.append(f"  ratio additive / built-in: live {_f(out['ratio_live'])}, linear {_f(out['ratio_linear'])}")
-    lines.append("  (error: the linear prediction against the live margin, the geometric middle of the last stable "
-                 "and the first unstable kappa)")
+    lines.append("  (error: how far the linear prediction lies outside the live bracket, from the last stable to "
+                 "the first unstable kappa; 0 inside)")
     return "\n".join(lines)
 
 

@@ -13,9 +13,8 @@ run_log_pipeline, find_log_runs, LOG_STAGES, LOG_FILES
 run_kappa_sweep, HoldingHand
     The outer loop's gain margin measured live through FRI for both controllers, beside its linear
     prediction (:mod:`iiwa_ident.pipeline.kappa`).
-run_validation, ValidationSettings, reference_of, oscillation_windows
-    The closed-loop validation stage on its own: both controllers through FRI; its reference and the
-    windows it judges oscillation on.
+run_validation, ValidationSettings, reference_of
+    The closed-loop validation stage on its own: both controllers through FRI; its reference.
 """
 
 from iiwa_ident.pipeline.core import (
@@ -35,7 +34,6 @@ from iiwa_ident.pipeline.kappa import HoldingHand, run_kappa_sweep
 from iiwa_ident.pipeline.logs import LOG_FILES, LOG_STAGES, find_log_runs, run_log_pipeline
 from iiwa_ident.pipeline.validation import (
     ValidationSettings,
-    oscillation_windows,
     reference_of,
     run_validation,
 )
@@ -43,4 +41,4 @@ from iiwa_ident.pipeline.validation import (
 __all__ = ["run_kappa_sweep", "HoldingHand", "FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
            "StageSkipped", "LOG_FILES", "LOG_STAGES", "find_log_runs", "run_log_pipeline",
            "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation",
-           "oscillation_windows", "reference_of"]
+           "reference_of"]

@@ -24,6 +24,7 @@ from typing import Any, Callable
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline.validation import ValidationSettings
+from iiwa_ident.runtime import SweepSettings
 
 __all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "StageSkipped", "PipelineContext",
            "PipelineResult", "STAGES", "run_pipeline", "run_stages", "record_diagnosis", "parameter_rows",
@@ -84,7 +85,9 @@ class PipelineSettings:
     def short(cls) -> "PipelineSettings":
         """A quick run for tests: shorter experiments, dynamic lookup table only, short closed-loop runs."""
         return cls(chirp_s=8.0, chirp_f1_hz=150.0, cv_speeds=(0.6, 1.2), cv_range_rad=0.6, qs_torques=(),
-                   hand_s=8.0, validation=ValidationSettings(step_cycles=1, sine_s=0.6, kappa_s=1.5))
+                   hand_s=8.0, validation=ValidationSettings(
+                       step_cycles=1, sine_s=0.6, kappa_sources=("ft",),
+                       kappa=SweepSettings(start=5.0, factor=1.25, max=45.0, hold_s=1.25)))
 
 
 class StageSkipped(Exception):
@@ -412,14 +415,17 @@ def _stage_validation(ctx: PipelineContext) -> dict[str, Any]:
     doc = run_validation(ctx.results["config"], ctx.path("validation_dir"),
                          kappa_margins=(record.margins.builtin, record.margins.additive), delay_s=model.value("Td"),
                          target=ctx.target, plant=ctx.plant if ctx.target == "sim" else None, robot=robot,
-                         settings=ctx.settings.validation, say=ctx.progress, lockstep=not ctx.realtime)
+                         settings=ctx.settings.validation, say=ctx.progress, lockstep=not ctx.realtime,
+                         record=record)
     write_atomic(ctx.path("validation_json"), json.dumps(_jsonable(doc), indent=2) + "\n")
     ctx.results["validation"] = doc
-    live = doc["kappa"].get("live")
+    live = {source: {"ratio_live": sw["ratio_live"], "ratio_linear": sw["ratio_linear"],
+                     **{loop: {k: sw[loop][k] for k in ("live_limit", "unstable_at", "linear_limit",
+                                                         "linear_error_pct")} for loop in ("builtin", "additive")}}
+            for source, sw in doc["kappa"]["sweeps"].items()}
     return {"tracking": doc["tracking"], "sine_hz": ctx.settings.validation.sine_hz,
-            "kappa_linear_ratio": doc["kappa"]["linear_ratio"],
-            "kappa_live": None if live is None else {"kappa": live["kappa"], "stable": live["stable"],
-                                                      "verdict": live["verdict"]}}
+            "kappa_linear_ratio": doc["kappa"]["linear_ratio"], "kappa_live": live or None,
+            **({"kappa_live_skipped": doc["kappa"]["live_skipped"]} if "live_skipped" in doc["kappa"] else {})}
 
 
 def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
@@ -543,10 +549,13 @@ def format_summary(result: PipelineResult) -> str:
         lines.append(f"kappa_max (linear, exact delay): built-in {k['builtin']:.2f}, additive "
                      f"{k['additive'] if k['additive'] is None else round(k['additive'], 2)}, ratio "
                      f"{k['ratio'] if k['ratio'] is None else round(k['ratio'], 2)} (paper: 4.6 and stable at 15)")
-    if h.get("kappa_live"):
-        kl = h["kappa_live"]
-        verdict = kl.get("verdict", kl.get("stable"))
-        lines.append(f"live kappa check through FRI: additive at kappa = {kl['kappa']:.1f}: {verdict}")
+    for source, kl in (h.get("kappa_live") or {}).items():
+        def f(x):
+            return "-" if x is None else f"{x:.2f}"
+        b, a = kl["builtin"], kl["additive"]
+        lines.append(f"kappa live through FRI ({source}): built-in stable to {f(b['live_limit'])} (linear "
+                     f"{f(b['linear_limit'])}), additive to {f(a['live_limit'])} (linear {f(a['linear_limit'])}); "
+                     f"ratio live {f(kl['ratio_live'])}, linear {f(kl['ratio_linear'])} (paper: 15 / 4.6 = 3.3)")
     for task, row in h.get("tracking", {}).items():
         if task == "step" and row.get("builtin_overshoot_pct") is not None \
                 and row.get("additive_overshoot_pct") is not None:

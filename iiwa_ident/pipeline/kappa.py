@@ -31,11 +31,11 @@ from iiwa_ident.deploy import ControllerConfig
 from iiwa_ident.design import DeployedLoop, DesignRecord, HumanArm, deployed_margin
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
-from iiwa_ident.pipeline.validation import LOCKSTEP_GUARD_S, _LateFriRobot, free_udp_port
+from iiwa_ident.pipeline.session import LOCKSTEP_GUARD_S, LateFriRobot, free_udp_port
 from iiwa_ident.runtime import KappaSweep, SweepSettings, Watchdog, run_controller
 from iiwa_ident.sim import Plant, default_plant
 
-__all__ = ["HoldingHand", "run_kappa_sweep", "speeds_of_run", "live_margin", "CONTROLLERS"]
+__all__ = ["HoldingHand", "run_kappa_sweep", "speeds_of_run", "prediction_error_pct", "CONTROLLERS"]
 
 #: The loops swept, in order.
 CONTROLLERS = ("builtin", "additive")
@@ -125,8 +125,8 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
     dict
         JSON-ready: ``tau_ext``, ``target``, ``clock``, ``settings``, ``hand``, per controller (``builtin``,
         ``additive``): ``live_limit``, ``unstable_at``, ``reason``, ``stop_reason``, ``steps``, ``file``,
-        ``speed_p95_rad_s``, ``linear_limit``, ``linear_at_speed_rad_s``, ``linear_error_pct`` (against
-        the bracketed live margin, :func:`live_margin`); ``ratio_live`` (of the live limits) and
+        ``speed_p95_rad_s``, ``linear_limit``, ``linear_at_speed_rad_s``, ``linear_error_pct`` (outside
+        the live bracket, :func:`prediction_error_pct`); ``ratio_live`` (of the live limits) and
         ``ratio_linear`` (additive / built-in; None where a figure is missing).
     """
     if target not in ("sim", "robot"):
@@ -173,7 +173,7 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
         path = outdir / f"kappa_{loop}_{tau_ext}.h5"
         task = KappaSweep(settings, config.sample_time_s)
         with robot_side() as (fri_addr, ft_addr):
-            fri = _LateFriRobot(fri_addr[0], fri_addr[1], config.joint, config.robot_model, lockstep)
+            fri = LateFriRobot(fri_addr[0], fri_addr[1], config.joint, config.robot_model, lockstep)
             sensor = None
             if tau_ext == "ft":
                 sensor = NetFtSensor(ft_addr[0], ft_projection, ft_addr[1], ft_settings.calibration)  # type: ignore[index]
@@ -212,7 +212,7 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
                             speeds)
         row["linear_limit"] = _num(m.kappa_max)
         row["linear_at_speed_rad_s"] = m.at_speed_rad_s
-        row["linear_error_pct"] = _error_pct(m.kappa_max, row["live_limit"], row["unstable_at"])
+        row["linear_error_pct"] = prediction_error_pct(m.kappa_max, row["live_limit"], row["unstable_at"])
     b, a = rows["builtin"], rows["additive"]
     return {"tau_ext": tau_ext, "target": target, "clock": "lockstep" if lockstep else "realtime",
             "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
@@ -223,20 +223,17 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
             "ratio_linear": _ratio(a["linear_limit"], b["linear_limit"])}
 
 
-def live_margin(live_limit: float | None, unstable_at: float | None) -> float | None:
-    """The live margin a sweep brackets: the geometric middle of the last stable and the first unstable
-    kappa (the last stable one when the sweep found no instability)."""
-    if live_limit is None:
+def prediction_error_pct(linear: float, live_limit: float | None, unstable_at: float | None) -> float | None:
+    """How far a predicted margin lies outside the live bracket [%]: 0 between the last stable and the first
+    unstable kappa of the sweep (the sweep cannot tell the margin more finely), else its distance from the
+    nearer end, relative to that end (None without a live figure)."""
+    if live_limit is None or not math.isfinite(linear):
         return None
-    return math.sqrt(live_limit * unstable_at) if unstable_at is not None else live_limit
-
-
-def _error_pct(linear: float, live_limit: float | None, unstable_at: float | None) -> float | None:
-    """The prediction's error against the bracketed live margin [%]."""
-    live = live_margin(live_limit, unstable_at)
-    if live is None or not math.isfinite(linear):
-        return None
-    return float(100.0 * (linear - live) / live)
+    if linear < live_limit:
+        return float(100.0 * (linear - live_limit) / live_limit)
+    if unstable_at is not None and linear > unstable_at:
+        return float(100.0 * (linear - unstable_at) / unstable_at)
+    return 0.0
 
 
 def _ratio(a: float | None, b: float | None) -> float | None:

@@ -6,11 +6,8 @@ built-in controller is the robot's own torque loop, driven by the task's
 reference as the torque command (``record`` of a :class:`StepTorque` or
 :class:`SineTorque`); the additive controller is the deployed config run by
 :func:`iiwa_ident.runtime.run_controller` with the same reference. The
-kappa check runs ``tau_r = kappa tau_ext`` on the runtime's own external-torque
-estimate with the emulator's human arm, at 60 % of the built-in controller's
-linear margin (about the paper's measured 4.6): a live check that the
-deployed outer loop works, not a margin measurement (the linear margins
-assume the F/T torque, without the estimate's 40 ms lag).
+kappa margins are measured live by the sweep of :mod:`iiwa_ident.pipeline.kappa` (the Net F/T source,
+and the runtime's own estimate for comparison), each beside its linear prediction.
 """
 
 from __future__ import annotations
@@ -22,24 +19,25 @@ import socket
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.deploy import ControllerConfig
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import SineTorque, StepTorque, record
-from iiwa_ident.fri import FriRobot
+from iiwa_ident.design import DesignRecord
+from iiwa_ident.pipeline.kappa import run_kappa_sweep
+from iiwa_ident.pipeline.session import LOCKSTEP_GUARD_S, LateFriRobot, free_udp_port, fri_robot
+from iiwa_ident.runtime import SweepSettings
 from iiwa_ident.references import sine, square
 from iiwa_ident.runtime import Watchdog, make_task, run_controller
 from iiwa_ident.sim import Plant
 
-__all__ = ["ValidationSettings", "run_validation", "tracking_metrics", "oscillation_windows", "reference_of",
-           "free_udp_port"]
+__all__ = ["ValidationSettings", "run_validation", "tracking_metrics", "reference_of", "free_udp_port"]
 
 
 @dataclass(frozen=True)
@@ -52,10 +50,10 @@ class ValidationSettings:
         Square wave: height [Nm], period [s], number of periods.
     sine_nm, sine_hz, sine_s : float
         Fast sine (Fig. 9): amplitude [Nm], frequency [Hz], duration [s].
-    kappa_s : float
-        Length of the live kappa run [s] (0 skips it).
-    kappa_window_s : float
-        Window of the oscillation RMS that judges the kappa run [s].
+    kappa : SweepSettings
+        The live kappa sweeps' steps and judgement.
+    kappa_sources : tuple of str
+        The external-torque sources swept (sim target; none skips the sweeps).
     """
 
     step_nm: float = 10.0
@@ -64,15 +62,8 @@ class ValidationSettings:
     sine_nm: float = 15.0
     sine_hz: float = 25.0
     sine_s: float = 1.0
-    kappa_s: float = 2.0
-    kappa_window_s: float = 0.5
-
-
-def free_udp_port() -> int:
-    """A UDP port on the loopback interface that is free right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    kappa: SweepSettings = field(default_factory=SweepSettings)
+    kappa_sources: tuple[str, ...] = ("ft", "estimate")
 
 
 def reference_of(task: str, t: np.ndarray, amplitude_nm: float, period_s: float = 1.0,
@@ -142,73 +133,11 @@ def tracking_metrics(t: np.ndarray, tau_j: np.ndarray, tau_r: np.ndarray, task: 
     return out
 
 
-def oscillation_windows(t: np.ndarray, tau_j: np.ndarray, window_s: float, highpass_hz: float = 3.0,
-                        start_s: float = 0.5) -> list[float]:
-    """RMS [Nm] of the oscillatory part of ``tau_j`` (above ``highpass_hz``) in consecutive windows."""
-    dt = float(np.median(np.diff(t)))
-    if len(t) < 30:
-        return []
-    sos = butter(4, highpass_hz, "highpass", fs=1.0 / dt, output="sos")
-    osc = sosfiltfilt(sos, tau_j)
-    n = max(1, int(round(window_s / dt)))
-    i0 = int(round(start_s / dt))
-    return [float(np.sqrt(np.mean(osc[i:i + n] ** 2))) for i in range(i0, len(osc) - n + 1, n)]
-
-
-#: Lockstep: the emulator takes a client that has not answered for this long [s] for gone. Each run has
-#: its own emulator, stopped when the run has ended, so this only ends a run whose client hangs.
-LOCKSTEP_GUARD_S = 30.0
-
-
-def _robot(host: str, port: int, joint: int, robot_model: str, lockstep: bool) -> FriRobot:
-    # In lockstep the robot is never silent during a session: only a stalled machine delays a message.
-    return FriRobot(host, joint, robot_model, port=port, connect_timeout_s=30.0,
-                    message_timeout_s=LOCKSTEP_GUARD_S if lockstep else 0.1)
-
-
 def _builtin_run(host: str, port: int, config: ControllerConfig, experiment, path: Path, lockstep: bool) -> Dataset:
     """The robot's own loop: the reference goes out as the torque command (with the weak position hold)."""
-    ds = record(_robot(host, port, config.joint, config.robot_model, lockstep), experiment)
+    ds = record(fri_robot(host, port, config.joint, config.robot_model, lockstep), experiment)
     write_dataset(path, ds)
     return ds
-
-
-class _LateFriRobot:
-    """An FRI robot whose socket opens only when the run starts.
-
-    :func:`run_controller` starts its log-writer process before the session;
-    a socket opened earlier would queue the robot's messages meanwhile and the
-    loop would start behind by that backlog.
-    """
-
-    source = "robot"
-    sample_time_s = 1e-3
-
-    def __init__(self, host: str, port: int, joint: int, robot_model: str, lockstep: bool) -> None:
-        self._args = (host, port, joint, robot_model, lockstep)
-        self.joint = joint
-        self._robot: FriRobot | None = None
-
-    def start(self):
-        self._robot = _robot(*self._args)
-        return self._robot.start()
-
-    @property
-    def pose(self) -> tuple[float, ...] | None:
-        """The arm's measured pose once the session runs (:attr:`FriRobot.pose`)."""
-        return self._robot.pose if self._robot is not None else None
-
-    def stop(self) -> None:
-        if self._robot is not None:
-            self._robot.stop()
-
-    def describe(self) -> dict:
-        return self._robot.describe() if self._robot is not None else {}
-
-    def __getattr__(self, name: str):
-        if self._robot is None:
-            raise AttributeError(name)
-        return getattr(self._robot, name)
 
 
 def _tracking_run(kind: str, host: str, port: int, config: ControllerConfig, experiment, task, duration_s: float,
@@ -222,7 +151,7 @@ def _tracking_run(kind: str, host: str, port: int, config: ControllerConfig, exp
 
 def _additive_run(host: str, port: int, config: ControllerConfig, task, duration_s: float, path: Path,
                   trip_cycles: int, lockstep: bool):
-    robot = _LateFriRobot(host, port, config.joint, config.robot_model, lockstep)
+    robot = LateFriRobot(host, port, config.joint, config.robot_model, lockstep)
     return run_controller(config, robot, task, duration_s, path,  # type: ignore[arg-type]
                           watchdog=Watchdog(config.sample_time_s, trip_cycles=trip_cycles))
 
@@ -230,8 +159,9 @@ def _additive_run(host: str, port: int, config: ControllerConfig, task, duration
 def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tuple[float, float],
                    delay_s: float, target: str = "sim", plant: Plant | None = None,
                    robot: tuple[str, int] | None = None, settings: ValidationSettings = ValidationSettings(),
-                   say: Callable[[str], None] = lambda _m: None, lockstep: bool = True) -> dict[str, Any]:
-    """Run the validation: step and fast sine with both controllers, then the live kappa check.
+                   say: Callable[[str], None] = lambda _m: None, lockstep: bool = True,
+                   record: DesignRecord | None = None) -> dict[str, Any]:
+    """Run the validation: step and fast sine with both controllers, then the live kappa sweeps.
 
     Parameters
     ----------
@@ -239,7 +169,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         The deployed additive controller.
     outdir : Path
         Folder of the run logs (``builtin_step.h5``, ``additive_step.h5``,
-        ``builtin_sine.h5``, ``additive_sine.h5``, ``additive_kappa.h5``).
+        ``builtin_sine.h5``, ``additive_sine.h5``, ``kappa_<controller>_<source>.h5``).
     kappa_margins : (float, float)
         Linear ``kappa_max`` of the built-in and the additive controller [-] (from the design).
     delay_s : float
@@ -260,6 +190,8 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         runs, each with its own emulator, then go two at a time. False:
         in real time, as the robot would; a loaded machine then shows up as
         late answers, watchdog trips and lost sessions.
+    record : DesignRecord, optional
+        The design the config came from: the sweeps' linear predictions (none without it).
 
     Returns
     -------
@@ -267,8 +199,8 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         JSON-ready: ``clock`` (``"lockstep"`` or ``"realtime"``), ``runs`` (per
         run: ``name``, ``controller``, ``task``, ``file``, parameters and
         metrics), ``tracking`` (per task: built-in and additive peak errors),
-        ``kappa`` (linear margins, their ratio, and the live run: ``kappa``,
-        ``stable``, oscillation RMS per window), ``emulator`` (sim target: per
+        ``kappa`` (the design's linear margins of section V.C and their ratio, and ``sweeps``: per
+        source the result of :func:`~iiwa_ident.pipeline.kappa.run_kappa_sweep`), ``emulator`` (sim target: per
         run, what the robot side saw), ``compute_us_median`` (per
         additive run: the runtime's median compute time per cycle [us], the
         one figure that depends on the machine).
@@ -332,31 +264,20 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
             f"{row['peak_error_nm']:.1f} Nm ({time.perf_counter() - t_run:.1f} s)")
         return row, reports, compute
 
-    def kappa_run() -> tuple[dict[str, Any], list, None]:
+    def kappa_sweep(source: str) -> tuple[dict[str, Any], list, None]:
         t_run = time.perf_counter()
-        path = outdir / "additive_kappa.h5"
-        reports: list[dict[str, Any]] = []
-        for attempt in (1, 2):  # as above: a session lost to the machine's load is run again once
-            with robot_side("additive_kappa", 12, reports, agent="hand") as (host, port):
-                rep = _additive_run(host, port, config, make_task("kappa", kappa=kappa_live), s.kappa_s,
-                                    path, trip_cycles, lockstep)
-            if not _lost_session(rep.stop_reason):
-                break
-        live = _judge_kappa(path, rep.stop_reason, kappa_live, s.kappa_window_s)
-        live["watchdog_events"] = len(rep.watchdog_events)
-        live["attempts"] = attempt
-        say(f"  additive kappa = {kappa_live:.1f} with a human arm: {s.kappa_s:g} s through FRI, "
-            f"{live['verdict']}, {rep.stop_reason} "
+        out = run_kappa_sweep(config, outdir, record=record, tau_ext=source, target="sim", plant=plant,
+                              settings=s.kappa, lockstep=lockstep, say=say)
+        say(f"  kappa sweep ({source}): live ratio {_fmt(out['ratio_live'])}, linear {_fmt(out['ratio_linear'])} "
             f"({time.perf_counter() - t_run:.1f} s)")
-        return live, reports, None
+        return out, [], None
 
     # In real time the emulator shares this machine with the client: on a loaded VM it is late now and then,
     # which the default watchdog (3 cycles) reads as a lost link. In lockstep no cycle is late.
     trip_cycles = 5 if target == "sim" and not lockstep else 3
     kb, ka = kappa_margins
-    kappa_live = _live_kappa(kb, ka)
     kappa_row: dict[str, Any] = {"linear_builtin": _num(kb), "linear_additive": _num(ka),
-                                 "linear_ratio": _num(ka / kb) if kb > 0 else None, "live": None}
+                                 "linear_ratio": _num(ka / kb) if kb > 0 else None, "sweeps": {}}
     emulator_reports: list[dict[str, Any]] = []
     if target != "sim" and robot is None:
         raise IiwaIdentError("validation on the robot needs the robot's address")
@@ -369,8 +290,11 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
     ]
     jobs: list[Callable[[], tuple[dict[str, Any], list, float | None]]] = [
         functools.partial(tracking_run, *item, kind) for item in plan for kind in ("builtin", "additive")]
-    if target == "sim" and s.kappa_s > 0:
-        jobs.append(kappa_run)
+    sweeps = {}
+    if target == "sim":
+        for source in s.kappa_sources:
+            sweeps[source] = functools.partial(kappa_sweep, source)
+            jobs.append(sweeps[source])
     if lockstep:
         # Each run has its own emulator process on a virtual clock: independent, so two at a time (one per
         # core; this process mostly waits for the emulators' answers).
@@ -380,15 +304,16 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         results = [job() for job in jobs]
     for job, (row, reports, compute) in zip(jobs, results):
         emulator_reports.extend(reports)
-        if job is kappa_run:
-            kappa_row["live"] = row
+        source = next((k for k, v in sweeps.items() if v is job), None)
+        if source is not None:
+            kappa_row["sweeps"][source] = row
             continue
         runs.append(row)
         if compute is not None:
             compute_us[row["name"]] = compute
     if target != "sim":
-        kappa_row["live_skipped"] = ("needs a person holding the joint: run 'iiwa-ident run --task kappa' "
-                                     f"with kappa below {ka:.1f}")
+        kappa_row["live_skipped"] = ("needs a person holding the arm: run 'iiwa-ident kappa --robot HOST "
+                                     "--tau-ext ft --ft SENSOR --i-am-holding-the-arm'")
     by = {r["name"]: r for r in runs}
     summary = {}
     for task in ("step", "sine"):
@@ -401,7 +326,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
                 summary[task]["additive_overshoot_pct"] = a["overshoot_pct"]
     return {"target": target, "clock": "lockstep" if lockstep else "realtime", "delay_s": delay_s, "runs": runs, "tracking": summary, "kappa": kappa_row,
             "watchdog_trip_cycles": trip_cycles, "emulator": emulator_reports, "compute_us_median": compute_us,
-            "settings": {k: getattr(s, k) for k in s.__dataclass_fields__}}
+            "settings": asdict(s)}
 
 
 def _emulator_summary(what: str, report) -> dict[str, Any]:
@@ -420,35 +345,5 @@ def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _live_kappa(kb: float, ka: float) -> float:
-    """60 % of the built-in linear margin (about the paper's measured 4.6), and never above 60 % of the additive one.
-
-    The runtime closes the outer loop on its own estimate of eq (14), whose
-    observer lags by 1/K_I = 40 ms; the linear margins assume the F/T torque.
-    Through FRI on the simulated joint the additive loop was seen unstable at
-    kappa 9-11, so the live check stays well inside.
-    """
-    k = 0.6 * kb if kb > 0 else 3.0
-    return float(max(min(k, 0.6 * ka), 0.5))
-
-
-def _judge_kappa(path: Path, stop_reason: str, kappa: float, window_s: float) -> dict[str, Any]:
-    """Stable if the run lasted and its oscillation neither grew nor reached a level one can feel."""
-    ds = read_dataset(path)
-    t = np.asarray(ds["t"], float)
-    tau_j = np.asarray(ds["tau_j"], float)
-    rms = oscillation_windows(t - t[0], tau_j, window_s)
-    growth = rms[-1] / max(rms[0], 1e-9) if len(rms) >= 2 else math.nan
-    # The hand moves slowly (a period of seconds), so windows differ by its phase: only a clear growth to a
-    # level one can feel, or a limit cycle above 25 Nm, counts as unstable.
-    grew = bool(rms) and (max(rms) >= 25.0 or (growth > 2.5 and rms[-1] > 5.0))
-    if stop_reason == "duration":
-        verdict = "unstable" if grew or not rms else "stable"
-    elif "speed" in stop_reason or "non-finite" in stop_reason or grew:
-        verdict = "unstable"
-    else:  # the session ended early for another reason (a lost link): no verdict on the loop
-        verdict = "inconclusive"
-    stable = True if verdict == "stable" else (False if verdict == "unstable" else None)
-    return {"kappa": kappa, "file": path.name, "stop_reason": stop_reason, "stable": stable, "verdict": verdict,
-            "oscillation_rms_nm": rms, "growth": _num(growth), "peak_tau_j_nm": float(np.max(np.abs(tau_j))),
-            "window_s": window_s}
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from iiwa_ident.datasets import read_dataset  # noqa: E402
-from iiwa_ident.pipeline import oscillation_windows, reference_of  # noqa: E402
+from iiwa_ident.pipeline import reference_of  # noqa: E402
 
 __all__ = ["tracking_run_figure", "kappa_margin_figure", "parameter_table_figure"]
 
@@ -106,72 +106,84 @@ def tracking_run_figure(validation: dict[str, Any], folder: Path, task: str) -> 
     return fig
 
 
-def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
-    """Outer loop ``tau_r = kappa tau_ext``: linear margins of both controllers and the live run through FRI.
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1f}"
 
-    Left: the largest stable kappa of each controller on the design model
-    (exact delay) with the live run's kappa. Right: the live run's joint torque
-    and reference, and the RMS of the oscillatory torque per window.
+
+def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
+    """Outer loop ``tau_r = kappa tau_ext``: the live sweeps through FRI beside their linear predictions.
+
+    Left: per source and controller, the live margin (a bar from the last stable to the first unstable
+    kappa of the sweep) and the prediction of the loop as deployed (a cross); the dotted lines are the
+    design's margins of section V.C (the true torque, no filter). Right, like the paper's measurement:
+    the joint torque of the first source's sweep against time for both controllers, kappa in force on
+    the right axis, the judged onset of instability marked.
     """
     k = validation["kappa"]
-    live = k.get("live")
-    fig = plt.figure(figsize=(12, 5.5))
-    grid = fig.add_gridspec(2, 2, width_ratios=(0.8, 1.4))
+    sweeps: dict[str, Any] = k.get("sweeps") or {}
+    fig = plt.figure(figsize=(12, 6))
+    grid = fig.add_gridspec(2, 2, width_ratios=(0.85, 1.4))
     ax_b = fig.add_subplot(grid[:, 0])
-    values = [k.get("linear_builtin") or 0.0, k.get("linear_additive") or 0.0]
-    bars = ax_b.bar(["built-in", "additive"], values, color=[_COLOURS["builtin"], _COLOURS["additive"]],
-                    label="kappa_max, linear, exact delay")
-    for b, v in zip(bars, values):
-        ax_b.text(b.get_x() + b.get_width() / 2, v, f"{v:.1f}", ha="center", va="bottom", fontsize=9)
-    if live is not None:
-        ax_b.axhline(live["kappa"], color="k", ls="--",
-                     label=f"live run kappa = {live['kappa']:.1f}: {live.get('verdict', live['stable'])}")
-    ax_b.axhline(15.0, color="0.5", ls=":", label="paper: additive still stable at 15")
+    labels, x = [], 0
+    for source, sw in sweeps.items():
+        for loop in ("builtin", "additive"):
+            r = sw[loop]
+            col = _COLOURS[loop]
+            lo, hi = r.get("live_limit"), r.get("unstable_at")
+            if lo is not None:
+                ax_b.bar(x, (hi or lo) - lo, bottom=lo, width=0.6, color=col, alpha=0.55,
+                         label="live: last stable to first unstable kappa" if x == 0 else None)
+                ax_b.text(x, hi or lo, f"{lo:.1f}-{_fmt(hi)}", ha="center", va="bottom", fontsize=7)
+            elif hi is not None:
+                ax_b.plot([x], [hi], "v", color=col)
+                ax_b.text(x, hi, f"unstable at {hi:.2g}", ha="center", va="bottom", fontsize=7)
+            if r.get("linear_limit") is not None:
+                ax_b.plot([x], [r["linear_limit"]], "kx", ms=8, label="linear, as deployed" if x == 0 else None)
+            labels.append(f"{'built-in' if loop == 'builtin' else 'additive'}\n{source}")
+            x += 1
+    for loop, key in (("builtin", "linear_builtin"), ("additive", "linear_additive")):
+        if k.get(key):
+            ax_b.axhline(k[key], color=_COLOURS[loop], ls=":", lw=1,
+                         label=f"{'built-in' if loop == 'builtin' else 'additive'} section V.C model {k[key]:.1f}")
+    ax_b.set_xticks(range(len(labels)), labels, fontsize=8)
+    ax_b.set_yscale("log")
     ax_b.set_ylabel("outer-loop gain kappa [-]")
-    ratio = k.get("linear_ratio")
-    ax_b.set_title(f"kappa margins (ratio {ratio:.2f})" if ratio else "kappa margins", fontsize=10)
-    ax_b.legend(fontsize=7, loc="upper left")
-    ax_b.grid(True, axis="y", alpha=0.3)
-    ax_t = fig.add_subplot(grid[0, 1])
-    ax_r = fig.add_subplot(grid[1, 1])
-    if live is None:
-        note = k.get("live_skipped", "no live kappa run")
-        for ax in (ax_t, ax_r):
+    ratios = ", ".join(f"{s}: live {_fmt(sw.get('ratio_live'))}x, linear {_fmt(sw.get('ratio_linear'))}x"
+                       for s, sw in sweeps.items())
+    ax_b.set_title("live margins through FRI" + (f"\n{ratios}" if ratios else ""), fontsize=9)
+    ax_b.legend(fontsize=7, loc="lower right")
+    ax_b.grid(True, which="both", axis="y", alpha=0.3)
+    axes = [fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 1])]
+    if not sweeps:
+        note = k.get("live_skipped", "no live kappa sweep")
+        for ax in axes:
             ax.text(0.5, 0.5, note, ha="center", va="center", wrap=True, transform=ax.transAxes, fontsize=9)
             ax.set_axis_off()
     else:
-        ds = read_dataset(folder / live["file"])
-        t = np.asarray(ds["t"], float)
-        t = t - t[0]
-        tau_j = np.asarray(ds["tau_j"], float)
-        ax_t.plot(t, tau_j, color=_COLOURS["additive"], lw=0.8, label="tau_J measured")
-        ax_t.plot(t, np.asarray(ds["tau_r"], float), "k", lw=0.8, label="tau_r = kappa tau_ext,est")
-        ax_t.set_ylabel("torque [Nm]")
-        ax_t.set_title(f"live run through FRI with a human arm: additive, kappa = {live['kappa']:.1f}: "
-                       f"{live.get('verdict', live['stable'])}", fontsize=9)
-        ax_t.text(0.01, 0.03, f"run ended: {live['stop_reason']}"[:110], transform=ax_t.transAxes, fontsize=7,
-                  bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
-        ax_t.legend(fontsize=7, loc="upper right")
-        ax_t.grid(True, alpha=0.3)
-        rms = oscillation_windows(t, tau_j, live["window_s"])
-        if not rms:
-            ax_r.text(0.5, 0.5, f"the run ended after {t[-1]:.2f} s, before the first {live['window_s']:g} s window "
-                      "after the 0.5 s start: no oscillation level to judge", ha="center", va="center",
-                      transform=ax_r.transAxes, fontsize=8, wrap=True)
-        else:
-            edges = 0.5 + live["window_s"] * np.arange(len(rms) + 1)
-            ax_r.stairs(rms, edges, color=_COLOURS["additive"], label="oscillatory tau_J (> 3 Hz), RMS per window")
-        ax_r.axhline(5.0, color="0.5", ls=":", label="growth is ignored below 5 Nm")
-        ax_r.axhline(25.0, color="C3", ls=":", label="limit cycle: unstable above 25 Nm")
-        ax_r.set_xlim(0, t[-1])
-        if rms and min(rms) > 0:
-            ax_r.set_yscale("log")  # a level far below both thresholds stays visible beside them
-            ax_r.set_ylim(min(min(rms), 5.0) / 3.0, max(max(rms), 25.0) * 2.0)
-        ax_r.set_xlabel("time since the start of the run [s]")
-        ax_r.set_ylabel("RMS [Nm]")
-        ax_r.legend(fontsize=7, loc="upper right")
-        ax_r.grid(True, alpha=0.3)
-    fig.suptitle("Gain margin of tau_r = kappa tau_ext: built-in against additive", fontsize=11)
+        source, sw = next(iter(sweeps.items()))
+        for ax, loop in zip(axes, ("builtin", "additive")):
+            r = sw[loop]
+            ds = read_dataset(folder / r["file"])
+            t = np.asarray(ds["t"], float)
+            t = t - t[0]
+            tau_j = np.asarray(ds["tau_j"], float)
+            ax.plot(t, tau_j - tau_j[0], color=_COLOURS[loop], lw=0.6, label="tau_J measured")
+            ax.set_ylabel("tau_J [Nm]")
+            ax2 = ax.twinx()
+            steps = r["steps"]
+            ts = [st["t_start_s"] for st in steps] + [t[-1]]
+            ax2.stairs([st["kappa"] for st in steps], ts, color="k", lw=1.0, label="kappa")
+            ax2.set_ylabel("kappa [-]")
+            if r.get("unstable_at") is not None:
+                t_on = steps[-1]["t_start_s"]
+                ax.axvline(t_on, color="C3", ls="--", lw=1)
+            ax.set_title(f"{_TITLES[loop]}, tau_ext from {source}: stable to kappa {_fmt(r.get('live_limit'))}, "
+                         f"unstable at {_fmt(r.get('unstable_at'))}", fontsize=9)
+            ax.text(0.01, 0.04, (r.get("reason") or r.get("stop_reason") or "")[:110], transform=ax.transAxes,
+                    fontsize=7, bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+            ax.grid(True, alpha=0.3)
+        axes[-1].set_xlabel("time since the start of the sweep [s]")
+    fig.suptitle("Gain margin of tau_r = kappa tau_ext measured live: built-in against additive", fontsize=11)
     fig.tight_layout()
     return fig
 
