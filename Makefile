@@ -20,7 +20,8 @@ DEMO := reports/demo
 CLI := $(BIN)/iiwa-ident
 
 # The whole pipeline on the default simulated joint: experiments, fit, ripple, design, deploy, the closed loop
-# through the FRI runtime against the emulator, diagnosis, and the PDF report (about a minute after the install).
+# through the FRI runtime against the emulator with the live kappa sweeps, diagnosis, and the PDF report
+# (about 75 s after the install).
 demo: $(STAMP)
 	@mkdir -p reports
 	$(CLI) pipeline --target sim --workdir $(DEMO); status=$$?; cp $(DEMO)/report.pdf reports/demo.pdf; exit $$status

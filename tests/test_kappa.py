@@ -32,6 +32,7 @@ from iiwa_ident.design.margins import outer_loop_matrix
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointParameters
 from iiwa_ident.pipeline import run_kappa_sweep
+from iiwa_ident.pipeline.kappa import prediction_error_pct
 from iiwa_ident.runtime import KappaSweep, SweepSettings, TaskInput
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
@@ -88,6 +89,14 @@ class TestJudgement:
     def test_refused_settings(self, kw, msg):
         with pytest.raises(IiwaIdentError, match=msg):
             SweepSettings(**kw)
+
+
+def test_prediction_error_is_the_distance_outside_the_live_bracket():
+    assert prediction_error_pct(8.0, 7.4, 8.14) == 0.0
+    assert prediction_error_pct(7.0, 7.4, 8.14) == pytest.approx(100 * (7.0 - 7.4) / 7.4)
+    assert prediction_error_pct(9.0, 7.4, 8.14) == pytest.approx(100 * (9.0 - 8.14) / 8.14)
+    assert prediction_error_pct(50.0, 40.0, None) == 0.0  # stable to the sweep's end: only a lower bound
+    assert prediction_error_pct(5.0, None, 1.0) is None and prediction_error_pct(math.inf, 7.4, 8.1) is None
 
 
 @pytest.fixture(scope="module")
@@ -175,3 +184,25 @@ def test_kappa_command_is_repeatable_and_guards_the_robot(files, tmp_path):
     assert r.returncode != 0 and "--i-am-holding-the-arm" in r.stderr and "Traceback" not in r.stderr
     with pytest.raises(IiwaIdentError, match="a person must hold the arm"):
         run_kappa_sweep(files[2], tmp_path, record=None, target="robot", robot=("127.0.0.1", 30200))
+
+
+@pytest.mark.parametrize("extra, msg", [
+    (["--factor", "1"], "the factor must exceed 1"),
+    (["--start", "10", "--max", "5"], "below start"),
+    (["--tau-ext", "wrist"], "--tau-ext 'wrist'"),
+    (["--target", "moon"], "--target moon"),
+    (["--hold-s", "0.5"], "shorter than"),
+    (["--ft", "127.0.0.1"], "--robot and --ft apply to --target robot"),
+    (["--tau-ext", "estimate", "--ft-lever", "0.3"], "read only with --tau-ext ft"),
+])
+def test_bad_options_are_one_line_errors(files, tmp_path, extra, msg):
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+
+    folder, _, _ = files
+    r = CliRunner().invoke(app, ["kappa", "--config", str(folder / "controller.toml"), "--target", "sim",
+                                 "--json", str(tmp_path / "k.json"), *extra])
+    assert r.exit_code == 2 and msg in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "k.json").exists()

@@ -4,9 +4,6 @@ estimate, KUKA's estimate, and a Net F/T read over RDT; the built-in loop (the r
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,9 +18,6 @@ from iiwa_ident.fri import FriRobot
 from iiwa_ident.model import JointParameters
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
 from iiwa_ident.runtime import ControllerRuntime, make_task, run_controller
-
-CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
-
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -126,13 +120,17 @@ def test_refusals(config, tmp_path):
         ControllerRuntime(config, make_task("zero"), loop="outer")
     path = tmp_path / "controller.toml"
     write_config(path, config)
-    base = CLI + ["run", "--config", str(path), "--log", str(tmp_path / "x.h5"), "--task", "kappa"]
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+
+    base = ["run", "--config", str(path), "--log", str(tmp_path / "x.h5"), "--task", "kappa"]
     for extra, msg in [(["--target", "sim", "--tau-ext", "ft", "--ft", "127.0.0.1"], "run against the emulator"),
                        (["--target", "sim", "--tau-ext", "ft"], "--tau-ext ft needs the sensor's address"),
                        (["--target", "sim", "--ft", "127.0.0.1"], "--ft is read only with --tau-ext ft"),
                        (["--target", "sim", "--tau-ext", "wrist"], "--tau-ext 'wrist'"),
                        (["--target", "sim", "--loop", "outer"], "--loop 'outer'")]:
-        out = subprocess.run(base + extra, capture_output=True, text=True, timeout=120)
-        assert out.returncode != 0 and msg in out.stderr and "Traceback" not in out.stderr, out.stderr
+        out = CliRunner().invoke(app, base + extra)
+        assert out.exit_code == 2 and msg in out.stderr and "Traceback" not in out.stderr, out.stderr
         assert len(out.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.h5").exists()

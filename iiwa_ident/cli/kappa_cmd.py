@@ -68,24 +68,28 @@ def kappa_cmd(
                                                     "kappa_logs beside --json, or ./kappa_logs).")] = None,
     json_out: Annotated[Optional[Path], json_option("the sweep's figures")] = None,
 ) -> None:
-    """Measure the gain margin of tau_r = kappa tau_ext live through FRI, built-in loop then additive
-    controller, and predict it from the design's model of the loop as deployed.
+    """Measure the gain margin of tau_r = kappa tau_ext live through FRI,
+    built-in loop then additive controller, beside its linear prediction.
 
-    kappa is raised stepwise (--start, --factor, --max, each held --hold-s); the run itself judges the
-    onset of instability (a growing oscillation of the band-passed joint torque over successive
-    windows, or a limit cycle above --limit-nm), then kappa is ramped to zero and the run ends. The
-    live margin is the largest kappa held stable; the linear prediction models the source's
-    dynamics (the F/T sensor's filter, or the observer of eq (13)), FRI's delay, the spatial filter
-    at the speeds the run passed through and the arm's impedance.
+    kappa is raised stepwise (--start, --factor, --max, each held --hold-s);
+    the run itself judges the onset of instability (a growing oscillation of
+    the band-passed joint torque over successive windows, or a limit cycle
+    above --limit-nm), then kappa is ramped to zero and the run ends. The
+    live margin is the largest kappa held stable. The prediction models the
+    source's dynamics (the F/T sensor's filter, or the observer of eq (13)),
+    FRI's delay, the spatial filter at the speeds the run passed through and
+    the arm's impedance.
 
-    On the robot the loop amplifies what a person applies at the end effector, until it oscillates:
-    a person must hold the arm (--i-am-holding-the-arm) and be ready to stop it (Ctrl-C ramps out).
+    On the robot the loop amplifies what a person applies at the end
+    effector, until it oscillates: a person must hold the arm
+    (--i-am-holding-the-arm) and be ready to stop it (Ctrl-C ramps out).
 
     Examples:
-      iiwa-ident kappa --config controller.toml --target sim --json kappa.json
-      iiwa-ident kappa --config controller.toml --target sim --tau-ext estimate --json kappa_est.json
-      iiwa-ident kappa --config controller.toml --robot 192.170.10.2 --tau-ext ft --ft 192.168.1.1
-        --i-am-holding-the-arm --json kappa.json
+      iiwa-ident kappa --config controller.toml --target sim --json k.json
+      iiwa-ident kappa --config controller.toml --target sim
+        --tau-ext estimate --json k_est.json
+      iiwa-ident kappa --config controller.toml --robot 192.170.10.2
+        --tau-ext ft --ft 192.168.1.1 --i-am-holding-the-arm --json k.json
     """
     from iiwa_ident.deploy import read_config
     from iiwa_ident.design import read_design

@@ -147,11 +147,16 @@ def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
                          label=f"{'built-in' if loop == 'builtin' else 'additive'} section V.C model {k[key]:.1f}")
     ax_b.set_xticks(range(len(labels)), labels, fontsize=8)
     ax_b.set_yscale("log")
+    shown = [y for line in ax_b.get_lines() for y in line.get_ydata()] + [
+        v for p in ax_b.patches for v in (p.get_y(), p.get_y() + p.get_height())]
+    shown = [float(y) for y in shown if np.isfinite(y) and y > 0]
+    if shown:  # room above for the legend
+        ax_b.set_ylim(min(shown) / 1.3, max(shown) * 2.5)
     ax_b.set_ylabel("outer-loop gain kappa [-]")
     ratios = ", ".join(f"{s}: live {_fmt(sw.get('ratio_live'))}x, linear {_fmt(sw.get('ratio_linear'))}x"
                        for s, sw in sweeps.items())
     ax_b.set_title("live margins through FRI" + (f"\n{ratios}" if ratios else ""), fontsize=9)
-    ax_b.legend(fontsize=7, loc="lower right")
+    ax_b.legend(fontsize=7, loc="upper left")
     ax_b.grid(True, which="both", axis="y", alpha=0.3)
     axes = [fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 1])]
     if not sweeps:
