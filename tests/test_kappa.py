@@ -206,3 +206,59 @@ def test_bad_options_are_one_line_errors(files, tmp_path, extra, msg):
     assert r.exit_code == 2 and msg in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "k.json").exists()
+
+
+def test_the_robot_path_sweeps_both_loops_in_turn(files, tmp_path):
+    """On the robot the sweep runs two sessions one after the other, the F/T at its own address; here the
+    robot is the emulator (in lockstep only so that the test does not depend on the machine's timing)."""
+    from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
+    from iiwa_ident.pipeline.session import free_udp_port
+
+    _, rec, cfg = files
+    with pytest.raises(IiwaIdentError, match="needs the sensor's address"):
+        run_kappa_sweep(cfg, tmp_path, record=rec, target="robot", robot=("127.0.0.1", 30200),
+                        holding_the_arm=True)
+    port, ft_port = free_udp_port(), free_udp_port()
+    with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), lockstep=True, lockstep_guard_s=0.5,
+                                       agent="hand", hand_peak_speed_rad_s=0.05, hand_range_rad=0.05,
+                                       ft_port=ft_port)) as emu:
+        out = run_kappa_sweep(cfg, tmp_path, record=rec, target="robot", robot=("127.0.0.1", port),
+                              ft=("127.0.0.1", ft_port), holding_the_arm=True,
+                              settings=SweepSettings(start=6.0, factor=1.25, max=9.0, hold_s=1.25))
+        emu.stop()
+        emu.join(30.0)
+    assert out["hand"] == "a person" and out["clock"] == "realtime"
+    for loop in ("builtin", "additive"):
+        assert out[loop]["stop_reason"] == "kappa sweep: stable up to the maximum 7.5", out[loop]
+        assert out[loop]["sensor"]["received"] > 0 and out[loop]["sensor"]["lost"] == 0
+
+
+def test_any_valid_sweep_finishes_with_a_consistent_verdict():
+    """Random settings and torques (noise, a growing oscillation from a random time, a step): the task
+    never raises, finishes, and its figures agree with its steps."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=60, deadline=None)
+    @given(start=st.floats(0.1, 20.0), factor=st.floats(1.05, 3.0), span=st.floats(1.0, 20.0),
+           hold=st.floats(1.3, 3.0), noise=st.floats(0.0, 3.0), onset=st.floats(0.0, 60.0),
+           growth=st.floats(0.0, 8.0), seed=st.integers(0, 2**16))
+    def check(start, factor, span, hold, noise, onset, growth, seed):
+        s = SweepSettings(start=start, factor=factor, max=start * span, hold_s=hold)
+        n = int((s.steps() * hold + 1.0) / 1e-3)
+        t = np.arange(n) * 1e-3
+        rng = np.random.default_rng(seed)
+        x = noise * rng.standard_normal(n)
+        x += np.where(t > onset, 0.1 * np.exp(np.minimum(growth * (t - onset), 8.0)) * np.sin(2 * np.pi * 25 * t), 0.0)
+        task = KappaSweep(s)
+        refs = _drive(task, x)
+        assert task.done and np.all(np.isfinite(refs))
+        kappas = [step["kappa"] for step in task.steps]
+        assert kappas == sorted(kappas) and kappas[0] == pytest.approx(start)
+        if task.unstable_at is None:
+            assert task.live_limit == pytest.approx(s.kappas()[-1]) and all(step["stable"] for step in task.steps)
+        else:
+            assert task.steps[-1]["stable"] is False and task.unstable_at == task.steps[-1]["kappa"]
+            assert task.live_limit is None or task.live_limit < task.unstable_at
+
+    check()
