@@ -134,3 +134,15 @@ def test_refusals(config, tmp_path):
         assert out.exit_code == 2 and msg in out.stderr and "Traceback" not in out.stderr, out.stderr
         assert len(out.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.parametrize("extra, msg", [(["--ft-port", "70000"], "ft_port must be a UDP port"),
+                                        (["--ft-port", "0", "--ft-rate", "9000"], "F/T rate must be 1-7000 Hz"),
+                                        (["--ft-port", "0", "--ft-lever", "-1"], "ft_lever_m must be")])
+def test_emulate_refuses_bad_sensor_settings(extra, msg):
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+
+    out = CliRunner().invoke(app, ["emulate", "--duration", "1", *extra])
+    assert out.exit_code == 2 and msg in out.stderr and "Traceback" not in out.stderr, out.stderr
