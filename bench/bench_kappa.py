@@ -5,8 +5,8 @@ Usage: python bench/bench_kappa.py [--scale 1.25] [--start 1 --factor 1.1 --max 
 For each plant (the default, Table I; and one whose K and Td are ``--scale`` times and Jl ``2 - --scale`` times
 the default's: 25 % more and 25 % less at 1.25), the pipeline identifies the joint, designs and deploys the additive controller and sweeps kappa
 in lockstep for the Net F/T source and the runtime's estimate (its validation stage); for the estimate
-also with the rate limits in the loop lifted (the robot's command slew limit and the runtime's torque-rate and
-reference-rate limits), which shows what the linear prediction leaves out there.
+also with the command's rate limits lifted (the robot's slew limit and the runtime's torque-rate limit; the
+reference's rate limit stays), which shows what the linear prediction leaves out there.
 
 Prints per plant, source and loop: the live bracket (last stable, first unstable kappa), the linear prediction
 of the loop as deployed and how far it lies outside the bracket, and the ratio additive / built-in.
@@ -54,7 +54,7 @@ def main() -> None:
 
     settings = SweepSettings(start=args.start, factor=args.factor, max=args.max, hold_s=args.hold_s)
     fmt = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
-    print(f"{'plant':22} {'source':24} {'loop':9} {'stable to':>9} {'unstable':>9} {'linear':>8} {'outside':>8}")
+    print(f"{'plant':22} {'source':32} {'loop':9} {'stable to':>9} {'unstable':>9} {'linear':>8} {'outside':>8}")
     with tempfile.TemporaryDirectory() as tmp:
         for scale in (1.0, args.scale):
             name = "default" if scale == 1.0 else f"K,Td x{scale:g}, Jl x{2 - scale:g}"
@@ -71,17 +71,16 @@ def main() -> None:
             plant = load_plant(plant_file) if plant_file else default_plant()
             cfg, rec = read_config(work / "controller.toml"), read_design(work / "design.toml")
             lifted_plant = dataclasses.replace(plant, internal={**plant.internal, "slew_rate_nm_s": 1e7})
-            lifted_cfg = dataclasses.replace(cfg, limits=dataclasses.replace(
-                cfg.limits, torque_rate_nm_s=1e7, reference_rate_nm_s=1e7))
-            sweeps["estimate, no rate limits"] = run_kappa_sweep(
+            lifted_cfg = dataclasses.replace(cfg, limits=dataclasses.replace(cfg.limits, torque_rate_nm_s=1e7))
+            sweeps["estimate, no command rate limits"] = run_kappa_sweep(
                 lifted_cfg, work / "lifted", record=rec, tau_ext="estimate", plant=lifted_plant, settings=settings)
             for label, out in sweeps.items():
                 for loop in ("builtin", "additive"):
                     r = out[loop]
                     err = "-" if r["linear_error_pct"] is None else f"{r['linear_error_pct']:+.0f} %"
-                    print(f"{name:22} {label:24} {loop:9} {fmt(r['live_limit']):>9} {fmt(r['unstable_at']):>9} "
+                    print(f"{name:22} {label:32} {loop:9} {fmt(r['live_limit']):>9} {fmt(r['unstable_at']):>9} "
                           f"{fmt(r['linear_limit']):>8} {err:>8}")
-                print(f"{name:22} {label:24} ratio live {fmt(out['ratio_live'])}, linear {fmt(out['ratio_linear'])}")
+                print(f"{name:22} {label:32} ratio live {fmt(out['ratio_live'])}, linear {fmt(out['ratio_linear'])}")
             print(f"{name}: {time.perf_counter() - t0:.0f} s", flush=True)
 
 
