@@ -91,6 +91,21 @@ class TestJudgement:
             SweepSettings(**kw)
 
 
+def test_rate_limited_share_per_step(tmp_path):
+    from iiwa_ident.datasets import Dataset, write_dataset
+    from iiwa_ident.pipeline.kappa import rate_limited_pct
+
+    t = np.arange(4000) * 1e-3
+    tau_c = np.zeros_like(t)
+    tau_c[2000:] = 32.0 * (np.arange(2000) % 2)  # the second step alternates at 32 Nm per cycle
+    tau_c[2000:2100] = 0.0
+    write_dataset(tmp_path / "log.h5", Dataset(signals={"t": t, "q_m": 0 * t, "tau_j": 0 * t, "tau_c": tau_c},
+                                              experiment="free", source="simulation", joint=1,
+                                              sample_rate_hz=1000.0))
+    got = rate_limited_pct(tmp_path / "log.h5", [0.0, 2.0], 32000.0)
+    assert got[0] == 0.0 and got[1] == pytest.approx(100.0 * 1900 / 2000, abs=0.1)
+
+
 def test_prediction_error_is_the_distance_outside_the_live_bracket():
     assert prediction_error_pct(8.0, 7.4, 8.14) == 0.0
     assert prediction_error_pct(7.0, 7.4, 8.14) == pytest.approx(100 * (7.0 - 7.4) / 7.4)
@@ -161,6 +176,8 @@ def test_the_live_margins_through_fri_and_their_prediction(files, tmp_path):
         assert r["unstable_at"] is not None and r["live_limit"] is not None, r
         assert r["sensor"]["lost"] == 0
         assert abs(r["linear_error_pct"]) <= 15.0, r
+        # With the F/T the command reaches its rate limit at the onset at the earliest.
+        assert r["rate_limited_from"] is None or r["rate_limited_from"] >= r["unstable_at"], r
     assert out["ratio_live"] >= 3.0
     assert (tmp_path / "kappa_additive_ft.h5").exists()
 

@@ -31,6 +31,11 @@ def format_sweep(out: dict[str, Any]) -> str:
         lines.append(f"  {loop:9} {_f(r['live_limit']):>12} {_f(r['unstable_at']):>12} {_f(r['linear_limit']):>8} "
                      f"{err:>7}  {r['reason'] or r['stop_reason']}")
     lines.append(f"  ratio additive / built-in: live {_f(out['ratio_live'])}, linear {_f(out['ratio_linear'])}")
+    for loop in ("builtin", "additive"):
+        k = out[loop].get("rate_limited_from")
+        if k is not None and (out[loop]["unstable_at"] is None or k < out[loop]["unstable_at"]):
+            lines.append(f"  {loop}: the command sat at its rate limit from kappa {k:.2f} on; the linear "
+                         "prediction has no rate limits and does not describe the loop there")
     lines.append("  (error: how far the linear prediction lies outside the live bracket, from the last stable to "
                  "the first unstable kappa; 0 inside)")
     return "\n".join(lines)

@@ -35,7 +35,8 @@ from iiwa_ident.pipeline.session import LOCKSTEP_GUARD_S, LateFriRobot, free_udp
 from iiwa_ident.runtime import KappaSweep, SweepSettings, Watchdog, run_controller
 from iiwa_ident.sim import Plant, default_plant
 
-__all__ = ["HoldingHand", "run_kappa_sweep", "speeds_of_run", "prediction_error_pct", "CONTROLLERS"]
+__all__ = ["HoldingHand", "run_kappa_sweep", "speeds_of_run", "prediction_error_pct", "rate_limited_pct",
+           "RATE_LIMITED_PCT", "CONTROLLERS"]
 
 #: The loops swept, in order.
 CONTROLLERS = ("builtin", "additive")
@@ -125,7 +126,9 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
     dict
         JSON-ready: ``tau_ext``, ``target``, ``clock``, ``settings``, ``hand``, per controller (``builtin``,
         ``additive``): ``live_limit``, ``unstable_at``, ``reason``, ``stop_reason``, ``steps``, ``file``,
-        ``speed_p95_rad_s``, ``linear_limit``, ``linear_at_speed_rad_s``, ``linear_error_pct`` (outside
+        ``speed_p95_rad_s``, ``rate_limited_from`` (the first kappa whose command sat at the runtime's
+        torque-rate limit in :data:`RATE_LIMITED_PCT` % of its cycles: from there the prediction, which has
+        no rate limits, does not describe the loop), ``linear_limit``, ``linear_at_speed_rad_s``, ``linear_error_pct`` (outside
         the live bracket, :func:`prediction_error_pct`); ``ratio_live`` (of the live limits) and
         ``ratio_linear`` (additive / built-in; None where a figure is missing).
     """
@@ -190,6 +193,12 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
         if task.reason == "" and not rep.stop_reason.startswith("kappa sweep"):
             row["reason"] = f"ended before a judgement: {rep.stop_reason}"
         row["speed_p95_rad_s"] = speeds_of_run(path, t_end)
+        limited = rate_limited_pct(path, [st["t_start_s"] for st in task.steps],
+                                   config.limits.torque_rate_nm_s)
+        for st, pct in zip(row["steps"], limited):
+            st["rate_limited_pct"] = pct
+        row["rate_limited_from"] = next((st["kappa"] for st in row["steps"]
+                                         if st["rate_limited_pct"] >= RATE_LIMITED_PCT), None)
         say(f"  {loop} loop, tau_ext from {tau_ext}: stable up to kappa {_fmt(task.live_limit)}, unstable at "
             f"{_fmt(task.unstable_at)} ({task.reason or rep.stop_reason})")
         return row
@@ -221,6 +230,26 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
             "builtin": b, "additive": a,
             "ratio_live": _ratio(a["live_limit"], b["live_limit"]),
             "ratio_linear": _ratio(a["linear_limit"], b["linear_limit"])}
+
+
+#: Share of a step's cycles at the runtime's torque-rate limit from which the linear prediction, which
+#: has no rate limits, no longer describes the loop [%].
+RATE_LIMITED_PCT = 1.0
+
+
+def rate_limited_pct(path: Path, step_starts_s: list[float], torque_rate_nm_s: float) -> list[float]:
+    """Per kappa step, the share of cycles whose command changed by the runtime's torque-rate limit [%]."""
+    ds = read_dataset(path)
+    t = np.asarray(ds["t"], float)
+    t = t - t[0]
+    change = np.abs(np.diff(np.asarray(ds["tau_c"], float)))
+    at_limit = change >= torque_rate_nm_s * float(np.median(np.diff(t))) * (1.0 - 1e-6)
+    edges = list(step_starts_s) + [math.inf]
+    out = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = (t[1:] >= a) & (t[1:] < b)
+        out.append(float(100.0 * np.mean(at_limit[sel])) if np.any(sel) else 0.0)
+    return out
 
 
 def prediction_error_pct(linear: float, live_limit: float | None, unstable_at: float | None) -> float | None:
