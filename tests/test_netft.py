@@ -6,7 +6,6 @@ from __future__ import annotations
 import select
 import socket
 import struct
-import time
 
 import numpy as np
 import pytest
@@ -139,25 +138,21 @@ def _sensor(server, **kw):
     return s
 
 
-def _settle(server, sensor=None):
-    # Loopback delivers within microseconds; poll until the requests are in.
-    import time
-    for _ in range(200):
+#: Waits for a datagram end once it is there; the time-out only ends a test whose datagram never comes.
+_WAIT_S = 30.0
+
+
+def _settle(server):
+    """Take the sensor's requests once they have arrived (bias, then the stream)."""
+    while server.client is None:
+        assert select.select([server._sock], [], [], _WAIT_S)[0], "no request reached the server"
         server.poll_requests()
-        if server.client is not None:
-            return
-        time.sleep(0.005)
-    raise AssertionError("no request reached the server")
 
 
-def _wait_poll(sensor, tries=200):
-    import time
-    for _ in range(tries):
-        v = sensor.poll()
-        if v is not None:
-            return v
-        time.sleep(0.005)
-    return None
+def _wait_poll(sensor):
+    """One cycle's poll once a record is there."""
+    assert select.select([sensor._sock], [], [], _WAIT_S)[0], "no record reached the sensor"
+    return sensor.poll()
 
 
 class TestSensorOverLoopback:
@@ -200,17 +195,13 @@ class TestSensorOverLoopback:
         send(RdtRecord(12, 2, 0, counts))  # reordered
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as other:
             other.sendto(encode_record(RdtRecord(14, 3, 0, counts)), server.client)
-        for _ in range(200):
-            sensor.poll()
-            if sensor.stats.foreign:
-                break
-            time.sleep(0.005)
+        while not sensor.stats.foreign:
+            _wait_poll(sensor)
         assert (sensor.stats.lost, sensor.stats.stale, sensor.stats.foreign) == (2, 2, 1)
         # A faulted sensor: records keep coming, their status word says the data are bad.
         for k in range(3):
             send(RdtRecord(20 + k, 10 + k, 0x80020000, counts))
-            select.select([sensor._sock], [], [], 5.0)  # delivered before this cycle's poll
-            assert sensor.poll() is None
+            assert _wait_poll(sensor) is None
         assert sensor.stats.bad_status == 3
         assert sensor.fault == "F/T sensor: status 0x80020000 for 3 cycles"
 
@@ -232,7 +223,6 @@ class TestSensorOverLoopback:
         sensor = _sensor(server)
         _settle(server)
         sensor.stop()
-        import time
-        time.sleep(0.05)
+        assert select.select([server._sock], [], [], _WAIT_S)[0]
         ft.cycle(1.0)
         assert server.remaining == 0
