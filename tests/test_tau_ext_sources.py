@@ -3,7 +3,6 @@ estimate, KUKA's estimate, and a Net F/T read over RDT; the built-in loop (the r
 
 from __future__ import annotations
 
-import socket
 
 import numpy as np
 import pytest
@@ -17,13 +16,8 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import FriRobot
 from iiwa_ident.model import JointParameters
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
+from iiwa_ident.pipeline.session import free_udp_port
 from iiwa_ident.runtime import ControllerRuntime, make_task, run_controller
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 @pytest.fixture(scope="module")
 def config():
@@ -33,7 +27,7 @@ def config():
 
 
 def _run(config, tmp_path, kappa, tau_ext, loop="additive", duration=1.5, ft=NetFtSettings(), lever=None):
-    port, ft_port = free_port(), free_port()
+    port, ft_port = free_udp_port(), free_udp_port()
     cfg = EmulatorConfig(client=("127.0.0.1", port), lockstep=True, lockstep_guard_s=60.0, agent="hand",
                          ft_port=ft_port, ft=ft, ft_lever_m=lever, record=tmp_path / "robot.h5")
     with spawn_emulator(cfg) as emu:
@@ -95,8 +89,8 @@ def test_the_fri_source_is_kukas_estimate_from_its_start_value(config, tmp_path)
 
 def test_a_silent_sensor_ramps_the_loop_down(config, tmp_path):
     """The sensor's address answers nothing: after the fault limit the run ramps out and names it."""
-    port = free_port()
-    dead = free_port()  # nobody serves RDT here
+    port = free_udp_port()
+    dead = free_udp_port()  # nobody serves RDT here
     with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), lockstep=True, lockstep_guard_s=60.0,
                                        agent="hand")) as emu:
         robot = FriRobot("127.0.0.1", 1, port=port, connect_timeout_s=60.0, message_timeout_s=30.0)

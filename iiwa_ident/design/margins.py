@@ -341,7 +341,8 @@ class DeployedLoop:
 
 
 def _series(first: tuple, second: tuple) -> tuple:
-    """Discrete SISO systems in series: ``second(first(u))``, each ``(A, B, C, D)`` with 1-D B and C."""
+    """``second(first(x))``: ``first`` maps the plant's state to one signal (``B`` a matrix over it, ``D`` a
+    row), ``second`` is a discrete SISO filter (1-D ``B`` and ``C``); the result maps the state the same way."""
     A1, B1, C1, D1 = first
     A2, B2, C2, D2 = second
     n1, n2 = A1.shape[0], A2.shape[0]
@@ -349,9 +350,14 @@ def _series(first: tuple, second: tuple) -> tuple:
     A[:n1, :n1] = A1
     A[n1:, :n1] = np.outer(B2, C1)
     A[n1:, n1:] = A2
-    B = np.concatenate([B1, B2 * D1])
+    B = np.vstack([B1, np.outer(B2, D1)])
     C = np.concatenate([D2 * C1, C2])
     return A, B, C, D2 * D1
+
+
+def _static(row: np.ndarray) -> tuple:
+    """The signal ``row . x`` as a system without states (the start of a :func:`_series`)."""
+    return np.zeros((0, 0)), np.zeros((0, len(row))), np.zeros(0), np.asarray(row, float)
 
 
 def _siso(b: np.ndarray, a: np.ndarray) -> tuple:
@@ -388,58 +394,29 @@ def _observer(KI: float, Jl: float, T: float) -> tuple[np.ndarray, np.ndarray, n
 def _measurement(params: JointParameters, arm: HumanArm, loop: DeployedLoop, T: float, additive: bool,
                  C_j: np.ndarray, C_e: np.ndarray) -> _Measurement:
     """The deployed loop's sensors, observers and filters as one :class:`_Measurement`."""
-    n = len(C_j)
-    C_theta_l = np.array([0.0, 0.0, 1.0, 0.0])
-    C_theta_m = np.array([1.0, 0.0, 0.0, 0.0])
     spatial = _spatial_filter(loop.filter, loop.speed_rad_s, T)
-    # tau_j path: the additive controller's feedback is spatially filtered, eq (15).
-    tj = spatial if additive else _ONE
-    blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (A, B over x, C) of each part
-    rows_D = np.zeros((2, n))
-    rows_C: list[np.ndarray] = []
-
-    def add(A, Bx, C_out, which):
-        blocks.append((A, Bx, C_out, which))
-
-    A1, B1, C1, D1 = tj
-    add(A1, np.outer(B1, C_j), C1, 0)
-    rows_D[0] = D1 * C_j
-    # tau_ext path.
+    # tau_j as the controller sees it: spatially filtered in the additive controller's feedback, eq (15).
+    seen_j = _series(_static(C_j), spatial if additive else _ONE)
     if loop.source in ("ideal", "ft"):
         pole = 0.0
         if loop.source == "ft" and loop.ft_cutoff_hz is not None:
             records = max(1.0, loop.ft_rate_hz * T)
             pole = math.exp(-2.0 * math.pi * loop.ft_cutoff_hz / loop.ft_rate_hz) ** records
-        if pole > 0.0:
-            add(np.array([[pole]]), np.outer([1.0 - pole], C_e), np.array([pole]), 1)
-            rows_D[1] = (1.0 - pole) * C_e
-        else:
-            rows_D[1] = C_e
+        sensor = (np.array([[pole]]), np.array([1.0 - pole]), np.array([pole]), 1.0 - pole) if pole > 0 else _ONE
+        seen_e = _series(_static(C_e), sensor)
     else:
-        theta = C_theta_l if loop.source == "estimate" else C_theta_m
+        theta = np.array([0.0, 0.0, 1.0, 0.0]) if loop.source == "estimate" else np.array([1.0, 0.0, 0.0, 0.0])
         Ao, Bo, Co, Do = _observer(loop.KI, params.Jl, T)
-        Cin = np.vstack([theta, C_j])  # the observer's inputs over x
-        post = spatial if loop.source == "estimate" else _ONE
-        Ap, Bp, Cp, Dp = post
-        no, npost = Ao.shape[0], Ap.shape[0]
-        A = np.zeros((no + npost, no + npost))
-        A[:no, :no] = Ao
-        A[no:, :no] = np.outer(Bp, Co)
-        A[no:, no:] = Ap
-        Bx = np.vstack([Bo @ Cin, np.outer(Bp, Do @ Cin)])
-        C = np.concatenate([Dp * Co, Cp])
-        add(A, Bx, C, 1)
-        rows_D[1] = Dp * (Do @ Cin)
-    nf = sum(b[0].shape[0] for b in blocks)
-    Af, Bf, Cf = np.zeros((nf, nf)), np.zeros((nf, n)), np.zeros((2, nf))
-    i = 0
-    for A, Bx, C_out, which in blocks:
-        k = A.shape[0]
-        Af[i:i + k, i:i + k] = A
-        Bf[i:i + k] = Bx
-        Cf[which, i:i + k] = C_out
-        i += k
-    return _Measurement(Af, Bf, Cf, rows_D)
+        inputs = np.vstack([theta, C_j])  # the observer's inputs over x
+        # The runtime's estimate is spatially filtered, eq (14); the robot's is not.
+        seen_e = _series((Ao, Bo @ inputs, Co, Do @ inputs), spatial if loop.source == "estimate" else _ONE)
+    (Aj, Bj, Cj, Dj), (Ae, Be, Ce, De) = seen_j, seen_e
+    nj, ne = Aj.shape[0], Ae.shape[0]
+    Af = np.zeros((nj + ne, nj + ne))
+    Af[:nj, :nj], Af[nj:, nj:] = Aj, Ae
+    Cf = np.zeros((2, nj + ne))
+    Cf[0, :nj], Cf[1, nj:] = Cj, Ce
+    return _Measurement(Af, np.vstack([Bj, Be]), Cf, np.vstack([Dj, De]))
 
 
 def deployed_loop_matrix(params: JointParameters, kappa: float, design: AdditiveDesign | None = None,
