@@ -3,6 +3,7 @@ Jacobian, and a sensor read over loopback (lost, stale, foreign, bad status, sil
 
 from __future__ import annotations
 
+import math
 import select
 import socket
 import struct
@@ -226,3 +227,19 @@ class TestSensorOverLoopback:
         assert select.select([server._sock], [], [], _WAIT_S)[0]
         ft.cycle(1.0)
         assert server.remaining == 0
+
+
+def test_the_emulated_sensors_own_noise(server):
+    """Per channel, seeded: about the axis 0.5 m x Fy + Mz has the std the channels' stds give."""
+    ft = EmulatedNetFt(server, JointAxisProjection.from_lever_arm(0.5),
+                       NetFtSettings(cutoff_hz=None, force_noise_n=0.5, torque_noise_nm=0.05, seed=3))
+    sensor = _sensor(server, bias=False)
+    _settle(server)
+    got = []
+    for _ in range(2000):
+        ft.cycle(0.0)
+        got.append(_wait_poll(sensor))
+    assert sensor.stats.lost == 0
+    assert np.std(got) == pytest.approx(math.hypot(0.5 * 0.5, 0.05), rel=0.1)
+    with pytest.raises(IiwaIdentError, match="force_noise_n must be a std"):
+        NetFtSettings(force_noise_n=-1.0)

@@ -68,7 +68,7 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
             record, max_time, hand_speed, lockstep=False, stalls=(), pose=None, ft_port=None, ft_rate=1000.0,
-            ft_cutoff=152.0, ft_lever=None) -> EmulatorConfig:
+            ft_cutoff=152.0, ft_lever=None, ft_noise=(0.0, 0.0)) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
     from iiwa_ident.emulator import AGENTS, DEFAULT_JOINT_POSITIONS, EmulatorConfig, Faults
     from iiwa_ident.fri import ClientCommandMode, ControlMode, parse_host_port
@@ -107,7 +107,8 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         lockstep=lockstep,
         stalls=tuple(_stall(text) for text in stalls),
         ft_port=ft_port,
-        ft=NetFtSettings(rate_hz=ft_rate, cutoff_hz=ft_cutoff if ft_cutoff else None),
+        ft=NetFtSettings(rate_hz=ft_rate, cutoff_hz=ft_cutoff if ft_cutoff else None, force_noise_n=ft_noise[0],
+                         torque_noise_nm=ft_noise[1], seed=seed),
         ft_lever_m=ft_lever,
     )
 
@@ -173,6 +174,10 @@ def emulate_cmd(
     ft_lever: Annotated[Optional[float], typer.Option("--ft-lever", help="--ft-port: the sensor's lever arm "
                                                       "[m] (default: the flange from the description at "
                                                       "--pose).")] = None,
+    ft_noise_n: Annotated[float, typer.Option("--ft-noise-n", help="--ft-port: the sensor's own noise per "
+                                              "force channel, std [N] (beside the plant's F/T noise).")] = 0.0,
+    ft_noise_nm: Annotated[float, typer.Option("--ft-noise-nm", help="--ft-port: the sensor's own noise per "
+                                               "torque channel, std [Nm].")] = 0.0,
 ) -> None:
     """Emulate the robot controller's side of FRI at 1 kHz over UDP, with the simulated joint behind it.
 
@@ -202,7 +207,7 @@ def emulate_cmd(
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
                          agent, record, max_time, hand_speed, lockstep, stall or (), pose, ft_port, ft_rate,
-                         ft_cutoff, ft_lever)
+                         ft_cutoff, ft_lever, (ft_noise_n, ft_noise_nm))
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
         raise fail(str(err))

@@ -105,6 +105,7 @@ Units: seconds, rad, Nm unless a name says otherwise.
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import math
 import socket
@@ -232,7 +233,8 @@ class RobotEmulator:
             except IiwaIdentError:
                 self._sock.close()
                 raise
-            self._ft = EmulatedNetFt(server, projection, config.ft, self._period)
+            ft = config.ft if config.ft.seed == config.seed else dataclasses.replace(config.ft, seed=config.seed)
+            self._ft = EmulatedNetFt(server, projection, ft, self._period)
         self._stop_requested = False
         self._ran = False
 

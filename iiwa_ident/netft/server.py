@@ -6,7 +6,8 @@ each control cycle it takes the external torque about the joint's axis, turns it
 pushing at the sensor applies (:meth:`JointAxisProjection.wrench`), passes it through the sensor's
 low-pass filter at the sensor's own output rate, and streams the records of that cycle. The emulated
 sensor's filter is first order (the Net F/T's filter settings name cut-offs; the order is not
-documented), its noise the simulated joint's F/T noise, its output rate any up to 7 kHz.
+documented), its noise the simulated joint's F/T noise and, per channel, its own (seeded), its output
+rate any up to 7 kHz.
 """
 
 from __future__ import annotations
@@ -36,17 +37,29 @@ class NetFtSettings:
         Cut-off of the sensor's low-pass filter [Hz] (None: no filter).
     calibration : Calibration
         Counts per force and torque.
+    force_noise_n, torque_noise_nm : float
+        Std of the sensor's own noise per force [N] and torque [Nm] channel, per record, on top of the
+        simulated joint's F/T noise.
+    seed : int
+        Seed of that noise.
     """
 
     rate_hz: float = 1000.0
     cutoff_hz: float | None = 152.0
     calibration: Calibration = Calibration()
+    force_noise_n: float = 0.0
+    torque_noise_nm: float = 0.0
+    seed: int = 0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 7000.0):
             raise IiwaIdentError(f"F/T rate must be 1-7000 Hz, got {self.rate_hz!r}")
         if self.cutoff_hz is not None and not (math.isfinite(self.cutoff_hz) and 0 < self.cutoff_hz):
             raise IiwaIdentError(f"F/T filter cut-off must be a positive frequency, got {self.cutoff_hz!r}")
+        for name in ("force_noise_n", "torque_noise_nm"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise IiwaIdentError(f"F/T {name} must be a std >= 0, got {v!r}")
 
     def filter_pole(self) -> float:
         """The discrete pole of the filter at the output rate (0: no filter)."""
@@ -146,6 +159,8 @@ class EmulatedNetFt:
         self._bias = np.zeros(6)
         self._biased = False
         self._started = False
+        self._noise = np.array([settings.force_noise_n] * 3 + [settings.torque_noise_nm] * 3)
+        self._rng = np.random.default_rng(settings.seed) if self._noise.any() else None
 
     def restart(self, tau_ext: float) -> None:
         """The simulation restarted from rest at ``tau_ext`` [Nm]: the filter settles there, and a bias the
@@ -174,4 +189,7 @@ class EmulatedNetFt:
                 srv.bias_requested = False
                 self._bias = self._y.copy()
                 self._biased = True
-            srv.publish(self.settings.calibration.counts(self._y - self._bias))
+            w_out = self._y - self._bias
+            if self._rng is not None:
+                w_out = w_out + self._noise * self._rng.standard_normal(6)
+            srv.publish(self.settings.calibration.counts(w_out))
