@@ -589,7 +589,7 @@ def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset
             + "; together they detect nothing: the data do not decide")
         return pooled
     k0, s0 = 1.0 / pooled.period_rad, pooled.period_std_rad / pooled.period_rad ** 2
-    fund, weights = [], []
+    fund, stds = [], []
     for r in detected:
         k, sk = 1.0 / r["period_rad"], r["period_std_rad"] / r["period_rad"] ** 2
         h = max(1, int(round(k / k0)))
@@ -598,7 +598,7 @@ def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset
             r["harmonic"] = h
             agreement["agree"].append(r["run"])
             fund.append(k / h)
-            weights.append((h / max(sk, 1e-12 * k)) ** 2)
+            stds.append(sk / h)
         else:
             agreement["disagree"].append(r["run"])
     if agreement["disagree"]:
@@ -619,16 +619,37 @@ def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset
             return found
     agreement["verdict"] = "agree"
     if len(fund) >= 2:
-        fund, weights = np.asarray(fund), np.asarray(weights)
-        mean = float(np.sum(weights * fund) / np.sum(weights))
-        chi2 = float(np.sum(weights * (fund - mean) ** 2))
-        dof = len(fund) - 1
-        birge = math.sqrt(max(1.0, chi2 / dof))
-        spread_std = birge / math.sqrt(float(np.sum(weights)))
-        agreement.update(chi2=chi2, dof=dof, p_value=float(stats.chi2.sf(chi2, dof)), birge_ratio=birge)
+        mean, spread_std, chi2, dof = _runs_mean(np.asarray(fund), np.asarray(stds))
+        if chi2 is not None:
+            birge = math.sqrt(max(1.0, chi2 / dof))
+            agreement.update(chi2=chi2, dof=dof, p_value=float(stats.chi2.sf(chi2, dof)), birge_ratio=birge)
+        else:
+            pooled.warnings.append("the runs' own period std is unknown (fewer than 3 passes each to jackknife): "
+                                   "their agreement is not tested, the std is their scatter")
         std_k = max(s0, spread_std, abs(mean - k0) / 2.0)
         pooled.period_std_rad = std_k / k0 ** 2
     return pooled
+
+
+def _runs_mean(values: np.ndarray, stds: np.ndarray) -> tuple[float, float, float | None, int | None]:
+    """The runs' estimates combined: ``(mean, std, chi2, dof)``.
+
+    Runs with a known std are weighted by it and their std is widened by the Birge ratio; a run's std is
+    unknown (infinite) when it has fewer than 3 passes to jackknife: such runs count only when no run has
+    a known one, then with equal weights, the std from their scatter and no chi2 (None).
+    """
+    known = np.isfinite(stds) & (stds > 0)
+    if np.any(known):
+        v, w = values[known], 1.0 / np.maximum(stds[known], 1e-12 * np.abs(values[known])) ** 2
+        mean = float(np.sum(w * v) / np.sum(w))
+        if len(v) < 2:
+            return mean, float(1.0 / math.sqrt(float(np.sum(w)))), None, None
+        chi2 = float(np.sum(w * (v - mean) ** 2))
+        dof = len(v) - 1
+        return mean, math.sqrt(max(1.0, chi2 / dof)) / math.sqrt(float(np.sum(w))), chi2, dof
+    mean = float(np.mean(values))
+    spread = float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) >= 2 else math.inf
+    return mean, spread, None, None
 
 
 #: Runs whose speeds differ by less than this ratio count as one speed for the reproducibility test.
@@ -684,11 +705,7 @@ def _reproduced(pooled: RippleResult, runs: list[dict], datasets: list[Dataset],
     _, support = best
     c = np.array([h * r["cycles_per_rev"] for r, h in support])
     sc = np.array([h * 2 * math.pi * r["period_std_rad"] / r["period_rad"] ** 2 for r, h in support])
-    w = 1.0 / np.maximum(sc, 1e-9 * c) ** 2
-    mean = float(np.sum(w * c) / np.sum(w))
-    chi2 = float(np.sum(w * (c - mean) ** 2))
-    dof = max(len(c) - 1, 1)
-    std = math.sqrt(max(1.0, chi2 / dof)) / math.sqrt(float(np.sum(w)))
+    mean, std, chi2, dof = _runs_mean(c, sc)
     period = 2 * math.pi / mean
     period_std = 2 * math.pi * std / mean ** 2
     names = [r["run"] for r, _ in support]
@@ -733,9 +750,8 @@ def _reproduced(pooled: RippleResult, runs: list[dict], datasets: list[Dataset],
     agreement = dict(pooled.agreement, verdict="reproduced", agree=names,
                      disagree=[x["run"] for x in one_run if "subharmonic" not in x], one_run_lines=one_run,
                      supporting_speeds_rad_s=sorted(r["speed_rad_s"] for r, _ in support),
-                     chi2=chi2 if len(c) > 1 else None, dof=dof if len(c) > 1 else None,
-                     p_value=float(stats.chi2.sf(chi2, dof)) if len(c) > 1 else None,
-                     birge_ratio=math.sqrt(max(1.0, chi2 / dof)) if len(c) > 1 else None)
+                     chi2=chi2, dof=dof, p_value=float(stats.chi2.sf(chi2, dof)) if chi2 is not None else None,
+                     birge_ratio=math.sqrt(max(1.0, chi2 / dof)) if chi2 is not None else None)
     return RippleResult(True, period, period_std, fap, pooled.statistic, combined.lut, combined.amplitude_rad,
                         methods, pooled.spectrum_k, pooled.spectrum_stat, pooled.spectrum_power,
                         _velocity_table(passes, period), passes, warnings, pooled.K, pooled.Jl, motion,
