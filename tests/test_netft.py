@@ -243,3 +243,14 @@ def test_the_emulated_sensors_own_noise(server):
     assert np.std(got) == pytest.approx(math.hypot(0.5 * 0.5, 0.05), rel=0.1)
     with pytest.raises(IiwaIdentError, match="force_noise_n must be a std"):
         NetFtSettings(force_noise_n=-1.0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(1, 7), st.lists(st.floats(-1.5, 1.5), min_size=7, max_size=7),
+       st.tuples(I32, I32, I32, I32, I32, I32), st.floats(1e3, 1e7), st.floats(1e3, 1e7))
+def test_the_loops_weights_are_the_projection_of_the_calibrated_wrench(joint, q, counts, cpf, cpt):
+    proj = JointAxisProjection.from_description("iiwa14", joint, q)
+    cal = Calibration(cpf, cpt)
+    w = proj.coefficients((cpf,) * 3 + (cpt,) * 3)
+    want = proj.torque(cal.wrench(counts))
+    assert sum(a * b for a, b in zip(w, counts)) == pytest.approx(want, rel=1e-9, abs=1e-9 * (1 + abs(want)))

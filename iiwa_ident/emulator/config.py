@@ -210,7 +210,7 @@ class EmulatorConfig:
         the simulated joint's external torque (its F/T reference, with the plant's F/T noise) as
         the wrench of a hand pushing at a sensor on the flange (:mod:`iiwa_ident.netft`).
     ft : NetFtSettings
-        The emulated sensor's output rate, filter and calibration.
+        The emulated sensor's output rate, filter, calibration and own noise (seeded by ``seed``).
     ft_lever_m : float or None
         The sensor's lever arm about the joint's axis [m]; None: the flange's geometry from the
         robot's description at ``joint_positions``.

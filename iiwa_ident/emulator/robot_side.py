@@ -233,8 +233,9 @@ class RobotEmulator:
             except IiwaIdentError:
                 self._sock.close()
                 raise
-            ft = config.ft if config.ft.seed == config.seed else dataclasses.replace(config.ft, seed=config.seed)
-            self._ft = EmulatedNetFt(server, projection, ft, self._period)
+            # The sensor's own noise is seeded by the emulator's seed, as the joint's.
+            self._ft = EmulatedNetFt(server, projection, dataclasses.replace(config.ft, seed=config.seed),
+                                     self._period)
         self._stop_requested = False
         self._ran = False
 

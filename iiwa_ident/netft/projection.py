@@ -74,6 +74,14 @@ class JointAxisProjection:
         a, r = np.asarray(self.axis), np.asarray(self.lever)
         return float(a @ (np.cross(r, w[:3]) + w[3:]))
 
+    def coefficients(self, calibration_scale: Sequence[float] = (1.0,) * 6) -> tuple[float, ...]:
+        """The torque as a weighted sum of the six channels, ``tau = sum(c_i w_i)``, each ``c_i`` divided by
+        its channel's ``calibration_scale`` (counts per unit) so that raw counts go in: plain floats for
+        the 1 kHz loop. ``axis . (lever x F) = (axis x lever) . F``."""
+        a, r = np.asarray(self.axis), np.asarray(self.lever)
+        c = np.concatenate([np.cross(a, r), a]) / np.asarray(calibration_scale, float)
+        return tuple(float(x) for x in c)
+
     def wrench(self, tau: float) -> np.ndarray:
         """A wrench that loads the joint with ``tau`` [Nm]: a force at the sensor across the lever when it
         has one (a hand pushing at the sensor), else a moment about the axis."""
