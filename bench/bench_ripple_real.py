@@ -52,7 +52,8 @@ def joint_runs(root: Path, sign: float = 1.0) -> dict[int, list[tuple[str, Datas
 
 def _row(label: str, r: RippleResult, seconds: float) -> str:
     """One Markdown row: the runs, the joint's answer, agreement, amplitude, false alarm, time."""
-    alone = {x["run"] for x in r.agreement.get("one_run_lines", [])}
+    alone = {r.lines.runs[i].name for c in r.lines.one_speed() for i, s in enumerate(c.significant) if s} \
+        if r.lines is not None else set()
 
     def seen(x: dict) -> str:
         if not x["detected"]:
@@ -73,8 +74,8 @@ def _row(label: str, r: RippleResult, seconds: float) -> str:
     p = r.agreement.get("p_value")
     verdict = r.agreement.get("verdict", "-")
     agree = (f"{verdict}, p = {p:.2g}" if verdict == "reproduced" else f"p = {p:.2g}") if p is not None else verdict
-    notes = "; ".join(w for w in r.warnings if any(x in w for x in ("weaker lines", "disagree", "edge",
-                                                                    "at this speed only", "Nyquist")))
+    notes = "; ".join(w for w in r.warnings if any(x in w for x in ("weaker lines", "disagree", "edge", "rad/s only",
+                                                                    "compensated", "periodic in time", "Nyquist")))
     return (f"| {label} | {runs} | {answer} | {agree} | {amp} | {r.false_alarm:.1g} | {seconds:.0f} s |"
             + (f" {notes}" if notes else ""))
 

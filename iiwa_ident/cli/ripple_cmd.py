@@ -55,7 +55,7 @@ def format_ripple(r: RippleResult) -> str:
     if r.runs:
         lines += ["", f"  {'run':<40}{'speed [rad/s]':>14}{'cycles/rev':>12}{'std':>9}{'harmonic':>10}  verdict"]
         agree = set(r.agreement.get("agree", []))
-        alone = {x["run"]: x for x in r.agreement.get("one_run_lines", [])}
+        alone = _one_speed_runs(r)
         for run in r.runs:
             name = run["run"] if len(run["run"]) <= 38 else "..." + run["run"][-35:]
             if not run["detected"]:
@@ -72,9 +72,40 @@ def format_ripple(r: RippleResult) -> str:
                          f"std widened by the Birge ratio {a['birge_ratio']:.2f}")
         elif a.get("verdict") == "none":
             lines.append("  no run detects a periodic deflection")
+    if r.lines is not None and r.lines.shown():
+        lines += ["", _lines_table(r.lines)]
     for w in r.warnings:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
+
+
+def _one_speed_runs(r: RippleResult) -> set[str]:
+    """Runs whose own line is significant at their speed only (not reproduced, not temporal)."""
+    if r.lines is None:
+        return set()
+    out = set()
+    for c in r.lines.one_speed():
+        for run, row in zip(r.lines.runs, r.runs):
+            if row.get("detected") and abs(row["cycles_per_rev"] / c.cycles_per_rev - 1) < 3e-3:
+                out.add(run.name)
+    return out
+
+
+def _lines_table(x) -> str:
+    """Each candidate line worth a row, tested in every run: amplitude [µrad] and p-value (* significant)."""
+    head = f"  lines tested in every run: amplitude [µrad] (p-value), * significant at p < {x.alpha:.1g}"
+    rows = [head, f"  {'cycles/rev':>11}{'in family':>11}" + "".join(f"{'run ' + str(i + 1):>19}"
+                                                                      for i in range(len(x.runs)))]
+    h_of = {id(c): h for c, h in x.harmonics}
+    for c in x.shown():
+        tag = f"h{h_of[id(c)]}" if id(c) in h_of else ("temporal" if c.temporal_hz is not None else "-")
+        cells = []
+        for i, t in enumerate(c.tests):
+            cells.append("not tested" if not t.tested else
+                         f"{t.amplitude_rad * 1e6:.2f} ({c.p_value(i):.0e}){'*' if c.significant[i] else ' '}")
+        rows.append(f"  {c.cycles_per_rev:>11.2f}{tag:>11}" + "".join(f"{cell:>19}" for cell in cells))
+    rows.append("  runs: " + "; ".join(f"{i + 1} = {run.name} ({run.speed:.2f} rad/s)" for i, run in enumerate(x.runs)))
+    return "\n".join(rows)
 
 
 def _run_verdict(run: dict, agree: set, alone: dict) -> str:

@@ -46,7 +46,8 @@ from scipy import optimize, stats
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definition, light for the CLI's help
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointModel, RippleTable, Source
+from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointModel, RippleTable, Source
+from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines, distinct_speeds
 from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
 from iiwa_ident.ident.ripple_spectrum import (
     FAMILY_HARMONICS,
@@ -111,6 +112,9 @@ class RippleResult:
     #: Per-run estimates when several runs were given (each analysed alone), and their agreement.
     runs: list[dict] = field(default_factory=list)
     agreement: dict = field(default_factory=dict)
+    #: Every candidate line tested in every run (several runs only): :class:`~iiwa_ident.ident.ripple_lines.
+    #: CrossRunLines`, None with one run.
+    lines: CrossRunLines | None = None
 
     @property
     def cycles_per_rev(self) -> float | None:
@@ -157,6 +161,7 @@ class RippleResult:
             "link_motion": self.link_motion,
             "runs": self.runs,
             "agreement": self.agreement,
+            "lines": None if self.lines is None else self.lines.to_json(),
             "warnings": self.warnings,
         }
 
@@ -490,7 +495,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         if beyond:
             pooled.warnings.append(f"{beyond}: an alias is possible; runs at other speeds would decide")
         return pooled
-    runs = []
+    runs, run_lines = [], []
     for i, ds in enumerate(datasets):
         name = str(ds.path) if ds.path else f"run {i + 1}"
         speed = _median_speed(ds)
@@ -498,7 +503,9 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
             r = _identify_pooled([ds], **options)
         except IiwaIdentError as err:
             runs.append({"run": name, "speed_rad_s": speed, "detected": False, "usable": False, "reason": str(err)})
+            run_lines.append(_run_lines(name, ds, None, speed, options))
             continue
+        run_lines.append(_run_lines(name, ds, r, speed, options))
         # The spatial Nyquist limit at this run's speed: lines beyond it are aliases.
         nyquist_cpr = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
         row = {"run": name, "speed_rad_s": speed, "detected": r.detected, "usable": True,
@@ -513,7 +520,10 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
             # The fundamental's own line is below the limit: the run votes, and says what its estimate rests on.
             row["note"] = f"{beyond}: its period rests mostly on that line, where an alias is possible"
         runs.append(row)
-    return _combine_runs(pooled, runs, datasets, options)
+    result = _combine_runs(pooled, runs)
+    extra = [(1.0 / RIPPLE_PERIOD_RAD, "the paper's rho")]
+    lines = cross_run_lines(run_lines, false_alarm, 1.0 / period_max, 1.0 / period_min, extra)
+    return _decide(result, lines, runs, datasets, options)
 
 
 def ripple_model(base: JointModel, datasets: list[Dataset], sources: Sequence[Source] = (),
@@ -565,10 +575,9 @@ def _beyond_nyquist(r: RippleResult, ds: Dataset, speed: float) -> str:
             f"{speed:.2f} rad/s ({nyquist:.0f} cycles per revolution at {ds.sample_rate_hz:.0f} Hz)")
 
 
-def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset] | None = None,
-                  options: dict | None = None) -> RippleResult:
-    """Attach the per-run estimates to the pooled result, test their agreement and widen its std; where they
-    disagree, the family reproduced at several speeds decides (:func:`_reproduced`)."""
+def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
+    """Attach the per-run estimates to the pooled result, test their agreement and widen its std (where they
+    disagree, :func:`_decide` may still find a family reproduced at several speeds)."""
     detected = [r for r in runs if r["detected"]]
     pooled.warnings += [f"{r['run']}: {r['note']}" for r in runs if r.get("note")]
     # verdict: "agree", "disagree" (the data do not decide) or "none" (no run detects anything).
@@ -579,8 +588,6 @@ def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset
         agreement["verdict"] = "none"
         return pooled
     if not pooled.detected:
-        if datasets is not None and (found := _reproduced(pooled, runs, datasets, options)) is not None:
-            return found
         agreement["verdict"] = "disagree"
         agreement["disagree"] = [r["run"] for r in detected]
         pooled.warnings.append("the runs disagree: " + "; ".join(
@@ -602,21 +609,12 @@ def _combine_runs(pooled: RippleResult, runs: list[dict], datasets: list[Dataset
         else:
             agreement["disagree"].append(r["run"])
     if agreement["disagree"]:
-        if datasets is not None and (found := _reproduced(pooled, runs, datasets, options)) is not None:
-            return found
         pooled.detected = False
         pooled.warnings.append("the runs disagree: " + "; ".join(
             f"{r['run']} gives {r['cycles_per_rev']:.1f} cycles per revolution" for r in detected)
             + f"; together they give {pooled.cycles_per_rev:.1f}: the data do not decide, nothing is reported")
         agreement["verdict"] = "disagree"
         return pooled
-    # Runs that agree as harmonics of the pooled period may still see that period's own line at one speed only
-    # (a 160-cycle family at 0.4 rad/s, 320 elsewhere): then the line reproduced at several speeds decides.
-    if datasets is not None and _speeds([(r, 1) for r in detected]) >= 2 \
-            and _speeds(_support(pooled.period_rad, pooled.period_std_rad, detected)) < 2:
-        found = _reproduced(pooled, runs, datasets, options)
-        if found is not None:
-            return found
     agreement["verdict"] = "agree"
     if len(fund) >= 2:
         mean, spread_std, chi2, dof = _runs_mean(np.asarray(fund), np.asarray(stds))
@@ -652,110 +650,142 @@ def _runs_mean(values: np.ndarray, stds: np.ndarray) -> tuple[float, float, floa
     return mean, spread, None, None
 
 
-#: Runs whose speeds differ by less than this ratio count as one speed for the reproducibility test.
-SAME_SPEED_RATIO = 1.1
-#: A run's line supports a period when it is its h-th harmonic within this many combined std and ...
-_SUPPORT_STD = 3.0
-#: ... this relative tolerance (the runs' periods scatter by a few 0.1 % on real joints).
-_SUPPORT_RTOL = 3e-3
+#: Strongest lines of a run's own spectrum offered as candidates beside its detected period.
+_SEEDS_PER_RUN = 3
 
 
-def _support(period: float, period_std: float, detected: list[dict]) -> list[tuple[dict, int]]:
-    """The runs whose line family contains the period's line, with its harmonic number in each."""
-    c0, s0 = 2 * math.pi / period, 2 * math.pi * period_std / period ** 2
-    out = []
-    for r in detected:
-        h = int(round(c0 / r["cycles_per_rev"]))
-        if not 1 <= h <= FAMILY_HARMONICS:
-            continue
-        sc = 2 * math.pi * r["period_std_rad"] / r["period_rad"] ** 2
-        if abs(c0 - h * r["cycles_per_rev"]) <= _SUPPORT_STD * math.hypot(h * sc, s0) + _SUPPORT_RTOL * c0:
-            out.append((r, h))
-    return out
-
-
-def _speeds(support: list[tuple[dict, int]]) -> int:
-    """How many different speeds (apart by :data:`SAME_SPEED_RATIO`) the supporting runs have."""
-    speeds = sorted(r["speed_rad_s"] for r, _ in support)
-    return sum(1 for a, b in zip(speeds, speeds[1:]) if b > SAME_SPEED_RATIO * a) + 1 if speeds else 0
-
-
-def _reproduced(pooled: RippleResult, runs: list[dict], datasets: list[Dataset], options: dict) -> RippleResult | None:
-    """The compensation period when the runs disagree: the family reproduced at different speeds.
-
-    A run supports the period ``c`` (cycles per revolution) when ``c`` is a harmonic ``h`` (1 to
-    :data:`FAMILY_HARMONICS`) of the run's own fundamental: a run whose strongest family is a subharmonic
-    (160 cycles where the others see 320) still shows ``c`` as its second harmonic. Only a line seen in runs
-    at two speeds or more (differing by :data:`SAME_SPEED_RATIO`) is phase-locked to the motor position,
-    since its frequency in Hz differs between them; of such candidates (each run's fundamental), the one
-    with the most supporting runs is the compensation period, its value the supporters' weighted mean (std
-    widened by the Birge ratio), its table fitted on their passes. The other runs' lines are reported with
-    their run, frequency and amplitude as seen at one speed only (spatial or temporal: not decided). None
-    when no line is reproduced.
-    """
-    detected = [r for r in runs if r["detected"]]
-    one_run: list[dict] = []
-    best = None
-    for cand in detected:
-        support = _support(cand["period_rad"], cand["period_std_rad"], detected)
-        if _speeds(support) >= 2 and (best is None or len(support) > len(best[1])):
-            best = (cand, support)
-    if best is None:
-        return None
-    _, support = best
-    c = np.array([h * r["cycles_per_rev"] for r, h in support])
-    sc = np.array([h * 2 * math.pi * r["period_std_rad"] / r["period_rad"] ** 2 for r, h in support])
-    mean, std, chi2, dof = _runs_mean(c, sc)
-    period = 2 * math.pi / mean
-    period_std = 2 * math.pi * std / mean ** 2
-    names = [r["run"] for r, _ in support]
-    used = [ds for ds, r in zip(datasets, runs) if r["run"] in names]
-    motion = max((r.get("link_motion") or "restored" for r, _ in support),
-                 key=lambda m: sum((r.get("link_motion") or "restored") == m for r, _ in support))
+def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, options: dict) -> RunLines:
+    """A run for the cross-run test: its passes (those of its own search, or made here when the search found
+    too little motion for itself: a short run still tests a line another run predicts) and its own lines."""
     o = options
+    if r is not None:
+        passes = r.passes
+    else:
+        try:
+            passes = deflection(ds, 0, o["K"], o["Jl"], o["period_max"], o["min_speed"],
+                                min_travel=4.0 * o["period_min"],
+                                link_motion="restored" if o["link_motion"] == "auto" else o["link_motion"])
+        except IiwaIdentError:
+            passes = []
+    seeds: list[tuple[float, float]] = []
+    searched = 1.0
+    if r is not None and len(r.spectrum_k):
+        k, t2 = r.spectrum_k, r.spectrum_stat
+        searched = len(k) / 4.0
+        if r.period_rad is not None:
+            seeds.append((1.0 / r.period_rad, (r.period_std_rad or 0.0) / r.period_rad ** 2
+                          if math.isfinite(r.period_std_rad or math.inf) else 0.0))
+        # Local maxima of T^2, strongest first, a resolution cell (4 grid points) apart.
+        for i in np.argsort(t2)[::-1]:
+            if len(seeds) >= _SEEDS_PER_RUN + (r.period_rad is not None):
+                break
+            if all(abs(k[i] - s) > 4 * (k[1] - k[0] if len(k) > 1 else 0.0) for s, _ in seeds):
+                seeds.append((float(k[i]), 0.0))
+    return RunLines(name, passes, speed, ds.sample_rate_hz, seeds, searched)
+
+
+def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],
+            options: dict) -> RippleResult:
+    """The period to compensate where lines are reproduced at two speeds or more; else the joint analysis.
+
+    The cross-run test's family (:attr:`CrossRunLines.k0`) is the shortest period whose harmonics are all the
+    reproduced lines. Where the runs' joint analysis already found that family it stands (its period refined on
+    every pass); otherwise the period is refined on the passes of the runs that show the family's lines.
+    """
+    result.lines = lines
+    if lines.k0 is None and result.detected and result.period_rad is not None:
+        lines.k_ref = 1.0 / result.period_rad
+    notes = _line_warnings(lines)
+    if lines.k0 is None:
+        result.warnings += notes
+        return result
+    k0 = lines.k0
+    family = ", ".join(f"{c.cycles_per_rev:.1f} (harmonic {h})" for c, h in sorted(lines.harmonics,
+                                                                                     key=lambda x: x[1]))
+    said = (f"the period compensated is the shortest whose harmonics are all the lines reproduced at two speeds "
+            f"or more: {2 * math.pi * k0:.2f} cycles per revolution (lines at {family})")
+    if result.detected and result.period_rad is not None:
+        k = 1.0 / result.period_rad
+        if abs(k - k0) <= 3e-3 * k0 + 3.0 * result.period_std_rad / result.period_rad ** 2:
+            result.agreement["family"] = said
+            result.warnings += notes
+            return result
+    found = _family_result(result, lines, runs, datasets, options)
+    found.warnings += [said] + notes
+    return found
+
+
+def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],
+                   options: dict) -> RippleResult:
+    """The family's period refined (grouped, weighted Fourier fit) on the passes of the runs that show its
+    lines, its std the larger of the passes' jackknife and the scatter of the runs' own refined periods, and
+    its table."""
+    o = options
+    support = lines.support
+    names = [lines.runs[i].name for i in support]
+    h_max = max(h for _, h in lines.harmonics)
+    harmonics = max(1, min(o["max_harmonics"], h_max))
+    motions = [r.get("link_motion") or "restored" for r in runs if r["run"] in names and r.get("usable", True)]
+    motion = max(set(motions), key=motions.count) if motions else "restored"
+    if o["link_motion"] != "auto":
+        motion = o["link_motion"]
     passes: list[Pass] = []
-    for i, ds in enumerate(used):
-        passes += deflection(ds, i, o["K"], o["Jl"], o["period_max"], o["min_speed"],
+    for j, i in enumerate(support):
+        passes += deflection(datasets[i], j, o["K"], o["Jl"], o["period_max"], o["min_speed"],
                              min_travel=4.0 * o["period_min"], link_motion=motion)
+    # The family's fundamental as the runs' tests place its lines (each within its window), and a bracket of
+    # half the finest run's resolution cell.
+    ks = [t.k / h for c, h in lines.harmonics for t, s in zip(c.tests, c.significant) if s]
+    k_c = float(np.median(ks)) if ks else lines.k0
+    half = 0.5 * min(lines.runs[i].cell for i in support)
+    k_hat = _best_k(passes, k_c, half, harmonics, 1e-8)
+    _set_weights(passes, 1.0 / k_hat, harmonics)
+    k_hat = _best_k(passes, k_c, half, harmonics, 1e-8)
+    std_k = _period_std(passes, k_hat, harmonics, half)
+    own = [_best_k([p for p in passes if p.dataset == j], k_hat, half, harmonics, 1e-8)
+           for j in range(len(support)) if any(p.dataset == j for p in passes)]
+    if len(own) >= 2:
+        _, spread, _, _ = _runs_mean(np.asarray(own), np.full(len(own), math.inf))
+        std_k = max(std_k, spread) if math.isfinite(std_k) else spread
+    if not math.isfinite(std_k):
+        std_k = half / math.sqrt(3.0)  # placed only within the bracket
+    period = 1.0 / k_hat
     combined = _method_result("combined", passes, period, o["max_harmonics"], o["bins"])
     methods = {"dynamic": combined} if any(p.method == "dynamic" for p in passes) else {"static": combined}
-    fap = float(max(r["false_alarm_probability"] for r, _ in support))
     for r in runs:
-        if r["run"] in names:
-            h = r["harmonic"] = next(h for rr, h in support if rr is r)
-            if h > 1 and _speeds(_support(r["period_rad"], r["period_std_rad"], detected)) < 2:
-                # The run's strongest family is a subharmonic of the period, seen at this speed only.
-                f_hz = r["speed_rad_s"] * r["cycles_per_rev"] / (2 * math.pi)
-                one_run.append({"run": r["run"], "cycles_per_rev": r["cycles_per_rev"],
-                                "speed_rad_s": r["speed_rad_s"], "frequency_hz": f_hz,
-                                "amplitude_rad": r["amplitude_rad"], "subharmonic": h,
-                                "note": f"1/{h} of the period's cycles, seen at this speed only: spatial or "
-                                        "temporal, not decided by this data"})
-            continue
-        if r["detected"]:
-            f_hz = r["speed_rad_s"] * r["cycles_per_rev"] / (2 * math.pi)
-            one_run.append({"run": r["run"], "cycles_per_rev": r["cycles_per_rev"], "speed_rad_s": r["speed_rad_s"],
-                            "frequency_hz": f_hz, "amplitude_rad": r["amplitude_rad"],
-                            "note": "seen at this speed only: spatial or temporal, not decided by this data"})
-    warnings = [w for w in pooled.warnings if "disagree" not in w]
-    for x in one_run:
-        sub = f" (1/{x['subharmonic']} of the period's)" if "subharmonic" in x else ""
-        warnings.append(f"{x['run']} alone shows a line at {x['cycles_per_rev']:.1f} cycles per revolution{sub} "
-                        f"({x['frequency_hz']:.1f} Hz at {x['speed_rad_s']:.2f} rad/s, "
-                        f"{1e6 * (x['amplitude_rad'] or 0):.1f} µrad), seen at this speed only: spatial or temporal, "
-                        "not decided by this data; it does not set the period")
-    for r in runs:
-        if r.get("reason") and r.get("usable", True):
-            warnings.append(f"{r['run']}: {r['reason']}")
+        if r["run"] in names and r["detected"]:
+            r["harmonic"] = max(1, int(round(r["cycles_per_rev"] / (2 * math.pi * k_hat))))
     agreement = dict(pooled.agreement, verdict="reproduced", agree=names,
-                     disagree=[x["run"] for x in one_run if "subharmonic" not in x], one_run_lines=one_run,
-                     supporting_speeds_rad_s=sorted(r["speed_rad_s"] for r, _ in support),
-                     chi2=chi2, dof=dof, p_value=float(stats.chi2.sf(chi2, dof)) if chi2 is not None else None,
-                     birge_ratio=math.sqrt(max(1.0, chi2 / dof)) if chi2 is not None else None)
-    return RippleResult(True, period, period_std, fap, pooled.statistic, combined.lut, combined.amplitude_rad,
-                        methods, pooled.spectrum_k, pooled.spectrum_stat, pooled.spectrum_power,
-                        _velocity_table(passes, period), passes, warnings, pooled.K, pooled.Jl, motion,
-                        runs=runs, agreement=agreement)
+                     disagree=[r["run"] for r in runs if r["detected"] and r["run"] not in names],
+                     supporting_speeds_rad_s=sorted(lines.runs[i].speed for i in support),
+                     family_cycles_per_rev=2 * math.pi * k_hat,
+                     lines_cycles_per_rev=[c.cycles_per_rev for c in lines.reproduced])
+    warnings = [w for w in pooled.warnings if "disagree" not in w]
+    return RippleResult(True, period, std_k / k_hat ** 2, lines.false_alarm(), pooled.statistic, combined.lut,
+                        combined.amplitude_rad, methods, pooled.spectrum_k, pooled.spectrum_stat,
+                        pooled.spectrum_power, _velocity_table(passes, period), passes, warnings, pooled.K, pooled.Jl,
+                        motion, runs=runs, agreement=agreement, lines=lines)
+
+
+def _line_warnings(lines: CrossRunLines) -> list[str]:
+    """What the cross-run test found outside the family: temporal lines, and lines seen at one speed only."""
+    out = []
+    for c in lines.temporal():
+        out.append(f"a line at {c.temporal_hz:.1f} Hz is periodic in time, not in position (it stays at that "
+                   f"frequency across speeds; {c.cycles_per_rev:.1f} cycles per revolution in the run it was seen "
+                   "in): not a transmission ripple")
+    for c in sorted(lines.outside(), key=lambda c: min(t.p_value for t in c.tests))[:3]:
+        out.append(f"a line at {c.cycles_per_rev:.1f} cycles per revolution is significant at two speeds or more "
+                   f"but is not a harmonic of the family compensated (amplitude up to "
+                   f"{1e6 * max(t.amplitude_rad for t, s in zip(c.tests, c.significant) if s):.2f} µrad): a second "
+                   "periodic effect, or a sideband of the family's lines; it is not in the table")
+    for c in sorted(lines.one_speed(), key=lambda c: min(t.p_value for t in c.tests))[:4]:
+        where = [lines.runs[i] for i, s in enumerate(c.significant) if s]
+        speeds = sorted({round(r.speed, 2) for r in where})
+        out.append(f"a line at {c.cycles_per_rev:.1f} cycles per revolution is significant at "
+                   f"{', '.join(f'{v:.2f}' for v in speeds)} rad/s only ({', '.join(r.name for r in where)}): "
+                   "spatial or temporal, not decided by this data; it does not set the period")
+    return out
 
 
 def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: float, period_max: float, bins: int,

@@ -30,15 +30,17 @@ Examples
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 from scipy import stats
 
 from iiwa_ident.ident.ripple_passes import Pass
-from iiwa_ident.ident.ripple_spectrum import taper
+from iiwa_ident.ident.ripple_spectrum import MIN_SUBHARMONIC_POWER, taper
 
-__all__ = ["NEIGHBOURS", "LineTest", "line_test"]
+__all__ = ["NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
+           "CrossRunLines", "cross_run_lines", "distinct_speeds"]
 
 #: Neighbouring frequencies (half on each side) whose median coefficient power is the local noise level.
 NEIGHBOURS = 24
@@ -48,6 +50,9 @@ _SPACING_CELLS = 2.0
 _GAP_CELLS = 4.0
 #: Highest tested frequency as a share of the run's Nyquist limit (beyond it a line may be an alias).
 NYQUIST_SHARE = 0.9
+#: Widest window, as a share of the line's frequency: a run whose passes place a line no better than this
+#: (short stretches of a chirp or a hand-guided run) does not test it.
+WINDOW_MAX = 0.05
 
 
 @dataclass(frozen=True)
@@ -83,20 +88,39 @@ class LineTest:
         return not self.reason
 
 
-def _coefficients(passes: list[Pass], ks: np.ndarray) -> np.ndarray:
+def _coefficients(passes: list[Pass], ks: np.ndarray, known: np.ndarray) -> np.ndarray:
     """The passes' pooled Hann-tapered Fourier coefficients of ``f`` at ``ks`` [cycles/rad], scaled to a sine's
-    amplitude."""
+    amplitude, after the lines at ``known`` are fitted (one sine each, common to the passes, tapered least
+    squares) and removed: a strong line's side lobes would otherwise stand for lines a few cells away."""
+    ws = [taper(len(p.f)) for p in passes]
+    xs = [p.f - np.average(p.f, weights=w) for p, w in zip(passes, ws)]
+    if len(known):
+        cols = [np.exp(2j * np.pi * np.outer(p.theta, known)) for p in passes]
+        A = np.vstack([np.hstack([c.real, c.imag]) * np.sqrt(w)[:, None] for c, w in zip(cols, ws)])
+        y = np.concatenate([x * np.sqrt(w) for x, w in zip(xs, ws)])
+        beta = np.linalg.lstsq(A, y, rcond=None)[0]
+        xs = [x - np.hstack([c.real, c.imag]) @ beta for x, c in zip(xs, cols)]
     num = np.zeros(len(ks), dtype=complex)
     den = 0.0
-    for p in passes:
-        w = taper(len(p.f))
-        x = (p.f - np.average(p.f, weights=w)) * w
-        num += np.exp(-2j * np.pi * np.outer(ks, p.theta)) @ x
+    for p, x, w in zip(passes, xs, ws):
+        num += np.exp(-2j * np.pi * np.outer(ks, p.theta)) @ (x * w)
         den += w.sum()
     return 2.0 * num / max(den, 1e-300)
 
 
-def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0) -> LineTest:
+def _level(ks: np.ndarray, power: np.ndarray, k: float) -> float:
+    """The noise level at ``k`` from the neighbours' powers: a robust straight line in log power against log
+    frequency (Theil-Sen: a line among the neighbours moves it little) read at ``k``, its median residual
+    taken as an exponential variable's median (``ln 2`` times the level). On a flat spectrum this is the
+    neighbours' median over ln 2; near the passes' high-pass, where the neighbours lie on one side only, it
+    follows a coloured floor's slope instead of reading the lower side's level."""
+    x, y = np.log(ks / k), np.log(np.maximum(power, 1e-300))
+    slope = float(stats.theilslopes(y, x)[0]) if len(np.unique(x)) > 1 else 0.0
+    return float(math.exp(float(np.median(y - slope * x)))) / math.log(2.0)
+
+
+def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
+              known: Sequence[float] = ()) -> LineTest:
     """Test the run's passes for a line at ``k +- 3 k_std`` [cycles/rad] (module docstring).
 
     Parameters
@@ -109,6 +133,9 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0) 
         The run's sample rate [Hz]: lines above :data:`NYQUIST_SHARE` of its Nyquist limit are not tested.
     k_std : float
         Standard error of ``k`` [cycles/rad]; the window is at least half a resolution cell each side.
+    known : sequence of float
+        Lines already known [cycles/rad], fitted and removed first (those within a cell of the window are
+        left: the line itself).
 
     Returns
     -------
@@ -118,15 +145,22 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0) 
     f_hz = k * speed
     if not passes:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, "no passes")
+    k_high = NYQUIST_SHARE * 0.5 * rate_hz / max(speed, 1e-12)
+    # Only the passes that resolve the line (their high-pass keeps periods up to half their travel).
+    passes = [p for p in passes if 1.0 / p.period_max < k * (1.0 - WINDOW_MAX)]
+    if not passes:
+        return LineTest(k, 0.0, math.inf, 1.0, f_hz, "longer than the passes resolve")
     travel = float(np.median([abs(p.theta[-1] - p.theta[0]) for p in passes]))
     cell = 1.0 / max(travel, 1e-12)
     half = max(0.5 * cell, 3.0 * k_std)
     step = cell * _SPACING_CELLS
     k_low = max(1.0 / p.period_max for p in passes)
-    k_high = NYQUIST_SHARE * 0.5 * rate_hz / max(speed, 1e-12)
     if k + half > k_high:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, f"beyond {NYQUIST_SHARE:.0%} of the Nyquist limit "
                                                      f"({f_hz:.1f} Hz at {speed:.2f} rad/s)")
+    if half > WINDOW_MAX * k:
+        return LineTest(k, 0.0, math.inf, 1.0, f_hz, f"the passes ({travel:.2g} rad) place a line only within "
+                                                     f"+-{half / k:.0%}")
     if k - half < k_low:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, "longer than the passes resolve")
     j = np.arange(1, NEIGHBOURS // 2 + 1)
@@ -136,12 +170,359 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0) 
     if len(nb) < NEIGHBOURS // 3:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, "too few neighbouring frequencies to tell its noise level")
     cells = 1 + int(math.ceil(2.0 * half / cell))
-    window = k + np.linspace(-half, half, 4 * cells + 1)
-    c = _coefficients(passes, np.concatenate([window, nb]))
-    power = np.abs(c[:len(window)]) ** 2
-    level = float(np.median(np.abs(c[len(window):]) ** 2)) / math.log(2.0)
+    # The window and a cell beyond it on each side: a line whose power keeps rising past the window's edge is
+    # a neighbour's lobe, not a line in the window.
+    n_in = 4 * cells + 1
+    ring = np.r_[np.linspace(-half - cell, -half, 5)[:-1], np.linspace(half, half + cell, 5)[1:]]
+    window = k + np.linspace(-half, half, n_in)
+    kn = np.array([x for x in known if abs(x - k) > half + cell and x < k_high], dtype=float)
+    c = _coefficients(passes, np.concatenate([window, k + ring, nb]), kn)
+    power = np.abs(c[:n_in]) ** 2
+    outside = float(np.max(np.abs(c[n_in:n_in + len(ring)]) ** 2))
+    level = _level(nb, np.abs(c[n_in + len(ring):]) ** 2, k)
     i = int(np.argmax(power))
     s = float(power[i]) / max(level, 1e-300)
     p1 = float(stats.f.sf(s, 2, len(nb)))
     p = float(min(1.0, -math.expm1(cells * math.log1p(-min(p1, 1.0 - 1e-16)))))
+    if i in (0, n_in - 1) and outside > power[i]:
+        p = 1.0
     return LineTest(float(window[i]), float(math.sqrt(power[i])), math.sqrt(level / 2.0), p, float(window[i]) * speed)
+
+
+# --------------------------------------------------------------------------- the runs' joint evidence
+
+#: Ratios m / n (m, n = 1..4) by which a run's line gives candidates: its harmonics and subharmonics.
+RATIOS = tuple(sorted({m / n for m in range(1, 5) for n in range(1, 5)}))
+#: Runs whose speeds differ by less than this ratio count as one speed: a line periodic in time and one
+#: periodic in position are told apart only by runs at different speeds.
+SAME_SPEED_RATIO = 1.1
+#: Highest harmonic of the compensated family that a reproduced line may be.
+FAMILY_MAX_HARMONIC = 8
+#: Relative tolerance of a line being harmonic h of the family (the runs' lines scatter by a few 0.1 %).
+FAMILY_RTOL = 3e-3
+
+
+@dataclass
+class RunLines:
+    """One run as the cross-run test sees it.
+
+    Attributes
+    ----------
+    name : str
+        The run's file (or ``run i``).
+    passes : list of Pass
+        Its passes.
+    speed : float
+        Its median speed [rad/s].
+    rate_hz : float
+        Its sample rate [Hz].
+    seeds : list of (float, float)
+        Its own strongest lines ``(k, std)`` [cycles/rad].
+    searched : float
+        How many independent frequencies its own search picked them from: in this run a seed's p-value is
+        corrected for them (it was chosen for being small there), in the others it is not.
+    """
+
+    name: str
+    passes: list[Pass]
+    speed: float
+    rate_hz: float
+    seeds: list[tuple[float, float]]
+    searched: float = 1.0
+
+    @property
+    def cell(self) -> float:
+        """The run's resolution cell, one over its median pass travel [cycles/rad]."""
+        return 1.0 / max(float(np.median([abs(p.theta[-1] - p.theta[0]) for p in self.passes])), 1e-12)
+
+
+@dataclass
+class Candidate:
+    """A candidate spatial line, tested in every run."""
+
+    k: float
+    k_std: float
+    origin: str
+    #: Runs whose own search picked it, with the independent frequencies it was picked from: its p-value there
+    #: is corrected for them.
+    looked: dict = field(default_factory=dict)
+    #: A run's own line or an extra one (not a harmonic or subharmonic of one).
+    own: bool = True
+    tests: list[LineTest] = field(default_factory=list)
+    significant: list[bool] = field(default_factory=list)
+    #: The line's temporal frequency where it is significant in runs at one speed only and the other runs show
+    #: it at that frequency in Hz, not at that position frequency: a temporal line [Hz], else None.
+    temporal_hz: float | None = None
+
+    @property
+    def cycles_per_rev(self) -> float:
+        return 2.0 * math.pi * self.k
+
+    def p_value(self, i: int) -> float:
+        """Its p-value in run ``i``, corrected for the search where that run's search picked it."""
+        p, m = self.tests[i].p_value, self.looked.get(i, 1.0)
+        return float(min(1.0, -math.expm1(m * math.log1p(-min(p, 1.0 - 1e-16))))) if m > 1 else p
+
+    def speeds(self, runs: list[RunLines]) -> int:
+        """How many different speeds (apart by :data:`SAME_SPEED_RATIO`) the runs where it is significant have."""
+        return distinct_speeds([runs[i].speed for i, s in enumerate(self.significant) if s])
+
+    def false_alarm(self, tries: float) -> float:
+        """Bonferroni bound of a noise line being significant in two runs at different speeds: ``tries`` times
+        the product of its two smallest p-values there (1 when it is not)."""
+        ps = sorted(self.p_value(i) for i, s in enumerate(self.significant) if s)
+        return min(1.0, tries * ps[0] * ps[1]) if len(ps) >= 2 else 1.0
+
+
+def distinct_speeds(speeds: list[float]) -> int:
+    """How many speeds apart by more than :data:`SAME_SPEED_RATIO` the list holds."""
+    s = sorted(abs(v) for v in speeds)
+    return sum(1 for a, b in zip(s, s[1:]) if b > SAME_SPEED_RATIO * a) + 1 if s else 0
+
+
+@dataclass
+class CrossRunLines:
+    """Every candidate line tested in every run, and the family they decide.
+
+    Attributes
+    ----------
+    runs : list of RunLines
+    candidates : list of Candidate
+    alpha : float
+        The per-run significance level: two runs at ``alpha`` make a false reproduction less likely than the
+        search's false-alarm probability over all candidates and run pairs.
+    k0 : float or None
+        The compensated family's fundamental [cycles/rad]: the shortest period whose harmonics (1 to
+        :data:`FAMILY_MAX_HARMONIC`) are all the reproduced lines; None when no line is reproduced.
+    harmonics : list of (Candidate, int)
+        The reproduced lines with their harmonic number in that family.
+    """
+
+    runs: list[RunLines]
+    candidates: list[Candidate]
+    alpha: float
+    k0: float | None = None
+    harmonics: list[tuple[Candidate, int]] = field(default_factory=list)
+    #: The fundamental of the period compensated [cycles/rad] (``k0``, or the runs' joint analysis's where no
+    #: line is reproduced): lines of its family are not reported as other lines.
+    k_ref: float | None = None
+
+    @property
+    def reproduced(self) -> list[Candidate]:
+        return [c for c, _ in self.harmonics]
+
+    @property
+    def support(self) -> list[int]:
+        """Indices of the runs in which a reproduced line is significant."""
+        return sorted({i for c in self.reproduced for i, s in enumerate(c.significant) if s})
+
+    def false_alarm(self) -> float:
+        """The family's false-alarm probability: its most significant reproduced line's bound."""
+        tries = len(self.candidates) * max(1, len(self.runs) * (len(self.runs) - 1) // 2)
+        return min((c.false_alarm(tries) for c in self.reproduced), default=1.0)
+
+    def one_speed(self) -> list[Candidate]:
+        """Lines significant at one speed only (spatial or temporal: the data do not say), outside the family
+        compensated, one per line seen (candidates whose windows caught the same line count once)."""
+        return self._distinct([c for c in self.candidates if c.temporal_hz is None and c.speeds(self.runs) == 1])
+
+    def outside(self) -> list[Candidate]:
+        """Lines reproduced at two speeds or more that the family compensated does not explain."""
+        return self._distinct([c for c in self.candidates if c.speeds(self.runs) >= 2])
+
+    def temporal(self) -> list[Candidate]:
+        """Lines periodic in time, one per frequency in Hz."""
+        out: list[Candidate] = []
+        for c in self.candidates:
+            if c.temporal_hz is not None and all(abs(c.temporal_hz / d.temporal_hz - 1) > 0.01 for d in out):
+                out.append(c)
+        return out
+
+    def seen_k(self, c: Candidate) -> float:
+        """Where the runs that show the line place it: the median of their tests' frequencies [cycles/rad]."""
+        ks = [t.k for t, s in zip(c.tests, c.significant) if s]
+        return float(np.median(ks)) if ks else c.k
+
+    def _distinct(self, cands: list[Candidate]) -> list[Candidate]:
+        """``cands`` that are not the family's lines (within a cell of the runs that show them) nor the same line
+        as a more significant one, most significant first."""
+        family = [h * self.k_ref for h in range(1, FAMILY_MAX_HARMONIC + 1)] if self.k_ref else []
+        out: list[Candidate] = []
+        for c in sorted(cands, key=lambda c: min(c.p_value(i) for i in range(len(c.tests)))):
+            cell = max((self.runs[i].cell for i, s in enumerate(c.significant) if s), default=0.0)
+            k = self.seen_k(c)
+            if all(abs(k - x) > cell for x in family + [self.seen_k(d) for d in out]):
+                out.append(c)
+        return out
+
+    def shown(self, most: int = 8) -> list[Candidate]:
+        """The candidates worth a row: the family's lines, then those significant somewhere, most significant
+        first."""
+        fam = [c for c, _ in sorted(self.harmonics, key=lambda x: x[1])]
+        rest = sorted((c for c in self.candidates if any(c.significant) and all(c is not f for f in fam)),
+                      key=lambda c: min(t.p_value for t in c.tests))
+        return (fam + rest)[:most]
+
+    def to_json(self) -> dict:
+        """The ``lines`` part of ``ripple --json``: every shown candidate with its test in every run."""
+        h_of = {id(c): h for c, h in self.harmonics}
+        return {
+            "alpha": self.alpha,
+            "candidates_tested": len(self.candidates),
+            "family_cycles_per_rev": None if self.k0 is None else 2 * math.pi * self.k0,
+            "false_alarm_probability": self.false_alarm() if self.k0 is not None else None,
+            "runs": [{"run": r.name, "speed_rad_s": r.speed, "rate_hz": r.rate_hz} for r in self.runs],
+            "lines": [{"cycles_per_rev": c.cycles_per_rev, "origin": c.origin, "harmonic": h_of.get(id(c)),
+                       "temporal_hz": c.temporal_hz, "speeds_significant": c.speeds(self.runs),
+                       "tests": [{"run": r.name, "amplitude_rad": t.amplitude_rad,
+                                  "amplitude_std_rad": None if math.isinf(t.amplitude_std_rad) else t.amplitude_std_rad,
+                                  "p_value": c.p_value(i), "frequency_hz": t.frequency_hz, "significant": s,
+                                  "picked_by_its_search": i in c.looked, "not_tested": t.reason or None}
+                                 for i, (r, t, s) in enumerate(zip(self.runs, c.tests, c.significant))]}
+                      for c in self.shown(most=len(self.candidates))],
+        }
+
+
+def _candidates(runs: list[RunLines], extra: list[tuple[float, str]], k_min: float, k_max: float) -> list[Candidate]:
+    """Every run's lines times :data:`RATIOS`, and ``extra`` lines, merged where they test the same line."""
+    raw: list[Candidate] = []
+    for i, r in enumerate(runs):
+        for k, std in r.seeds:
+            for q in RATIOS:
+                if k_min <= q * k <= k_max:
+                    origin = r.name if q == 1 else f"{r.name} x {_fraction(q)}"
+                    raw.append(Candidate(q * k, q * std, origin, {i: r.searched} if q == 1 else {}, q == 1))
+    for k, origin in extra:
+        if k_min <= k <= k_max:
+            raw.append(Candidate(k, 0.0, origin))
+    if not raw:
+        return []
+    finest = min(r.cell for r in runs if r.passes) if any(r.passes for r in runs) else 0.0
+    raw.sort(key=lambda c: c.k)
+    merged = [raw[0]]
+    for c in raw[1:]:
+        m = merged[-1]
+        if abs(c.k - m.k) <= max(0.5 * finest, 3.0 * math.hypot(c.k_std, m.k_std)):
+            keep, drop = (m, c) if (m.k_std, len(m.looked)) <= (c.k_std, len(c.looked)) else (c, m)
+            # Picked by either search: corrected in each (two noise maxima can meet by chance).
+            for i, n in drop.looked.items():
+                keep.looked[i] = max(n, keep.looked.get(i, 1.0))
+            keep.own = keep.own or drop.own
+            merged[-1] = keep
+        else:
+            merged.append(c)
+    return merged
+
+
+def _fraction(q: float) -> str:
+    for n in range(1, 5):
+        if abs(q * n - round(q * n)) < 1e-9:
+            return f"{int(round(q * n))}/{n}" if n > 1 else f"{int(round(q * n))}"
+    return f"{q:.3g}"
+
+
+def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_max: float,
+                    extra: list[tuple[float, str]] = ()) -> CrossRunLines:
+    """Test every candidate line in every run and decide the family to compensate (module docstring).
+
+    Parameters
+    ----------
+    runs : list of RunLines
+        The runs, each with its passes and its own lines.
+    false_alarm : float
+        The search's false-alarm probability; the per-run level is ``sqrt(false_alarm / (candidates x run
+        pairs))``, at most 0.01.
+    k_min, k_max : float
+        The searched spatial frequencies [cycles/rad] (``1 / period_max``, ``1 / period_min``).
+    extra : list of (float, str)
+        Candidates from elsewhere (the pooled search, the paper's period) with their origin.
+
+    Returns
+    -------
+    CrossRunLines
+    """
+    cands = _candidates(runs, list(extra), k_min, k_max)
+    pairs = max(1, len(runs) * (len(runs) - 1) // 2)
+    alpha = min(0.01, math.sqrt(false_alarm / max(1, 2 * len(cands) * pairs)))
+
+    def test(which: list[Candidate], known: list[float]) -> None:
+        for c in which:
+            c.tests = [line_test(r.passes, c.k, r.rate_hz, c.k_std, known) for r in runs]
+            c.significant = [t.tested and c.p_value(i) < alpha for i, t in enumerate(c.tests)]
+
+    # The strongest lines (among the runs' own lines and the extra ones: the strongest line of the data is one
+    # of them) are fitted and removed before every candidate is tested: their side lobes would stand for lines a
+    # few cells away (the line itself is never removed from its own test).
+    test([c for c in cands if c.own], [])
+    test(cands, _dominant(cands, runs))
+    out = CrossRunLines(runs, cands, alpha)
+    out.k0, out.harmonics = _family([c for c in cands if c.speeds(runs) >= 2], k_min, runs)
+    out.k_ref = out.k0
+    fam = [h * out.k0 for h in range(1, FAMILY_MAX_HARMONIC + 1)] if out.k0 is not None else []
+    # A line significant at one speed only, found at the same frequency in Hz in a run at another speed:
+    # periodic in time (at the other run's position frequency k v_a / v_b), unless that lands on the family.
+    for c in cands:
+        if c.speeds(runs) != 1:
+            continue
+        a = next(i for i, s in enumerate(c.significant) if s)
+        f_hz = c.tests[a].frequency_hz
+        for b, r in enumerate(runs):
+            kb = f_hz / max(r.speed, 1e-12)
+            if not r.passes or distinct_speeds([runs[a].speed, r.speed]) < 2 or \
+                    any(abs(kb - x) < 2.0 * r.cell for x in fam):
+                continue
+            t = line_test(r.passes, kb, r.rate_hz, c.k_std * runs[a].speed / r.speed, fam)
+            if t.tested and t.p_value < alpha:
+                c.temporal_hz = f_hz
+                break
+    return out
+
+
+def _dominant(cands: list[Candidate], runs: list[RunLines], most: int = 3) -> list[float]:
+    """The strongest significant lines (by their smallest p-value), at least two cells apart [cycles/rad]."""
+    cell = max((r.cell for r in runs if r.passes), default=0.0)
+    out: list[float] = []
+    for c in sorted((c for c in cands if c.tests and any(c.significant)),
+                    key=lambda c: min(c.p_value(i) for i, s in enumerate(c.significant) if s)):
+        if len(out) >= most:
+            break
+        if all(abs(c.k - x) > 2.0 * cell for x in out):
+            out.append(c.tests[int(np.argmin([t.p_value for t in c.tests]))].k)
+    return out
+
+
+def _family(lines: list[Candidate], k_min: float, runs: list[RunLines]) -> tuple[float | None,
+                                                                             list[tuple[Candidate, int]]]:
+    """The family to compensate: the largest fundamental k0 >= k_min of which the most significant line and as
+    many other lines as possible are harmonics 1..:data:`FAMILY_MAX_HARMONIC` (more lines first, then the
+    shortest period)."""
+    if not lines:
+        return None, []
+    lines = sorted(lines, key=lambda c: min(c.p_value(i) for i, s in enumerate(c.significant) if s))
+    first = lines[0]
+
+    def power(c: Candidate) -> float:
+        # Its power where it is significant, as a share of the strongest line's power in those runs.
+        shares = [c.tests[i].amplitude_rad ** 2 / max(first.tests[i].amplitude_rad ** 2, 1e-300)
+                  for i, s in enumerate(c.significant) if s and first.tests[i].tested]
+        return max(shares, default=0.0)
+
+    best: tuple[int, float, list] = (0, 0.0, [])
+    for h in range(1, FAMILY_MAX_HARMONIC + 1):
+        k0 = first.k / h
+        if k0 < k_min:
+            break
+        hs = []
+        for d in lines:
+            hd = int(round(d.k / k0))
+            if 1 <= hd <= FAMILY_MAX_HARMONIC and \
+                    abs(d.k - hd * k0) <= FAMILY_RTOL * d.k + 3.0 * math.hypot(d.k_std, hd * first.k_std / h):
+                hs.append((d, hd))
+        # A longer period only for lines of its own that carry power: a share of the strongest line's, as the
+        # search's family requires (weak lines at its subharmonics are reported, not compensated).
+        own = [d for d, hd in hs if hd % h != 0]
+        if h > 1 and max((power(d) for d in own), default=0.0) < MIN_SUBHARMONIC_POWER:
+            continue
+        if (len(hs), k0) > (best[0], best[1]):
+            best = (len(hs), k0, hs)
+    return (best[1], best[2]) if best[2] else (None, [])
