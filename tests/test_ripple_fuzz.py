@@ -20,11 +20,11 @@ from iiwa_ident.cli import app
 from iiwa_ident.datasets import Dataset, write_dataset
 
 
-def _run(path, speed, duration_s, rate_hz, cycles_per_rev, amplitude_rad, seed):
+def _run(path, speed, duration_s, rate_hz, cycles_per_rev, amplitude_rad, seed, phase=0.7):
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration_s * rate_hz)) / rate_hz
     q = 0.1 + speed * t
-    f = amplitude_rad * np.sin(cycles_per_rev * q + rng.uniform(0, 2 * math.pi))
+    f = amplitude_rad * np.sin(cycles_per_rev * q + phase)  # one transmission: the same phase in every run
     tau = 3.0 + 185.0 * f + 0.02 * rng.standard_normal(len(t))
     tick = 5.989e-8
     write_dataset(path, Dataset(signals={"t": t, "q_m": np.round(q / tick) * tick, "tau_j": tau},

@@ -64,7 +64,8 @@ def format_ripple(r: RippleResult) -> str:
                 lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{'-':>12}{'-':>9}{'-':>10}  {verdict}")
                 continue
             std_cpr = run["cycles_per_rev"] * run["period_std_rad"] / run["period_rad"]
-            lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{run['cycles_per_rev']:>12.2f}{std_cpr:>9.2f}"
+            std = f"{std_cpr:.2f}" if math.isfinite(std_cpr) else "-"
+            lines.append(f"  {name:<40}{run['speed_rad_s']:>14.3f}{run['cycles_per_rev']:>12.2f}{std:>9}"
                          f"{run.get('harmonic', '-'):>10}  {_run_verdict(run, agree, alone)}")
         a = r.agreement
         if a.get("chi2") is not None:
@@ -103,7 +104,9 @@ def _lines_table(x) -> str:
         for i, t in enumerate(c.tests):
             cells.append("not tested" if not t.tested else
                          f"{t.amplitude_rad * 1e6:.2f} ({c.p_value(i):.0e}){'*' if c.significant[i] else ' '}")
-        rows.append(f"  {c.cycles_per_rev:>11.2f}{tag:>11}" + "".join(f"{cell:>19}" for cell in cells))
+        # A family line where the compensated period puts it; another line where the runs that show it do.
+        k = h_of[id(c)] * x.k_ref if id(c) in h_of and x.k_ref else x.seen_k(c)
+        rows.append(f"  {2 * math.pi * k:>11.2f}{tag:>11}" + "".join(f"{cell:>19}" for cell in cells))
     rows.append("  runs: " + "; ".join(f"{i + 1} = {run.name} ({run.speed:.2f} rad/s)" for i, run in enumerate(x.runs)))
     return "\n".join(rows)
 

@@ -693,25 +693,22 @@ def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datase
     every pass); otherwise the period is refined on the passes of the runs that show the family's lines.
     """
     result.lines = lines
-    if lines.k0 is None and result.detected and result.period_rad is not None:
-        lines.k_ref = 1.0 / result.period_rad
-    notes = _line_warnings(lines)
     if lines.k0 is None:
-        result.warnings += notes
+        if result.detected and result.period_rad is not None:
+            lines.k_ref = 1.0 / result.period_rad
+        result.warnings += _line_warnings(lines)
         return result
     k0 = lines.k0
-    family = ", ".join(f"{c.cycles_per_rev:.1f} (harmonic {h})" for c, h in sorted(lines.harmonics,
-                                                                                     key=lambda x: x[1]))
-    said = (f"the period compensated is the shortest whose harmonics are all the lines reproduced at two speeds "
-            f"or more: {2 * math.pi * k0:.2f} cycles per revolution (lines at {family})")
-    if result.detected and result.period_rad is not None:
-        k = 1.0 / result.period_rad
-        if abs(k - k0) <= 3e-3 * k0 + 3.0 * result.period_std_rad / result.period_rad ** 2:
-            result.agreement["family"] = said
-            result.warnings += notes
-            return result
+
+    def said(k: float) -> str:
+        family = ", ".join(f"{2 * math.pi * h * k:.1f} (harmonic {h})" for _, h in sorted(lines.harmonics,
+                                                                                         key=lambda x: x[1]))
+        return (f"the period compensated is the shortest whose harmonics are all the lines reproduced at two "
+                f"speeds or more: {2 * math.pi * k:.2f} cycles per revolution (lines at {family})")
+
     found = _family_result(result, lines, runs, datasets, options)
-    found.warnings += [said] + notes
+    lines.k_ref = 1.0 / found.period_rad
+    found.warnings += [said(lines.k_ref)] + _line_warnings(lines)
     return found
 
 
@@ -749,13 +746,18 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
         std_k = max(std_k, spread) if math.isfinite(std_k) else spread
     if not math.isfinite(std_k):
         std_k = half / math.sqrt(3.0)  # placed only within the bracket
+    # Where the runs' own periods already agreed on this family, their agreement stands and its std (widened by
+    # the Birge ratio) is kept when it is the larger.
+    agreed = pooled.detected and pooled.agreement.get("verdict") == "agree" and \
+        abs(1.0 / pooled.period_rad - k_hat) <= 3e-3 * k_hat + 3.0 * pooled.period_std_rad / pooled.period_rad ** 2
+    if agreed:
+        std_k = max(std_k, pooled.period_std_rad / pooled.period_rad ** 2)
     period = 1.0 / k_hat
-    combined = _method_result("combined", passes, period, o["max_harmonics"], o["bins"])
-    methods = {"dynamic": combined} if any(p.method == "dynamic" for p in passes) else {"static": combined}
+    methods, combined = _methods(passes, period, o["max_harmonics"], o["bins"])
     for r in runs:
         if r["run"] in names and r["detected"]:
             r["harmonic"] = max(1, int(round(r["cycles_per_rev"] / (2 * math.pi * k_hat))))
-    agreement = dict(pooled.agreement, verdict="reproduced", agree=names,
+    agreement = dict(pooled.agreement, verdict="agree" if agreed else "reproduced", agree=names,
                      disagree=[r["run"] for r in runs if r["detected"] and r["run"] not in names],
                      supporting_speeds_rad_s=sorted(lines.runs[i].speed for i in support),
                      family_cycles_per_rev=2 * math.pi * k_hat,
@@ -853,25 +855,26 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
         return RippleResult(False, None, None, fap, stat, None, None, {}, velocity_table=[], **base)
     period, period_std = best.period, best.period_std
 
+    methods, combined = _methods(passes, period, max_harmonics, bins)
+    return RippleResult(True, period, period_std, fap, stat, combined.lut, combined.amplitude_rad, methods,
+                        velocity_table=_velocity_table(passes, period), **base)
+
+
+def _methods(passes: list[Pass], period: float, max_harmonics: int, bins: int) -> tuple[dict, MethodResult]:
+    """Each method's table (the dynamic one aligned to the static one, which is measured directly) and the
+    table written to the model, from every pass weighted by its noise."""
     methods = {}
-    by_method = {m: [p for p in passes if p.method == m] for m in ("static", "dynamic")}
-    for name, ps in by_method.items():
+    for name in ("static", "dynamic"):
+        ps = [p for p in passes if p.method == name]
         if ps:
             methods[name] = _method_result(name, ps, period, max_harmonics, bins)
     if len(methods) == 2:
-        # The static table is measured directly: align the dynamic one to it and record the shift.
         shift = _circular_shift(methods["static"].lut, methods["dynamic"].lut)
         if shift > bins // 2:
             shift -= bins
         methods["dynamic"].shift_rad = shift * period / bins
         methods["dynamic"].lut = np.roll(methods["dynamic"].lut, shift)
-    # The table written to the model uses every pass, weighted by its noise.
-    combined = _method_result("combined", passes, period, max_harmonics, bins)
-    lut = combined.lut
-
-    velocity_table = _velocity_table(passes, period)
-    return RippleResult(True, period, period_std, fap, stat, lut, combined.amplitude_rad, methods,
-                        velocity_table=velocity_table, **base)
+    return methods, _method_result("combined", passes, period, max_harmonics, bins)
 
 
 def _velocity_table(passes: list[Pass], period: float) -> list[dict]:

@@ -39,12 +39,12 @@ from scipy import stats
 from iiwa_ident.ident.ripple_passes import Pass
 from iiwa_ident.ident.ripple_spectrum import MIN_SUBHARMONIC_POWER, taper
 
-__all__ = ["NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
+__all__ = ["span", "NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
            "CrossRunLines", "cross_run_lines", "distinct_speeds"]
 
 #: Neighbouring frequencies (half on each side) whose median coefficient power is the local noise level.
 NEIGHBOURS = 24
-#: Spacing of the neighbours and their nearest distance to the line, in resolution cells (1 / travel):
+#: Spacing of the neighbours and their nearest distance to the line, in resolution cells (1 / span):
 #: a Hann-tapered line leaks over +-2 cells, coefficients 2 cells apart are nearly uncorrelated.
 _SPACING_CELLS = 2.0
 _GAP_CELLS = 4.0
@@ -86,6 +86,13 @@ class LineTest:
     @property
     def tested(self) -> bool:
         return not self.reason
+
+
+def span(passes: list[Pass]) -> float:
+    """The motor positions the passes span [rad]: the coefficients are summed coherently over the passes (the
+    deflection is phase-locked to the position), so a line is resolved to one over this, however the span is
+    cut into passes (back and forth, or between gaps)."""
+    return float(max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)) if passes else 0.0
 
 
 def _coefficients(passes: list[Pass], ks: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -150,7 +157,7 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
     passes = [p for p in passes if 1.0 / p.period_max < k * (1.0 - WINDOW_MAX)]
     if not passes:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, "longer than the passes resolve")
-    travel = float(np.median([abs(p.theta[-1] - p.theta[0]) for p in passes]))
+    travel = span(passes)
     cell = 1.0 / max(travel, 1e-12)
     half = max(0.5 * cell, 3.0 * k_std)
     step = cell * _SPACING_CELLS
@@ -232,8 +239,8 @@ class RunLines:
 
     @property
     def cell(self) -> float:
-        """The run's resolution cell, one over its median pass travel [cycles/rad]."""
-        return 1.0 / max(float(np.median([abs(p.theta[-1] - p.theta[0]) for p in self.passes])), 1e-12)
+        """The run's resolution cell, one over the motor positions its passes span [cycles/rad]."""
+        return 1.0 / max(span(self.passes), 1e-12)
 
 
 @dataclass
@@ -372,7 +379,9 @@ class CrossRunLines:
             "family_cycles_per_rev": None if self.k0 is None else 2 * math.pi * self.k0,
             "false_alarm_probability": self.false_alarm() if self.k0 is not None else None,
             "runs": [{"run": r.name, "speed_rad_s": r.speed, "rate_hz": r.rate_hz} for r in self.runs],
-            "lines": [{"cycles_per_rev": c.cycles_per_rev, "origin": c.origin, "harmonic": h_of.get(id(c)),
+            "lines": [{"cycles_per_rev": 2 * math.pi * (h_of[id(c)] * self.k_ref if id(c) in h_of and self.k_ref
+                                                         else self.seen_k(c)),
+                       "candidate_cycles_per_rev": c.cycles_per_rev, "origin": c.origin, "harmonic": h_of.get(id(c)),
                        "temporal_hz": c.temporal_hz, "speeds_significant": c.speeds(self.runs),
                        "tests": [{"run": r.name, "amplitude_rad": t.amplitude_rad,
                                   "amplitude_std_rad": None if math.isinf(t.amplitude_std_rad) else t.amplitude_std_rad,
@@ -495,7 +504,8 @@ def _family(lines: list[Candidate], k_min: float, runs: list[RunLines]) -> tuple
                                                                              list[tuple[Candidate, int]]]:
     """The family to compensate: the largest fundamental k0 >= k_min of which the most significant line and as
     many other lines as possible are harmonics 1..:data:`FAMILY_MAX_HARMONIC` (more lines first, then the
-    shortest period)."""
+    shortest period). A fundamental below the most significant line needs its own line among the reproduced
+    ones and lines of its own with power (:data:`MIN_SUBHARMONIC_POWER` of the strongest's)."""
     if not lines:
         return None, []
     lines = sorted(lines, key=lambda c: min(c.p_value(i) for i, s in enumerate(c.significant) if s))
@@ -521,8 +531,9 @@ def _family(lines: list[Candidate], k_min: float, runs: list[RunLines]) -> tuple
         # A longer period only for lines of its own that carry power: a share of the strongest line's, as the
         # search's family requires (weak lines at its subharmonics are reported, not compensated).
         own = [d for d, hd in hs if hd % h != 0]
-        if h > 1 and max((power(d) for d in own), default=0.0) < MIN_SUBHARMONIC_POWER:
-            continue
+        if h > 1 and (max((power(d) for d in own), default=0.0) < MIN_SUBHARMONIC_POWER
+                      or not any(hd == 1 for _, hd in hs)):
+            continue  # and only where its own fundamental line is reproduced: a period the data show
         if (len(hs), k0) > (best[0], best[1]):
             best = (len(hs), k0, hs)
     return (best[1], best[2]) if best[2] else (None, [])
