@@ -95,24 +95,33 @@ def span(passes: list[Pass]) -> float:
     return float(max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)) if passes else 0.0
 
 
-def _coefficients(passes: list[Pass], ks: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """The passes' pooled Hann-tapered Fourier coefficients of ``f`` at ``ks`` [cycles/rad], scaled to a sine's
-    amplitude, after the lines at ``known`` are fitted (one sine each, common to the passes, tapered least
-    squares) and removed: a strong line's side lobes would otherwise stand for lines a few cells away."""
+def _coefficients(passes: list[Pass], k: float, g: float, js: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """The passes' pooled Hann-tapered Fourier coefficients of ``f`` at ``k + j g`` [cycles/rad] for ``j`` in
+    ``js`` (increasing), scaled to a sine's amplitude, after the lines at ``known`` are fitted (one sine each,
+    common to the passes, tapered least squares) and removed: a strong line's side lobes would otherwise stand
+    for lines a few cells away. The phasors advance from one ``j`` to the next by a product (one complex
+    exponential per distinct step, not per frequency)."""
     ws = [taper(len(p.f)) for p in passes]
-    xs = [p.f - np.average(p.f, weights=w) for p, w in zip(passes, ws)]
+    theta = np.concatenate([p.theta for p in passes])
+    w = np.concatenate(ws)
+    x = np.concatenate([p.f - np.average(p.f, weights=wp) for p, wp in zip(passes, ws)])
     if len(known):
-        cols = [np.exp(2j * np.pi * np.outer(p.theta, known)) for p in passes]
-        A = np.vstack([np.hstack([c.real, c.imag]) * np.sqrt(w)[:, None] for c, w in zip(cols, ws)])
-        y = np.concatenate([x * np.sqrt(w) for x, w in zip(xs, ws)])
-        beta = np.linalg.lstsq(A, y, rcond=None)[0]
-        xs = [x - np.hstack([c.real, c.imag]) @ beta for x, c in zip(xs, cols)]
-    num = np.zeros(len(ks), dtype=complex)
-    den = 0.0
-    for p, x, w in zip(passes, xs, ws):
-        num += np.exp(-2j * np.pi * np.outer(ks, p.theta)) @ (x * w)
-        den += w.sum()
-    return 2.0 * num / max(den, 1e-300)
+        cols = np.exp(2j * np.pi * np.outer(theta, known))
+        A = np.hstack([cols.real, cols.imag])
+        beta = np.linalg.lstsq(A * np.sqrt(w)[:, None], x * np.sqrt(w), rcond=None)[0]
+        x = x - A @ beta
+    xw = x * w
+    e = np.exp(-2j * np.pi * (k + js[0] * g) * theta)
+    steps: dict[int, np.ndarray] = {}
+    out = np.empty(len(js), dtype=complex)
+    for n, j in enumerate(js):
+        if n:
+            d = int(j - js[n - 1])
+            if d not in steps:
+                steps[d] = np.exp(-2j * np.pi * d * g * theta)
+            e *= steps[d]
+        out[n] = e @ xw
+    return 2.0 * out / max(float(w.sum()), 1e-300)
 
 
 def _level(ks: np.ndarray, power: np.ndarray, k: float) -> float:
@@ -160,7 +169,6 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
     travel = span(passes)
     cell = 1.0 / max(travel, 1e-12)
     half = max(0.5 * cell, 3.0 * k_std)
-    step = cell * _SPACING_CELLS
     k_low = max(1.0 / p.period_max for p in passes)
     if k + half > k_high:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, f"beyond {NYQUIST_SHARE:.0%} of the Nyquist limit "
@@ -170,29 +178,38 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
                                                      f"+-{half / k:.0%}")
     if k - half < k_low:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, "longer than the passes resolve")
-    j = np.arange(1, NEIGHBOURS // 2 + 1)
-    offsets = half + _GAP_CELLS * cell - step + step * j
-    nb = np.concatenate([k - offsets, k + offsets])
-    nb = nb[(nb >= k_low) & (nb <= k_high)]
+    # Every frequency on one grid of a quarter cell: the window (+-half), a cell beyond it on each side (a line
+    # whose power keeps rising past the window's edge is a neighbour's lobe, not a line in the window), and the
+    # neighbours.
+    g = cell / 4.0
+    m = max(2, int(math.ceil(half / g)))
+    first = m + int(round(4 * _GAP_CELLS))
+    j_nb = first + int(round(4 * _SPACING_CELLS)) * np.arange(NEIGHBOURS // 2)
+    j_nb = np.r_[-j_nb[::-1], j_nb]
+    nb = k + g * j_nb
+    keep = (nb >= k_low) & (nb <= k_high)
+    j_nb, nb = j_nb[keep], nb[keep]
     if len(nb) < NEIGHBOURS // 3:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, "too few neighbouring frequencies to tell its noise level")
     cells = 1 + int(math.ceil(2.0 * half / cell))
-    # The window and a cell beyond it on each side: a line whose power keeps rising past the window's edge is
-    # a neighbour's lobe, not a line in the window.
-    n_in = 4 * cells + 1
-    ring = np.r_[np.linspace(-half - cell, -half, 5)[:-1], np.linspace(half, half + cell, 5)[1:]]
-    window = k + np.linspace(-half, half, n_in)
+    j_in = np.arange(-m, m + 1)
+    j_ring = np.r_[np.arange(-m - 4, -m), np.arange(m + 1, m + 5)]
+    js = np.concatenate([j_in, j_ring, j_nb])
+    order = np.argsort(js)
     kn = np.array([x for x in known if abs(x - k) > half + cell and x < k_high], dtype=float)
-    c = _coefficients(passes, np.concatenate([window, k + ring, nb]), kn)
+    c = np.empty(len(js), dtype=complex)
+    c[order] = _coefficients(passes, k, g, js[order], kn)
+    n_in = len(j_in)
     power = np.abs(c[:n_in]) ** 2
-    outside = float(np.max(np.abs(c[n_in:n_in + len(ring)]) ** 2))
-    level = _level(nb, np.abs(c[n_in + len(ring):]) ** 2, k)
+    outside = float(np.max(np.abs(c[n_in:n_in + len(j_ring)]) ** 2))
+    level = _level(nb, np.abs(c[n_in + len(j_ring):]) ** 2, k)
     i = int(np.argmax(power))
     s = float(power[i]) / max(level, 1e-300)
     p1 = float(stats.f.sf(s, 2, len(nb)))
     p = float(min(1.0, -math.expm1(cells * math.log1p(-min(p1, 1.0 - 1e-16)))))
     if i in (0, n_in - 1) and outside > power[i]:
         p = 1.0
+    window = k + g * j_in
     return LineTest(float(window[i]), float(math.sqrt(power[i])), math.sqrt(level / 2.0), p, float(window[i]) * speed)
 
 
