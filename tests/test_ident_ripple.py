@@ -307,6 +307,15 @@ class TestReproducedAcrossSpeeds:
         r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
         assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 2e-3, r.warnings
 
+    def test_a_hum_at_every_speed_is_temporal_not_a_ripple(self):
+        # No ripple; one hum at 9 Hz in every run: the line keeps its frequency in Hz across the speeds.
+        runs = [_position_controlled(v, [], 20 + i, temporal_hz=9.0, span=0.8) for i, v in enumerate((0.2, 0.3, 0.45))]
+        r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
+        assert not r.detected, r.warnings
+        hums = [c.temporal_hz for c in r.lines.temporal()]
+        assert hums and all(abs(h / 9.0 - 1) < 0.02 for h in hums), hums
+        assert any("periodic in time" in w and "9.0 Hz" in w for w in r.warnings), r.warnings
+
     def test_a_run_whose_line_passes_nyquist_says_so_and_does_not_sink_the_joint(self):
         # At 1.5 rad/s and 200 Hz the spatial Nyquist limit is 419 cycles per revolution: a 1300-cycle line
         # there is an alias; the two slower runs still decide 320.

@@ -27,6 +27,9 @@ def format_ripple(r: RippleResult) -> str:
     if not r.detected and r.agreement.get("verdict") == "disagree":
         lines.append("the runs disagree on the period (table below): the data do not decide, nothing is written "
                      "as a ripple table")
+    elif not r.detected and r.agreement.get("verdict") == "temporal":
+        lines.append("the line found is periodic in time, not in position (warning below): nothing is written as a "
+                     "ripple table")
     elif not r.detected:
         lines.append(f"no periodic nonlinearity: the strongest line has false-alarm probability {r.false_alarm:.2g} "
                      f"(T² = {r.statistic:.1f}); nothing is written as a ripple table")

@@ -696,6 +696,16 @@ def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datase
     if lines.k0 is None:
         if result.detected and result.period_rad is not None:
             lines.k_ref = 1.0 / result.period_rad
+            hum = lines.temporal_at(lines.k_ref)
+            if hum is not None:
+                # No line of the joint analysis's family is reproduced at two speeds, and one of them keeps its
+                # frequency in Hz across speeds: a disturbance periodic in time, not a deflection in position.
+                result.detected = False
+                result.agreement["verdict"] = "temporal"
+                result.warnings.append(f"the family found at {result.cycles_per_rev:.1f} cycles per revolution has "
+                                       f"a line periodic in time ({hum:.1f} Hz at every speed) and none reproduced "
+                                       "in position: nothing is reported as a ripple table")
+                lines.k_ref = None
         result.warnings += _line_warnings(lines)
         return result
     k0 = lines.k0

@@ -362,6 +362,17 @@ class CrossRunLines:
                 out.append(c)
         return out
 
+    def temporal_at(self, k: float) -> float | None:
+        """The frequency [Hz] of a temporal line that the runs place within a cell of a harmonic of ``k`` (1 to
+        :data:`FAMILY_MAX_HARMONIC`), or None."""
+        for c in self.candidates:
+            if c.temporal_hz is not None:
+                cell = max((self.runs[i].cell for i, s in enumerate(c.significant) if s), default=0.0)
+                h = max(1, int(round(self.seen_k(c) / k)))
+                if h <= FAMILY_MAX_HARMONIC and abs(self.seen_k(c) - h * k) <= cell:
+                    return c.temporal_hz
+        return None
+
     def seen_k(self, c: Candidate) -> float:
         """Where the runs that show the line place it: the median of their tests' frequencies [cycles/rad]."""
         ks = [t.k for t, s in zip(c.tests, c.significant) if s]
