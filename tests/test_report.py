@@ -181,6 +181,10 @@ class TestVerdictPage:
         by["fit"]["headline"]["parameters"]["K"].update(error_std=-9.0, error_pct=-1.0)
         rows = {r.stage: r for r in verdict_rows(doc)}
         assert rows["ripple"].verdict == "WARN" and f"{100 * (0.025 / 0.01963 - 1):+.3f} % from the paper" in rows["ripple"].figure
+        by["ripple"]["headline"]["period_rad"] = 2 * 0.01963 * 1.001   # the once-per-motor-revolution family
+        row = next(r for r in verdict_rows(doc) if r.stage == "ripple")
+        assert row.verdict == "WARN" and "2 x the paper's (+0.10 %): its harmonic 2 is the paper's line" in row.figure
+        by["ripple"]["headline"]["period_rad"] = 0.025
         assert rows["design"].verdict == "WARN" and "= 1.50x" in rows["design"].figure
         assert rows["observer"].verdict == "FAIL" and "(0.50x)" in rows["observer"].figure
         assert rows["fit"].verdict == "FAIL" and "worst K at 9.0 std" in rows["fit"].figure
