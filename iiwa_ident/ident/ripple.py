@@ -681,7 +681,8 @@ def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, opt
                 break
             if all(abs(k[i] - s) > 4 * (k[1] - k[0] if len(k) > 1 else 0.0) for s, _ in seeds):
                 seeds.append((float(k[i]), 0.0))
-    return RunLines(name, passes, speed, ds.sample_rate_hz, seeds, searched)
+    detected = int(r is not None and r.detected and r.period_rad is not None)
+    return RunLines(name, passes, speed, ds.sample_rate_hz, seeds, searched, detected)
 
 
 def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],
@@ -766,7 +767,9 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
     methods, combined = _methods(passes, period, o["max_harmonics"], o["bins"])
     for r in runs:
         if r["run"] in names and r["detected"]:
-            r["harmonic"] = max(1, int(round(r["cycles_per_rev"] / (2 * math.pi * k_hat))))
+            h = r["cycles_per_rev"] / (2 * math.pi * k_hat)
+            if round(h) >= 1 and abs(h - round(h)) <= 0.01 * h:
+                r["harmonic"] = int(round(h))  # the run's own line is this harmonic of the family (not a fraction)
     agreement = dict(pooled.agreement, verdict="agree" if agreed else "reproduced", agree=names,
                      disagree=[r["run"] for r in runs if r["detected"] and r["run"] not in names],
                      supporting_speeds_rad_s=sorted(lines.runs[i].speed for i in support),

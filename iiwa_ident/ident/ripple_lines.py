@@ -245,6 +245,9 @@ class RunLines:
     searched : float
         How many independent frequencies its own search picked them from: in this run a seed's p-value is
         corrected for them (it was chosen for being small there), in the others it is not.
+    detected : int
+        How many of the seeds (the first) its own search detected, with its own false-alarm probability: those
+        need no further correction in this run.
     """
 
     name: str
@@ -253,6 +256,7 @@ class RunLines:
     rate_hz: float
     seeds: list[tuple[float, float]]
     searched: float = 1.0
+    detected: int = 0
 
     @property
     def cell(self) -> float:
@@ -424,11 +428,12 @@ def _candidates(runs: list[RunLines], extra: list[tuple[float, str]], k_min: flo
     """Every run's lines times :data:`RATIOS`, and ``extra`` lines, merged where they test the same line."""
     raw: list[Candidate] = []
     for i, r in enumerate(runs):
-        for k, std in r.seeds:
+        for n, (k, std) in enumerate(r.seeds):
+            picked = {i: r.searched} if n >= r.detected else {}
             for q in RATIOS:
                 if k_min <= q * k <= k_max:
                     origin = r.name if q == 1 else f"{r.name} x {_fraction(q)}"
-                    raw.append(Candidate(q * k, q * std, origin, {i: r.searched} if q == 1 else {}, q == 1))
+                    raw.append(Candidate(q * k, q * std, origin, picked if q == 1 else {}, q == 1))
     for k, origin in extra:
         if k_min <= k <= k_max:
             raw.append(Candidate(k, 0.0, origin))
