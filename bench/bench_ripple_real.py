@@ -58,7 +58,7 @@ def _row(label: str, r: RippleResult, seconds: float) -> str:
     def seen(x: dict) -> str:
         if not x["detected"]:
             return "beyond Nyquist" if "Nyquist" in x.get("reason", "") else "none"
-        how = f"h{x['harmonic']}" if "harmonic" in x else "this speed only" if x["run"] in alone else "disagrees"
+        how = f"h{x['harmonic']}" if "harmonic" in x else "this speed only" if x["run"] in alone else "not in the family"
         return f"{x['cycles_per_rev']:.1f} ({how})"
 
     runs = "; ".join(f"{Path(x['run']).name} {x['speed_rad_s']:.2f} rad/s: {seen(x)}" for x in r.runs) or "one run"

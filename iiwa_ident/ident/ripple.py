@@ -766,6 +766,7 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
     period = 1.0 / k_hat
     methods, combined = _methods(passes, period, o["max_harmonics"], o["bins"])
     for r in runs:
+        r.pop("harmonic", None)  # set against the joint analysis's period, which this one replaces
         if r["run"] in names and r["detected"]:
             h = r["cycles_per_rev"] / (2 * math.pi * k_hat)
             if round(h) >= 1 and abs(h - round(h)) <= 0.01 * h:
