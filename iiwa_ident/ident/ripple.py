@@ -47,7 +47,7 @@ from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definitio
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointModel, RippleTable, Source
-from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines, distinct_speeds
+from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines
 from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
 from iiwa_ident.ident.ripple_spectrum import (
     FAMILY_HARMONICS,
@@ -446,9 +446,11 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     (``agreement``): a run agrees when its period is a harmonic of the pooled one (1/h of it) within
     three combined std and 0.1 %; the pooled period's std is at least the spread of the runs'
     fundamentals (their weighted mean's std times the Birge ratio sqrt(chi2 / dof)) and half the
-    distance between that mean and the pooled period. When a run that
-    detects a line disagrees, the data do not decide and nothing is reported as detected; the verdict
-    names the runs.
+    distance between that mean and the pooled period. Then every candidate line (each run's own lines
+    times 1/4..4, the paper's rho) is tested in every run (:mod:`iiwa_ident.ident.ripple_lines`): the period
+    compensated is the shortest whose harmonics are the lines reproduced at two speeds or more, refined on
+    the runs that show them (``lines``); where no line is reproduced the joint analysis stands, withdrawn when
+    a line of its family is periodic in time, and where the runs disagree the data do not decide.
 
     Parameters
     ----------
