@@ -37,7 +37,7 @@ import numpy as np
 from scipy import stats
 
 from iiwa_ident.ident.ripple_passes import Pass
-from iiwa_ident.ident.ripple_spectrum import MIN_SUBHARMONIC_POWER, taper
+from iiwa_ident.ident.ripple_spectrum import MIN_SUBHARMONIC_POWER, sidak, taper
 
 __all__ = ["span", "NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
            "CrossRunLines", "cross_run_lines", "distinct_speeds"]
@@ -206,7 +206,7 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
     i = int(np.argmax(power))
     s = float(power[i]) / max(level, 1e-300)
     p1 = float(stats.f.sf(s, 2, len(nb)))
-    p = float(min(1.0, -math.expm1(cells * math.log1p(-min(p1, 1.0 - 1e-16)))))
+    p = sidak(p1, cells)
     if i in (0, n_in - 1) and outside > power[i]:
         p = 1.0
     window = k + g * j_in
@@ -289,7 +289,7 @@ class Candidate:
     def p_value(self, i: int) -> float:
         """Its p-value in run ``i``, corrected for the search where that run's search picked it."""
         p, m = self.tests[i].p_value, self.looked.get(i, 1.0)
-        return float(min(1.0, -math.expm1(m * math.log1p(-min(p, 1.0 - 1e-16))))) if m > 1 else p
+        return sidak(p, m) if m > 1 else p
 
     def speeds(self, runs: list[RunLines]) -> int:
         """How many different speeds (apart by :data:`SAME_SPEED_RATIO`) the runs where it is significant have."""

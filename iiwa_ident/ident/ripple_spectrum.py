@@ -21,7 +21,7 @@ from scipy.ndimage import maximum_filter1d, median_filter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.ripple_passes import Pass
 
-__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'Family', 'LineSpectrum', 'chunk_coefficients', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'taper', 'window_logp']
+__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'Family', 'LineSpectrum', 'chunk_coefficients', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'sidak', 'taper', 'window_logp']
 
 #: Harmonics summed per candidate fundamental in the family search.
 FAMILY_HARMONICS = 5
@@ -107,7 +107,12 @@ def false_alarm_probability(t2: float, n: int, m_eff: float) -> float:
     With n chunks of independent circular noise, T^2 = |mean|^2 / (s^2 / n) follows F(2, 2(n-1)).
     """
     p = float(stats.f.sf(t2, 2, 2 * (n - 1))) if n > 1 else 1.0
-    return float(min(1.0, -math.expm1(m_eff * math.log1p(-min(p, 1 - 1e-16)))))
+    return sidak(p, m_eff)
+
+
+def sidak(p: float, tries: float) -> float:
+    """Probability that the smallest of ``tries`` independent p-values is at most ``p``: 1 - (1 - p)^tries."""
+    return float(min(1.0, -math.expm1(tries * math.log1p(-min(p, 1 - 1e-16)))))
 
 
 @dataclass
@@ -136,7 +141,7 @@ class LineSpectrum:
         tests and for the ``estimates`` deflection estimates the strongest is chosen from."""
         tries = len(self.k) / 4.0
         p_fam = math.exp(self.family.log_p) if self.family is not None else 1.0
-        fam = float(min(1.0, -math.expm1(tries * math.log1p(-min(p_fam, 1 - 1e-16))))) if p_fam > 0 else 0.0
+        fam = sidak(p_fam, tries) if p_fam > 0 else 0.0
         return min(1.0, 2.0 * estimates * min(self.false_alarm(self.i_best), fam))
 
 
