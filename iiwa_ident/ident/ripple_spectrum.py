@@ -287,6 +287,23 @@ def harmonic_family(spec: "LineSpectrum") -> "Family":
             lo = max(0, i - half)
             yield h, half, lo + int(np.argmin(log_p[lo:i + half + 1]))
 
+    # The same holds for a single line: T^2 at its neighbours one over the chunk length away can exceed
+    # its own (a 320-cycle line of a 2 rad run located at 342). Of the line and those neighbours about as
+    # significant, the one with the most power is the line.
+    grating = max(1, int(round(spec.lobe_reach / 1.5)))
+
+    def on_line(j: int) -> int:
+        best = j
+        for m in (-2, -1, 1, 2):
+            c = j + m * grating
+            lo, hi = max(0, c - grating // 4 - 1), min(n_k, c + grating // 4 + 2)
+            if lo >= hi:
+                continue
+            c = lo + int(np.argmin(log_p[lo:hi]))
+            if log_p[c] <= 0.5 * log_p[j] < 0 and spec.power[c] > spec.power[best]:
+                best = c
+        return best
+
     def recentre(kk: float) -> float:
         """kk moved onto its family's most significant line (divided by its harmonic number): a
         fundamental on the grid is off by up to half a step, and its multiples by h times that."""
@@ -327,6 +344,7 @@ def harmonic_family(spec: "LineSpectrum") -> "Family":
     for h, _, j in peaks(k0, 8):
         if h == 1 or log_p[j] < log_p[i_strong]:
             h_strong, i_strong = h, j
+    i_strong = on_line(i_strong)
     return Family(h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
 
 
