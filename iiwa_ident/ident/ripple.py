@@ -52,6 +52,7 @@ from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_sta
 from iiwa_ident.ident.ripple_spectrum import (
     FAMILY_HARMONICS,
     LineSpectrum,
+    SEARCH_TRIES_PER_POINT,
     cut_chunks,
     false_alarm_probability,
     hotelling,
@@ -673,7 +674,7 @@ def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, opt
     searched = 1.0
     if r is not None and len(r.spectrum_k):
         k, t2 = r.spectrum_k, r.spectrum_stat
-        searched = len(k) / 4.0
+        searched = SEARCH_TRIES_PER_POINT * len(k)
         if r.period_rad is not None:
             seeds.append((1.0 / r.period_rad, (r.period_std_rad or 0.0) / r.period_rad ** 2
                           if math.isfinite(r.period_std_rad or math.inf) else 0.0))

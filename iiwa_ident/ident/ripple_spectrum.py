@@ -21,13 +21,17 @@ from scipy.ndimage import maximum_filter1d, median_filter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.ripple_passes import Pass
 
-__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'Family', 'LineSpectrum', 'chunk_coefficients', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'sidak', 'taper', 'window_logp']
+__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'SEARCH_TRIES_PER_POINT', 'Family', 'LineSpectrum', 'chunk_coefficients', 'chunks_in', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'sidak', 'taper', 'window_logp']
 
 #: Harmonics summed per candidate fundamental in the family search.
 FAMILY_HARMONICS = 5
 #: Least power, as a share of the family's strongest line, of the strongest line that only a subharmonic
 #: k0/m explains, for k0/m to be the period: lines down to a tenth of the dominant one's amplitude.
 MIN_SUBHARMONIC_POWER = 0.01
+#: Strongest grid points of the search whose T^2 is re-read between grid points.
+_REFINED = 32
+#: Independent tries the search counts per grid point (4 per resolution cell 1/span).
+SEARCH_TRIES_PER_POINT = 1.0
 
 
 def cut_chunks(passes: list[Pass], span: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
@@ -38,12 +42,17 @@ def cut_chunks(passes: list[Pass], span: float) -> list[tuple[np.ndarray, np.nda
     """
     out = []
     for p in passes:
-        travel = abs(p.theta[-1] - p.theta[0])
-        n = max(1, int(travel // max(2.0 * p.period_max, span / 8)))
+        n = chunks_in(abs(p.theta[-1] - p.theta[0]), p.period_max, span)
         for idx in np.array_split(np.arange(len(p.theta)), n):
             if len(idx) >= 8:
                 out.append((p.theta[idx], p.f[idx], 1.0 / p.period_max))
     return out
+
+
+def chunks_in(travel: float, period_max: float, span: float) -> int:
+    """Chunks a pass of ``travel`` [rad] is cut into: each at least two of its longest periods
+    ``period_max`` [rad] and about an eighth of the runs' ``span`` [rad]."""
+    return max(1, int(travel // max(2.0 * period_max, span / 8)))
 
 
 def chunk_coefficients(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -131,15 +140,21 @@ class LineSpectrum:
     #: Grid steps to one and a half over the chunk length (:func:`lobe_reach`).
     lobe_reach: int = 0
 
+    @property
+    def tries(self) -> float:
+        """Independent frequencies the search stands for: its grid points, 4 per resolution cell (a line's T^2
+        is read between them too, and the maximum of a continuous search exceeds that of one point a cell)."""
+        return SEARCH_TRIES_PER_POINT * len(self.k)
+
     def false_alarm(self, j: int, tries: float | None = None) -> float:
         """False-alarm probability of the line at index j among ``tries`` frequencies (default: all searched)."""
-        return false_alarm_probability(float(self.t2[j]), int(self.count[j]), len(self.k) / 4.0 if tries is None else tries)
+        return false_alarm_probability(float(self.t2[j]), int(self.count[j]), self.tries if tries is None else tries)
 
     def detection_false_alarm(self, estimates: int = 1) -> float:
         """False-alarm probability of the search: the strongest line or the strongest family, whichever is
         the more significant, each corrected for the frequencies searched, then (Bonferroni) for the two
         tests and for the ``estimates`` deflection estimates the strongest is chosen from."""
-        tries = len(self.k) / 4.0
+        tries = self.tries
         p_fam = math.exp(self.family.log_p) if self.family is not None else 1.0
         fam = sidak(p_fam, tries) if p_fam > 0 else 0.0
         return min(1.0, 2.0 * estimates * min(self.false_alarm(self.i_best), fam))
@@ -161,13 +176,20 @@ def line_search(passes: list[Pass], period_min: float, period_max: float) -> Lin
     dk = 1.0 / (4.0 * span)
     k = np.arange(1.0 / period_max, 1.0 / period_min + dk, dk)
     t2_raw, power, count = hotelling(chunks, k)
+    # A strong line's T^2 is narrower than the grid (off its frequency the chunks' phases drift apart, and the
+    # spread between them is the signal's): the grid point next to it can hold a quarter of its value. The
+    # strongest points are re-read at their maximum within half a grid step.
+    for j in np.argsort(t2_raw)[-_REFINED:]:
+        fine = k[j] + dk * np.linspace(-0.5, 0.5, 9)
+        t2_raw[j] = max(t2_raw[j], float(np.max(hotelling(chunks, fine)[0])))
     # Real logs have noise that is correlated between neighbouring chunks (slow oscillations,
     # gravity and friction leftovers), which lifts the whole T^2 floor above its F(2, 2(n-1))
     # law. Calibrate with the local median (ln 2 under that law), never making a line more
     # significant than the law says.
+    reach = lobe_reach(chunks, dk)
     floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
     t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
-    spec = LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings, lobe_reach=lobe_reach(chunks, dk))
+    spec = LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings, lobe_reach=reach)
     spec.family = harmonic_family(spec)
     return spec
 

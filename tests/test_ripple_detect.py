@@ -1,0 +1,81 @@
+"""The ripple search's predicted detection probability against the search itself, on runs written apart from it.
+
+The runs: the motor at one constant speed, the joint torque a load plus ``K f`` (``f`` one sine of a random
+period and phase) plus white noise, the position quantised like the iiwa's encoder.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import pytest
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.ident.ripple_detect import (
+    detectable_amplitude,
+    detection_probability,
+    noise_psd,
+    required_travel,
+)
+from iiwa_ident.ident.ripple_passes import deflection
+
+_K, _SIGMA_NM, _RATE = 18500.0, 0.05, 200.0
+_PSD = 2.0 * (_SIGMA_NM / _K) ** 2 / _RATE  # one-sided, of the deflection's white noise [rad^2/Hz]
+
+
+def _run(rng, travel, speed, cpr, amplitude):
+    t = np.arange(int(travel / speed * _RATE)) / _RATE
+    q = 0.3 + speed * t
+    tau = 4.0 + _K * amplitude * np.sin(cpr * q + rng.uniform(0, 2 * math.pi)) + _SIGMA_NM * rng.standard_normal(t.size)
+    tick = 5.989e-8
+    return Dataset({"t": t, "q_m": np.round(q / tick) * tick, "tau_j": tau}, "constant_velocity", "import", 1, _RATE)
+
+
+@functools.lru_cache(maxsize=None)
+def _outcomes(probability, draws=30, travel=2.0, speed=0.1):
+    """(detected, period right within 0.5 %) per draw at the amplitude predicted to be detected with probability."""
+    rng = np.random.default_rng(int(100 * probability))
+    out = []
+    for _ in range(draws):
+        cpr = rng.uniform(250.0, 400.0)
+        amp = detectable_amplitude(travel, speed, _PSD, _RATE, cpr, probability=probability)
+        assert detection_probability(amp, travel, speed, _PSD, _RATE, cpr) == pytest.approx(probability, abs=1e-6)
+        r = identify_ripple([_run(rng, travel, speed, cpr, amp)])
+        out.append((bool(r.detected), bool(r.detected and abs(r.cycles_per_rev / cpr - 1) < 5e-3)))
+    return out
+
+
+@pytest.mark.parametrize("probability", [0.3, 0.95])
+def test_the_predicted_probability_holds_on_the_search(probability):
+    detected = sum(d for d, _ in _outcomes(probability))
+    # The prediction leaves out what only adds sensitivity (the line read between grid points, the family
+    # test): it may be low, not high; 30 draws put 2 binomial std at 0.17 at most.
+    assert probability - 0.17 <= detected / 30 <= probability + 0.45, detected
+
+
+@pytest.mark.xfail(strict=True, reason="a detected single slow run at 200 Hz reports a period 2-5.5 times the "
+                                       "line's in 7 of 30 draws (the restored estimate's family)")
+def test_a_detected_line_is_reported_at_its_period():
+    out = _outcomes(0.95)
+    assert sum(right for _, right in out) >= sum(d for d, _ in out) - 1
+
+
+def test_the_noise_level_is_read_off_the_run():
+    rng = np.random.default_rng(3)
+    ds = _run(rng, 2.0, 0.2, 320.0, 2e-6)
+    passes = deflection(ds, 0, _K, 5.6, 2 * math.pi / 50, 0.003, 0.0126, link_motion="neglected")
+    for f_hz in (5.0, 10.2, 30.0):  # the line itself at 10.2 Hz moves a median little
+        assert noise_psd(passes, f_hz) == pytest.approx(_PSD, rel=0.3)
+
+
+def test_longer_runs_detect_smaller_lines_and_too_short_or_too_fast_none():
+    a = [detectable_amplitude(travel, 0.2, _PSD, 1000.0, 320.0) for travel in (0.8, 1.2, 2.0, 4.0)]
+    assert all(x > y for x, y in zip(a, a[1:]))
+    assert detectable_amplitude(0.5, 0.2, _PSD, 1000.0, 320.0) == math.inf  # fewer than three chunks
+    assert detectable_amplitude(2.0, 2.0, _PSD, 200.0, 320.0) == math.inf   # 102 Hz beyond 0.9 x 100 Hz
+    travel = required_travel(a[1], 0.2, _PSD, 1000.0, 320.0)
+    assert travel is not None and travel <= 1.2 * 1.03
+    assert required_travel(a[-1] / 100.0, 0.2, _PSD, 1000.0, 320.0) is None
