@@ -167,6 +167,20 @@ def line_search(passes: list[Pass], period_min: float, period_max: float) -> Lin
     if longest < period_max:
         warnings.append(f"the longest pass travels {2 * longest:.3g} rad: periods searched up to {longest:.3g} rad")
         period_max = longest
+    # Sampled at even steps of the motor position, a pass cannot tell a line from its aliases about multiples
+    # of its sampling frequency in position; passes at other speeds alias elsewhere and can. Periods shorter
+    # than two steps of the finest-sampled pass are not searched (a 310-cycle line of one 1 rad/s run at
+    # 200 Hz was reported at its alias 1567).
+    nyquist = max(0.5 / max(float(np.median(np.abs(np.diff(p.theta)))), 1e-12) for p in passes)
+    if 1.0 / nyquist > period_min:
+        period_min = 1.0 / nyquist
+        warnings.append(f"at these speeds and rates the motor position is sampled every {0.5 / nyquist:.3g} rad: "
+                        f"periods searched down to {period_min:.3g} rad ({2 * math.pi * nyquist:.0f} cycles per "
+                        "revolution); shorter ones alias, runs slower or at a higher rate would resolve them")
+        if period_min >= period_max:
+            raise IiwaIdentError(f"ripple: the runs are sampled too coarsely in position (every {0.5 / nyquist:.3g} "
+                                 f"rad) for the periods searched (up to {period_max:.3g} rad); run slower or at a "
+                                 "higher rate")
     span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
     chunks = cut_chunks(passes, span)
     if len(chunks) < 3:
