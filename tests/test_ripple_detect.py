@@ -79,3 +79,31 @@ def test_longer_runs_detect_smaller_lines_and_too_short_or_too_fast_none():
     travel = required_travel(a[1], 0.2, _PSD, 1000.0, 320.0)
     assert travel is not None and travel <= 1.2 * 1.03
     assert required_travel(a[-1] / 100.0, 0.2, _PSD, 1000.0, 320.0) is None
+
+
+def test_ripple_says_what_each_run_detects_and_what_run_would(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+    from iiwa_ident.datasets import write_dataset
+
+    rng = np.random.default_rng(1)
+    files = []
+    for i, (travel, speed) in enumerate(((1.2, 0.2), (0.9, 0.5))):
+        files.append(str(tmp_path / f"run{i}.h5"))
+        write_dataset(files[-1], _run(rng, travel, speed, rng.uniform(250, 400), 0.0))
+    res = CliRunner().invoke(app, ["ripple", *files, "--amplitude-of-interest", "10", "--json", str(tmp_path / "r.json")])
+    assert res.exit_code == 0, res.output
+    rows = json.loads((tmp_path / "r.json").read_text())["sensitivity"]
+    assert [r["dataset"] for r in rows] == [0, 1]
+    # Nothing detected: the paper's 320 cycles per revolution. The 1.2 rad run detects below 10 µrad; the 0.9 rad
+    # run (4 chunks) does not, and is told the longer run at its speed that would.
+    assert all(abs(r["cycles_per_rev"] - 320.0) < 1.0 for r in rows)
+    assert rows[0]["detectable_rad"] < 10e-6 and rows[0]["required_travel_rad"] is None
+    assert rows[1]["detectable_rad"] > 10e-6 and 0.9 < rows[1]["required_travel_rad"] < 20.0
+    assert detection_probability(10e-6, rows[1]["required_travel_rad"], 0.5, rows[1]["psd_rad2_hz"], _RATE,
+                                 320.0) >= 0.95
+    assert f"detects {rows[0]['detectable_rad'] * 1e6:.3g} µrad" in res.output
+    assert f"a {rows[1]['required_travel_rad']:.2g} rad run at 0.50 rad/s" in res.output

@@ -78,6 +78,12 @@ def format_ripple(r: RippleResult) -> str:
             lines.append("  no run detects a periodic deflection")
     if r.lines is not None and r.lines.shown():
         lines += ["", _lines_table(r.lines)]
+    if r.sensitivity:
+        lines += ["", "what each run detects (one run alone, false-alarm probability 1e-3):"]
+        names = [row["run"] for row in r.runs] if r.runs else []
+        for x in r.sensitivity:
+            name = names[x.dataset] if x.dataset < len(names) else f"run {x.dataset + 1}"
+            lines.append("  " + x.sentence(name))
     for w in r.warnings:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
@@ -141,6 +147,9 @@ def ripple_cmd(
                                                            f"{2 * math.pi / PERIOD_MAX_RAD:.0f} per revolution")
                           ] = PERIOD_MAX_RAD,
     link_motion: Annotated[str, typer.Option("--link-motion", help="auto | restored | neglected (dynamic method).")] = "auto",
+    amplitude_of_interest: Annotated[float, typer.Option(
+        "--amplitude-of-interest", min=0.01, help="Deflection amplitude [µrad] for which each run that does not "
+        "detect it is told what run at its speed would.")] = 10.0,
 ) -> None:
     """Find the period and lookup table of the transmission deflection of eq (5).
 
@@ -169,7 +178,8 @@ def ripple_cmd(
         with progress(f"searching the ripple's period in {len(datasets)} run(s)"):
             model_out, result = ripple_model(base, datasets, [Source(str(p), sha256_file(p), "ripple") for p in data],
                                              period_min=period_min, period_max=period_max, bins=bins,
-                                             link_motion=link_motion)
+                                             link_motion=link_motion,
+                                             amplitude_of_interest=amplitude_of_interest * 1e-6)
         typer.echo(format_ripple(result))
         if out:
             write_model(out, model_out)

@@ -47,6 +47,7 @@ from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definitio
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointModel, RippleTable, Source
+from iiwa_ident.ident.ripple_detect import sensitivity
 from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines
 from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
 from iiwa_ident.ident.ripple_spectrum import (
@@ -116,6 +117,9 @@ class RippleResult:
     #: Every candidate line tested in every run (several runs only): :class:`~iiwa_ident.ident.ripple_lines.
     #: CrossRunLines`, None with one run.
     lines: CrossRunLines | None = None
+    #: What each run detects at the period (the paper's rho where none is detected):
+    #: :class:`~iiwa_ident.ident.ripple_detect.RunSensitivity` per run.
+    sensitivity: list = field(default_factory=list)
 
     @property
     def cycles_per_rev(self) -> float | None:
@@ -163,6 +167,7 @@ class RippleResult:
             "runs": self.runs,
             "agreement": self.agreement,
             "lines": None if self.lines is None else self.lines.to_json(),
+            "sensitivity": [x.to_json() for x in self.sensitivity],
             "warnings": self.warnings,
         }
 
@@ -439,7 +444,7 @@ def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, Jl: float, p
 def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6,
                     period_min: float = PERIOD_MIN_RAD, period_max: float = PERIOD_MAX_RAD, bins: int = 256,
                     max_harmonics: int = 8, min_speed: float = 0.003, false_alarm: float = 1e-3,
-                    link_motion: str = "auto") -> RippleResult:
+                    link_motion: str = "auto", amplitude_of_interest: float = 10e-6) -> RippleResult:
     """Decide whether a position-periodic deflection exists; find its period and lookup table.
 
     All runs are used together for the detection, the period and the table. With several runs each is
@@ -480,6 +485,9 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         Dynamic method: restore the link's fast motion from the torque
         (eq (2)), neglect it (eq (7)), or keep whichever gives the more
         consistent line.
+    amplitude_of_interest : float
+        Deflection amplitude [rad] for which the result's ``sensitivity`` says, per run that does not detect it
+        with probability 0.95, what run at its speed would (:mod:`iiwa_ident.ident.ripple_detect`).
 
     Returns
     -------
@@ -497,7 +505,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         beyond = _beyond_nyquist(pooled, datasets[0], _median_speed(datasets[0])) if datasets else None
         if beyond:
             pooled.warnings.append(f"{beyond}: an alias is possible; runs at other speeds would decide")
-        return pooled
+        return _with_sensitivity(pooled, amplitude_of_interest)
     runs, run_lines = [], []
     for i, ds in enumerate(datasets):
         name = str(ds.path) if ds.path else f"run {i + 1}"
@@ -526,7 +534,14 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     result = _combine_runs(pooled, runs)
     extra = [(1.0 / RIPPLE_PERIOD_RAD, "the paper's rho")]
     lines = cross_run_lines(run_lines, false_alarm, 1.0 / period_max, 1.0 / period_min, extra)
-    return _decide(result, lines, runs, datasets, options)
+    return _with_sensitivity(_decide(result, lines, runs, datasets, options), amplitude_of_interest)
+
+
+def _with_sensitivity(result: RippleResult, amplitude_rad: float) -> RippleResult:
+    """The result with what each run detects at its period (the paper's rho where none is detected)."""
+    cycles = result.cycles_per_rev if result.detected else 2.0 * math.pi / RIPPLE_PERIOD_RAD
+    result.sensitivity = sensitivity(result.passes, cycles, amplitude_rad) if result.passes else []
+    return result
 
 
 def ripple_model(base: JointModel, datasets: list[Dataset], sources: Sequence[Source] = (),

@@ -35,6 +35,7 @@ white torque noise through 18500 Nm/rad):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize, signal, stats
@@ -45,7 +46,7 @@ from iiwa_ident.ident.ripple_passes import Pass
 from iiwa_ident.ident.ripple_spectrum import SEARCH_TRIES_PER_POINT, chunks_in
 
 __all__ = ["DETECTION_PROBABILITY", "detection_probability", "detectable_amplitude", "required_travel",
-           "noise_psd", "line_frequency_hz"]
+           "noise_psd", "line_frequency_hz", "RunSensitivity", "sensitivity"]
 
 #: The probability with which a run is said to detect an amplitude.
 DETECTION_PROBABILITY = 0.95
@@ -165,3 +166,63 @@ def noise_psd(passes: list[Pass], frequency_hz: float, band: float = 0.3) -> flo
             dof = 2 * segments
             values.append(float(np.median(pxx[sel])) / (float(stats.chi2.median(dof)) / dof))
     return float(np.median(values)) if values else math.nan
+
+
+@dataclass
+class RunSensitivity:
+    """What one run can detect: its longest pass, the noise at the line's frequency and the amplitudes."""
+
+    dataset: int
+    speed_rad_s: float
+    travel_rad: float
+    rate_hz: float
+    cycles_per_rev: float
+    psd_rad2_hz: float
+    #: Amplitude the run detects with DETECTION_PROBABILITY [rad] (inf: none).
+    detectable_rad: float
+    #: The amplitude asked about [rad] and, where this run does not detect it, the travel at this speed that
+    #: would [rad] (None: none up to 20 rad).
+    amplitude_rad: float
+    required_travel_rad: float | None
+
+    def to_json(self) -> dict:
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+    def sentence(self, name: str) -> str:
+        """One line for the console."""
+        head = (f"{name} ({abs(self.speed_rad_s):.2f} rad/s over {self.travel_rad:.2f} rad at {self.rate_hz:.0f} Hz): ")
+        if not math.isfinite(self.psd_rad2_hz):
+            return head + "no noise level at the line's frequency; nothing predicted"
+        if math.isfinite(self.detectable_rad):
+            head += (f"detects {self.detectable_rad * 1e6:.3g} µrad at {self.cycles_per_rev:.0f} cycles per revolution "
+                     f"with probability {DETECTION_PROBABILITY:g}")
+        else:
+            head += f"detects no line at {self.cycles_per_rev:.0f} cycles per revolution (too short or too fast)"
+        if self.detectable_rad <= self.amplitude_rad:
+            return head
+        if self.required_travel_rad is None:
+            return head + f"; no run at this speed up to 20 rad detects {self.amplitude_rad * 1e6:.3g} µrad"
+        return head + (f"; a {self.required_travel_rad:.2g} rad run at {abs(self.speed_rad_s):.2f} rad/s "
+                       f"({self.required_travel_rad / abs(self.speed_rad_s):.2g} s) detects "
+                       f"{self.amplitude_rad * 1e6:.3g} µrad with probability {DETECTION_PROBABILITY:g}")
+
+
+def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float) -> list[RunSensitivity]:
+    """What each run (its longest pass) detects of a line at ``cycles_per_rev``, and what run would detect
+    ``amplitude_rad`` [rad] where it does not; the noise is read off the run's passes (:func:`noise_psd`)."""
+    out = []
+    for index in sorted({p.dataset for p in passes}):
+        own = [p for p in passes if p.dataset == index]
+        longest = max(own, key=lambda p: abs(p.theta[-1] - p.theta[0]))
+        travel = float(abs(longest.theta[-1] - longest.theta[0]))
+        speed = float(longest.speed)
+        rate = 1.0 / float(np.median(np.diff(longest.t)))
+        psd = noise_psd(own, line_frequency_hz(speed, cycles_per_rev))
+        if math.isfinite(psd) and psd > 0:
+            detectable = detectable_amplitude(travel, speed, psd, rate, cycles_per_rev)
+            need = None if detectable <= amplitude_rad else required_travel(amplitude_rad, speed, psd, rate,
+                                                                             cycles_per_rev)
+        else:
+            detectable, need = math.inf, None
+        out.append(RunSensitivity(index, speed, travel, rate, cycles_per_rev, psd, detectable, amplitude_rad, need))
+    return out
