@@ -56,8 +56,6 @@ def test_the_predicted_probability_holds_on_the_search(probability):
     assert probability - 0.17 <= detected / 30 <= probability + 0.45, detected
 
 
-@pytest.mark.xfail(strict=True, reason="a detected single slow run at 200 Hz reports a period 2-5.5 times the "
-                                       "line's in 7 of 30 draws (the restored estimate's family)")
 def test_a_detected_line_is_reported_at_its_period():
     out = _outcomes(0.95)
     assert sum(right for _, right in out) >= sum(d for d, _ in out) - 1
