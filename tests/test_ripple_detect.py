@@ -105,3 +105,17 @@ def test_ripple_says_what_each_run_detects_and_what_run_would(tmp_path):
                                  320.0) >= 0.95
     assert f"detects {rows[0]['detectable_rad'] * 1e6:.3g} µrad" in res.output
     assert f"a {rows[1]['required_travel_rad']:.2g} rad run at 0.50 rad/s" in res.output
+
+
+def test_a_run_too_fast_for_the_line_is_told_a_slower_one():
+    from iiwa_ident.ident.ripple_detect import sensitivity
+
+    rng = np.random.default_rng(5)
+    ds = _run(rng, 4.0, 2.0, 300.0, 0.0)  # 320 cycles at 2 rad/s: 102 Hz, beyond 0.9 x 100 Hz
+    passes = deflection(ds, 0, _K, 5.6, 2 * math.pi / 50, 0.003, 0.0126, link_motion="neglected")
+    (s,) = sensitivity(passes, 320.0, 10e-6)
+    assert s.detectable_rad == math.inf and s.required_speed_rad_s is not None
+    assert s.required_speed_rad_s * 320.0 / (2 * math.pi) <= 0.9 * _RATE / 2
+    assert detection_probability(10e-6, s.required_travel_rad, s.required_speed_rad_s, s.psd_rad2_hz, _RATE,
+                                 320.0) >= 0.95
+    assert f"rad run at {s.required_speed_rad_s:.2f} rad/s" in s.sentence("run 1")

@@ -180,10 +180,11 @@ class RunSensitivity:
     psd_rad2_hz: float
     #: Amplitude the run detects with DETECTION_PROBABILITY [rad] (inf: none).
     detectable_rad: float
-    #: The amplitude asked about [rad] and, where this run does not detect it, the travel at this speed that
-    #: would [rad] (None: none up to 20 rad).
+    #: The amplitude asked about [rad] and, where this run does not detect it, the travel [rad] at the fastest
+    #: speed up to this run's that would (None: none up to 20 rad down to 0.02 rad/s), and that speed [rad/s].
     amplitude_rad: float
     required_travel_rad: float | None
+    required_speed_rad_s: float | None = None
 
     def to_json(self) -> dict:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
@@ -200,10 +201,10 @@ class RunSensitivity:
             head += f"detects no line at {self.cycles_per_rev:.0f} cycles per revolution (too short or too fast)"
         if self.detectable_rad <= self.amplitude_rad:
             return head
-        if self.required_travel_rad is None:
-            return head + f"; no run at this speed up to 20 rad detects {self.amplitude_rad * 1e6:.3g} µrad"
-        return head + (f"; a {self.required_travel_rad:.2g} rad run at {abs(self.speed_rad_s):.2f} rad/s "
-                       f"({self.required_travel_rad / abs(self.speed_rad_s):.2g} s) detects "
+        if self.required_travel_rad is None or self.required_speed_rad_s is None:
+            return head + f"; no run up to 20 rad at this speed or slower detects {self.amplitude_rad * 1e6:.3g} µrad"
+        return head + (f"; a {self.required_travel_rad:.2g} rad run at {self.required_speed_rad_s:.2f} rad/s "
+                       f"({self.required_travel_rad / self.required_speed_rad_s:.2g} s) detects "
                        f"{self.amplitude_rad * 1e6:.3g} µrad with probability {DETECTION_PROBABILITY:g}")
 
 
@@ -218,11 +219,20 @@ def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float)
         speed = float(longest.speed)
         rate = 1.0 / float(np.median(np.diff(longest.t)))
         psd = noise_psd(own, line_frequency_hz(speed, cycles_per_rev))
+        need, at = None, None
         if math.isfinite(psd) and psd > 0:
             detectable = detectable_amplitude(travel, speed, psd, rate, cycles_per_rev)
-            need = None if detectable <= amplitude_rad else required_travel(amplitude_rad, speed, psd, rate,
-                                                                             cycles_per_rev)
+            # Too fast (the line beyond the Nyquist share) or too noisy at this speed: slower runs, the noise
+            # taken as the one measured (its level at the slower run's line frequency is not known).
+            for v in abs(speed) * 0.8 ** np.arange(40):
+                if detectable <= amplitude_rad or v < 0.02:
+                    break
+                need = required_travel(amplitude_rad, float(v), psd, rate, cycles_per_rev)
+                if need is not None:
+                    at = float(v)
+                    break
         else:
-            detectable, need = math.inf, None
-        out.append(RunSensitivity(index, speed, travel, rate, cycles_per_rev, psd, detectable, amplitude_rad, need))
+            detectable = math.inf
+        out.append(RunSensitivity(index, speed, travel, rate, cycles_per_rev, psd, detectable, amplitude_rad, need,
+                                  at))
     return out
