@@ -95,7 +95,8 @@ def test_ripple_says_what_each_run_detects_and_what_run_would(tmp_path):
     res = CliRunner().invoke(app, ["ripple", *files, "--amplitude-of-interest", "10", "--json", str(tmp_path / "r.json")])
     assert res.exit_code == 0, res.output
     rows = json.loads((tmp_path / "r.json").read_text())["sensitivity"]
-    assert [r["dataset"] for r in rows] == [0, 1]
+    assert [r["dataset"] for r in rows] == [0, 1] and all(r["false_alarm"] == 1e-3 for r in rows)
+    assert "(one run alone, false-alarm probability 0.001)" in res.output
     # Nothing detected: the paper's 320 cycles per revolution. The 1.2 rad run detects below 10 µrad; the 0.9 rad
     # run (4 chunks) does not, and is told the longer run at its speed that would.
     assert all(abs(r["cycles_per_rev"] - 320.0) < 1.0 for r in rows)

@@ -79,7 +79,7 @@ def format_ripple(r: RippleResult) -> str:
     if r.lines is not None and r.lines.shown():
         lines += ["", _lines_table(r.lines)]
     if r.sensitivity:
-        lines += ["", "what each run detects (one run alone, false-alarm probability 1e-3):"]
+        lines += ["", f"what each run detects (one run alone, false-alarm probability {r.sensitivity[0].false_alarm:g}):"]
         names = [row["run"] for row in r.runs] if r.runs else []
         for x in r.sensitivity:
             name = names[x.dataset] if x.dataset < len(names) else f"run {x.dataset + 1}"
@@ -149,7 +149,7 @@ def ripple_cmd(
     link_motion: Annotated[str, typer.Option("--link-motion", help="auto | restored | neglected (dynamic method).")] = "auto",
     amplitude_of_interest: Annotated[float, typer.Option(
         "--amplitude-of-interest", min=0.01, help="Deflection amplitude [µrad] for which each run that does not "
-        "detect it is told what run at its speed would.")] = 10.0,
+        "detect it is told what run would (at its speed or the fastest slower one).")] = 10.0,
 ) -> None:
     """Find the period and lookup table of the transmission deflection of eq (5).
 

@@ -487,7 +487,8 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         consistent line.
     amplitude_of_interest : float
         Deflection amplitude [rad] for which the result's ``sensitivity`` says, per run that does not detect it
-        with probability 0.95, what run at its speed would (:mod:`iiwa_ident.ident.ripple_detect`).
+        with probability 0.95, what run would: at its speed or the fastest slower one
+        (:mod:`iiwa_ident.ident.ripple_detect`).
 
     Returns
     -------
@@ -505,7 +506,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         beyond = _beyond_nyquist(pooled, datasets[0], _median_speed(datasets[0])) if datasets else None
         if beyond:
             pooled.warnings.append(f"{beyond}: an alias is possible; runs at other speeds would decide")
-        return _with_sensitivity(pooled, amplitude_of_interest)
+        return _with_sensitivity(pooled, amplitude_of_interest, options)
     runs, run_lines = [], []
     for i, ds in enumerate(datasets):
         name = str(ds.path) if ds.path else f"run {i + 1}"
@@ -534,13 +535,15 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     result = _combine_runs(pooled, runs)
     extra = [(1.0 / RIPPLE_PERIOD_RAD, "the paper's rho")]
     lines = cross_run_lines(run_lines, false_alarm, 1.0 / period_max, 1.0 / period_min, extra)
-    return _with_sensitivity(_decide(result, lines, runs, datasets, options), amplitude_of_interest)
+    return _with_sensitivity(_decide(result, lines, runs, datasets, options), amplitude_of_interest, options)
 
 
-def _with_sensitivity(result: RippleResult, amplitude_rad: float) -> RippleResult:
-    """The result with what each run detects at its period (the paper's rho where none is detected)."""
+def _with_sensitivity(result: RippleResult, amplitude_rad: float, options: dict) -> RippleResult:
+    """The result with what each run detects at its period (the paper's rho where none is detected), for the
+    search as it was asked (false-alarm probability, period range)."""
     cycles = result.cycles_per_rev if result.detected else 2.0 * math.pi / RIPPLE_PERIOD_RAD
-    result.sensitivity = sensitivity(result.passes, cycles, amplitude_rad) if result.passes else []
+    result.sensitivity = sensitivity(result.passes, cycles, amplitude_rad, options["false_alarm"],
+                                     options["period_min"], options["period_max"]) if result.passes else []
     return result
 
 

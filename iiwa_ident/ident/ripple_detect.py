@@ -185,6 +185,8 @@ class RunSensitivity:
     amplitude_rad: float
     required_travel_rad: float | None
     required_speed_rad_s: float | None = None
+    #: The search's false-alarm probability the prediction is for.
+    false_alarm: float = 1e-3
 
     def to_json(self) -> dict:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
@@ -208,7 +210,8 @@ class RunSensitivity:
                        f"{self.amplitude_rad * 1e6:.3g} µrad with probability {DETECTION_PROBABILITY:g}")
 
 
-def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float) -> list[RunSensitivity]:
+def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float, false_alarm: float = 1e-3,
+                period_min: float = PERIOD_MIN_RAD, period_max: float = PERIOD_MAX_RAD) -> list[RunSensitivity]:
     """What each run (its longest pass) detects of a line at ``cycles_per_rev``, and what run would detect
     ``amplitude_rad`` [rad] where it does not; the noise is read off the run's passes (:func:`noise_psd`)."""
     out = []
@@ -221,18 +224,19 @@ def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float)
         psd = noise_psd(own, line_frequency_hz(speed, cycles_per_rev))
         need, at = None, None
         if math.isfinite(psd) and psd > 0:
-            detectable = detectable_amplitude(travel, speed, psd, rate, cycles_per_rev)
+            search = dict(false_alarm=false_alarm, period_min=period_min, period_max=period_max)
+            detectable = detectable_amplitude(travel, speed, psd, rate, cycles_per_rev, **search)
             # Too fast (the line beyond the Nyquist share) or too noisy at this speed: slower runs, the noise
             # taken as the one measured (its level at the slower run's line frequency is not known).
             for v in abs(speed) * 0.8 ** np.arange(40):
                 if detectable <= amplitude_rad or v < 0.02:
                     break
-                need = required_travel(amplitude_rad, float(v), psd, rate, cycles_per_rev)
+                need = required_travel(amplitude_rad, float(v), psd, rate, cycles_per_rev, **search)
                 if need is not None:
                     at = float(v)
                     break
         else:
             detectable = math.inf
         out.append(RunSensitivity(index, speed, travel, rate, cycles_per_rev, psd, detectable, amplitude_rad, need,
-                                  at))
+                                  at, false_alarm))
     return out
