@@ -185,7 +185,7 @@ def test_the_live_margins_through_fri_and_their_prediction(files, tmp_path):
 def test_kappa_command_is_repeatable_and_guards_the_robot(files, tmp_path):
     folder, _, _ = files
     base = CLI + ["kappa", "--config", str(folder / "controller.toml"), "--target", "sim", "--start", "6",
-                  "--factor", "1.25", "--max", "9", "--hold-s", "1.25"]
+                  "--factor", "1.25", "--max", "7.5", "--hold-s", "1.25"]
     outs = []
     for i in (1, 2):
         r = subprocess.run(base + ["--json", str(tmp_path / f"k{i}.json"), "--log", str(tmp_path / f"l{i}")],

@@ -104,14 +104,16 @@ class TestShortPipeline:
         settings = dict(first["settings"])
         settings["kappa"] = SweepSettings(**{k: tuple(v) if isinstance(v, list) else v
                                              for k, v in settings["kappa"].items()})
-        settings["kappa_sources"] = tuple(settings["kappa_sources"])
+        # The sweeps' repeatability is test_kappa's; here the four tracking runs.
+        settings["kappa_sources"] = ()
         again = run_validation(read_config(workdir / "controller.toml"), tmp_path,
                                kappa_margins=(first["kappa"]["linear_builtin"], first["kappa"]["linear_additive"]),
                                delay_s=first["delay_s"], settings=ValidationSettings(**settings),
                                record=read_design(workdir / "design.toml"))
         again = json.loads(json.dumps(again))  # as written: tuples become lists
-        for key in ("runs", "tracking", "kappa", "emulator"):
+        for key in ("runs", "tracking"):
             assert again[key] == first[key], key
+        assert again["emulator"] == first["emulator"][:len(again["emulator"])]
 
     def test_report_has_every_page(self, short_run):
         workdir, result, _ = short_run

@@ -250,9 +250,10 @@ def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
     """One case under the user's protocol (:func:`user_protocol`), scored on the final model's effects.
 
     ``apart``: the case of the second data path (:mod:`iiwa_ident.diagnose.apart`), otherwise the project
-    simulator's harder draw (:func:`draw_case` with ``shapes``); the chirp is 10 s long on both.
+    simulator's harder draw (:func:`draw_case` with ``shapes``); the chirp is 10 s long on both. Where the fit
+    refuses the first chirp, ``rerecorded`` is true and ``refusal`` holds its message.
     """
-    rerecorded = False
+    rerecorded, refusal = False, None
     if apart:
         from iiwa_ident.diagnose.apart import CHIRP_AMPLITUDE_NM, draw_apart_case, simulate_apart_case
 
@@ -265,6 +266,7 @@ def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
         except IiwaIdentError as err:
             if not _fit_refusal(err):
                 raise
+            refusal = str(err)
             # As the refusal advises: the chirp again at twice the amplitude, once.
             data, rerecorded = simulate_apart_case(ac, amplitude_nm=2.0 * CHIRP_AMPLITUDE_NM), True
             with tempfile.TemporaryDirectory() as tmp:
@@ -277,7 +279,7 @@ def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
     fit_error = {k: out["fit_parameters"][k] / case.dynamics[k] - 1.0 for k in case.dynamics}
     score = score_case(case, out["final"], fit_error)
     score.update(out, seed=seed, hidden=sorted(case.expected), expected=case.expected, reshaped=case.reshaped,
-                 fit_error=fit_error, rerecorded=rerecorded)
+                 fit_error=fit_error, rerecorded=rerecorded, refusal=refusal)
     return score
 
 
