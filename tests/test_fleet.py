@@ -71,6 +71,10 @@ def test_local_cluster_runs_isolates_failures_and_resumes(runs, tmp_path):
     assert doc["engine"]["workers"] == 1 and doc["resumed"] == 0 and seen[-1] == (3, 3)
     table = fleet_table(doc).splitlines()
     assert table[0].startswith("robot,joint,datasets,detected,period_rad") and len(table) == 4
+    assert table[0].endswith("amplitude_std_rad,cycles_per_rev,fleet_median_rad,ratio_to_fleet,worn_p,worn,error")
+    # Two robots are no fleet median: nothing judged, and each row says why.
+    assert doc["wear"]["compared"] == 0 and doc["wear"]["flagged"] == []
+    assert all(g["wear"]["worn"] is None and g["wear"]["why"] for g in doc["groups"])
     json.dumps(doc)  # the --json document is plain JSON
     again = run_fleet("ripple", [*runs, bad], tmp_path / "fleet", workers=1)
     assert again["resumed"] == 2
@@ -85,6 +89,7 @@ def test_command_writes_the_table_and_fails_when_a_group_failed(runs, tmp_path):
     result = CliRunner().invoke(app, ["fleet", "ripple", str(runs[0]), "--workers", "1", "--out",
                                       str(tmp_path / "f"), "--json", str(tmp_path / "f.json")])
     assert result.exit_code == 0, result.output
+    assert "worn joints: none judged" in result.output
     assert (tmp_path / "f.csv").read_text().splitlines()[1].startswith("cell-a,1,1,")  # beside the JSON
     assert json.loads((tmp_path / "f.json").read_text())["groups"][0]["robot"] == "cell-a"
     result = CliRunner().invoke(app, ["fleet", "ripple", str(tmp_path / "nope.h5"), "--workers", "1", "--out",

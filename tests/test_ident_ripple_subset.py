@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from iiwa_ident.excite.scenarios import draw_ripple_scenario, simulate_ripple_scenario
 from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.sim import TransmissionRipple
 
 
 # A seeded subset of ``bench/bench_robustness.py ripple`` (ripple and null draws of the shared scenario
@@ -39,3 +41,15 @@ def test_subset_null_draws_stay_quiet(ripple_subset):
     rows = [(sc, r) for sc, r in ripple_subset if sc.ripple is None]
     quiet = [r for _, r in rows if not r.detected]
     assert len(quiet) >= 0.75 * len(rows), [(sc.describe(), r.cycles_per_rev) for sc, r in rows if r.detected]
+
+
+def test_subset_amplitudes_within_their_std(ripple_subset):
+    # The table's amplitude (half its peak-to-peak) against the true deflection's, where the period is right:
+    # bench/bench_robustness.py ripple measures the coverage; loosely here.
+    rows = [(sc, r) for sc, r in ripple_subset
+            if sc.ripple is not None and r.detected and abs(r.period_rad / sc.ripple["period_rad"] - 1) <= 1e-3]
+    z = []
+    for sc, r in rows:
+        f = TransmissionRipple(dict(sc.ripple)).evaluate(np.linspace(0.0, sc.ripple["period_rad"], 4096))
+        z.append((r.amplitude_rad - (f.max() - f.min()) / 2) / r.amplitude_std_rad)
+    assert len(z) >= 4 and sum(abs(x) <= 3.0 for x in z) >= len(z) - 1, z

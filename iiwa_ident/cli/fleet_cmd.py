@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -58,5 +59,25 @@ def fleet_cmd(
     typer.echo(table.rstrip("\n"))
     typer.echo(f"{len(doc['groups'])} group(s) on {doc['engine']['workers']} worker(s), {doc['resumed']} taken from "
                f"an earlier run, {failed} failed; {doc['wall_s']:.1f} s; table {table_path}")
+    if "wear" in doc:
+        typer.echo(_wear_line(doc))
     if failed:
         raise typer.Exit(1)
+
+
+def _wear_line(doc: dict) -> str:
+    """What the fleet's comparison found: the worn joints, or why none is flagged."""
+    from iiwa_ident.fleet import MIN_GROUPS
+
+    wear = doc["wear"]
+    if not wear["compared"]:
+        return (f"worn joints: none judged (a joint needs a detected ripple with its std on at least "
+                f"{MIN_GROUPS} robots for a fleet median)")
+    head = (f"worn joints (ripple above the fleet's median for the joint beyond the uncertainties; healthy spread "
+            f"x{math.exp(wear['sigma_fleet']):.2f}, false-alarm probability {wear['false_alarm']:g} over "
+            f"{wear['compared']} joints): ")
+    rows = [(g, g["wear"]) for g in doc["groups"] if g.get("wear", {}).get("worn")]
+    if not rows:
+        return head + "none"
+    return head + "; ".join(f"{g['robot']} joint {g['joint']} ({w['ratio']:.1f}x the median, p = {w['p']:.1e})"
+                            for g, w in rows)

@@ -39,7 +39,9 @@ def format_ripple(r: RippleResult) -> str:
             f"  period rho     {r.period_rad:.6f} rad  (std {r.period_std_rad:.1e} rad)",
             f"                 {r.cycles_per_rev:.2f} cycles per joint revolution",
             f"                 {r.period_ticks:.0f} encoder ticks (5.989e-8 rad a tick)",
-            f"  amplitude      {r.amplitude_rad * 1e6:.2f} µrad (half peak-to-peak of the table)",
+            f"  amplitude      {r.amplitude_rad * 1e6:.2f} µrad (half peak-to-peak of the table; std "
+            + (f"{r.amplitude_std_rad * 1e6:.2f} µrad)" if r.amplitude_std_rad is not None
+               else "unknown: fewer than three passes)"),
             f"  link motion    {r.link_motion}",
             "",
             f"  {'method':<10}{'passes':>7}{'samples':>9}{'harmonics':>10}{'ampl [µrad]':>13}{'rms [µrad]':>12}"

@@ -21,6 +21,7 @@ from typing import Any, Callable, Iterator, Sequence
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fleet._groups import STAGES, Group, group_datasets, group_key, run_group
+from iiwa_ident.fleet._wear import flag_worn
 
 __all__ = ["run_fleet", "fleet_table", "DEFAULT_WORKERS"]
 
@@ -81,7 +82,10 @@ def run_fleet(stage: str, paths: Sequence[str | Path], out_dir: str | Path, sche
     -------
     dict
         ``{"stage", "engine": {"scheduler", "workers"}, "groups": [{"robot", "joint", "datasets", "<stage>",
-        "error"}], "resumed": groups taken from earlier runs, "wall_s"}``.
+        "error"}], "resumed": groups taken from earlier runs, "wall_s"}``; the ripple stage also judges every
+        group's amplitude against the fleet's for its joint (:func:`~iiwa_ident.fleet.flag_worn`): ``"wear"``
+        in each group (``fleet_median_rad``, ``ratio``, ``z``, ``p``, ``worn``) and in the document (the
+        flagged groups and the fleet's spread).
     """
     if stage not in STAGES:
         raise IiwaIdentError(f"stage must be one of {', '.join(STAGES)}, got {stage!r}")
@@ -124,14 +128,22 @@ def run_fleet(stage: str, paths: Sequence[str | Path], out_dir: str | Path, sche
                 done += 1
                 if progress is not None:
                     progress(done, total, g.label)
-    return {"stage": stage, "engine": engine, "groups": rows, "resumed": resumed,
-            "wall_s": time.perf_counter() - t0}
+    doc: dict[str, Any] = {"stage": stage, "engine": engine, "groups": rows, "resumed": resumed}
+    if stage == "ripple":
+        wear = flag_worn(rows)  # type: ignore[arg-type]  (every row is set by now)
+        for row, judged in zip(rows, wear.pop("rows")):
+            row["wear"] = judged  # type: ignore[index]
+        doc["wear"] = wear
+    doc["wall_s"] = time.perf_counter() - t0
+    return doc
 
 
 #: The figures of each stage in the fleet table, as (column, path into the stage's JSON).
 _COLUMNS = {
     "ripple": (("detected", ("detected",)), ("period_rad", ("period_rad",)), ("period_std_rad", ("period_std_rad",)),
-               ("amplitude_rad", ("amplitude_rad",)), ("cycles_per_rev", ("cycles_per_rev",))),
+               ("amplitude_rad", ("amplitude_rad",)), ("amplitude_std_rad", ("amplitude_std_rad",)),
+               ("cycles_per_rev", ("cycles_per_rev",)), ("fleet_median_rad", ("/wear", "fleet_median_rad")),
+               ("ratio_to_fleet", ("/wear", "ratio")), ("worn_p", ("/wear", "p")), ("worn", ("/wear", "worn"))),
     "diagnose": (("explained", ("explained",)), ("effects", ("effects",))),
     "fit": (("K", ("parameters", "K", "value")), ("Jl", ("parameters", "Jl", "value")),
             ("Td", ("parameters", "Td", "value")), ("bc", ("parameters", "bc", "value"))),
@@ -158,7 +170,9 @@ def fleet_table(doc: dict[str, Any]) -> str:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(["robot", "joint", "datasets", *(c for c, _ in columns), "error"])
     for row in doc["groups"]:
-        figures = [_at(row.get(stage), path) for _, path in columns]
+        # A path starting with "/" is read from the group's row, the others from the stage's document.
+        figures = [_at(row.get(path[0][1:]), path[1:]) if path[0].startswith("/") else _at(row.get(stage), path)
+                   for _, path in columns]
         writer.writerow([row["robot"], "" if row["joint"] is None else row["joint"], len(row["datasets"]),
                          *("" if v is None else v for v in figures), row["error"] or ""])
     return out.getvalue()

@@ -88,6 +88,8 @@ class MethodResult:
     n_passes: int
     n_samples: int
     shift_rad: float = 0.0
+    #: Standard error of ``amplitude_rad`` [rad]: delete-a-group jackknife over the passes (nan below 3 passes).
+    amplitude_std_rad: float = math.nan
 
 
 @dataclass
@@ -120,6 +122,9 @@ class RippleResult:
     #: What each run detects at the period (the paper's rho where none is detected):
     #: :class:`~iiwa_ident.ident.ripple_detect.RunSensitivity` per run.
     sensitivity: list = field(default_factory=list)
+    #: Standard error of ``amplitude_rad`` [rad] (the combined table's jackknife; None without a detection or
+    #: below three passes).
+    amplitude_std_rad: float | None = None
 
     @property
     def cycles_per_rev(self) -> float | None:
@@ -151,11 +156,14 @@ class RippleResult:
             "cycles_per_rev": self.cycles_per_rev,
             "period_ticks": self.period_ticks,
             "amplitude_rad": self.amplitude_rad,
+            "amplitude_std_rad": self.amplitude_std_rad,
             "lut": None if self.lut is None else self.lut.tolist(),
             "lut_bins": None if self.lut is None else len(self.lut),
             "false_alarm_probability": self.false_alarm,
             "statistic": self.statistic,
-            "methods": {name: {"amplitude_rad": m.amplitude_rad, "rms_rad": m.rms_rad,
+            "methods": {name: {"amplitude_rad": m.amplitude_rad,
+                               "amplitude_std_rad": m.amplitude_std_rad if math.isfinite(m.amplitude_std_rad) else None,
+                               "rms_rad": m.rms_rad,
                                "residual_rms_rad": m.residual_rms_rad, "harmonics": m.harmonics,
                                "passes": m.n_passes, "samples": m.n_samples, "shift_rad": m.shift_rad,
                                "lut": m.lut.tolist()}
@@ -343,6 +351,34 @@ def _table(coef: np.ndarray, period: float, harmonics: int, bins: int) -> np.nda
     return lut - lut.mean()
 
 
+def _amplitude(passes: list[Pass], period: float, harmonics: int, bins: int) -> float:
+    """Half the peak-to-peak of the table fitted to ``passes`` [rad]."""
+    lut = _table(_fourier_fit(passes, period, harmonics)[0], period, harmonics, bins)
+    return float((lut.max() - lut.min()) / 2)
+
+
+def _amplitude_std(passes: list[Pass], period: float, harmonics: int, bins: int, parts: int = 8) -> float:
+    """Standard error of the table's amplitude [rad]: the passes' scatter and the speeds' disagreement.
+
+    The scatter by a delete-a-group jackknife over the passes (as for the period, :func:`_period_std`: the
+    residual is not white, so the least-squares covariance would understate it). Every pass of a run sees the
+    deflection through the same link dynamics, so their scatter misses an error the dynamics make alike in all
+    of them; the spread of the amplitudes fitted to each speed and run alone (:func:`_group`, eq (7): the
+    dynamics differ with the speed) stands for it, added in quadrature. Nan below three passes.
+    """
+    groups = np.array_split(np.arange(len(passes)), min(parts, len(passes)))
+    if len(groups) < 3:
+        return math.nan
+    estimates = np.array([_amplitude([p for i, p in enumerate(passes) if not g[0] <= i <= g[-1]], period,
+                                     harmonics, bins) for g in groups])
+    m = len(estimates)
+    jackknife = math.sqrt((m - 1) / m * np.sum((estimates - estimates.mean()) ** 2))
+    by_speed = [_amplitude([p for p in passes if _group(p) == g], period, harmonics, bins)
+                for g in sorted({_group(p) for p in passes})]
+    spread = float(np.std(by_speed, ddof=1)) if len(by_speed) > 1 else 0.0
+    return float(math.hypot(jackknife, spread))
+
+
 def _method_result(name: str, passes: list[Pass], period: float, max_harmonics: int, bins: int) -> MethodResult:
     h = _choose_harmonics(passes, period, max_harmonics)
     coef, _, _ = _fourier_fit(passes, period, h)
@@ -353,7 +389,8 @@ def _method_result(name: str, passes: list[Pass], period: float, max_harmonics: 
         resid.append(p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef)
     resid = np.concatenate(resid)
     return MethodResult(name, lut, h, float((lut.max() - lut.min()) / 2), float(np.sqrt(np.mean(lut ** 2))),
-                        float(np.sqrt(np.mean(resid ** 2))), len(passes), len(resid))
+                        float(np.sqrt(np.mean(resid ** 2))), len(passes), len(resid),
+                        amplitude_std_rad=_amplitude_std(passes, period, h, bins))
 
 
 def _circular_shift(reference: np.ndarray, other: np.ndarray) -> int:
@@ -801,7 +838,8 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
     return RippleResult(True, period, std_k / k_hat ** 2, lines.false_alarm(), pooled.statistic, combined.lut,
                         combined.amplitude_rad, methods, pooled.spectrum_k, pooled.spectrum_stat,
                         pooled.spectrum_power, _velocity_table(passes, period), passes, warnings, pooled.K, pooled.Jl,
-                        motion, runs=runs, agreement=agreement, lines=lines)
+                        motion, runs=runs, agreement=agreement, lines=lines,
+                        amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad))
 
 
 def _line_warnings(lines: CrossRunLines) -> list[str]:
@@ -892,7 +930,12 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
 
     methods, combined = _methods(passes, period, max_harmonics, bins)
     return RippleResult(True, period, period_std, fap, stat, combined.lut, combined.amplitude_rad, methods,
-                        velocity_table=_velocity_table(passes, period), **base)
+                        velocity_table=_velocity_table(passes, period),
+                        amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad), **base)
+
+
+def _finite_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
 
 
 def _methods(passes: list[Pass], period: float, max_harmonics: int, bins: int) -> tuple[dict, MethodResult]:
