@@ -67,6 +67,10 @@ def test_the_noise_level_is_read_off_the_run():
     passes = deflection(ds, 0, _K, 5.6, 2 * math.pi / 50, 0.003, 0.0126, link_motion="neglected")
     for f_hz in (5.0, 10.2, 30.0):  # the line itself at 10.2 Hz moves a median little
         assert noise_psd(passes, f_hz) == pytest.approx(_PSD, rel=0.3)
+    # A line 100 times the noise's on a pass short enough that it fills most of the +-30 % band: left out.
+    strong = _run(rng, 1.3, 0.3, 320.0, 40e-6)
+    passes = deflection(strong, 0, _K, 5.6, 2 * math.pi / 50, 0.003, 0.0126, link_motion="neglected")
+    assert noise_psd(passes, 0.3 * 320.0 / (2 * math.pi)) == pytest.approx(_PSD, rel=0.3)
 
 
 def test_longer_runs_detect_smaller_lines_and_too_short_or_too_fast_none():

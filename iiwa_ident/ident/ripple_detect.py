@@ -150,8 +150,10 @@ def noise_psd(passes: list[Pass], frequency_hz: float, band: float = 0.3) -> flo
     """One-sided noise spectral density of the passes' deflection [rad^2/Hz] about ``frequency_hz``.
 
     Welch's estimate of each pass (in time), the median over ``frequency_hz * (1 +- band)`` and the passes,
-    divided by the median of its chi-square law: a line in the band moves a median little. NaN where no
-    pass resolves the band.
+    divided by the median of its chi-square law. The line itself is left out: the bins within three of Welch's
+    resolution of ``frequency_hz`` (a Hann window's main lobe is two wide; on a short pass a 20 µrad line filled
+    most of the band and was taken for noise), the band widened to three resolutions beyond them where it is
+    narrower. NaN where no pass resolves the band.
     """
     values = []
     for p in passes:
@@ -160,7 +162,9 @@ def noise_psd(passes: list[Pass], frequency_hz: float, band: float = 0.3) -> flo
         fs = 1.0 / float(np.median(np.diff(p.t)))
         nper = int(min(len(p.f), max(64, 2 ** int(math.log2(len(p.f) / 4)))))
         f, pxx = signal.welch(p.f - np.mean(p.f), fs=fs, nperseg=nper)
-        sel = (f >= frequency_hz * (1 - band)) & (f <= frequency_hz * (1 + band))
+        df = fs / nper
+        away = np.abs(f - frequency_hz)
+        sel = (away > 3.0 * df) & (away <= max(band * frequency_hz, 6.0 * df)) & (f > 0)
         if sel.sum() >= 3:
             segments = max(1, 2 * len(p.f) // nper - 1)
             dof = 2 * segments
