@@ -1,12 +1,13 @@
 """Fleet scale: a simulated fleet identified with ``fleet ripple`` on a local cluster of 1 and 2 workers.
 
-Usage: python bench/bench_fleet_scale.py [--robots 50] [--runs 2] [--travel 1.3] [--worn 3] [--worn-factor 5]
-[--seed 0] [--workers 1,2]
+Usage: python bench/bench_fleet_scale.py [--robots 50] [--runs 2] [--travel 1.3] [--amplitude 20] [--worn 3]
+[--worn-factor 5] [--seed 0] [--workers 1,2]
 
 The fleet: ``--robots`` robots x 7 joints x ``--runs`` constant-velocity runs (0.3 and 0.6 rad/s over ``--travel``
 rad, 200 Hz, position mode) of the simulated joint, whose dynamics are Table I's for every joint; the fleet spreads
 in the ripple: per joint size (A1-A2, A3-A4, A5-A7) its period (assumed, not data-sheet facts: 320 / 256 / 200
-cycles per revolution), per robot and joint its amplitude (log-normal, 30 %, around 20 urad), and ``--worn``
+cycles per revolution), per robot and joint its amplitude (log-normal, 30 %, around ``--amplitude`` urad), and
+``--worn``
 joints of the fleet carry ``--worn-factor`` times their ripple.
 
 Prints: wall time, joint-runs per second per worker, the peak memory of a worker process over the run (max RSS);
@@ -83,6 +84,7 @@ def main() -> None:
     ap.add_argument("--robots", type=int, default=50)
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--travel", type=float, default=1.3, help="travel of each run [rad]")
+    ap.add_argument("--amplitude", type=float, default=20.0, help="the fleet's median ripple amplitude [urad]")
     ap.add_argument("--worn", type=int, default=3)
     ap.add_argument("--worn-factor", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
@@ -95,8 +97,8 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     joints = [(r, j) for r in range(args.robots) for j in range(1, 8)]
     worn = {joints[i] for i in rng.choice(len(joints), size=min(args.worn, len(joints)), replace=False)}
-    amplitude = {key: 20e-6 * math.exp(rng.normal(0.0, 0.3)) * (args.worn_factor if key in worn else 1.0)
-                 for key in joints}
+    amplitude = {key: args.amplitude * 1e-6 * math.exp(rng.normal(0.0, 0.3))
+                 * (args.worn_factor if key in worn else 1.0) for key in joints}
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster, \
@@ -121,14 +123,16 @@ def main() -> None:
         key = {(int(g["robot"].removeprefix("robot")), g["joint"]): g for g in doc["groups"] if not g["error"]}
         for joints_, cpr in SIZES:
             rows = [(k, g) for k, g in key.items() if k[1] in joints_]
-            detected = sum(1 for _, g in rows if g["ripple"]["detected"]
-                           and abs(g["ripple"]["cycles_per_rev"] / cpr - 1) <= 1e-3)
-            wrong = sum(1 for _, g in rows if g["ripple"]["detected"]) - detected
+            # The curve predicts detection; where the search pools the runs it may detect more. How close the
+            # detected periods are: within 0.5 % (the issue's bound for real joints) and within 2 of their std.
+            found = [g["ripple"] for _, g in rows if g["ripple"]["detected"]]
+            near = sum(1 for r in found if abs(r["cycles_per_rev"] / cpr - 1) <= 5e-3)
+            covered = sum(1 for r in found if abs(2 * math.pi / cpr - r["period_rad"]) <= 2 * r["period_std_rad"])
             expected = [predicted_detection(g, amplitude[k], cpr) for k, g in rows]
             std = math.sqrt(sum(p * (1 - p) for p in expected))
-            print(f"  A{'-A'.join(map(str, joints_))} ({cpr:.0f} cycles/rev): detected at the period {detected} of "
-                  f"{len(rows)} (at another {wrong}); the curve predicts {sum(expected):.1f} +- {std:.1f} "
-                  "from any run alone")
+            print(f"  A{'-A'.join(map(str, joints_))} ({cpr:.0f} cycles/rev): detected {len(found)} of {len(rows)}, "
+                  f"the curve predicts {sum(expected):.1f} +- {std:.1f} from any run alone; of those detected "
+                  f"{near} within 0.5 % of the period, {covered} within 2 std")
         wear = doc["wear"]
         flagged = {(int(r.removeprefix("robot")), j) for r, j in wear["flagged"]}
         print(f"  worn flags (false-alarm probability {wear['false_alarm']:g} over {wear['compared']} joints "

@@ -36,6 +36,7 @@ here the period is refined, the table fitted and the runs combined.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -579,8 +580,14 @@ def _with_sensitivity(result: RippleResult, amplitude_rad: float, options: dict)
     """The result with what each run detects at its period (the paper's rho where none is detected), for the
     search as it was asked (false-alarm probability, period range)."""
     cycles = result.cycles_per_rev if result.detected else 2.0 * math.pi / RIPPLE_PERIOD_RAD
-    result.sensitivity = sensitivity(result.passes, cycles, amplitude_rad, options["false_alarm"],
-                                     options["period_min"], options["period_max"]) if result.passes else []
+    passes = result.passes
+    if result.detected and result.lut is not None:
+        # The noise is read off what the table leaves: a strong line's sidelobes would pass for noise.
+        rho, lut = float(result.period_rad), result.lut
+        x = np.arange(len(lut)) * rho / len(lut)
+        passes = [dataclasses.replace(p, f=p.f - np.interp(p.theta, x, lut, period=rho)) for p in passes]
+    result.sensitivity = sensitivity(passes, cycles, amplitude_rad, options["false_alarm"],
+                                     options["period_min"], options["period_max"]) if passes else []
     return result
 
 
