@@ -37,8 +37,9 @@ def import_real_logs(root: Path, folder: Path) -> list[Path]:
 
 
 def table(doc: dict) -> str:
-    lines = ["| joint | runs | detected | period [rad] | std [rad] | cycles/rev | amplitude [µrad] | error |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| joint | runs | detected | period [rad] | std [rad] | cycles/rev | amplitude [µrad] | std [µrad] "
+             "| error |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for g in sorted(doc["groups"], key=lambda g: (g["joint"] is None, g["joint"] or 0)):
         r = g.get("ripple") or {}
         det = r.get("detected")
@@ -49,7 +50,8 @@ def table(doc: dict) -> str:
 
         lines.append(f"| {g['joint']} | {len(g['datasets'])} | {'yes' if det else 'no' if r else ''} | "
                      f"{num('period_rad', '.5f')} | {num('period_std_rad', '.1e')} | {num('cycles_per_rev', '.1f')} | "
-                     f"{num('amplitude_rad', '.1f', 1e6)} | {g['error'] or ''} |")
+                     f"{num('amplitude_rad', '.1f', 1e6)} | {num('amplitude_std_rad', '.1f', 1e6)} | "
+                     f"{g['error'] or ''} |")
     return "\n".join(lines)
 
 

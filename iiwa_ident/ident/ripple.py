@@ -883,9 +883,10 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
                              "a deflection is identified one joint at a time")
     # The dynamic method restores the link's own fast motion from the torque (eq (2)); on a real arm
     # other torques act on the link too, and the term can add more noise than it removes. Both
-    # estimates are tried, and the one in which the line stands out more (larger T^2 over the same chunks)
-    # is kept: the other's period error can be small for the wrong reason (a neglected link motion in
-    # position mode put a simulated 256-cycle line at 258.2 with a std of 1e-7 rad, 1 % off).
+    # estimates are tried, and the one its table explains better (smaller residual RMS) is kept. Not the
+    # smaller period std: it can be small for the wrong reason (a neglected link motion in position mode put a
+    # simulated 256-cycle line at 258.2 with a std of 1e-7 rad, 1 % off, its residual 50 times the restored
+    # one's); nor the larger T^2, which moved two of 30 scenario draws to a harmonic.
     if link_motion not in ("auto", "restored", "neglected"):
         raise IiwaIdentError(f"ripple: link_motion must be auto, restored or neglected, got {link_motion!r}")
     motions = ("restored", "neglected") if link_motion == "auto" else (link_motion,)
@@ -914,7 +915,8 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
             if beyond:
                 c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]
-    best = min(detected, key=lambda c: -float(c.spectrum.t2[c.spectrum.i_best])) if detected else \
+    best = min(detected, key=lambda c: _method_result("combined", c.passes, c.period, max_harmonics, bins)
+               .residual_rms_rad) if len(detected) > 1 else detected[0] if detected else \
         min(candidates, key=lambda c: c.spectrum.detection_false_alarm(len(candidates)))
     passes, spec = best.passes, best.spectrum
     warnings = list(spec.warnings) + [c.not_decided for c in candidates if c.not_decided and not detected][:1]
