@@ -550,6 +550,9 @@ def _family(lines: list[Candidate], k_min: float, runs: list[RunLines]) -> tuple
                   for i, s in enumerate(c.significant) if s and first.tests[i].tested]
         return max(shares, default=0.0)
 
+    # The lines are tested on a grid a quarter of the finest run's cell apart: each is placed within half a step
+    # of its own (a 160-cycle line at 159.85 and its 320-cycle harmonic at 321.0 are one family).
+    grid = min((r.cell for r in runs), default=0.0) / 8.0
     best: tuple[int, float, list] = (0, 0.0, [])
     for h in range(1, FAMILY_MAX_HARMONIC + 1):
         k0 = first.k / h
@@ -559,7 +562,8 @@ def _family(lines: list[Candidate], k_min: float, runs: list[RunLines]) -> tuple
         for d in lines:
             hd = int(round(d.k / k0))
             if 1 <= hd <= FAMILY_MAX_HARMONIC and \
-                    abs(d.k - hd * k0) <= FAMILY_RTOL * d.k + 3.0 * math.hypot(d.k_std, hd * first.k_std / h):
+                    abs(d.k - hd * k0) <= FAMILY_RTOL * d.k + 3.0 * math.hypot(d.k_std, hd * first.k_std / h) \
+                    + math.hypot(grid, hd * grid / h):
                 hs.append((d, hd))
         # A longer period only for lines of its own that carry power: a share of the strongest line's, as the
         # search's family requires (weak lines at its subharmonics are reported, not compensated).
