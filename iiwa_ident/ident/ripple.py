@@ -163,7 +163,7 @@ class RippleResult:
             "false_alarm_probability": self.false_alarm,
             "statistic": self.statistic,
             "methods": {name: {"amplitude_rad": m.amplitude_rad,
-                               "amplitude_std_rad": m.amplitude_std_rad if math.isfinite(m.amplitude_std_rad) else None,
+                               "amplitude_std_rad": _finite_or_none(m.amplitude_std_rad),
                                "rms_rad": m.rms_rad,
                                "residual_rms_rad": m.residual_rms_rad, "harmonics": m.harmonics,
                                "passes": m.n_passes, "samples": m.n_samples, "shift_rad": m.shift_rad,
@@ -322,8 +322,7 @@ def _set_weights(passes: list[Pass], period: float, harmonics: int) -> None:
         p.weight = 1.0
     coef, _, _ = _fourier_fit(passes, period, harmonics)
     for p in passes:
-        A = _design(p.theta, period, harmonics)
-        r = p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef
+        r = _residual([p], period, harmonics, coef)
         dt = float(np.median(np.diff(p.t)))
         spec = np.abs(np.fft.rfft(r * taper(len(r)))) ** 2
         freqs = np.fft.rfftfreq(len(r), dt)
@@ -380,15 +379,26 @@ def _amplitude_std(passes: list[Pass], period: float, harmonics: int, bins: int,
     return float(math.hypot(jackknife, spread))
 
 
+def _residual(passes: list[Pass], period: float, harmonics: int, coef: np.ndarray) -> np.ndarray:
+    """What the Fourier series ``coef`` leaves of the passes' deflection [rad], all passes in a row."""
+    resid = []
+    for p in passes:
+        A = _design(p.theta, period, harmonics)
+        resid.append(p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef)
+    return np.concatenate(resid)
+
+
+def _residual_rms(passes: list[Pass], period: float, max_harmonics: int) -> float:
+    """RMS of what the table's series leaves of the passes [rad] (the harmonics chosen as for the table)."""
+    h = _choose_harmonics(passes, period, max_harmonics)
+    return float(np.sqrt(np.mean(_residual(passes, period, h, _fourier_fit(passes, period, h)[0]) ** 2)))
+
+
 def _method_result(name: str, passes: list[Pass], period: float, max_harmonics: int, bins: int) -> MethodResult:
     h = _choose_harmonics(passes, period, max_harmonics)
     coef, _, _ = _fourier_fit(passes, period, h)
     lut = _table(coef, period, h, bins)
-    resid = []
-    for p in passes:
-        A = _design(p.theta, period, h)
-        resid.append(p.f - (A - p.nuisance @ (p.nuisance.T @ A)) @ coef)
-    resid = np.concatenate(resid)
+    resid = _residual(passes, period, h, coef)
     return MethodResult(name, lut, h, float((lut.max() - lut.min()) / 2), float(np.sqrt(np.mean(lut ** 2))),
                         float(np.sqrt(np.mean(resid ** 2))), len(passes), len(resid),
                         amplitude_std_rad=_amplitude_std(passes, period, h, bins))
@@ -915,8 +925,8 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
             if beyond:
                 c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]
-    best = min(detected, key=lambda c: _method_result("combined", c.passes, c.period, max_harmonics, bins)
-               .residual_rms_rad) if len(detected) > 1 else detected[0] if detected else \
+    best = min(detected, key=lambda c: _residual_rms(c.passes, c.period, max_harmonics)) if len(detected) > 1 \
+        else detected[0] if detected else \
         min(candidates, key=lambda c: c.spectrum.detection_false_alarm(len(candidates)))
     passes, spec = best.passes, best.spectrum
     warnings = list(spec.warnings) + [c.not_decided for c in candidates if c.not_decided and not detected][:1]
