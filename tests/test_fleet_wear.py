@@ -58,6 +58,8 @@ def test_rows_not_judged_say_why():
         {"robot": "b", "joint": 1, "error": None, "ripple": {"detected": False, "amplitude_rad": None}},
         {"robot": "c", "joint": 1, "error": None,
          "ripple": {"detected": True, "amplitude_rad": 90e-6, "amplitude_std_rad": None}},
+        {"robot": "e", "joint": 1, "error": None,
+         "ripple": {"detected": True, "amplitude_rad": 90e-6, "amplitude_std_rad": 0.0}},
         {"robot": "d", "joint": 2, "error": None,
          "ripple": {"detected": True, "amplitude_rad": 90e-6, "amplitude_std_rad": 1e-6}},
     ]
@@ -66,7 +68,8 @@ def test_rows_not_judged_say_why():
     assert whys[3] == "the group failed"
     assert whys[4].startswith("no ripple detected")
     assert whys[5].startswith("amplitude std unknown")
-    assert whys[6].startswith(f"fewer than {MIN_GROUPS} detections of joint 2")
+    assert whys[6].startswith("amplitude std unknown")
+    assert whys[7].startswith(f"fewer than {MIN_GROUPS} detections of joint 2")
     assert out["compared"] == 3 and out["flagged"] == []
     assert all(r["worn"] is False for r in out["rows"][:3]) and all(r["worn"] is None for r in out["rows"][3:])
     with pytest.raises(ValueError):

@@ -39,9 +39,11 @@ def _estimate(row: dict[str, Any]) -> tuple[float, float] | None:
     """(amplitude, its std) [rad] of a group with a detected ripple and a finite std, else None."""
     r = row.get("ripple") or {}
     a, s = r.get("amplitude_rad"), r.get("amplitude_std_rad")
-    if row.get("error") or not r.get("detected") or not a or a <= 0 or s is None or not math.isfinite(s):
+    if row.get("error") or not r.get("detected") or a is None or s is None:
         return None
-    return float(a), float(s)
+    a, s = float(a), float(s)
+    # A zero or non-finite std is no uncertainty to judge by (and would make z infinite in the JSON).
+    return (a, s) if math.isfinite(a) and a > 0 and math.isfinite(s) and s > 0 else None
 
 
 def flag_worn(groups: list[dict[str, Any]], false_alarm: float = WEAR_FALSE_ALARM) -> dict[str, Any]:
@@ -106,7 +108,7 @@ def flag_worn(groups: list[dict[str, Any]], false_alarm: float = WEAR_FALSE_ALAR
         elif not (g.get("ripple") or {}).get("detected"):
             row["why"] = "no ripple detected: no amplitude to compare"
         elif e is None:
-            row["why"] = "amplitude std unknown (fewer than three passes)"
+            row["why"] = "amplitude std unknown (fewer than three passes) or zero"
         elif j not in medians:
             row["why"] = f"fewer than {MIN_GROUPS} detections of joint {j} in the fleet: no median to compare with"
         else:
