@@ -8,7 +8,8 @@ white or coloured noise (AR(1), 0.02 Nm), and in half of the draws a hum at 15-8
 (8-40 Hz) before logging. Null draws are the same without the sine. Prints, over the draws, how many periods
 lie within 1e-4 and 1e-3 of the truth, how many errors the reported std covers (2 std), how many of the
 periods off by more than 1e-4 report a std that says so, the median relative error, and how many null draws
-report a period.
+report a period, and each draw's Cramér-Rao bound (from its truth) with the count an efficient estimator
+would place within 1e-4.
 
 Run: ``.venv/bin/python bench/bench_ripple_apart.py [--draws 100] [--workers 2]``.
 """
@@ -49,8 +50,30 @@ def _run(rng: np.random.Generator, speed: float, duration: float, rate: float, c
                    experiment="constant_velocity", source="import", joint=1, sample_rate_hz=rate)
 
 
-def draw(seed: int, null: bool = False) -> tuple[float, list[Dataset], str]:
-    """One draw: the true cycles per revolution, its three runs and a description."""
+def _crb_rel(cpr: float, amp: float, runs: list[Dataset], coloured: bool) -> float:
+    """Cramér-Rao bound on the relative std of the cycles per revolution, from this draw's truth.
+
+    Each run's amplitude and phase are free (the filter before logging shifts each run's phase by its own
+    temporal frequency); per run the information is ``B**2 N L**2 / (24 S)``, with ``B`` the torque
+    amplitude, ``N`` samples over ``L`` rad of travel and ``S`` the noise's variance at the line's temporal
+    frequency (the AR(1) colour raises it; the filter scales line and noise alike, the hum is left out).
+    """
+    b = 185.0 * amp
+    info = 0.0
+    for ds in runs:
+        t, q = ds.signals["t"], ds.signals["q_m"]
+        rate = ds.sample_rate_hz
+        speed = abs(q[-1] - q[0]) / (t[-1] - t[0])
+        s = 0.02 ** 2
+        if coloured:
+            w = cpr * speed / rate
+            s *= (1 - 0.9 ** 2) / abs(1 - 0.9 * np.exp(-1j * w)) ** 2
+        info += b ** 2 * len(t) * (q[-1] - q[0]) ** 2 / (24.0 * s)
+    return math.inf if info == 0 else 1.0 / (math.sqrt(info) * cpr)
+
+
+def draw(seed: int, null: bool = False) -> tuple[float, list[Dataset], str, float]:
+    """One draw: the true cycles per revolution, its three runs, a description and its Cramér-Rao bound."""
     rng = np.random.default_rng(seed)
     cpr = rng.uniform(150.0, 450.0)
     amp = 0.0 if null else rng.uniform(30e-6, 100e-6)
@@ -68,20 +91,20 @@ def draw(seed: int, null: bool = False) -> tuple[float, list[Dataset], str]:
                  hum if hum is not None and hum < 0.45 * rate else None, filt) for v in speeds]
     what = (f"{cpr:.1f} cpr, {amp * 1e6:.0f} µrad, {rate:.0f} Hz, {', '.join(f'{v:.2f}' for v in speeds)} rad/s"
             + (", coloured" if coloured else "") + (f", hum {hum:.0f} Hz, filter {filt:.0f} Hz" if nuisance else ""))
-    return cpr, runs, what
+    return cpr, runs, what, _crb_rel(cpr, amp, runs, coloured)
 
 
-def _one(args: tuple[int, bool]) -> tuple[int, bool, float, bool, float | None, float | None, str, float]:
+def _one(args: tuple[int, bool]) -> tuple[int, bool, float, bool, float | None, float | None, str, float, float]:
     seed, null = args
-    cpr, runs, what = draw(seed, null)
+    cpr, runs, what, crb = draw(seed, null)
     t0 = time.perf_counter()
     r = identify_ripple(runs)
     sec = time.perf_counter() - t0
     if not r.detected:
-        return seed, null, cpr, False, None, None, what, sec
+        return seed, null, cpr, False, None, None, what, sec, crb
     err = (r.cycles_per_rev - cpr) / cpr
     std = r.period_std_rad / r.period_rad
-    return seed, null, cpr, True, err, std, what, sec
+    return seed, null, cpr, True, err, std, what, sec, crb
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -103,13 +126,24 @@ def main(argv: list[str] | None = None) -> int:
     print(f"ripple draws: {len(ripple)}; detected {len(found)}; period within 1e-4: {within4}, within 1e-3: "
           f"{within3}; covered by 2 std: {covered} of {len(found)}; median |error| "
           f"{np.median(errs) if len(errs) else float('nan'):.2g}; median time {np.median([r[7] for r in rows]):.1f} s")
+    crb = np.array([r[8] for r in ripple])
+    reach = [r for r in ripple if 2 * r[8] <= 1e-4]
+    best = float(np.sum([math.erf(1e-4 / (math.sqrt(2) * c)) for c in crb]))
+    print(f"Cramér-Rao bound (relative std, per draw): median {np.median(crb):.2g}, range {crb.min():.2g}-"
+          f"{crb.max():.2g}; an efficient estimator would place {best:.1f} of {len(ripple)} within 1e-4; "
+          f"{len(reach)} draws have 2 bounds within 1e-4, of which {sum(r[3] and abs(r[4]) <= 1e-4 for r in reach)} "
+          "are within 1e-4")
+    if found:
+        print(f"error / bound: median {np.median([abs(r[4]) / r[8] for r in found]):.2g}; reported std / bound: "
+              f"median {np.median([r[5] / r[8] for r in found]):.2g}")
     off = [r for r in found if abs(r[4]) > 1e-4]
     print(f"of the {len(off)} detections off by more than 1e-4, {sum(2 * r[5] > 1e-4 for r in off)} say so: their "
           "own 2 std reach past 1e-4 (the data place the line no closer)")
     print(f"null draws: {len(null)}; a period reported on {sum(r[3] for r in null)}")
     for r in ripple:
         if not r[3] or abs(r[4]) > 1e-4:
-            print(f"  seed {r[0]}: {r[6]}: " + ("not detected" if not r[3] else f"error {r[4]:+.2g}, std {r[5]:.2g}"))
+            print(f"  seed {r[0]}: {r[6]}: " + ("not detected" if not r[3] else f"error {r[4]:+.2g}, std {r[5]:.2g}")
+                  + f", bound {r[8]:.2g}")
     for r in null:
         if r[3]:
             print(f"  null seed {r[0]}: {r[6]}: reported")
