@@ -256,10 +256,11 @@ class TestSeveralRuns:
 
 
 def _position_controlled(speed: float, lines: list[tuple[float, float]], seed: int, temporal_hz: float = 0.0,
-                         span: float = 1.2, k_nm_rad: float = 18500.0) -> Dataset:
+                         span: float = 1.2, k_nm_rad: float = 18500.0, hum_harmonics: int = 1) -> Dataset:
     """A 200 Hz position-controlled sweep back and forth written apart from the simulator: the link follows the
     motor, and the torque carries friction, the ripple's ``lines`` ((cycles per revolution, deflection
-    amplitude [rad]) with random phases) times K, an optional temporal hum [Hz] and noise."""
+    amplitude [rad]) with random phases) times K, an optional temporal hum [Hz] (with ``hum_harmonics``
+    harmonics of its amplitude) and noise."""
     rng = np.random.default_rng(seed)
     dt, accel = 5e-3, 2.0
     ramp = speed / accel
@@ -273,8 +274,8 @@ def _position_controlled(speed: float, lines: list[tuple[float, float]], seed: i
     tau = 1.5 * np.tanh(v / 0.01) + rng.normal(0, 0.01, t.size)
     for cpr, amp in lines:
         tau += k_nm_rad * amp * np.sin(cpr * q + rng.uniform(0, 2 * np.pi))
-    if temporal_hz:
-        tau += k_nm_rad * 1.5e-5 * np.sin(2 * np.pi * temporal_hz * t + rng.uniform(0, 2 * np.pi))
+    for h in range(1, hum_harmonics + 1) if temporal_hz else ():
+        tau += k_nm_rad * 1.5e-5 * np.sin(2 * np.pi * h * temporal_hz * t + rng.uniform(0, 2 * np.pi))
     return Dataset({"t": t, "q_m": q, "tau_j": tau}, "constant_velocity", "import", 1, 200.0)
 
 
@@ -306,6 +307,24 @@ class TestReproducedAcrossSpeeds:
                 _position_controlled(0.4, [(320, 1e-5)], 6, temporal_hz=0.4 * 160 / (2 * np.pi))]
         r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
         assert r.detected and abs(r.cycles_per_rev / 320 - 1) < 2e-3, r.warnings
+
+    def test_a_run_s_speed_is_the_one_its_passes_hold(self):
+        # One speed, 0.6 rad/s; over 0.4 rad the ramps take 60 % of the samples (median sample speed 0.48),
+        # over 1.6 rad 20 %. A hum then sits at one position frequency in both: one speed, not reproduced.
+        runs = [_position_controlled(0.6, [], 40 + i, temporal_hz=9.0, span=span) for i, span in enumerate((0.4, 1.6))]
+        r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
+        speeds = [row["speed_rad_s"] for row in r.runs]
+        np.testing.assert_allclose(speeds, 0.6, rtol=0.02)
+        assert r.agreement["verdict"] != "reproduced" and not r.lines.reproduced, r.warnings
+
+    def test_two_lines_of_a_hum_in_one_position_window_are_not_a_ripple(self):
+        # No ripple; a 4.5 Hz hum with harmonics 2 and 3 at 0.3 and 0.2 rad/s: its third harmonic in the first
+        # run and its second in the other lie at one position frequency (45 cycles/rad), each also found at
+        # its frequency in Hz in the other run.
+        runs = [_position_controlled(v, [], 50 + i, temporal_hz=4.5, hum_harmonics=3) for i, v in enumerate((0.3, 0.2))]
+        r = identify_ripple(runs, K=18500.0, Jl=1.0, link_motion="neglected")
+        assert not any(abs(c.k / 45.0 - 1) < 0.02 for c in r.lines.reproduced), r.warnings
+        assert not (r.detected and abs(r.cycles_per_rev / (2 * np.pi * 45.0) - 1) < 0.02), r.warnings
 
     def test_a_hum_at_every_speed_is_temporal_not_a_ripple(self):
         # No ripple; one hum at 9 Hz in every run: the line keeps its frequency in Hz across the speeds.

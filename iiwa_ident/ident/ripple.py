@@ -49,7 +49,7 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointModel, RippleTable, Source
 from iiwa_ident.ident.ripple_detect import sensitivity
-from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines
+from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines, pass_speed
 from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
 from iiwa_ident.ident.ripple_spectrum import (
     FAMILY_HARMONICS,
@@ -551,7 +551,8 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                    min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
     pooled = _identify_pooled(datasets, **options)
     if len(datasets) < 2:
-        beyond = _beyond_nyquist(pooled, datasets[0], _median_speed(datasets[0])) if datasets else None
+        speed = pass_speed(pooled.passes) if pooled.passes else _median_speed(datasets[0]) if datasets else 0.0
+        beyond = _beyond_nyquist(pooled, datasets[0], speed) if datasets else None
         if beyond:
             pooled.warnings.append(f"{beyond}: an alias is possible; runs at other speeds would decide")
         return _with_sensitivity(pooled, amplitude_of_interest, options)
@@ -566,6 +567,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
             run_lines.append(_run_lines(name, ds, None, speed, options))
             continue
         run_lines.append(_run_lines(name, ds, r, speed, options))
+        speed = run_lines[-1].speed
         # The spatial Nyquist limit at this run's speed: lines beyond it are aliases.
         nyquist_cpr = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
         row = {"run": name, "speed_rad_s": speed, "detected": r.detected, "usable": True,
@@ -637,7 +639,8 @@ def _median_speed(ds: Dataset) -> float:
 
 def _beyond_nyquist(r: RippleResult, ds: Dataset, speed: float) -> str:
     """Why a detected family may be an alias, or '': the family's strongest line (of its table) lies beyond
-    the spatial Nyquist limit at the run's median ``speed`` [rad/s], pi x rate / speed cycles per revolution."""
+    the spatial Nyquist limit at the ``speed`` of the run's passes [rad/s], pi x rate / speed cycles per
+    revolution."""
     if not r.detected or r.lut is None:
         return ""
     nyquist = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
@@ -646,7 +649,7 @@ def _beyond_nyquist(r: RippleResult, ds: Dataset, speed: float) -> str:
     if line <= nyquist:
         return ""
     which = "its line" if h == 1 else f"its strongest line, harmonic {h} of {r.cycles_per_rev:.1f},"
-    return (f"{which} at {line:.1f} cycles per revolution lies beyond the Nyquist limit at its median speed "
+    return (f"{which} at {line:.1f} cycles per revolution lies beyond the Nyquist limit at its passes' speed "
             f"{speed:.2f} rad/s ({nyquist:.0f} cycles per revolution at {ds.sample_rate_hz:.0f} Hz)")
 
 
@@ -757,7 +760,8 @@ def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, opt
             if all(abs(k[i] - s) > 4 * (k[1] - k[0] if len(k) > 1 else 0.0) for s, _ in seeds):
                 seeds.append((float(k[i]), 0.0))
     detected = int(r is not None and r.detected and r.period_rad is not None)
-    return RunLines(name, passes, speed, ds.sample_rate_hz, seeds, searched, detected)
+    return RunLines(name, passes, pass_speed(passes) if passes else speed, ds.sample_rate_hz, seeds, searched,
+                    detected)
 
 
 def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],

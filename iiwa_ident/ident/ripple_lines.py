@@ -39,7 +39,7 @@ from scipy import stats
 from iiwa_ident.ident.ripple_passes import Pass
 from iiwa_ident.ident.ripple_spectrum import MIN_SUBHARMONIC_POWER, sidak, taper
 
-__all__ = ["span", "NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
+__all__ = ["span", "pass_speed", "NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
            "CrossRunLines", "cross_run_lines", "distinct_speeds"]
 
 #: Neighbouring frequencies (half on each side) whose median coefficient power is the local noise level.
@@ -70,7 +70,7 @@ class LineTest:
     p_value : float
         Probability that noise alone gives a line this strong in the window (1 when not tested).
     frequency_hz : float
-        The line's temporal frequency at the run's median speed, ``k |v|`` [Hz].
+        The line's temporal frequency at the median speed of the run's passes, ``k |v|`` [Hz].
     reason : str
         Why the line was not tested ('' when it was): beyond the Nyquist limit, too slow for the passes'
         high-pass, or too few neighbouring frequencies.
@@ -93,6 +93,21 @@ def span(passes: list[Pass]) -> float:
     deflection is phase-locked to the position), so a line is resolved to one over this, however the span is
     cut into passes (back and forth, or between gaps)."""
     return float(max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)) if passes else 0.0
+
+
+def pass_speed(passes: list[Pass]) -> float:
+    """The speed the passes hold most of their travel at [rad/s]: the travel-weighted median of their speeds.
+
+    A run's median sample speed counts its ramps and dwells: three runs at 1.2 rad/s over 1 rad read 0.67-0.78,
+    and two of them looked like two speeds (a temporal line then passed for a spatial one).
+    """
+    if not passes:
+        return 0.0
+    v = np.array([abs(p.speed) for p in passes])
+    travel = np.array([abs(float(p.theta[-1] - p.theta[0])) for p in passes])
+    order = np.argsort(v)
+    cum = np.cumsum(travel[order])
+    return float(v[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
 def _coefficients(passes: list[Pass], k: float, g: float, js: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -237,7 +252,7 @@ class RunLines:
     passes : list of Pass
         Its passes.
     speed : float
-        Its median speed [rad/s].
+        The speed its passes hold most of their travel at [rad/s] (:func:`pass_speed`).
     rate_hz : float
         Its sample rate [Hz].
     seeds : list of (float, float)
@@ -497,6 +512,7 @@ def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_ma
     # few cells away (the line itself is never removed from its own test).
     test([c for c in cands if c.own], [])
     test(cands, _dominant(cands, runs))
+    _explain_by_time(cands, runs, alpha)
     out = CrossRunLines(runs, cands, alpha)
     out.k0, out.harmonics = _family([c for c in cands if c.speeds(runs) >= 2], k_min, runs)
     out.k_ref = out.k0
@@ -518,6 +534,40 @@ def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_ma
                 c.temporal_hz = f_hz
                 break
     return out
+
+
+def _explain_by_time(cands: list[Candidate], runs: list[RunLines], alpha: float) -> None:
+    """Withdraw a run's support from a line reproduced at two speeds where a temporal line explains it there.
+
+    A strong hum with harmonics is significant in every run; at two speeds two of its lines can land in one
+    position frequency's windows (a short run's cell is tens of cycles per revolution wide). The line in run
+    ``a`` at ``f`` Hz is then also significant at ``f / v_b`` in a run at another speed ``v_b``, where no
+    harmonic of a reproduced line lies: that run's evidence is as well a temporal line's. Where that holds in
+    every run the line is significant in, it is not reproduced (the one-speed check may then name it temporal).
+    """
+    reproduced = [c for c in cands if c.speeds(runs) >= 2]
+    spatial = [h * d.k for d in reproduced for h in range(1, FAMILY_MAX_HARMONIC + 1)]
+    for c in reproduced:
+        explained = [a for a, s in enumerate(c.significant) if s and _temporal_elsewhere(c, a, runs, spatial, alpha)]
+        # A line that some run shows only at its position frequency is not a temporal line's coincidence.
+        if explained and len(explained) == sum(c.significant):
+            c.significant = [False] * len(c.significant)
+
+
+def _temporal_elsewhere(c: Candidate, a: int, runs: list[RunLines], spatial: list[float], alpha: float) -> bool:
+    """Whether line ``c`` of run ``a`` is significant at its frequency in Hz in a run at another speed, where
+    no harmonic of a reproduced line (``spatial`` [cycles/rad]) lies."""
+    f_hz = c.tests[a].frequency_hz
+    for b, r in enumerate(runs):
+        if b == a or not r.passes or distinct_speeds([runs[a].speed, r.speed]) < 2:
+            continue
+        kb = f_hz / max(r.speed, 1e-12)
+        if any(abs(kb - x) < 2.0 * r.cell for x in spatial):
+            continue
+        t = line_test(r.passes, kb, r.rate_hz, c.k_std * runs[a].speed / r.speed)
+        if t.tested and t.p_value < alpha:
+            return True
+    return False
 
 
 def _dominant(cands: list[Candidate], runs: list[RunLines], most: int = 3) -> list[float]:
