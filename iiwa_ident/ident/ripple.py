@@ -813,17 +813,28 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
     h_max = max(h for _, h in lines.harmonics)
     harmonics = max(1, min(o["max_harmonics"], h_max))
     motions = [r.get("link_motion") or "restored" for r in runs if r["run"] in names and r.get("usable", True)]
-    motion = max(set(motions), key=motions.count) if motions else "restored"
+    # The link motion most supporting runs chose; a tie is decided as one run's choice is, by the smaller
+    # residual of the family's table (not by a set's order, which changes with the interpreter's hash seed).
+    most = max((motions.count(m) for m in motions), default=0)
+    tied = sorted({m for m in motions if motions.count(m) == most}) or ["restored"]
     if o["link_motion"] != "auto":
-        motion = o["link_motion"]
-    passes: list[Pass] = []
-    for j, i in enumerate(support):
-        passes += deflection(datasets[i], j, o["K"], o["Jl"], o["period_max"], o["min_speed"],
-                             min_travel=4.0 * o["period_min"], link_motion=motion)
+        tied = [o["link_motion"]]
     # The family's fundamental as the runs' tests place its lines (each within its window), and a bracket of
     # half the finest run's resolution cell.
     ks = [t.k / h for c, h in lines.harmonics for t, s in zip(c.tests, c.significant) if s]
     k_c = float(np.median(ks)) if ks else lines.k0
+
+    def support_passes(motion: str) -> list[Pass]:
+        out: list[Pass] = []
+        for j, i in enumerate(support):
+            out += deflection(datasets[i], j, o["K"], o["Jl"], o["period_max"], o["min_speed"],
+                              min_travel=4.0 * o["period_min"], link_motion=motion)
+        return out
+
+    options_passes = {m: support_passes(m) for m in tied}
+    motion = min(tied, key=lambda m: _residual_rms(options_passes[m], 1.0 / k_c, o["max_harmonics"])
+                 if options_passes[m] else math.inf)
+    passes = options_passes[motion]
     half = 0.5 * min(lines.runs[i].cell for i in support)
     k_hat = _best_k(passes, k_c, half, harmonics, 1e-8)
     _set_weights(passes, 1.0 / k_hat, harmonics)

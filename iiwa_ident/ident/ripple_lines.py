@@ -151,7 +151,7 @@ def _level(ks: np.ndarray, power: np.ndarray, k: float) -> float:
 
 
 def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
-              known: Sequence[float] = ()) -> LineTest:
+              known: Sequence[float] = (), window_max: float = WINDOW_MAX) -> LineTest:
     """Test the run's passes for a line at ``k +- 3 k_std`` [cycles/rad] (module docstring).
 
     Parameters
@@ -167,6 +167,8 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
     known : sequence of float
         Lines already known [cycles/rad], fitted and removed first (those within a cell of the window are
         left: the line itself).
+    window_max : float
+        Widest window tested, relative to ``k``: a wider one (short passes) could hold another line.
 
     Returns
     -------
@@ -188,7 +190,7 @@ def line_test(passes: list[Pass], k: float, rate_hz: float, k_std: float = 0.0,
     if k + half > k_high:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, f"beyond {NYQUIST_SHARE:.0%} of the Nyquist limit "
                                                      f"({f_hz:.1f} Hz at {speed:.2f} rad/s)")
-    if half > WINDOW_MAX * k:
+    if half > window_max * k:
         return LineTest(k, 0.0, math.inf, 1.0, f_hz, f"the passes ({travel:.2g} rad) place a line only within "
                                                      f"+-{half / k:.0%}")
     if k - half < k_low:
@@ -291,6 +293,9 @@ class Candidate:
     looked: dict = field(default_factory=dict)
     #: A run's own line or an extra one (not a harmonic or subharmonic of one).
     own: bool = True
+    #: Runs whose detected line (or a ratio of it) it is: a frequency they predict, whatever another run's
+    #: search picked there.
+    predicted: set = field(default_factory=set)
     tests: list[LineTest] = field(default_factory=list)
     significant: list[bool] = field(default_factory=list)
     #: The line's temporal frequency where it is significant in runs at one speed only and the other runs show
@@ -302,9 +307,11 @@ class Candidate:
         return 2.0 * math.pi * self.k
 
     def p_value(self, i: int) -> float:
-        """Its p-value in run ``i``, corrected for the search where that run's search picked it."""
+        """Its p-value in run ``i``, corrected for the search where that run's search picked it, unless another
+        run's detected line predicts it there (a test at one frequency: the prediction's false alarm is its
+        own detection's)."""
         p, m = self.tests[i].p_value, self.looked.get(i, 1.0)
-        return sidak(p, m) if m > 1 else p
+        return sidak(p, m) if m > 1 and not self.predicted - {i} else p
 
     def speeds(self, runs: list[RunLines]) -> int:
         """How many different speeds (apart by :data:`SAME_SPEED_RATIO`) the runs where it is significant have."""
@@ -445,10 +452,11 @@ def _candidates(runs: list[RunLines], extra: list[tuple[float, str]], k_min: flo
     for i, r in enumerate(runs):
         for n, (k, std) in enumerate(r.seeds):
             picked = {i: r.searched} if n >= r.detected else {}
+            predicted = {i} if n < r.detected else set()
             for q in RATIOS:
                 if k_min <= q * k <= k_max:
                     origin = r.name if q == 1 else f"{r.name} x {_fraction(q)}"
-                    raw.append(Candidate(q * k, q * std, origin, picked if q == 1 else {}, q == 1))
+                    raw.append(Candidate(q * k, q * std, origin, picked if q == 1 else {}, q == 1, set(predicted)))
     for k, origin in extra:
         if k_min <= k <= k_max:
             raw.append(Candidate(k, 0.0, origin))
@@ -465,6 +473,7 @@ def _candidates(runs: list[RunLines], extra: list[tuple[float, str]], k_min: flo
             for i, n in drop.looked.items():
                 keep.looked[i] = max(n, keep.looked.get(i, 1.0))
             keep.own = keep.own or drop.own
+            keep.predicted |= drop.predicted
             merged[-1] = keep
         else:
             merged.append(c)
@@ -504,7 +513,7 @@ def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_ma
 
     def test(which: list[Candidate], known: list[float]) -> None:
         for c in which:
-            c.tests = [line_test(r.passes, c.k, r.rate_hz, c.k_std, known) for r in runs]
+            c.tests = [_test_in_run(r, c, known) for r in runs]
             c.significant = [t.tested and c.p_value(i) < alpha for i, t in enumerate(c.tests)]
 
     # The strongest lines (among the runs' own lines and the extra ones: the strongest line of the data is one
@@ -534,6 +543,20 @@ def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_ma
                 c.temporal_hz = f_hz
                 break
     return out
+
+
+def _test_in_run(r: RunLines, c: Candidate, known: list[float]) -> LineTest:
+    """``c`` tested in run ``r``; where the run's passes are too short to place a window on it but the run's
+    own search detected a line there (within the two stds and a grid step), that line is tested: its own
+    window is the one the run's search placed (a 0.4 rad run at 0.08 rad/s detected 133.3 cycles by itself,
+    and 133.1 predicted by another run was not tested in it)."""
+    t = line_test(r.passes, c.k, r.rate_hz, c.k_std, known)
+    if t.tested or not r.detected or not r.seeds:
+        return t
+    k_det, std_det = r.seeds[0]
+    if abs(c.k - k_det) > 3.0 * math.hypot(c.k_std, std_det) + r.cell / 8.0:
+        return t
+    return line_test(r.passes, k_det, r.rate_hz, std_det, known, window_max=math.inf)
 
 
 def _explain_by_time(cands: list[Candidate], runs: list[RunLines], alpha: float) -> None:
