@@ -432,9 +432,11 @@ class _Candidate:
         k, dk = spec.k, spec.dk
         fam = spec.family
         k_star, half = fam.bracket(k, dk)
-        # At least up to the strongest line: an unmodelled harmonic above a pass's Nyquist limit leaves
-        # its mirror image next to a modelled one and pulls the period.
-        harmonics = max(harmonics, fam.h_strong)
+        # The harmonics the data show (as for the table), at least up to the strongest line: an unmodelled
+        # harmonic above a pass's Nyquist limit leaves its mirror image next to a modelled one and pulls the
+        # period. Not all of ``harmonics`` regardless: on a weak line the insignificant ones fit noise and
+        # aliases (a 1.4 µrad 256-cycle line at 200 Hz was refined to 257.9 with 8 harmonics, std 0.04).
+        harmonics = max(_choose_harmonics(self.passes, 1.0 / k_star, harmonics), fam.h_strong)
         # The period that best explains the deflection with a Fourier series (tapered, nuisance
         # projected, one set of coefficients per group of passes so that what is left of the
         # speed-dependent link dynamics cannot bias it), each pass weighted by its noise level.
