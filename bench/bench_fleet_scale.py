@@ -11,10 +11,11 @@ cycles per revolution), per robot and joint its amplitude (log-normal, 30 %, aro
 joints of the fleet carry ``--worn-factor`` times their ripple.
 
 Prints: wall time, joint-runs per second per worker, the peak memory of a worker process over the run (max RSS);
-per joint size the ripples detected against the detection curve's prediction
-(:func:`iiwa_ident.ident.ripple_detect.detection_probability` at each group's true amplitude and period, from
-each run's noise level as ``ripple`` measured it: the expected number of groups where at least one run alone
-detects; the search pools the runs, so it may detect more); and the joints the library flags as worn
+per joint size the ripples detected against the detection curve's prediction at each group's true amplitude
+and period, from each run's noise level as ``ripple`` measured it: for the search over all the group's passes
+pooled (:func:`iiwa_ident.ident.ripple_detect.pooled_detection_probability`) and, as a lower bound, the groups
+where at least one run's longest pass alone detects (:func:`~iiwa_ident.ident.ripple_detect.detection_probability`);
+and the joints the library flags as worn
 (:func:`iiwa_ident.fleet.flag_worn`) against the worn ones, with each worn joint's ratio to the fleet's median and
 its p-value.
 """
@@ -79,6 +80,15 @@ def predicted_detection(group: dict, amplitude_rad: float, cycles_per_rev: float
     return 1.0 - miss
 
 
+def predicted_pooled(group: dict, amplitude_rad: float, cycles_per_rev: float) -> float:
+    """Probability that the search over all the group's passes together detects its ripple, by the pooled curve."""
+    from iiwa_ident.ident.ripple_detect import RunSensitivity, pooled_detection_probability
+
+    runs = [RunSensitivity.from_json(dict(run, cycles_per_rev=cycles_per_rev))
+            for run in (group["ripple"] or {}).get("sensitivity") or []]
+    return pooled_detection_probability(amplitude_rad, runs)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=50)
@@ -129,9 +139,12 @@ def main() -> None:
             near = sum(1 for r in found if abs(r["cycles_per_rev"] / cpr - 1) <= 5e-3)
             covered = sum(1 for r in found if abs(2 * math.pi / cpr - r["period_rad"]) <= 2 * r["period_std_rad"])
             expected = [predicted_detection(g, amplitude[k], cpr) for k, g in rows]
+            pooled = [predicted_pooled(g, amplitude[k], cpr) for k, g in rows]
             std = math.sqrt(sum(p * (1 - p) for p in expected))
+            std_pooled = math.sqrt(sum(p * (1 - p) for p in pooled))
             print(f"  A{'-A'.join(map(str, joints_))} ({cpr:.0f} cycles/rev): detected {len(found)} of {len(rows)}, "
-                  f"the curve predicts {sum(expected):.1f} +- {std:.1f} from any run alone; of those detected "
+                  f"the curve predicts {sum(pooled):.1f} +- {std_pooled:.1f} for the runs' passes pooled "
+                  f"({sum(expected):.1f} +- {std:.1f} from any run alone); of those detected "
                   f"{near} within 0.5 % of the period, {covered} within 2 std")
         wear = doc["wear"]
         flagged = {(int(r.removeprefix("robot")), j) for r, j in wear["flagged"]}

@@ -6,7 +6,9 @@ period and phase) plus white noise, the position quantised like the iiwa's encod
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import json
 import math
 
 import numpy as np
@@ -15,9 +17,11 @@ import pytest
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.ident.ripple import identify_ripple
 from iiwa_ident.ident.ripple_detect import (
+    RunSensitivity,
     detectable_amplitude,
     detection_probability,
     noise_psd,
+    pooled_detection_probability,
     required_travel,
 )
 from iiwa_ident.ident.ripple_passes import deflection
@@ -124,3 +128,40 @@ def test_a_run_too_fast_for_the_line_is_told_a_slower_one():
     assert detection_probability(10e-6, s.required_travel_rad, s.required_speed_rad_s, s.psd_rad2_hz, _RATE,
                                  320.0) >= 0.95
     assert f"rad run at {s.required_speed_rad_s:.2f} rad/s" in s.sentence("run 1")
+
+
+def _sensitivity(travels, speed, cpr=320.0, span=None):
+    return RunSensitivity(0, speed, max(travels), _RATE, cpr, _PSD, math.inf, 0.0, None,
+                          pass_travel_rad=list(travels), pass_speed_rad_s=[speed] * len(travels),
+                          span_rad=max(travels) if span is None else span)
+
+
+def test_the_pooled_prediction_of_one_pass_is_the_single_run_one():
+    for amp in (2e-6, 5e-6, 1e-5):
+        one = detection_probability(amp, 1.2, 0.2, _PSD, _RATE, 320.0)
+        np.testing.assert_allclose(pooled_detection_probability(amp, [_sensitivity([1.2], 0.2)]), one, rtol=1e-12)
+
+
+def test_pooled_passes_detect_more_and_short_ones_together_at_all():
+    amp = 3e-6
+    one = pooled_detection_probability(amp, [_sensitivity([1.2], 0.2)])
+    four = pooled_detection_probability(amp, [_sensitivity([1.2, 1.2], 0.2), _sensitivity([1.2, 1.2], 0.2)])
+    assert 0.0 < one < four <= 1.0
+    # 0.2 rad passes are one chunk each: alone none is judged, eight together are.
+    assert detection_probability(amp, 0.2, 0.2, _PSD, _RATE, 320.0) == 0.0
+    assert pooled_detection_probability(1e-5, [_sensitivity([0.2] * 8, 0.2)]) > 0.5
+    # Beyond the Nyquist share a pass adds nothing; a run without a noise level is left out.
+    fast = _sensitivity([1.2], 5.0)
+    assert pooled_detection_probability(amp, [fast]) == 0.0
+    none = dataclasses.replace(_sensitivity([1.2], 0.2), psd_rad2_hz=math.nan)
+    assert pooled_detection_probability(amp, [none, _sensitivity([1.2], 0.2)]) == pytest.approx(one, rel=1e-12)
+
+
+def test_a_run_s_sensitivity_holds_its_passes_and_reads_back_from_json():
+    rng = np.random.default_rng(7)
+    r = identify_ripple([_run(rng, 1.5, 0.2, 320.0, 2e-5)])
+    (s,) = r.sensitivity
+    assert s.pass_travel_rad and len(s.pass_travel_rad) == len(s.pass_speed_rad_s)
+    assert max(s.pass_travel_rad) == pytest.approx(s.travel_rad) and s.span_rad >= s.travel_rad - 1e-12
+    back = RunSensitivity.from_json(json.loads(json.dumps(s.to_json())))
+    assert pooled_detection_probability(5e-6, [back]) == pytest.approx(pooled_detection_probability(5e-6, [s]))

@@ -35,18 +35,19 @@ white torque noise through 18500 Nm/rad):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize, signal, stats
 
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD
 from iiwa_ident.ident.ripple_lines import NYQUIST_SHARE
+from iiwa_ident.ident.ripple_lines import span as span_of
 from iiwa_ident.ident.ripple_passes import Pass
 from iiwa_ident.ident.ripple_spectrum import SEARCH_TRIES_PER_POINT, chunks_in
 
 __all__ = ["DETECTION_PROBABILITY", "detection_probability", "detectable_amplitude", "required_travel",
-           "noise_psd", "line_frequency_hz", "RunSensitivity", "sensitivity"]
+           "noise_psd", "line_frequency_hz", "RunSensitivity", "sensitivity", "pooled_detection_probability"]
 
 #: The probability with which a run is said to detect an amplitude.
 DETECTION_PROBABILITY = 0.95
@@ -191,9 +192,24 @@ class RunSensitivity:
     required_speed_rad_s: float | None = None
     #: The search's false-alarm probability the prediction is for.
     false_alarm: float = 1e-3
+    #: Every pass of the run: its travel [rad] and speed [rad/s] (the pooled prediction's input).
+    pass_travel_rad: list = field(default_factory=list)
+    pass_speed_rad_s: list = field(default_factory=list)
+    #: Motor positions all the search's passes span [rad]: it sets the chunks' length.
+    span_rad: float = math.nan
 
     def to_json(self) -> dict:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+    @classmethod
+    def from_json(cls, doc: dict) -> "RunSensitivity":
+        """The run's sensitivity from :meth:`to_json`'s dictionary (null numbers read as nan, inf where a
+        detectable amplitude is none)."""
+        out = dict(doc)
+        for k in ("psd_rad2_hz", "span_rad"):
+            out[k] = math.nan if out.get(k) is None else out[k]
+        out["detectable_rad"] = math.inf if out.get("detectable_rad") is None else out["detectable_rad"]
+        return cls(**out)
 
     def sentence(self, name: str) -> str:
         """One line for the console."""
@@ -219,6 +235,7 @@ def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float,
     """What each run (its longest pass) detects of a line at ``cycles_per_rev``, and what run would detect
     ``amplitude_rad`` [rad] where it does not; the noise is read off the run's passes (:func:`noise_psd`)."""
     out = []
+    span = span_of(passes)
     for index in sorted({p.dataset for p in passes}):
         own = [p for p in passes if p.dataset == index]
         longest = max(own, key=lambda p: abs(p.theta[-1] - p.theta[0]))
@@ -242,5 +259,34 @@ def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float,
         else:
             detectable = math.inf
         out.append(RunSensitivity(index, speed, travel, rate, cycles_per_rev, psd, detectable, amplitude_rad, need,
-                                  at, false_alarm))
+                                  at, false_alarm, [float(abs(p.theta[-1] - p.theta[0])) for p in own],
+                                  [float(p.speed) for p in own], span))
     return out
+
+
+def pooled_detection_probability(amplitude_rad: float, runs: list[RunSensitivity],
+                                 period_min: float = PERIOD_MIN_RAD, period_max: float = PERIOD_MAX_RAD) -> float:
+    """Probability that the search over every pass of ``runs`` together detects a line of ``amplitude_rad``.
+
+    The search pools the chunks of all passes: their signal-to-noise ratios add (each pass's from its
+    duration and its run's noise level, as in :func:`detection_probability`), the chunks add to the
+    Hotelling test's degrees of freedom, and its frequency grid is set by the positions all passes span.
+    Passes whose line lies beyond the Nyquist share add nothing; runs without a noise level are left out.
+    Chunks of unequal noise are taken as equal, so this is approximate where the runs' noise levels differ.
+    """
+    runs = [r for r in runs if math.isfinite(r.psd_rad2_hz) and r.psd_rad2_hz > 0 and r.pass_travel_rad]
+    if not runs or amplitude_rad < 0:
+        return 0.0
+    span = max((r.span_rad for r in runs if math.isfinite(r.span_rad)), default=max(r.travel_rad for r in runs))
+    lam, n = 0.0, 0
+    for r in runs:
+        for travel, speed in zip(r.pass_travel_rad, r.pass_speed_rad_s):
+            if speed == 0 or travel <= 0 or \
+                    line_frequency_hz(speed, r.cycles_per_rev) > NYQUIST_SHARE * r.rate_hz / 2.0:
+                continue
+            n += chunks_in(travel, min(period_max, travel / 2.0), span)
+            lam += 2.0 * amplitude_rad ** 2 * (travel / abs(speed)) / (3.0 * r.psd_rad2_hz)
+    if n < 3:
+        return 0.0
+    _, p_line = _threshold(span, runs[0].false_alarm, period_min, period_max)
+    return _power(lam, n, p_line)
