@@ -157,6 +157,12 @@ def main() -> None:
             state = (f"ratio to the fleet's median {w['ratio']:.2f}, p = {w['p']:.1e}" if w.get("p") is not None
                      else w.get("why", "failed"))
             print(f"    worn {k}: amplitude {amplitude[k] * 1e6:.1f} urad; {state}; flagged {k in flagged}")
+        for k in sorted(flagged - worn):
+            g = key[k]
+            r, w = g["ripple"], g.get("wear") or {}
+            print(f"    flagged, not worn {k}: drawn {amplitude[k] * 1e6:.2f} urad, found {r['amplitude_rad'] * 1e6:.2f} "
+                  f"+- {(r.get('amplitude_std_rad') or math.nan) * 1e6:.2f} urad at {r['cycles_per_rev']:.1f} cycles/rev "
+                  f"(true {_cycles_per_rev(k[1]):.0f}); ratio {w.get('ratio', math.nan):.2f}, p = {w.get('p', math.nan):.1e}")
 
 
 if __name__ == "__main__":
