@@ -70,6 +70,11 @@ def _threshold(travel_rad: float, false_alarm: float, period_min: float, period_
     return n, p_line
 
 
+def _snr(amplitude_rad: float, duration_s: float, psd_rad2_hz: float) -> float:
+    """The mean chunk coefficient's signal-to-noise ratio, lambda = 2 A^2 T / (3 S) (module docstring)."""
+    return 2.0 * amplitude_rad ** 2 * duration_s / (3.0 * psd_rad2_hz)
+
+
 def _power(lam: float, n: int, p_line: float) -> float:
     dof = 2 * (n - 1)
     # The search scales T^2 by ln 2 over its local median (never up): under white noise, by this factor.
@@ -115,7 +120,7 @@ def detection_probability(amplitude_rad: float, travel_rad: float, speed_rad_s: 
     if n < 3:
         return 0.0
     duration = travel_rad / abs(speed_rad_s)
-    return _power(2.0 * amplitude_rad ** 2 * duration / (3.0 * psd_rad2_hz), n, p_line)
+    return _power(_snr(amplitude_rad, duration, psd_rad2_hz), n, p_line)
 
 
 def detectable_amplitude(travel_rad: float, speed_rad_s: float, psd_rad2_hz: float, rate_hz: float,
@@ -131,7 +136,7 @@ def detectable_amplitude(travel_rad: float, speed_rad_s: float, psd_rad2_hz: flo
         return math.inf
     lam = optimize.brentq(lambda x: _power(x, n, p_line) - probability, 1e-9, 1e7)
     duration = travel_rad / abs(speed_rad_s)
-    return math.sqrt(3.0 * psd_rad2_hz * lam / (2.0 * duration))
+    return math.sqrt(lam / _snr(1.0, duration, psd_rad2_hz))
 
 
 def required_travel(amplitude_rad: float, speed_rad_s: float, psd_rad2_hz: float, rate_hz: float,
@@ -285,7 +290,7 @@ def pooled_detection_probability(amplitude_rad: float, runs: list[RunSensitivity
                     line_frequency_hz(speed, r.cycles_per_rev) > NYQUIST_SHARE * r.rate_hz / 2.0:
                 continue
             n += chunks_in(travel, min(period_max, travel / 2.0), span)
-            lam += 2.0 * amplitude_rad ** 2 * (travel / abs(speed)) / (3.0 * r.psd_rad2_hz)
+            lam += _snr(amplitude_rad, travel / abs(speed), r.psd_rad2_hz)
     if n < 3:
         return 0.0
     _, p_line = _threshold(span, runs[0].false_alarm, period_min, period_max)
