@@ -532,16 +532,8 @@ def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_ma
         if c.speeds(runs) != 1:
             continue
         a = next(i for i, s in enumerate(c.significant) if s)
-        f_hz = c.tests[a].frequency_hz
-        for b, r in enumerate(runs):
-            kb = f_hz / max(r.speed, 1e-12)
-            if not r.passes or distinct_speeds([runs[a].speed, r.speed]) < 2 or \
-                    any(abs(kb - x) < 2.0 * r.cell for x in fam):
-                continue
-            t = line_test(r.passes, kb, r.rate_hz, c.k_std * runs[a].speed / r.speed, fam)
-            if t.tested and t.p_value < alpha:
-                c.temporal_hz = f_hz
-                break
+        if _temporal_elsewhere(c, a, runs, fam, alpha, known=fam):
+            c.temporal_hz = c.tests[a].frequency_hz
     return out
 
 
@@ -577,9 +569,11 @@ def _explain_by_time(cands: list[Candidate], runs: list[RunLines], alpha: float)
             c.significant = [False] * len(c.significant)
 
 
-def _temporal_elsewhere(c: Candidate, a: int, runs: list[RunLines], spatial: list[float], alpha: float) -> bool:
-    """Whether line ``c`` of run ``a`` is significant at its frequency in Hz in a run at another speed, where
-    no harmonic of a reproduced line (``spatial`` [cycles/rad]) lies."""
+def _temporal_elsewhere(c: Candidate, a: int, runs: list[RunLines], spatial: list[float], alpha: float,
+                        known: Sequence[float] = ()) -> bool:
+    """Whether line ``c`` of run ``a`` is significant at its frequency in Hz in a run at another speed (its
+    position frequency there ``k v_a / v_b``), away from the spatial lines ``spatial`` [cycles/rad]; ``known``
+    lines are removed first (:func:`line_test`)."""
     f_hz = c.tests[a].frequency_hz
     for b, r in enumerate(runs):
         if b == a or not r.passes or distinct_speeds([runs[a].speed, r.speed]) < 2:
@@ -587,7 +581,7 @@ def _temporal_elsewhere(c: Candidate, a: int, runs: list[RunLines], spatial: lis
         kb = f_hz / max(r.speed, 1e-12)
         if any(abs(kb - x) < 2.0 * r.cell for x in spatial):
             continue
-        t = line_test(r.passes, kb, r.rate_hz, c.k_std * runs[a].speed / r.speed)
+        t = line_test(r.passes, kb, r.rate_hz, c.k_std * runs[a].speed / r.speed, known)
         if t.tested and t.p_value < alpha:
             return True
     return False
