@@ -277,7 +277,9 @@ def pooled_detection_probability(amplitude_rad: float, runs: list[RunSensitivity
     duration and its run's noise level, as in :func:`detection_probability`), the chunks add to the
     Hotelling test's degrees of freedom, and its frequency grid is set by the positions all passes span.
     Passes whose line lies beyond the Nyquist share add nothing; runs without a noise level are left out.
-    Chunks of unequal noise are taken as equal, so this is approximate where the runs' noise levels differ.
+    Chunks of unequal noise are taken as equal, and every chunk as seeing the line alike: where runs at
+    different speeds see it with different amplitudes or phases (link dynamics, a filter before logging) and
+    chunks are few, the search detects less than predicted (docs/ripple.md measures how much).
     """
     runs = [r for r in runs if math.isfinite(r.psd_rad2_hz) and r.psd_rad2_hz > 0 and r.pass_travel_rad]
     if not runs or amplitude_rad < 0:
