@@ -16,7 +16,8 @@ import numpy as np
 from iiwa_ident.diagnose.predict import Context
 from iiwa_ident.ident import INDEPENDENCE, LEVEL, MAX_LAG, ResidualTests, residual_tests
 
-__all__ = ["FEEDBACK_EXPERIMENTS", "ChannelComparison", "channel_comparison", "fit_percent", "verdict_text"]
+__all__ = ["FEEDBACK_EXPERIMENTS", "AT_NOISE_FACTOR", "ChannelComparison", "channel_comparison", "fit_percent",
+           "sensor_noise_nm", "verdict_text"]
 
 #: Experiments whose torque command is computed from the measurements (a tracking PD in torque mode, an
 #: outer loop on the F/T sensor): the residual feeds back into the command, so the command correlates with
@@ -24,6 +25,11 @@ __all__ = ["FEEDBACK_EXPERIMENTS", "ChannelComparison", "channel_comparison", "f
 #: tests are shown there, not judged (with Table I's plant and the effect it hides added, the constant-velocity
 #: run's command channel still failed at lags -25..-8 and 12..25 while its link channel passed).
 FEEDBACK_EXPERIMENTS: tuple[str, ...] = ("constant_velocity", "hand_guided")
+
+#: A residual whose RMS is at most this multiple of the torque sensor's noise (:func:`sensor_noise_nm`) is at the
+#: sensor noise: what is left there is not a model's to explain, whatever its residual tests say (a model error
+#: at most sqrt(3) times the noise).
+AT_NOISE_FACTOR = 2.0
 
 #: Fewest lags a residual is tested over; shorter records (below four times as many samples) are not tested.
 _MIN_LAGS = 5
@@ -49,6 +55,20 @@ def verdict_text(passed: bool | None) -> str:
     return {True: "pass", False: "FAIL", None: "-"}[passed]
 
 
+def sensor_noise_nm(tau_j: np.ndarray) -> float:
+    """The white noise of a measured joint torque [Nm std], from its third differences (robustly: their median
+    absolute value over 0.6745 sqrt(20)); a smooth torque's own third differences are small beside the noise's
+    at the logging rate, a torque filtered before logging gives a smaller figure.
+
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.arange(20000) * 1e-3
+    >>> round(float(sensor_noise_nm(5 * np.sin(2 * np.pi * 2 * t) + 0.02 * rng.standard_normal(t.size))), 3)
+    0.02
+    """
+    d3 = np.diff(np.asarray(tau_j, float), 3)
+    return float(np.median(np.abs(d3)) / (0.6745 * np.sqrt(20.0))) if len(d3) else 0.0
+
+
 @dataclass
 class ChannelComparison:
     """One dataset's channel: the signals over the samples compared and the figures of merit.
@@ -69,6 +89,8 @@ class ChannelComparison:
         velocity), on samples spaced by the channel's bandwidth.
     lag_s : float
         The spacing of those samples, one lag of the tests [s].
+    noise_nm : float
+        The torque sensor's noise in this dataset [Nm std] (:func:`sensor_noise_nm`).
 
     The tests that judge the model (:attr:`model_tests`, :attr:`passed`): on the link channel both; on the
     command channel the independence of the input only. The command channel's prediction is an output error:
@@ -88,6 +110,7 @@ class ChannelComparison:
     tests: ResidualTests
     lag_s: float
     experiment: str = ""
+    noise_nm: float = 0.0
 
     @property
     def model_tests(self) -> tuple[str, ...]:
@@ -98,9 +121,23 @@ class ChannelComparison:
     @property
     def passed(self) -> bool | None:
         """Whether the residual passes the tests that judge the model (None: too few samples to test, or a
-        command computed from the measurements)."""
+        command computed from the measurements); never with a negative :attr:`fit_pct` (a prediction worse than
+        the measured mean is not a model of the channel, however white what it leaves)."""
         judged = [t.passed for t in self.tests.tests if t.name in self.model_tests]
+        if self.fit_pct < 0:
+            return False  # worse than the measured mean: no test of the residual's shape makes that a pass
         return all(judged) if judged else None
+
+    @property
+    def at_noise(self) -> bool:
+        """Whether the residual is at the sensor noise (RMS at most :data:`AT_NOISE_FACTOR` times it)."""
+        return bool(self.rms_nm <= AT_NOISE_FACTOR * self.noise_nm)
+
+    @property
+    def explained(self) -> bool:
+        """Whether the model explains the channel: its residual passes the tests that judge it (or is not judged),
+        or is at the sensor noise."""
+        return bool(self.passed is not False or self.at_noise)
 
     @property
     def verdict(self) -> str:
@@ -110,6 +147,7 @@ class ChannelComparison:
     def to_json(self) -> dict[str, Any]:
         return {"dataset": self.dataset, "channel": self.channel, "fit_pct": self.fit_pct, "rms_nm": self.rms_nm,
                 "samples": int(len(self.t)), "lag_s": self.lag_s, "passed": self.passed,
+                "sensor_noise_nm": self.noise_nm, "at_noise": self.at_noise, "explained": self.explained,
                 "model_tests": list(self.model_tests), "residual_tests": self.tests.to_json()}
 
 
@@ -132,4 +170,4 @@ def channel_comparison(ctx: Context, channel: str, residual: np.ndarray) -> Chan
              if lags >= _MIN_LAGS else ResidualTests(n=len(e), level=LEVEL))
     return ChannelComparison(ctx.name, channel, ctx.t[m], measured, predicted, fit_percent(measured, predicted),
                              float(np.sqrt(np.mean((measured - predicted) ** 2))), tests, step * ctx.dt,
-                             ctx.experiment)
+                             ctx.experiment, sensor_noise_nm(ctx.tau))

@@ -148,6 +148,13 @@ class Diagnosis:
         """The channel's residual with the named effects added to the model (in-sample) [Nm]."""
         return ctx.residual[channel] - self.contribution(ctx, channel)
 
+    @property
+    def unexplained_channels(self) -> list[ChannelReport]:
+        """Channels the model with the named effects does not explain: their residual fails the tests that judge the
+        model and is above the sensor noise (:attr:`~iiwa_ident.diagnose.channels.ChannelComparison.explained`);
+        what is left there is not in the library or not in its shape."""
+        return [c for c in self.channels if c.after is not None and not c.after.explained]
+
     def effect(self, name: str) -> EffectReport | None:
         """The named effect ``name``, or None."""
         return next((e for e in self.effects if e.name == name), None)
@@ -168,6 +175,7 @@ class Diagnosis:
                     d[f"{key}_tests_{when}"] = cmp.tests.summary()
         return {
             "explained": self.explained,
+            "unexplained_channels": [f"{c.dataset}/{c.channel}" for c in self.unexplained_channels],
             "effects": [e.as_json() for e in self.effects],
             "suspects": self.suspects,
             "ambiguous": self.ambiguous,
@@ -189,7 +197,12 @@ class Diagnosis:
                    f"{r['gain_pct']:.1f} % lower")
             lines.append(f"replaced: {r['old']} -> {' + '.join(r['new'])} (the model's {r['old']}, {old}, {why})")
         if self.explained:
-            lines.append("the model explains the data: no candidate effect reduces the held-out residual enough")
+            lines.append("the model explains the data: no candidate effect reduces the held-out residual enough, "
+                         "and every channel's residual passes its tests")
+        elif not self.effects and not self.suspects and not self.ambiguous and not self.replaced:
+            lines.append("the model does not explain the data: no candidate effect reduces the held-out residual "
+                         "enough, yet the residual fails its tests on " + _channel_list(self.unexplained_channels)
+                         + " (what is left is not an effect of the library, or not in its shape)")
         elif self.effects:
             lines.append(f"named {len(self.effects)} effect(s):")
             for e in self.effects:
@@ -216,6 +229,9 @@ class Diagnosis:
             lines.append(f"  undecided: {x['name']} or {x['or_shape_of']} in {x['free_shape']}: both predict the "
                          f"held-out data alike (beyond that shape it gains {x['gain_beyond_pct']:.1f} %); kept as the "
                          f"simpler explanation, a longer travel of the link decides")
+        if self.effects and self.unexplained_channels:
+            lines.append("  with them the residual still fails its tests on " + _channel_list(self.unexplained_channels)
+                         + ": the extended model does not explain everything")
         if self.suspects:
             lines.append("the model does not explain the data: " + ("besides, " if self.effects else "")
                          + "these would remove a large part of the residual but failed a test (not named):")
@@ -236,6 +252,12 @@ class Diagnosis:
                      "the model cannot predict from the command; RMS held out, fit % and residual tests in-sample; '-': not "
                      "judged, too short or a command computed from the measurements)")
         return "\n".join(lines)
+
+
+def _channel_list(channels: Sequence[ChannelReport]) -> str:
+    """``dataset/channel`` of each, joined (the first three, then a count)."""
+    names = [f"{c.dataset}/{c.channel}" for c in channels]
+    return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
 
 
 def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
@@ -411,7 +433,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     if replaced:
         extended.description += " | replaced: " + ", ".join(f"{r['old']} -> {' + '.join(r['new'])}"
                                                               for r in replaced)
-    diag = Diagnosis(explained=not effects and not suspects and not ambiguous and not replaced, effects=effects,
+    diag = Diagnosis(explained=False, effects=effects,
                      channels=[], model=original, extended=extended, replaced=replaced, contexts=contexts,
                      blocks=blocks, selection=sel,
                      heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous,
@@ -422,6 +444,9 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         diag.channels.append(ChannelReport(
             b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]), _rms([ra / b.weight]), tested[key],
             channel_comparison(b.ctx, b.channel, diag.residual_after(b.ctx, b.channel)) if changed else tested[key]))
+    # One meaning of "explained" everywhere: nothing left for the library to name, and every channel's
+    # residual passes the tests that judge the model (or is not judged).
+    diag.explained = not effects and not suspects and not ambiguous and not replaced and not diag.unexplained_channels
     return diag
 
 

@@ -456,6 +456,7 @@ def record_diagnosis(ctx: PipelineContext, result: Any, data: list[Path]) -> dic
 def diagnosis_headline(result: Any) -> dict[str, Any]:
     """The diagnose stage's headline figures of a :class:`~iiwa_ident.diagnose.Diagnosis`."""
     return {"explained": result.explained,
+            "unexplained_channels": [f"{c.dataset}/{c.channel}" for c in result.unexplained_channels],
             "effects": [{"name": e.name, "gain_pct": e.gain_pct, "confidence": e.confidence} for e in result.effects],
             "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
                           for a in result.ambiguous],
@@ -513,6 +514,7 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
     if (h := ok("diagnose")) is not None:
         out["named_effects"] = h["effects"]
         out["model_explained"] = h["explained"]
+        out["unexplained_channels"] = h.get("unexplained_channels", [])
         out["ambiguous_effects"] = h.get("ambiguous", [])
         out["replaced_effects"] = h.get("replaced", [])
         out["undecided_effects"] = h.get("undecided", [])
@@ -571,15 +573,19 @@ def format_summary(result: PipelineResult) -> str:
         for r in h.get("replaced_effects", []):
             lines.append(f"diagnosis: the model's {r['old']} contradicted by the data, replaced by "
                          f"{' + '.join(r['new'])}")
+        left = h.get("unexplained_channels", [])
         if not h["named_effects"] and not h.get("replaced_effects"):
             lines.append("diagnosis: the model explains the data, no effect named" if h["model_explained"] else
                          "diagnosis: the model does not explain the data, but no effect passed every test "
-                         "(diagnose.json: suspects)")
+                         "(diagnose.json: suspects, unexplained_channels)")
         for e in h["named_effects"]:
             lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
         for u in h.get("undecided_effects", []):
             lines.append(f"diagnosis: {u['name']} kept, but another shape of {u['or_shape_of']} predicts the data as "
                          f"well (a longer travel of the link decides)")
+        if left:
+            lines.append(f"diagnosis: the residual fails its tests on {len(left)} channel(s) (" + ", ".join(left[:3])
+                         + (", ..." if len(left) > 3 else "") + ")")
         for a in h.get("ambiguous_effects", []):
             lines.append(f"diagnosis: {a['name']} not named: the data do not tell it from another shape of "
                          f"{a['or_shape_of']} ({a['gain_pct']:.1f} % lower with it)")

@@ -143,6 +143,8 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
         verdict += f", {len(d.undecided)} undecided"
     if d.replaced:
         verdict += f", {len(d.replaced)} of the model's replaced"
+    if d.unexplained_channels:
+        verdict += f"; residual tests fail on {len(d.unexplained_channels)} channel(s)"
     ax.set_title(f"Held-out gain of the named effects ({verdict})", fontsize=10)
     return fig
 

@@ -189,15 +189,24 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
         h = by["diagnose"]
         if h.get("explained"):
             rows.append(VerdictRow("diagnose", "the model explains the data: nothing named",
-                                   "no effect lowers the held-out residual", PASS))
+                                   "no effect lowers the held-out residual; residual tests pass", PASS))
         else:
             named = ", ".join(f"{e['name']} ({e['gain_pct']:.0f} %)" for e in h.get("effects", [])) or "none"
-            rows.append(VerdictRow("diagnose", f"named: {named}", "the model explains the data", WARN))
+            left = h.get("unexplained_channels", [])
+            rows.append(VerdictRow("diagnose", f"named: {named}" + (f"; residual tests fail on {len(left)} "
+                                                                      f"channel(s)" if left else ""),
+                                   "the model explains the data", WARN))
     if "held_out" in by:
         runs = by["held_out"].get("runs", [])
         ratios = [r["ratio"] for r in runs if r.get("ratio") is not None]
         if ratios:
+            # Lower is not enough: a prediction worse than a run's mean (negative fit) does not model that run.
+            fits = [f for r in runs for f in r.get("fit_pct", {}).values() if f is not None]
+            worse = [f for f in fits if f < 0]
             rows.append(VerdictRow("held out", f"each run predicted from the others at {100 * min(ratios):.0f}-"
-                                   f"{100 * max(ratios):.0f} % of the starting model's RMS",
-                                   "every run lower", PASS if max(ratios) < 1 else WARN))
+                                   f"{100 * max(ratios):.0f} % of the starting model's RMS"
+                                   + (f"; {len(worse)} channel(s) with a fit below 0 % (worst {min(worse):.0f} %)"
+                                      if worse else ""),
+                                   "every run lower, every fit above 0 %",
+                                   PASS if max(ratios) < 1 and not worse else WARN))
     return rows
