@@ -229,6 +229,23 @@ class TestLibrary:
                      "torque_sensor_scale", "periodic_disturbance", "model_parameters"):
             assert name in CANDIDATES and issubclass(CANDIDATES[name], CandidateEffect)
 
+    def test_a_reversed_sign_without_gravity_is_told_by_the_model(self):
+        # A chirp of a joint without a described pose: the import's check has no gravity to go by; the model
+        # predicts the run turned over far better (a scale of -1), and that is named before any effect.
+        import dataclasses
+
+        from iiwa_ident.datasets import torque_sign_problem
+
+        case = _case(15, a="torque_sensor_offset")
+        data = simulate_case(case)
+        k = next(i for i, ds in enumerate(data) if ds.experiment == "chirp")
+        turned = dataclasses.replace(data[k], signals={**data[k].signals, "tau_j": -data[k]["tau_j"]})
+        assert torque_sign_problem(turned) is None
+        d = diagnose(data[:k] + [turned] + data[k + 1:], table1_model())
+        assert [r["dataset"] for r in d.sign_reversed] == [f"dataset {k}"]
+        assert "a torque scale of -1); import the log with --scale tau_j=-1" in d.sign_reversed[0]["why"]
+        assert [e.name for e in d.effects] == ["torque_sensor_offset"] and not d.explained
+
     def test_subset_of_candidates(self):
         case = _case(15, a="torque_sensor_offset")
         d = diagnose(simulate_case(case), table1_model(), candidates=["link_friction"])

@@ -100,3 +100,21 @@ def test_an_offset_and_a_friction_that_pass_only_together(monkeypatch):
     monkeypatch.setattr(select, "PAIR_CANDIDATES", 0)
     alone = diagnose([ds], table1_model())
     assert {e.name for e in alone.effects} != {"link_friction", "torque_sensor_offset"}
+
+
+def test_a_reversed_torque_sign_is_named_first_not_as_a_load():
+    # A joint-2 log read the other way round looked like a load of twice the gravity at phase pi. The diagnosis
+    # says the sign, with the fix import gives, and diagnoses the runs turned over: nothing else is named.
+    import dataclasses
+
+    from iiwa_ident.datasets import torque_sign_problem
+
+    start = starting_model("iiwa14", 2)
+    runs = [dataclasses.replace(ds, signals={**ds.signals, "tau_j": -ds["tau_j"]}) for ds in _runs(start, 2, 7)]
+    d = diagnose(runs, start)
+    assert [r["why"] for r in d.sign_reversed] == [torque_sign_problem(ds) for ds in runs]  # as import says it
+    assert all("--scale tau_j=-1" in r["why"] for r in d.sign_reversed)
+    assert d.effects == [] and not d.explained
+    assert d.summary().startswith("the torque's sign: dataset 0: tau_j reads the other way round")
+    assert d.as_json()["sign_reversed"] == d.sign_reversed
+    assert not diagnose(_runs(start, 2, 7), start).sign_reversed

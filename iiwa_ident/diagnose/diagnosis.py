@@ -20,13 +20,14 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset
+from iiwa_ident.datasets import Dataset, torque_sign_problem
 from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
@@ -35,7 +36,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import PhysicalRanges, against_description, check_model_matches, physical_ranges
 from iiwa_ident.model import JointModel
 
-__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
+__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]
 
 _LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
@@ -46,6 +47,9 @@ LARGE_GAIN = 0.3
 #: shape removes that much of what the named effects leave); another named effect that the freer shape
 #: makes redundant is then reported as ambiguous, not named.
 OTHER_SHAPE_LEFT_PCT = 20.0
+#: A run the model predicts with at most this share of the RMS once its torque is turned over reads the other way
+#: round (where the import's own check of the sign does not decide).
+SIGN_RMS_RATIO = 0.5
 _REDUNDANT_SHARE = 0.25  # of its own held-out gain, at most, that an ambiguous effect keeps beyond the other's shape
 
 
@@ -135,6 +139,9 @@ class Diagnosis:
     #: Named effects that a named effect's freer shape could also explain, without evidence of that shape:
     #: kept (the simpler explanation), each with the keys of ``ambiguous``; more travel of the link decides.
     undecided: list[dict[str, Any]] = field(default_factory=list)
+    #: Runs whose torque reading has the other sign than the toolkit's convention (:func:`reversed_sign`), each
+    #: with ``dataset`` and ``why``: the rest of the diagnosis is of those runs with the torque turned over.
+    sign_reversed: list[dict[str, str]] = field(default_factory=list)
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
@@ -175,6 +182,7 @@ class Diagnosis:
                     d[f"{key}_tests_{when}"] = cmp.tests.summary()
         return {
             "explained": self.explained,
+            "sign_reversed": self.sign_reversed,
             "unexplained_channels": [f"{c.dataset}/{c.channel}" for c in self.unexplained_channels],
             "effects": [e.as_json() for e in self.effects],
             "suspects": self.suspects,
@@ -190,6 +198,8 @@ class Diagnosis:
     def summary(self) -> str:
         """Readable summary for the terminal."""
         lines = []
+        for r in self.sign_reversed:
+            lines.append(f"the torque's sign: {r['dataset']}: {r['why']} (diagnosed below with the torque turned over)")
         for r in self.replaced:
             old = ", ".join(f"{k} = {v:.6g}" for k, v in r["old_parameters"].items())
             why = (f"is part of {r['or_shape_of']} in another shape: beyond that shape it adds nothing on held-out "
@@ -199,6 +209,10 @@ class Diagnosis:
         if self.explained:
             lines.append("the model explains the data: no candidate effect reduces the held-out residual enough, "
                          "and every channel's residual passes its tests")
+        elif not self.effects and not self.suspects and not self.ambiguous and not self.replaced \
+                and not self.unexplained_channels:
+            lines.append("with the torque turned over the model explains the data: no candidate effect reduces the "
+                         "held-out residual enough, and every channel's residual passes its tests")
         elif not self.effects and not self.suspects and not self.ambiguous and not self.replaced:
             lines.append("the model does not explain the data: no candidate effect reduces the held-out residual "
                          "enough, yet the residual fails its tests on " + _channel_list(self.unexplained_channels)
@@ -258,6 +272,33 @@ def _channel_list(channels: Sequence[ChannelReport]) -> str:
     """``dataset/channel`` of each, joined (the first three, then a count)."""
     names = [f"{c.dataset}/{c.channel}" for c in channels]
     return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+
+def reversed_sign(dataset: Dataset, model: JointModel) -> str | None:
+    """Why ``dataset``'s torque reading has the other sign than the toolkit's convention, or None.
+
+    First the check ``import`` makes (:func:`~iiwa_ident.datasets.torque_sign_problem`: the description's gravity,
+    or the friction, read with a factor near -1), so the two say the same; where it does not decide, the model:
+    the run reads the other way round when the model predicts it with the torque turned over at most
+    :data:`SIGN_RMS_RATIO` times the residual RMS as logged (a scale near -1).
+    """
+    why = torque_sign_problem(dataset)
+    if why is not None or not dataset.has("tau_j"):
+        return why
+    try:
+        logged = _rms([np.array([r[2] for r in residual_rms([dataset], model)])])
+        turned = _rms([np.array([r[2] for r in residual_rms([_turned_over(dataset)], model)])])
+    except IiwaIdentError:
+        return None
+    if logged > 0 and turned <= SIGN_RMS_RATIO * logged:
+        return (f"tau_j reads the other way round: the model predicts it at {turned:.3g} Nm RMS turned over against "
+                f"{logged:.3g} Nm as logged (a torque scale of -1); import the log with --scale tau_j=-1")
+    return None
+
+
+def _turned_over(dataset: Dataset) -> Dataset:
+    """``dataset`` with its torque reading turned over (what ``import --scale tau_j=-1`` gives)."""
+    return dataclasses.replace(dataset, signals={**dataset.signals, "tau_j": -np.asarray(dataset["tau_j"], float)})
 
 
 def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
@@ -362,6 +403,16 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     if len(joints) > 1:
         raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
     original = model
+    # The sign before anything: a reversed reading makes every other effect (a load of twice the gravity at
+    # phase pi, a friction that pushes) an artefact of it.
+    sign_reversed = []
+    turned = list(datasets)
+    for i, ds in enumerate(datasets):
+        why = reversed_sign(ds, model)
+        if why is not None:
+            sign_reversed.append({"dataset": str(ds.path.name) if ds.path else f"dataset {i}", "why": why})
+            turned[i] = _turned_over(ds)
+    datasets = turned
     work, contexts, known = _residuals(datasets, model)
     tested = {(ctx.index, ch): channel_comparison(ctx, ch, ctx.residual[ch]) for ctx in contexts for ch in ctx.channels}
     blocks = _blocks(contexts)
@@ -437,7 +488,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
                      channels=[], model=original, extended=extended, replaced=replaced, contexts=contexts,
                      blocks=blocks, selection=sel,
                      heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous,
-                     undecided=undecided)
+                     undecided=undecided, sign_reversed=sign_reversed)
     for b, rb, ra in zip(blocks, before, after):
         key = (b.ctx.index, b.channel)
         changed = bool(effects) or bool(replaced)
@@ -446,7 +497,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
             channel_comparison(b.ctx, b.channel, diag.residual_after(b.ctx, b.channel)) if changed else tested[key]))
     # One meaning of "explained" everywhere: nothing left for the library to name, and every channel's
     # residual passes the tests that judge the model (or is not judged).
-    diag.explained = not effects and not suspects and not ambiguous and not replaced and not diag.unexplained_channels
+    diag.explained = not effects and not suspects and not ambiguous and not replaced and not sign_reversed \
+        and not diag.unexplained_channels
     return diag
 
 

@@ -457,6 +457,7 @@ def diagnosis_headline(result: Any) -> dict[str, Any]:
     """The diagnose stage's headline figures of a :class:`~iiwa_ident.diagnose.Diagnosis`."""
     return {"explained": result.explained,
             "unexplained_channels": [f"{c.dataset}/{c.channel}" for c in result.unexplained_channels],
+            "sign_reversed": list(result.sign_reversed),
             "effects": [{"name": e.name, "gain_pct": e.gain_pct, "confidence": e.confidence} for e in result.effects],
             "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
                           for a in result.ambiguous],
@@ -515,6 +516,7 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
         out["named_effects"] = h["effects"]
         out["model_explained"] = h["explained"]
         out["unexplained_channels"] = h.get("unexplained_channels", [])
+        out["sign_reversed"] = h.get("sign_reversed", [])
         out["ambiguous_effects"] = h.get("ambiguous", [])
         out["replaced_effects"] = h.get("replaced", [])
         out["undecided_effects"] = h.get("undecided", [])
@@ -570,6 +572,9 @@ def format_summary(result: PipelineResult) -> str:
                          f"{row['additive_peak_error_nm']:.1f} Nm (RMS {row['builtin_rms_error_nm']:.1f} against "
                          f"{row['additive_rms_error_nm']:.1f} Nm)")
     if "named_effects" in h:
+        for r in h.get("sign_reversed", []):
+            lines.append(f"diagnosis: the torque's sign is reversed in {r['dataset']} (re-import it with --scale "
+                         f"tau_j=-1)")
         for r in h.get("replaced_effects", []):
             lines.append(f"diagnosis: the model's {r['old']} contradicted by the data, replaced by "
                          f"{' + '.join(r['new'])}")

@@ -137,6 +137,8 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     verdict = "model explains the data: nothing named" if d.explained else f"{len(d.effects)} effect(s) named"
+    if d.sign_reversed:
+        verdict = f"torque sign reversed in {len(d.sign_reversed)} run(s), then " + verdict
     if d.ambiguous:
         verdict += f", {len(d.ambiguous)} ambiguous"
     if d.undecided:

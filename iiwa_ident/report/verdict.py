@@ -193,8 +193,10 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
         else:
             named = ", ".join(f"{e['name']} ({e['gain_pct']:.0f} %)" for e in h.get("effects", [])) or "none"
             left = h.get("unexplained_channels", [])
-            rows.append(VerdictRow("diagnose", f"named: {named}" + (f"; residual tests fail on {len(left)} "
-                                                                      f"channel(s)" if left else ""),
+            turned = h.get("sign_reversed", [])
+            rows.append(VerdictRow("diagnose", (f"torque sign reversed in {len(turned)} run(s) (--scale tau_j=-1); "
+                                                if turned else "") + f"named: {named}"
+                                   + (f"; residual tests fail on {len(left)} channel(s)" if left else ""),
                                    "the model explains the data", WARN))
     if "held_out" in by:
         runs = by["held_out"].get("runs", [])
