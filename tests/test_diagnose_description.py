@@ -118,3 +118,37 @@ def test_a_reversed_torque_sign_is_named_first_not_as_a_load():
     assert d.summary().startswith("the torque's sign: dataset 0: tau_j reads the other way round")
     assert d.as_json()["sign_reversed"] == d.sign_reversed
     assert not diagnose(_runs(start, 2, 7), start).sign_reversed
+
+
+def _spring_runs(truth, joint: int, seed: int, range_rad: float):
+    out = []
+    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=range_rad, mode="position"),
+                                 HandGuided(duration_s=8.0))):
+        ds = record(SimulatedJoint(plant_from_model(truth), seed=seed + i), program, record_every=5 if i == 0 else 1)
+        ds.joint = joint
+        ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
+        out.append(ds)
+    return out
+
+
+@pytest.mark.parametrize("joint", [3, 4])
+def test_a_spring_is_named_on_any_axis_and_compare_runs_it(joint):
+    # Cables and hoses: a torque linear in the link position, on the vertical joint 3 (no gravity) as on joint 4
+    # (the described gravity in the model): named as a spring with its stiffness and rest angle, not as a load.
+    from iiwa_ident.diagnose import compare
+
+    rng = np.random.default_rng(joint)
+    k, rest = rng.uniform(2.0, 6.0), rng.uniform(-0.5, 0.5)
+    start = starting_model("iiwa14", joint)
+    truth = copy.deepcopy(start)
+    truth.effects = truth.effects + [{"name": "link_spring", "stiffness_nm_rad": k, "rest_rad": rest}]
+    runs = _spring_runs(truth, joint, 3, 1.2)
+    d = diagnose(runs, start)
+    spring = d.effect("link_spring")
+    assert spring is not None and d.effect("position_dependent_load") is None
+    assert spring.parameters["stiffness_nm_rad"] == pytest.approx(k, rel=0.03)
+    assert spring.parameters["rest_rad"] == pytest.approx(rest, abs=0.02)
+    # The extended model runs the spring: compare predicts the link channel at the sensor noise.
+    for row in compare(runs, d.extended):
+        if row.channel == "link":
+            assert row.at_noise, (row.dataset, row.rms_nm, row.noise_nm)

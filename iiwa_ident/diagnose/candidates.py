@@ -80,6 +80,9 @@ __all__ = [
     "TransmissionRippleCandidate",
     "LinkFrictionCandidate",
     "PositionDependentLoadCandidate",
+    "LinkSpringCandidate",
+    "SPRING_MAX_NM_RAD",
+    "SPRING_MIN_SLOPE_SHARE",
     "TorqueSensorOffsetCandidate",
     "TorqueSensorScaleCandidate",
     "PeriodicDisturbanceCandidate",
@@ -194,6 +197,15 @@ class CandidateEffect:
     #: Least held-out gain for the effect to be named, beyond the selection's own
     #: (:data:`~iiwa_ident.diagnose.select.MIN_GAIN`).
     min_gain: ClassVar[float] = 0.0
+
+    #: Candidates whose shape this one's holds with more parameters (a spring's constant is a sensor offset on
+    #: the link): the selection prefers them unless this one gains the selection's least gain more.
+    contains: ClassVar[tuple[str, ...]] = ()
+
+    #: Candidates that predict the data alike over a short travel (another cause of the same shape there): a
+    #: named effect is reported undecided against one of them that, in its place, predicts the held-out data
+    #: as well and is physically possible.
+    alike: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self) -> None:
         self.n_datasets = 0
@@ -603,6 +615,53 @@ class PositionDependentLoadCandidate(CandidateEffect):
             return not np.any(b)
         c = -float(a @ b) / norm ** 2
         return -0.2 <= c <= 1.2 and float(np.hypot(*(b + c * a))) <= 0.2 * norm
+
+    alike = ("link_spring",)
+
+    def evidence_axis(self, ctx):
+        return ctx.theta_l, "link position [rad]"
+
+
+#: The stiffest spring cables and hoses make [Nm/rad]; beyond it a torque linear in the position is some
+#: other misfit (a hard stop, a wrong model).
+SPRING_MAX_NM_RAD = 200.0
+#: Least share of its torque at mid-travel the spring's slope must change over the travel: a spring whose
+#: slope the travel barely shows is a constant, the torque sensor offset's shape.
+SPRING_MIN_SLOPE_SHARE = 0.1
+
+
+@register_candidate
+class LinkSpringCandidate(CandidateEffect):
+    """A spring on the link, ``-k (theta_l - theta_0)``: cables and hoses (on any axis, vertical ones too).
+
+    Over a long travel its straight line is told from gravity's sine by the shape; over a short one a load
+    predicts the data alike (:attr:`alike`): the diagnosis then reports the two undecided.
+    """
+
+    name = "link_spring"
+    alike = ("position_dependent_load",)
+    contains = ("torque_sensor_offset",)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._travel = (0.0, 0.0)
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        th = np.concatenate([b.ctx.theta_l[b.mask] for b in blocks])
+        self._travel = (float(th.min()), float(th.max())) if len(th) else (0.0, 0.0)
+        return self._travel[1] > self._travel[0]
+
+    def plausible(self, coef):
+        # A restoring spring no stiffer than cables make.
+        return 0.0 < float(coef[0]) <= SPRING_MAX_NM_RAD
+
+    def relevant(self, coef):
+        # Its slope must show over the travel beside its torque there; else it is a constant (an offset's shape).
+        k, c = float(coef[0]), float(coef[1])
+        lo, hi = self._travel
+        mid = -k * 0.5 * (lo + hi) + c
+        return abs(k) * (hi - lo) >= SPRING_MIN_SLOPE_SHARE * abs(mid)
 
     def evidence_axis(self, ctx):
         return ctx.theta_l, "link position [rad]"

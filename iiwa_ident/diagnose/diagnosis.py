@@ -31,12 +31,12 @@ from iiwa_ident.datasets import Dataset, torque_sign_problem
 from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
-from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, Selection, cv_residuals, select_effects
+from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, NOISE_FACTOR, Selection, cv_residuals, noise_floor, select_effects
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import PhysicalRanges, against_description, check_model_matches, physical_ranges
 from iiwa_ident.model import JointModel
 
-__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
+__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "undecided_sentence", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]
 
 _LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
@@ -138,6 +138,10 @@ class Diagnosis:
     replaced: list[dict[str, Any]] = field(default_factory=list)
     #: Named effects that a named effect's freer shape could also explain, without evidence of that shape:
     #: kept (the simpler explanation), each with the keys of ``ambiguous``; more travel of the link decides.
+    #: With ``alike``: another cause of the same shape over this travel (a spring for a load) predicts the data
+    #: as well in the named effect's place; with ``beside`` (the named effect) as well, a cause of that kind
+    #: that the data neither ask for nor refuse beside it, with its fitted ``parameters``
+    #: (:func:`undecided_sentence` says each in words).
     undecided: list[dict[str, Any]] = field(default_factory=list)
     #: Runs whose torque reading has the other sign than the toolkit's convention (:func:`reversed_sign`), each
     #: with ``dataset`` and ``why``: the rest of the diagnosis is of those runs with the torque turned over.
@@ -240,9 +244,7 @@ class Diagnosis:
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
                          f"{x['gain_beyond_pct']:.1f} %)")
         for x in self.undecided:
-            lines.append(f"  undecided: {x['name']} or {x['or_shape_of']} in {x['free_shape']}: both predict the "
-                         f"held-out data alike (beyond that shape it gains {x['gain_beyond_pct']:.1f} %); kept as the "
-                         f"simpler explanation, a longer travel of the link decides")
+            lines.append(f"  undecided: {undecided_sentence(x)}")
         if self.effects and self.unexplained_channels:
             lines.append("  with them the residual still fails its tests on " + _channel_list(self.unexplained_channels)
                          + ": the extended model does not explain everything")
@@ -266,6 +268,21 @@ class Diagnosis:
                      "the model cannot predict from the command; RMS held out, fit % and residual tests in-sample; '-': not "
                      "judged, too short or a command computed from the measurements)")
         return "\n".join(lines)
+
+
+def undecided_sentence(x: dict[str, Any]) -> str:
+    """What one entry of :attr:`Diagnosis.undecided` says, in words (the summary, the pipeline's headline)."""
+    if x.get("beside"):
+        pars = ", ".join(f"{k} = {v:.3g}" for k, v in x["parameters"].items())
+        return (f"{x['beside']} alone, or with a {x['name']} beside it ({pars}; held-out {x['gain_pct']:.1f} % "
+                f"lower): over this travel the data do not decide; a longer travel of the link does")
+    if x.get("alike"):
+        return (f"{x['name']} or {x['or_shape_of']}: over this travel both predict the held-out data alike "
+                f"({x['name']} {x['gain_beyond_pct']:.1f} % lower); {x['name']} kept, a longer travel of the link "
+                f"decides")
+    return (f"{x['name']} or {x['or_shape_of']} in {x['free_shape']}: both predict the held-out data alike (beyond "
+            f"that shape it gains {x['gain_beyond_pct']:.1f} %); kept as the simpler explanation, a longer travel of "
+            f"the link decides")
 
 
 def _channel_list(channels: Sequence[ChannelReport]) -> str:
@@ -474,7 +491,12 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
                                  "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
                                  "old_parameters": known[n][0].parameters(known[n][1]),
                                  "or_shape_of": shape_of})
+        # What the data do not decide about an effect of the model refitted whole stays undecided (a load beyond
+        # the described gravity that a spring predicts alike is still so when the whole load is refitted).
+        kept = [u for u in undecided if u.get("alike") and u["name"] in renamed
+                and not any(x["name"] == u["name"] and x["or_shape_of"] == u["or_shape_of"] for x in trial[5])]
         sel, effects, extended, after, ambiguous, undecided = trial
+        undecided = undecided + kept
         known, model, ys = others, without, ys_b
         for ctx in contexts:
             for ch, v in back[ctx.index].items():
@@ -508,14 +530,71 @@ def _named(names: list[str], work: JointModel, model: JointModel, known: dict, b
                       list[dict[str, Any]]]:
     """:func:`_selected`, named again without the effects another one's shape makes ambiguous; those, and the
     undecided ones (:func:`_ambiguous`)."""
-    sel, effects, extended, after = _selected(names, work, model, known, blocks, ys, selection_options, ranges)
-    ambiguous, undecided = _ambiguous(sel, effects, blocks, ys)
-    if ambiguous:
-        # Named again without them: the others' coefficients and gains must not lean on them.
-        left = [n for n in names if n not in {a["name"] for a in ambiguous}]
+    ambiguous: list[dict[str, Any]] = []
+    left = list(names)
+    while True:
         sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options, ranges)
-        undecided = _ambiguous(sel, effects, blocks, ys)[1]
+        more, undecided = _ambiguous(sel, effects, blocks, ys)
+        if not more:
+            break
+        # Named again without them: the others' coefficients and gains must not lean on them (and what takes
+        # their place is judged alike: a spring for an offset a load's other shape explains).
+        ambiguous += more
+        left = [n for n in left if n not in {a["name"] for a in more}]
+    undecided += _alike(sel, effects, left, known, blocks, ys, after, ranges)
     return sel, effects, extended, after, ambiguous, undecided
+
+
+def _alike(sel: Selection, effects: list[EffectReport], names: list[str], known: dict, blocks: list[Block],
+           ys: list[np.ndarray], after: list[np.ndarray], ranges: PhysicalRanges | None) -> list[dict[str, Any]]:
+    """Named effects that another cause of the same shape over this travel (:attr:`CandidateEffect.alike`), not
+    named, predicts as well in their place: undecided, with the keys of :attr:`Diagnosis.undecided`
+    (``free_shape``: that cause's summary). The other cause must be physically possible there (a load on a
+    vertical axis is not) and its held-out SSE, on the blocks the named effect acts on, within the selection's
+    least gain of the named effect's."""
+    reports = {e.name: e for e in effects}
+    selected = {c.name for c in sel.selected}
+    out = []
+    for cand in sel.selected:
+        if cand.name not in reports or sel.band.get(cand.name) not in BANDS:
+            continue
+        acts = _acting(cand, blocks)
+        for other_name in cand.alike:
+            if other_name in selected or other_name not in names or not acts:
+                continue
+            other = make_candidate(other_name)
+            other.ranges = ranges
+            if other_name in known:
+                other.base_coef = known[other_name][1]
+            if not other.prepare(blocks, ys):
+                continue
+            other_cols = block_columns(blocks, other.columns, other.n_columns())
+            sse_named = _sse(after, acts)
+            # In its place: the other cause predicts the held-out data as well.
+            cols = [np.hstack([a, b]) for a, b in zip(sel.columns(blocks, skip=cand.name), other_cols)]
+            own = np.linalg.lstsq(np.vstack(cols), np.concatenate(ys), rcond=None)[0][-other.n_columns():]
+            if other.plausible(other.total(own)) and other.relevant(own):
+                sse_other = _sse(cv_residuals(cols, ys), acts)
+                if sse_other <= (1.0 + MIN_GAIN) * sse_named:
+                    out.append({"name": cand.name, "or_shape_of": other_name, "gain_pct": reports[cand.name].gain_pct,
+                                "gain_beyond_pct": 100.0 * (1.0 - sse_named / sse_other) if sse_other > 0 else 0.0,
+                                "free_shape": f"its own shape ({other.summary})", "alike": True})
+                    continue
+            # Beside it: the other cause fits a physically possible torque larger than the noise, which the held-out
+            # data neither ask for nor refuse (a spring beside a load over a travel of a radian).
+            cols = [np.hstack([a, b]) for a, b in zip(sel.columns(blocks), other_cols)]
+            coef = np.linalg.lstsq(np.vstack(cols), np.concatenate(ys), rcond=None)[0]
+            own = coef[-other.n_columns():]
+            if not (other.plausible(other.total(own)) and other.relevant(own)):
+                continue
+            left = [(y - X @ coef) / b.weight for y, X, b in zip(ys, cols, blocks)]
+            size = _rms([other_cols[i] @ own / blocks[i].weight for i in acts])
+            if size >= NOISE_FACTOR * noise_floor([left[i] for i in acts]):
+                beside = 1.0 - _sse(cv_residuals(cols, ys), acts) / sse_named if sse_named > 0 else 0.0
+                out.append({"name": other_name, "beside": cand.name, "or_shape_of": cand.name,
+                            "gain_pct": 100.0 * beside,
+                            "parameters": other.parameters(own), "alike": True})
+    return out
 
 
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],

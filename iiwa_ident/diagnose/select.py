@@ -71,7 +71,9 @@ per cent off) can be plain in a noise-free own channel and yet make the
 torque prediction no better.
 
 At each step the candidates passing on the whole band compete first
-(largest gain wins); only when none passes do those passing on the fast
+(largest gain wins, unless a simpler candidate whose shape the winner's holds,
+:attr:`CandidateEffect.contains`, gains less than :data:`MIN_GAIN` less; once one of the two is
+named the other is not tried); only when none passes do those passing on the fast
 band, and only when none passes there do those passing on their own
 evidence channel. Selection stops at the first step where no candidate
 passes; on data the model explains, the first step already fails and
@@ -322,6 +324,8 @@ def _pair(step: int, near: list, blocks: Sequence[Block], ys: Sequence[np.ndarra
     for i in range(len(near)):
         for k in range(i + 1, len(near)):
             (c1, X1, _), (c2, X2, _) = near[i], near[k]
+            if c1.name in c2.contains or c2.name in c1.contains:
+                continue  # one holds the other's shape: no pair
             Xp = [np.hstack([a, b]) for a, b in zip(X1, X2)]
             joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xp)]
             scored = _score(step, f"{c1.name} + {c2.name}", "full", joint, Xp, ys_full, cur_res,
@@ -393,6 +397,10 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
         passed: dict[str, list] = {band: [] for band in BANDS + (_OWN,)}
         near: list[tuple[CandidateEffect, list[np.ndarray], Step]] = []  # failed on the confidence alone
         for cand in remaining:
+            # Two candidates one of which holds the other's shape share a column: once one is named, the other
+            # is not tried (their shared part would be split at random between them).
+            if any(cand.name in c.contains or c.name in cand.contains for c in sel.selected):
+                continue
             if not cand.prepare(blocks, in_sample):
                 continue
             Xc = block_columns(blocks, cand.columns, cand.n_columns())
@@ -452,6 +460,11 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
         choice = next((passed[band] for band in BANDS + (_OWN,) if passed[band]), None)
         if choice:
             cand, Xc, record = max(choice, key=lambda x: x[2].gain)
+            # A candidate whose shape holds a simpler one's (a spring's constant is an offset) must gain the least
+            # gain more than that one, else the simpler explanation stands.
+            simpler = [c for c in choice if c[0].name in cand.contains and c[2].gain > record.gain - min_gain]
+            if simpler:
+                cand, Xc, record = max(simpler, key=lambda x: x[2].gain)
             named = [(cand, Xc)]
         else:
             pair = _pair(step, near, blocks, ys, ys_band["full"], cur_X, cur_res["full"], min_gain,

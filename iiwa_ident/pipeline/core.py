@@ -455,6 +455,8 @@ def record_diagnosis(ctx: PipelineContext, result: Any, data: list[Path]) -> dic
 
 def diagnosis_headline(result: Any) -> dict[str, Any]:
     """The diagnose stage's headline figures of a :class:`~iiwa_ident.diagnose.Diagnosis`."""
+    from iiwa_ident.diagnose import undecided_sentence
+
     return {"explained": result.explained,
             "unexplained_channels": [f"{c.dataset}/{c.channel}" for c in result.unexplained_channels],
             "sign_reversed": list(result.sign_reversed),
@@ -462,7 +464,8 @@ def diagnosis_headline(result: Any) -> dict[str, Any]:
             "ambiguous": [{"name": a["name"], "or_shape_of": a["or_shape_of"], "gain_pct": a["gain_pct"]}
                           for a in result.ambiguous],
             "replaced": [{"old": r["old"], "new": r["new"]} for r in result.replaced],
-            "undecided": [{"name": u["name"], "or_shape_of": u["or_shape_of"]} for u in result.undecided],
+            "undecided": [{"name": u["name"], "or_shape_of": u["or_shape_of"], "said": undecided_sentence(u)}
+                          for u in result.undecided],
             "channels": [{"dataset": c.dataset, "channel": c.channel, "gain_pct": c.gain_pct} for c in result.channels]}
 
 
@@ -586,7 +589,8 @@ def format_summary(result: PipelineResult) -> str:
         for e in h["named_effects"]:
             lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
         for u in h.get("undecided_effects", []):
-            lines.append(f"diagnosis: {u['name']} kept, but another shape of {u['or_shape_of']} predicts the data as "
+            lines.append(f"diagnosis: undecided: {u['said']}" if "said" in u else
+                         f"diagnosis: {u['name']} kept, but another shape of {u['or_shape_of']} predicts the data as "
                          f"well (a longer travel of the link decides)")
         if left:
             lines.append(f"diagnosis: the residual fails its tests on {len(left)} channel(s) (" + ", ".join(left[:3])

@@ -22,6 +22,7 @@ from iiwa_ident.sim.effects import (
     LinkFriction,
     PeriodicDisturbance,
     PositionDependentLoad,
+    LinkSpring,
     TorqueSensorOffset,
     TorqueSensorScale,
     TransmissionRipple,
@@ -42,7 +43,7 @@ from iiwa_ident.sim.plant import (
 __all__ = [
     "EFFECTS", "Effect", "register_effect", "make_effect", "EffectSignals", "Column", "INJECTIONS",
     "own_dataset_columns",
-    "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "TorqueSensorOffset",
+    "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "LinkSpring", "TorqueSensorOffset",
     "TorqueSensorScale", "PeriodicDisturbance", "InputDelay",
     "Plant", "default_plant", "load_plant", "plant_from_dict", "plant_from_model", "save_plant",
     "SimulatedJoint", "SimTrace", "ExternalAgent",

@@ -68,6 +68,7 @@ __all__ = [
     "TransmissionRipple",
     "LinkFriction",
     "PositionDependentLoad",
+    "LinkSpring",
     "TorqueSensorOffset",
     "TorqueSensorScale",
     "PeriodicDisturbance",
@@ -486,6 +487,39 @@ class PositionDependentLoad(Effect):
     def reported(self, coef):
         v = self.values_from(coef)
         return {"amplitude_nm": v["amplitude_nm"], "phase_rad": v["phase_rad"]}
+
+
+@register_effect
+class LinkSpring(Effect):
+    """A torque linear in the link position about a rest angle: ``-k (theta_l - theta_0)`` [Nm].
+
+    Cables and hoses along the arm act as a spring on the joints they cross, on any axis (gravity loads only
+    those whose axis is not vertical); the robot's model does not know it. Over a travel of a radian or more
+    its straight line is told from gravity's sine by its shape; over a short one the two look alike.
+    """
+
+    name = "link_spring"
+    summary = "spring torque -k (theta_l - theta_0) on the link (cables, hoses)"
+    params = (
+        Param("stiffness_nm_rad", 4.0, "Nm/rad", -1000.0, 1000.0, "stiffness k"),
+        Param("rest_rad", 0.0, "rad", -10.0, 10.0, "rest angle theta_0 of the link"),
+    )
+
+    def link_torque(self, theta_l, omega_l, P):
+        return -P["stiffness_nm_rad"] * (theta_l - P["rest_rad"])
+
+    def columns(self, s):
+        # -k theta_l + k theta_0: the slope and the torque at theta_l = 0.
+        return [[("link", -s.theta_l)], [("link", np.ones_like(s.theta_l))]]
+
+    def coefficients(self):
+        k = self.values["stiffness_nm_rad"]
+        return np.array([k, k * self.values["rest_rad"]])
+
+    def values_from(self, coef):
+        """The rest angle is the torque at zero over the stiffness (0 without a stiffness)."""
+        k, c = float(coef[0]), float(coef[1])
+        return {"stiffness_nm_rad": k, "rest_rad": c / k if k != 0 else 0.0}
 
 
 @register_effect
