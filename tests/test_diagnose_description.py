@@ -14,11 +14,11 @@ from iiwa_ident.ident import physical_ranges, starting_model
 from iiwa_ident.sim import SimulatedJoint, plant_from_model
 
 
-def _runs(plant_model, joint: int, seed: int):
-    """Position-controlled constant-velocity runs and a hand-guided run of the simulated joint, labelled as
-    ``joint`` of an iiwa 14 standing straight up."""
+def _runs(plant_model, joint: int, seed: int, range_rad: float = 1.2):
+    """Position-controlled constant-velocity runs over ``range_rad`` and a hand-guided run of the simulated joint,
+    labelled as ``joint`` of an iiwa 14 standing straight up."""
     out = []
-    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=1.2, mode="position"),
+    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=range_rad, mode="position"),
                                  HandGuided(duration_s=8.0))):
         ds = record(SimulatedJoint(plant_from_model(plant_model), seed=seed + i), program, record_every=5 if i == 0 else 1)
         ds.joint = joint
@@ -120,17 +120,6 @@ def test_a_reversed_torque_sign_is_named_first_not_as_a_load():
     assert not diagnose(_runs(start, 2, 7), start).sign_reversed
 
 
-def _spring_runs(truth, joint: int, seed: int, range_rad: float):
-    out = []
-    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=range_rad, mode="position"),
-                                 HandGuided(duration_s=8.0))):
-        ds = record(SimulatedJoint(plant_from_model(truth), seed=seed + i), program, record_every=5 if i == 0 else 1)
-        ds.joint = joint
-        ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
-        out.append(ds)
-    return out
-
-
 @pytest.mark.parametrize("joint", [3, 4])
 def test_a_spring_is_named_on_any_axis_and_compare_runs_it(joint):
     # Cables and hoses: a torque linear in the link position, on the vertical joint 3 (no gravity) as on joint 4
@@ -142,7 +131,7 @@ def test_a_spring_is_named_on_any_axis_and_compare_runs_it(joint):
     start = starting_model("iiwa14", joint)
     truth = copy.deepcopy(start)
     truth.effects = truth.effects + [{"name": "link_spring", "stiffness_nm_rad": k, "rest_rad": rest}]
-    runs = _spring_runs(truth, joint, 3, 1.2)
+    runs = _runs(truth, joint, 3)
     d = diagnose(runs, start)
     spring = d.effect("link_spring")
     assert spring is not None and d.effect("position_dependent_load") is None
