@@ -141,3 +141,23 @@ def test_a_spring_is_named_on_any_axis_and_compare_runs_it(joint):
     for row in compare(runs, d.extended):
         if row.channel == "link":
             assert row.at_noise, (row.dataset, row.rms_nm, row.noise_nm)
+
+
+@pytest.mark.parametrize("joint", [1, 2, 4])
+def test_a_torque_filtered_before_logging_is_named_with_its_cut_off(joint):
+    # A driver's first-order filter between the sensor and the log, 8-15 Hz, on the 200 Hz constant-velocity run
+    # and the hand-guided run together, and on the hand-guided run alone: named with its cut-off, nothing else.
+    rng = np.random.default_rng(joint + 40)
+    fc = rng.uniform(8.0, 15.0)
+    start = starting_model("iiwa14", joint)
+    truth = copy.deepcopy(start)
+    truth.effects = truth.effects + [{"name": "torque_log_filter", "cutoff_hz": fc}]
+    runs = _runs(truth, joint, 3)
+    for data in (runs, runs[1:]):
+        d = diagnose(data, start)
+        f = d.effect("torque_log_filter")
+        # within 5 % on both runs, 10 % on the hand-guided run alone
+        assert f is not None and f.parameters["cutoff_hz"] == pytest.approx(fc, rel=0.05 if len(data) == 2 else 0.1)
+        assert f.detail["shape"] == "first order" and "the log only" in d.summary()
+        if len(data) == 2:  # (the hand-guided run alone may name a refit beside it: docs/diagnose.md)
+            assert [e.name for e in d.effects] == ["torque_log_filter"], [(e.name, e.parameters) for e in d.effects]

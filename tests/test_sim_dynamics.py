@@ -96,8 +96,13 @@ class TestAgainstReferenceModel:
 class TestStepAndBatchAgree:
     """start() + step() per cycle gives the same signals as run_open_loop()."""
 
-    def test_identical_with_noise(self):
+    @pytest.mark.parametrize("log_filter", [None, {"cutoff_hz": 12.0, "order": 2.0}])
+    def test_identical_with_noise(self, log_filter):
+        from iiwa_ident.sim import make_effect
+
         plant = default_plant()
+        if log_filter is not None:  # a filter between the sensor and the log, after the robot's observer
+            plant = plant.with_effects(make_effect("torque_log_filter", log_filter))
         tau = smooth_command(400)
         batch = SimulatedJoint(plant, seed=3).run_open_loop(tau).measured
         joint = SimulatedJoint(plant, seed=3)

@@ -160,3 +160,29 @@ class TestInputDelay:
         late = SimulatedJoint(linear_plant.with_effects(InputDelay({"extra_s": 0.002}))).run_open_loop(tau).hidden["tau_j"]
         np.testing.assert_allclose(late[2:], base[:-2], rtol=0, atol=1e-12)
         assert np.abs(late[7:] - base[7:]).max() > 1e-3
+
+
+class TestTorqueLogFilter:
+    def test_only_the_logged_torque_is_filtered(self):
+        # The loop, the robot's observer and the hidden torque are the same with and without it; the logged
+        # torque is the unfiltered one through one first-order stage at the cut-off (checked against the
+        # continuous filter's ramp response at the samples, exact for an input linear between them).
+        from iiwa_ident.sim import TorqueLogFilter, default_plant, make_effect
+
+        plant = default_plant()
+        fc = float(np.random.default_rng(5).uniform(5.0, 50.0))
+        tau = smooth_command(3000)
+        plain = SimulatedJoint(plant, seed=2).run_open_loop(tau)
+        logged = SimulatedJoint(plant.with_effects(make_effect("torque_log_filter", {"cutoff_hz": fc})),
+                                seed=2).run_open_loop(tau)
+        for name in ("tau_j", "theta_l"):
+            np.testing.assert_array_equal(logged.hidden[name], plain.hidden[name])
+        np.testing.assert_array_equal(logged.measured["tau_ext_fri"], plain.measured["tau_ext_fri"])
+        np.testing.assert_allclose(logged.measured["tau_j"], TorqueLogFilter({"cutoff_hz": fc}).apply(
+            plain.measured["tau_j"], 1e-3), rtol=0, atol=1e-9)
+        # A ramp from rest: the continuous response t - tau (1 - exp(-t / tau)), at any sample period.
+        tau = 1 / (2 * np.pi * fc)
+        for dt in (1e-3, 5e-3):
+            t = np.arange(400) * dt
+            got = TorqueLogFilter({"cutoff_hz": fc}).apply(np.r_[0.0, t[1:]], dt)
+            np.testing.assert_allclose(got, t - tau * (1 - np.exp(-t / tau)), rtol=0, atol=1e-12)

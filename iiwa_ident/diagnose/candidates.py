@@ -65,7 +65,8 @@ from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channe
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import PhysicalRanges, line_ratio
 from iiwa_ident.model import JointModel, RippleTable
-from iiwa_ident.sim import EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TransmissionRipple, make_effect
+from iiwa_ident.sim import (EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TorqueLogFilter,
+                            TransmissionRipple, make_effect)
 from iiwa_ident.sim import own_dataset_columns
 
 __all__ = [
@@ -85,6 +86,10 @@ __all__ = [
     "SPRING_MIN_SLOPE_SHARE",
     "TorqueSensorOffsetCandidate",
     "TorqueSensorScaleCandidate",
+    "SCALE_RELEVANT",
+    "TorqueLogFilterCandidate",
+    "LOG_FILTER_SHAPES",
+    "LOG_FILTER_OTHER_SHAPE",
     "PeriodicDisturbanceCandidate",
     "ModelParametersCandidate",
     "MODEL_PARAMETER_FACTOR",
@@ -695,6 +700,10 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
                                                        [np.ones_like(ctx.t), ctx.t - ctx.t[0]])
 
 
+#: Least relative scale error of the torque reading that is named [1].
+SCALE_RELEVANT = 0.005
+
+
 @register_candidate
 class TorqueSensorScaleCandidate(CandidateEffect):
     """Scale error of the torque reading, ``reading = s tau_J``.
@@ -709,12 +718,135 @@ class TorqueSensorScaleCandidate(CandidateEffect):
     name = "torque_sensor_scale"
 
 
+    def relevant(self, coef):
+        # A scale within SCALE_RELEVANT of 1 is below a torque sensor's calibration (and the 1 % the diagnosis is
+        # held to): what a filter's or a table's small misfit leaves in the fast band, not a finding.
+        return abs(self.effect.values_from(coef)["scale"] - 1.0) >= SCALE_RELEVANT
+
     def plausible(self, coef):
         # A torque sensor off by more than a factor 1.5 is not a calibration error.
         return coef[0] < 1 and 0.67 <= self.effect.values_from(coef)["scale"] <= 1.5
 
     def evidence_axis(self, ctx):
         return ctx.tau, "measured joint torque [Nm]"
+
+
+#: What a filter before the log means for the robot (said with it wherever it is named).
+LOG_ONLY = ("the log only: the robot's torque loop, its observer and a controller the runtime runs use the "
+            "unfiltered torque; the model's other parameters and effects are of the unfiltered joint")
+
+#: Largest residual SSE, relative to the first order's, at which another shape of the log's filter is preferred.
+LOG_FILTER_OTHER_SHAPE = 0.8
+
+#: The shapes of a filter before the log the diagnosis compares, each with one searched parameter: one or two
+#: first-order stages at a cut-off, or a pure delay.
+LOG_FILTER_SHAPES = ("first order", "second order", "pure delay")
+
+
+@register_candidate
+class TorqueLogFilterCandidate(CandidateEffect):
+    """A low-pass between the torque sensor and the log: the logged torque is the true one filtered.
+
+    The column is what the filter does to the model's own predictions, ``F(p) - p`` on each channel (the
+    prediction with the model's own effects, its gravity above all, is the model's estimate of the unfiltered
+    torque), with a coefficient near 1. The cut-off is
+    searched on a logarithmic grid from 1 Hz to 0.4 of the logging rate and refined; three shapes are compared
+    at their best parameter (:data:`LOG_FILTER_SHAPES`): the first order is kept unless another leaves at most
+    :data:`LOG_FILTER_OTHER_SHAPE` of its residual (``detail``: ``shape``, and each shape's residual SSE relative
+    to the smallest). A pure delay extends the model as
+    the first-order filter of the same low-frequency lag, ``f_c = 1 / (2 pi d)``. It acts on the log only: the
+    robot's loop, its observer and a controller the runtime runs see the unfiltered torque.
+    """
+
+    name = "torque_log_filter"
+    n_nonlinear = 1
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.shape = LOG_FILTER_SHAPES[0]
+        self._delay_s = 0.0
+
+    def _filtered(self, x: np.ndarray, dt: float) -> np.ndarray:
+        if self.shape == "pure delay":
+            t = np.arange(len(x)) * dt
+            return np.interp(t - self._delay_s, t, x)
+        return self.effect.apply(x, dt)
+
+    def _set(self, shape: str, value: float) -> None:
+        """The shape at its parameter: a cut-off [Hz] (filters) or a delay [s]; not range checked."""
+        self.shape = shape
+        self.effect = TorqueLogFilter({"order": 2.0 if shape == "second order" else 1.0})
+        if shape == "pure delay":
+            self._delay_s = value
+            self.effect.values["cutoff_hz"] = 1.0 / (2.0 * math.pi * value)
+        else:
+            self.effect.values["cutoff_hz"] = value
+
+    def n_columns(self):
+        return 1
+
+    def columns(self, ctx):
+        col: Column = []
+        for ch, point in (("command", "command_raw"), ("link", "link_raw")):
+            if ch in ctx.predicted:
+                p = ctx.with_effects.get(ch, ctx.predicted[ch])
+                phi = self._filtered(p, ctx.dt) - p
+                if ch == "link" and ctx.link_from_eq9:  # eq (9) takes the link from the logged reading too
+                    phi = phi + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(phi))
+                col.append((point, phi))
+        return [col]
+
+    def prepare(self, blocks, residuals) -> bool:
+        super().prepare(blocks, residuals)
+        fs = 1.0 / max(b.ctx.dt for b in blocks)
+        top = 0.4 * fs
+        if top <= 2.0:
+            return False
+        best: dict[str, tuple[float, float]] = {}
+        for shape in LOG_FILTER_SHAPES:
+            def sse(log_x: float, shape: str = shape) -> float:
+                # The whole filter (coefficient 1): with the coefficient free, a slow motion shows only the
+                # lag, coefficient over cut-off, and the cut-off drifts.
+                x = math.exp(log_x)
+                self._set(shape, 1.0 / (2.0 * math.pi * x) if shape == "pure delay" else x)
+                Xs = block_columns(blocks, self.columns, 1)
+                return float(sum(np.sum((r - X[:, 0]) ** 2) for X, r in zip(Xs, residuals)))
+
+            grid = np.linspace(math.log(1.0), math.log(top), 24)
+            lx = _search_1d(sse, grid)
+            best[shape] = (lx, sse(lx))
+        # A driver's filter is first order (an exponential smoothing); another shape only where the data ask for
+        # it clearly: the same number of parameters, a residual at most LOG_FILTER_OTHER_SHAPE of the first order's.
+        shape = min(best, key=lambda k: best[k][1])
+        if best[shape][1] > LOG_FILTER_OTHER_SHAPE * best[LOG_FILTER_SHAPES[0]][1]:
+            shape = LOG_FILTER_SHAPES[0]
+        lx = best[shape][0]
+        self._set(shape, 1.0 / (2.0 * math.pi * math.exp(lx)) if shape == "pure delay" else math.exp(lx))
+        low = best[shape][1]
+        self.detail = {"shape": shape, "log_only": LOG_ONLY,
+                       **{f"sse_{k.replace(' ', '_')}_vs_best": v[1] / low if low > 0 else 1.0 for k, v in best.items()}}
+        return True
+
+    def parameters(self, coef):
+        out = {"cutoff_hz": float(self.effect.values["cutoff_hz"])}
+        if self.shape == "pure delay":
+            out["delay_s"] = float(self._delay_s)
+        return out
+
+    def extend(self, model, coef):
+        self._replace_effect(model, self.effect.clip(dict(self.effect.values)))
+
+    def plausible(self, coef):
+        # The column is the filter's whole action: a coefficient far from 1 is some other lag or misfit.
+        return 0.7 <= float(coef[0]) <= 1.3
+
+    def from_values(self, values):
+        self.effect = make_effect(self.name, values)
+        self.shape = "second order" if self.effect.values["order"] == 2.0 else "first order"
+        return np.array([1.0])
+
+    def evidence_axis(self, ctx):
+        return ctx.t, "time [s]"
 
 
 @register_candidate

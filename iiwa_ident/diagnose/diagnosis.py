@@ -237,6 +237,11 @@ class Diagnosis:
                 if "one_speed_rad_s" in e.detail:
                     lines.append(f"  {'':<24} the data move at one speed ({e.detail['one_speed_rad_s']:.2g} rad/s): the "
                                  f"friction at that speed, as Coulomb; runs at other speeds separate the viscous part")
+                if "log_only" in e.detail:
+                    others = ", ".join(f"{k[4:-8].replace('_', ' ')} x{v:.3g}" for k, v in e.detail.items()
+                                       if k.startswith("sse_") and k.endswith("_vs_best") and v > 1.0)
+                    lines.append(f"  {'':<24} shape: {e.detail['shape']} (residual SSE of the others: {others}); "
+                                 f"{e.detail['log_only']}")
                 if e.detail.get("against_description"):
                     lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
         for x in self.ambiguous:
@@ -343,6 +348,7 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
         for ctx in contexts:
             for ch, v in _contribution(cand, coef, ctx).items():
                 ctx.residual[ch] = ctx.residual[ch] - v
+                ctx.with_effects[ch] = ctx.with_effects.get(ch, ctx.predicted[ch]) + v
         known[name] = (cand, coef)
     return known
 

@@ -112,6 +112,9 @@ class Context:
         Samples of each available channel.
     measured, predicted, residual : dict of str to numpy.ndarray
         Per channel: what is compared, the model's prediction, their difference [Nm].
+    with_effects : dict of str to numpy.ndarray
+        Per channel, the prediction with the model's own extra effects (its gravity, friction, ...) [Nm]: the
+        model's estimate of the whole torque (what a filter before the log acts on).
     """
 
     index: int
@@ -137,6 +140,7 @@ class Context:
     measured: dict[str, np.ndarray] = field(default_factory=dict)
     predicted: dict[str, np.ndarray] = field(default_factory=dict)
     residual: dict[str, np.ndarray] = field(default_factory=dict)
+    with_effects: dict[str, np.ndarray] = field(default_factory=dict)
     _sos: np.ndarray | None = None
     _tf: dict = field(default_factory=dict)
 

@@ -19,6 +19,9 @@ Hooks (all optional; the default contributes nothing):
     internal torque loop regulates this reading.
 ``extra_delay_s()``
     Extra input delay [s] added to ``Td``.
+``log_filter()``
+    A filter between the torque sensor and the log (:class:`TorqueLogFilter`), or None: the internal loop,
+    the robot's observer and the runtime see the unfiltered reading.
 
 ``P`` maps each parameter name to a casadi expression (scalar, or a vector
 for list parameters), so one compiled simulator serves every parameter value.
@@ -71,6 +74,7 @@ __all__ = [
     "LinkSpring",
     "TorqueSensorOffset",
     "TorqueSensorScale",
+    "TorqueLogFilter",
     "PeriodicDisturbance",
     "InputDelay",
 ]
@@ -204,6 +208,9 @@ class Effect:
 
     def extra_delay_s(self) -> float:
         return 0.0
+
+    def log_filter(self) -> "TorqueLogFilter | None":
+        return None
 
     # -- regressors (module docstring) -----------------------------------
     def columns(self, s: EffectSignals) -> list[Column]:
@@ -582,6 +589,62 @@ class TorqueSensorScale(Effect):
 
     def values_from(self, coef):
         return {"scale": 1.0 / (1.0 - float(coef[0]))}
+
+
+@register_effect
+class TorqueLogFilter(Effect):
+    """A low-pass between the joint-torque sensor and the log (a driver's filter, e.g. a ROS state topic's).
+
+    ``order`` first-order stages at ``cutoff_hz`` each, the continuous filter discretised at the logging rate
+    for an input linear between samples (:meth:`coefficients_at`), started at rest on the first sample. Only the logged ``tau_j`` passes it: the internal torque loop,
+    the robot's external-torque observer and a controller the runtime runs use the unfiltered reading.
+    """
+
+    name = "torque_log_filter"
+    summary = "low-pass of the logged torque (a driver's filter; the robot's loop does not see it)"
+    params = (
+        Param("cutoff_hz", 12.0, "Hz", 0.1, 500.0, "cut-off of each first-order stage"),
+        Param("order", 1.0, "1", 1.0, 2.0, "number of first-order stages (1 or 2)"),
+    )
+
+    def _init_extra(self, values: dict[str, Any], where: str) -> None:
+        if self.values["order"] not in (1.0, 2.0):
+            raise PlantError(f"{where}.order: 1 or 2 first-order stages, got {self.values['order']:g}")
+
+    def log_filter(self) -> "TorqueLogFilter":
+        return self
+
+    def coefficients_at(self, dt: float) -> tuple[list[float], list[float]]:
+        """``(b, a)`` of one stage at the sample period ``dt`` [s]: the continuous first order, exact for an input
+        linear between samples (first-order hold), so that it lags as the continuous filter does at any rate."""
+        alpha = 2.0 * math.pi * self.values["cutoff_hz"] * dt
+        a = math.exp(-alpha)
+        g = (1.0 - a) / alpha
+        return [1.0 - g, g - a], [1.0, -a]
+
+    def apply(self, x: np.ndarray, dt: float) -> np.ndarray:
+        """The filtered signal of ``x`` sampled every ``dt`` [s] (each stage at rest on ``x[0]``)."""
+        from scipy import signal as _signal
+
+        b, a = self.coefficients_at(dt)
+        y = np.asarray(x, float)
+        for _ in range(int(self.values["order"])):
+            if len(y):
+                y = _signal.lfilter(b, a, y, zi=_signal.lfilter_zi(b, a) * y[0])[0]
+        return y
+
+    def step(self, state: list[tuple[float, float]] | None, x: float, dt: float
+             ) -> tuple[list[tuple[float, float]], float]:
+        """One sample of :meth:`apply`: the new state (each stage's last input and output) and the output."""
+        (b0, b1), (_, na) = self.coefficients_at(dt)
+        n = int(self.values["order"])
+        state = list(state) if state is not None else [(x, x)] * n
+        for i in range(n):
+            x_prev, y_prev = state[i]
+            y = -na * y_prev + b0 * x + b1 * x_prev
+            state[i] = (x, y)
+            x = y
+        return state, x
 
 
 @register_effect

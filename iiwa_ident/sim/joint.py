@@ -83,6 +83,8 @@ class SimulatedJoint(RobotInterface):
         self.q0 = float(q0)
         # A constant error of the logged reading that the internal loop does not see [Nm].
         self._logged_nm = sum(e.logged_offset() for e in self.plant.effects)
+        # A filter between the sensor and the log: after the robot's observer, on the logged torque only.
+        self._log_filter = next((f for f in (e.log_filter() for e in self.plant.effects) if f is not None), None)
         self.agent: ExternalAgent | None = None
         self._started = False
 
@@ -178,6 +180,8 @@ class SimulatedJoint(RobotInterface):
         meas = self._measure(y0[None, :], self._noise(1))
         self._q_prev = float(meas["q_m"][0])
         tau_ext = self._observer.update(0.0, float(meas["tau_j"][0]), float(y0[_Y["tau_model"]]))
+        self._log_state = None
+        self._log_through_filter(meas)
         self._started = True
         return self._measurement(0.0, meas, tau_ext)
 
@@ -189,6 +193,12 @@ class SimulatedJoint(RobotInterface):
         y[_Y["theta_m"]], y[_Y["theta_l"]], y[_Y["held"]] = x[0], x[2], x[5]
         y[_Y["tau_j"]], y[_Y["tau_s"]], y[_Y["tau_model"]] = tau_j, tau_s, tau_model
         return y
+
+    def _log_through_filter(self, meas: dict[str, np.ndarray]) -> None:
+        """The logged torque of one step through the log filter (in place; nothing without one)."""
+        if self._log_filter is not None:
+            self._log_state, y = self._log_filter.step(self._log_state, float(meas["tau_j"][0]), self.sample_time_s)
+            meas["tau_j"] = np.array([y])
 
     def _measurement(self, t: float, meas: dict[str, np.ndarray], tau_ext_fri: float) -> Measurement:
         return Measurement(
@@ -215,6 +225,7 @@ class SimulatedJoint(RobotInterface):
         velocity = (q - self._q_prev) / self.sample_time_s
         self._q_prev = q
         tau_ext = self._observer.update(velocity, float(meas["tau_j"][0]), float(y[_Y["tau_model"]]))
+        self._log_through_filter(meas)
         self._last_y = y
         return self._measurement(self._k * self.sample_time_s, meas, tau_ext)
 
@@ -266,6 +277,8 @@ class SimulatedJoint(RobotInterface):
         velocity = np.concatenate([[0.0], np.diff(meas["q_m"]) / T])
         obs = MomentumObserver(self.plant.internal["KI"], self.plant.dynamics["Jl"], T)
         meas["tau_ext_fri"] = obs.filter(velocity, meas["tau_j"], Yall[:, _Y["tau_model"]])
+        if self._log_filter is not None:
+            meas["tau_j"] = self._log_filter.apply(meas["tau_j"], T)
         meas["t"] = np.arange(n + 1) * T
         self._x = X[-1]
         hidden = {name: Yall[:, i] for i, name in enumerate(OUTPUTS)}
