@@ -934,6 +934,7 @@ MODEL_PARAMETER_RELEVANT_TD_S = 5e-4
 #: a few per cent of any misfit, which is no evidence that the parameters are off.
 MIN_GAIN_MODEL = 0.10
 _MODEL_KEYS = ("Jc", "bc", "K", "Jl", "Td")
+_CHANNEL_PARAMETERS = {"link": ("K", "Jl"), "command": _MODEL_KEYS}  # what each channel's prediction depends on
 _MODEL_JSON = {"Jc": "Jc_kgm2", "bc": "bc_nms_rad", "K": "K_nm_rad", "Jl": "Jl_kgm2", "Td": "Td_s"}
 
 
@@ -967,16 +968,27 @@ class ModelParametersCandidate(CandidateEffect):
         self.refit: dict[str, float] = {}
         self._model: dict[str, float] = {}
         self._cache: dict[int, dict[str, np.ndarray]] = {}
+        self._predictions: dict[tuple, np.ndarray] = {}
 
 
     def n_columns(self):
         return 1
 
     def _changes(self, ctx: Context, params: dict[str, float]) -> dict[str, np.ndarray]:
-        return {ch: predict_channel(ctx, ch, params) - ctx.predicted[ch] for ch in ctx.channels}
+        out = {}
+        for ch in ctx.channels:
+            # The link channel depends on K and Jl only: the delay's grid and its finite differences reuse it.
+            key = (ctx.index, ch, *(params[k] for k in _CHANNEL_PARAMETERS[ch]))
+            if key not in self._predictions:
+                if len(self._predictions) >= 16:  # a few recent ones are all the reuse there is
+                    del self._predictions[next(iter(self._predictions))]
+                self._predictions[key] = predict_channel(ctx, ch, params) - ctx.predicted[ch]
+            out[ch] = self._predictions[key]
+        return out
 
     def prepare(self, blocks, residuals) -> bool:
         super().prepare(blocks, residuals)
+        self._predictions = {}
         self._model = dict(blocks[0].ctx.params)
         self.detail.update({f"model_{_MODEL_JSON[k]}": v for k, v in self._model.items()})
         has_command = any(b.channel == "command" for b in blocks)
