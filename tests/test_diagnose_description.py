@@ -163,3 +163,34 @@ def test_a_torque_filtered_before_logging_is_named_with_its_cut_off(joint, alone
         assert f.detail["shape"] == "first order" and "the log only" in d.summary()
         if len(data) == 2:  # (the hand-guided run alone may name a refit beside it: docs/diagnose.md)
             assert [e.name for e in d.effects] == ["torque_log_filter"], [(e.name, e.parameters) for e in d.effects]
+
+
+@pytest.mark.parametrize("joint, seed", [(4, 2), (6, 4)])
+def test_a_payload_is_said_in_kilograms_with_its_std(joint, seed):
+    # A point mass at the flange, drawn at random: the named gravity load is said as that payload (within 3 std
+    # and 1 %) on the flange's lever at the pose, and as the centre-of-mass moment mass x lever.
+    from iiwa_ident.description import gravity_sinusoid
+
+    m = np.random.default_rng(seed).uniform(1.0, 8.0)
+    start = starting_model("iiwa14", joint)
+    truth = copy.deepcopy(start)
+    a, p = gravity_sinusoid("iiwa14", joint, [0.0] * 7, m)
+    truth.effects[0].update(amplitude_nm=a, phase_rad=p + np.pi)  # the load on the link: minus the holding torque
+    d = diagnose(_runs(truth, joint, seed), start)
+    e = d.effect("position_dependent_load")
+    assert e is not None
+    assert abs(e.detail["payload_kg"] - m) <= max(3 * e.detail["payload_std_kg"], 1e-9) and \
+        e.detail["payload_kg"] == pytest.approx(m, rel=0.01)
+    assert e.detail["com_moment_kgm"] == pytest.approx(m * e.detail["payload_lever_m"], rel=0.01)
+    assert "as a payload at the flange" in d.summary()
+
+
+def test_a_payload_the_pose_does_not_determine():
+    # The flange on joint 7's axis: no flange mass loads it, so no payload is said, only a moment.
+    from iiwa_ident.ident import payload_of_load, physical_ranges
+
+    ranges = physical_ranges(starting_model("iiwa14", 6))
+    assert payload_of_load(ranges, ranges.load_described_nm, 0.0).determined
+    r7 = type(ranges)(ranges.Jl_kgm2, ranges.load_nm, ranges.Jl_described_kgm2, 1.0, "iiwa14", 7, ranges.pose_rad)
+    pay = payload_of_load(r7, 2.0, 0.3)
+    assert not pay.determined and "the pose does not determine a payload" in pay.text()

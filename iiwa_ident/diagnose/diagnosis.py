@@ -33,7 +33,8 @@ from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, NOISE_FACTOR, Selection, cv_residuals, noise_floor, select_effects
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import PhysicalRanges, against_description, check_model_matches, physical_ranges
+from iiwa_ident.ident import (PhysicalRanges, against_description, check_model_matches, payload_of_load,
+                              physical_ranges)
 from iiwa_ident.model import JointModel
 
 __all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "undecided_sentence", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
@@ -244,6 +245,8 @@ class Diagnosis:
                                  f"{e.detail['log_only']}")
                 if e.detail.get("against_description"):
                     lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
+                if e.detail.get("payload"):
+                    lines.append(f"  {'':<24} {e.detail['payload']}")
         for x in self.ambiguous:
             lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
@@ -622,6 +625,7 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
     extended.parameters["Td"].value = work.parameters["Td"].value
     extended.effects = [e for e in extended.effects if e.get("name") != "input_delay"]
     effects = []
+    cov: np.ndarray | None = None
     for cand, sl in zip(sel.selected, sel.slices):
         coef = sel.coef[sl]
         without = cv_residuals(sel.columns(blocks, skip=cand.name), ys)
@@ -632,10 +636,18 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         cand.extend(extended, total)
         params = cand.parameters(total)
         shape = _shape_fit(cand, blocks, ys, sel, without, after, acts)
-        physical = {}
+        physical: dict[str, Any] = {}
         if ranges is not None and cand.name in ("position_dependent_load", "model_parameters"):
             physical["against_description"] = against_description(
                 ranges, load_nm=params.get("amplitude_nm"), Jl_kgm2=params.get("Jl_kgm2"))
+        if ranges is not None and cand.name == "position_dependent_load" and ranges.load_described_nm > 0:
+            # The extra gravity as the payload (or centre-of-mass shift) users of a load-data calibration ask for.
+            if cov is None:
+                cov = _coefficient_cov(sel, blocks, ys)
+            pay = payload_of_load(ranges, params["amplitude_nm"], params["phase_rad"], cov[sl][:, sl][:2, :2])
+            physical.update(payload=pay.text(), payload_kg=pay.mass_kg, payload_std_kg=pay.mass_std_kg,
+                            payload_lever_m=pay.lever_m, com_moment_kgm=pay.moment_kgm,
+                            com_moment_std_kgm=pay.moment_std_kgm)
         effects.append(EffectReport(cand.name, sel.confidence[cand.name], params, rb, ra,
                                     100.0 * (1 - ra / rb) if rb > 0 else 0.0,
                                     {**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
@@ -648,6 +660,20 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         extended.description = (extended.description + " | " if extended.description else "") + \
             "extended by diagnose: " + ", ".join(e.name for e in effects)
     return sel, effects, extended, after
+
+
+def _coefficient_cov(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> np.ndarray:
+    """Covariance of the selection's coefficients [their units squared]: least squares on the weighted blocks,
+    the residual's variance inflated by ``(1 + r1) / (1 - r1)`` for its lag-one correlation ``r1`` (pooled over
+    the blocks: neighbouring samples of a low-passed channel are not independent)."""
+    Xs = sel.columns(blocks)
+    X, y = np.vstack(Xs), np.concatenate(ys)
+    r = y - X @ sel.coef
+    parts = np.split(r, np.cumsum([len(v) for v in ys])[:-1])
+    num = sum(float(p[1:] @ p[:-1]) for p in parts if len(p) > 1)
+    r1 = float(np.clip(num / max(float(r @ r), 1e-300), 0.0, 0.99))
+    sigma2 = float(r @ r) / max(len(r) - X.shape[1], 1) * (1 + r1) / (1 - r1)
+    return sigma2 * np.linalg.pinv(X.T @ X)
 
 
 def _acting(cand: CandidateEffect, blocks: list[Block]) -> list[int]:

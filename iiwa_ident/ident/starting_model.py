@@ -15,12 +15,12 @@ from typing import Sequence
 import numpy as np
 
 from iiwa_ident.datasets import Dataset, dataset_pose
-from iiwa_ident.description import describe_joint
+from iiwa_ident.description import GRAVITY_M_S2, describe_joint
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointModel, Parameter, table1_model
 
 __all__ = ["starting_model", "dataset_model", "check_model_matches", "PhysicalRanges", "physical_ranges",
-           "against_description", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD", "DESCRIPTION_FACTOR"]
+           "against_description", "Payload", "payload_of_load", "PAYLOAD_LEVER_MIN_M", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD", "DESCRIPTION_FACTOR"]
 
 #: A gravity amplitude below this is no load (a vertical axis) [Nm]: numerical zero of the description.
 LOAD_NEGLIGIBLE_NM = 1e-6
@@ -160,6 +160,8 @@ class PhysicalRanges:
     load_described_nm: float
     robot: str
     joint: int
+    #: The 7 joint positions the ranges hold at [rad].
+    pose_rad: tuple[float, ...] = ()
 
 
 def physical_ranges(model: JointModel) -> PhysicalRanges | None:
@@ -178,7 +180,84 @@ def physical_ranges(model: JointModel) -> PhysicalRanges | None:
     a = a if a > LOAD_NEGLIGIBLE_NM else 0.0
     a_p = a_p if a_p > LOAD_NEGLIGIBLE_NM else 0.0
     return PhysicalRanges((jl / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * jl_p),
-                          (a / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * a_p), jl, a, robot, joint)
+                          (a / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * a_p), jl, a, robot, joint,
+                          tuple(float(x) for x in pose))
+
+
+#: Shortest lever of the flange about the joint's axis (horizontal part, at the pose) that determines a payload
+#: [m]: nearer the axis a flange mass makes no torque the load could show.
+PAYLOAD_LEVER_MIN_M = 0.01
+
+
+@dataclass(frozen=True)
+class Payload:
+    """The payload a gravity load beyond the description's stands for, at the pose (:func:`payload_of_load`).
+
+    Attributes
+    ----------
+    determined : bool
+        Whether the pose determines it (the flange's lever about the axis at least :data:`PAYLOAD_LEVER_MIN_M`).
+    mass_kg, mass_std_kg : float
+        The point mass at the flange that produces the extra load's part in the flange's phase, and its std.
+    lever_m : float
+        The flange's lever about the joint's axis at the pose (the gravity torque of 1 kg there over g).
+    moment_kgm, moment_std_kgm : float
+        The extra load's amplitude over g: mass times lever wherever the mass sits (a centre-of-mass shift).
+    other_phase_nm : float
+        The extra load's amplitude at the other phase, which no flange mass produces [Nm].
+    """
+
+    determined: bool
+    mass_kg: float
+    mass_std_kg: float
+    lever_m: float
+    moment_kgm: float
+    moment_std_kgm: float
+    other_phase_nm: float
+
+    def text(self) -> str:
+        """In words, as the diagnosis says it."""
+        if not self.determined:
+            return (f"the pose does not determine a payload (the flange's lever about this axis is "
+                    f"{self.lever_m * 1e3:.0f} mm); as a centre-of-mass shift: {self.moment_kgm:.3g} "
+                    f"± {self.moment_std_kgm:.2g} kg m")
+        return (f"as a payload at the flange: {self.mass_kg:.3g} ± {self.mass_std_kg:.2g} kg on a lever of "
+                f"{self.lever_m:.3g} m; as a centre-of-mass shift: {self.moment_kgm:.3g} ± {self.moment_std_kgm:.2g} "
+                f"kg m" + (f" ({self.other_phase_nm:.2g} Nm of it at another phase than a flange mass's)"
+                           if self.other_phase_nm > 0.05 * max(abs(self.mass_kg) * self.lever_m * GRAVITY_M_S2, 1e-9)
+                           else ""))
+
+
+def payload_of_load(ranges: PhysicalRanges, amplitude_nm: float, phase_rad: float,
+                    cov: np.ndarray | None = None) -> Payload:
+    """The payload (or centre-of-mass shift) that turns the description's gravity load into the named one.
+
+    The load ``amplitude_nm sin(theta + phase_rad)`` and the description's are vectors ``(A cos phi, A sin phi)``;
+    1 kg at the flange adds the vector ``u`` (:func:`~iiwa_ident.description.gravity_sinusoid` with and without
+    it; the load on the link is the negative of the holding torque). The extra load ``e`` gives the mass ``e.u / |u|^2``, the moment ``|e| / g`` and the part of ``e`` across
+    ``u``. ``cov``: the 2 x 2 covariance of the named load's vector [Nm^2] (its std's source), or None (std 0).
+    """
+    from iiwa_ident.description import gravity_sinusoid
+
+    pose = list(ranges.pose_rad)
+    a0, p0 = gravity_sinusoid(ranges.robot, ranges.joint, pose)
+    a1, p1 = gravity_sinusoid(ranges.robot, ranges.joint, pose, 1.0)
+    vec = lambda a, p: np.array([a * math.cos(p), a * math.sin(p)])  # noqa: E731
+    # The load acts on the link: the negative of the torque that holds the arm (as the starting model has it).
+    d, u = -vec(a0, p0), vec(a0, p0) - vec(a1, p1)
+    e = vec(amplitude_nm, phase_rad) - d
+    c = np.zeros((2, 2)) if cov is None else np.asarray(cov, float)
+    nu = float(np.hypot(*u))
+    lever = nu / GRAVITY_M_S2
+    ne = float(np.hypot(*e))
+    moment_std = math.sqrt(max(float(e @ c @ e), 0.0)) / ne / GRAVITY_M_S2 if ne > 0 else \
+        math.sqrt(max(float(np.trace(c)) / 2, 0.0)) / GRAVITY_M_S2
+    if lever < PAYLOAD_LEVER_MIN_M:
+        return Payload(False, float("nan"), float("nan"), lever, ne / GRAVITY_M_S2, moment_std, ne)
+    m = float(e @ u) / nu ** 2
+    m_std = math.sqrt(max(float(u @ c @ u), 0.0)) / nu ** 2
+    across = abs(float(e[0] * u[1] - e[1] * u[0])) / nu
+    return Payload(True, m, m_std, lever, ne / GRAVITY_M_S2, moment_std, across)
 
 
 def against_description(ranges: PhysicalRanges, Jl_kgm2: float | None = None,
