@@ -20,11 +20,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=30)
     parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--causes", action="store_true", help="a log filter or a link spring, alone or beside "
+                        "one effect of the shared generator (draw_cause_case)")
     args = parser.parse_args()
     rows = []
     t0 = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.cases):
-        r = run_case(seed)
+        r = run_case(seed, causes=args.causes)
         rows.append(r)
         status = "hit " if r["hit"] else "MISS"
         print(f"seed {seed:4d} {status} hidden={','.join(r['hidden']) or '-':<48} named={','.join(r['named']) or '-':<48}"

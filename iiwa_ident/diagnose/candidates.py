@@ -828,7 +828,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
         return True
 
     def parameters(self, coef):
-        out = {"cutoff_hz": float(self.effect.values["cutoff_hz"])}
+        out = {"cutoff_hz": float(self.effect.values["cutoff_hz"]), "order": float(self.effect.values["order"])}
         if self.shape == "pure delay":
             out["delay_s"] = float(self._delay_s)
         return out
