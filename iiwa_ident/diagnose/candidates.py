@@ -90,6 +90,7 @@ __all__ = [
     "TorqueLogFilterCandidate",
     "LOG_FILTER_SHAPES",
     "LOG_FILTER_OTHER_SHAPE",
+    "LOG_FILTER_MIN_HZ",
     "PeriodicDisturbanceCandidate",
     "ModelParametersCandidate",
     "MODEL_PARAMETER_FACTOR",
@@ -735,6 +736,10 @@ class TorqueSensorScaleCandidate(CandidateEffect):
 LOG_ONLY = ("the log only: the robot's torque loop, its observer and a controller the runtime runs use the "
             "unfiltered torque; the model's other parameters and effects are of the unfiltered joint")
 
+#: Lowest cut-off the search tries [Hz] (a driver filtering below it would leave nothing of a torque log); a best
+#: fit there is a slow misfit, not a cut-off the data determine (not tested).
+LOG_FILTER_MIN_HZ = 1.0
+
 #: Largest residual SSE, relative to the first order's, at which another shape of the log's filter is preferred.
 LOG_FILTER_OTHER_SHAPE = 0.8
 
@@ -750,7 +755,8 @@ class TorqueLogFilterCandidate(CandidateEffect):
     The column is what the filter does to the model's own predictions, ``F(p) - p`` on each channel (the
     prediction with the model's own effects, its gravity above all, is the model's estimate of the unfiltered
     torque), with a coefficient near 1. The cut-off is
-    searched on a logarithmic grid from 1 Hz to 0.4 of the logging rate and refined; three shapes are compared
+    searched on a logarithmic grid from :data:`LOG_FILTER_MIN_HZ` to 0.4 of the logging rate and refined (a
+    best fit at the lower bound is not tested); three shapes are compared
     at their best parameter (:data:`LOG_FILTER_SHAPES`): the first order is kept unless another leaves at most
     :data:`LOG_FILTER_OTHER_SHAPE` of its residual (``detail``: ``shape``, and each shape's residual SSE relative
     to the smallest). A pure delay extends the model as
@@ -812,7 +818,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
                 Xs = block_columns(blocks, self.columns, 1)
                 return float(sum(np.sum((r - X[:, 0]) ** 2) for X, r in zip(Xs, residuals)))
 
-            grid = np.linspace(math.log(1.0), math.log(top), 24)
+            grid = np.linspace(math.log(LOG_FILTER_MIN_HZ), math.log(top), 24)
             lx = _search_1d(sse, grid)
             best[shape] = (lx, sse(lx))
         # A driver's filter is first order (an exponential smoothing); another shape only where the data ask for
@@ -821,6 +827,8 @@ class TorqueLogFilterCandidate(CandidateEffect):
         if best[shape][1] > LOG_FILTER_OTHER_SHAPE * best[LOG_FILTER_SHAPES[0]][1]:
             shape = LOG_FILTER_SHAPES[0]
         lx = best[shape][0]
+        if lx <= math.log(LOG_FILTER_MIN_HZ) + 0.01:
+            return False  # at the search's lower bound: a slow misfit, not a cut-off the data determine
         self._set(shape, 1.0 / (2.0 * math.pi * math.exp(lx)) if shape == "pure delay" else math.exp(lx))
         low = best[shape][1]
         self.detail = {"shape": shape, "log_only": LOG_ONLY,
