@@ -219,3 +219,16 @@ class TestTorqueLogFilter:
         before = {(r.dataset, r.channel): r.rms_nm for r in compare(data, table1_model())}
         for r in compare(data, d.extended):
             assert r.rms_nm < 0.5 * before[(r.dataset, r.channel)], (r.dataset, r.channel)
+
+    def test_the_report_says_the_filter_acts_on_the_log_only(self):
+        from iiwa_ident.report.pdf import _diagnose_pages
+
+        d = diagnose(simulate_case(Case(83, hidden={"torque_log_filter": {"cutoff_hz": 11.0}})), table1_model())
+        page = next(p for p in _diagnose_pages({"diagnosis": d}) if p.title == "Evidence for torque_log_filter")
+        assert "The log only: the robot's torque loop, its observer and a controller the runtime runs use the " \
+               "unfiltered torque" in page.caption
+        import matplotlib.pyplot as plt
+
+        fig = page.draw()  # the evidence page of the filter renders
+        assert fig is not None and fig.axes
+        plt.close(fig)

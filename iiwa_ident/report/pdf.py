@@ -598,8 +598,12 @@ def _diagnose_pages(r: dict[str, Any]) -> list[Page]:
                               "Look for structure that disappears after: what is left should look like noise.",
                               lambda ctx=ctx, ch=ch: df.residuals_figure(d, ctx.index, ch)))
     for e in d.effects:
+        # What the effect means beyond its curve, as the summary says it: a filter acts on the log only, a load
+        # against the description is a payload.
+        said = [e.detail[k] for k in ("log_only", "against_description", "payload") if e.detail.get(k)]
         pages.append(Page("diagnose", f"Evidence for {e.name}", "Partial residual against the effect's variable "
-                          "with the fitted effect. Look for the curve following the binned points.",
+                          "with the fitted effect. Look for the curve following the binned points."
+                          + "".join(f" {x[0].upper()}{x[1:]}." for x in said),
                           lambda e=e: df.evidence_figure(d, e.name)))
     return pages
 
