@@ -16,20 +16,8 @@ import numpy as np
 
 from iiwa_ident.description import gravity_sinusoid
 from iiwa_ident.diagnose import diagnose
-from iiwa_ident.excite import ConstantVelocity, HandGuided, record
+from iiwa_ident.diagnose.benchmark import described_runs
 from iiwa_ident.ident import starting_model
-from iiwa_ident.sim import SimulatedJoint, plant_from_model
-
-
-def _runs(model, joint: int, seed: int) -> list:
-    out = []
-    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=1.2, mode="position"),
-                                 HandGuided(duration_s=8.0))):
-        ds = record(SimulatedJoint(plant_from_model(model), seed=seed + i), program, record_every=5 if i == 0 else 1)
-        ds.joint = joint
-        ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
-        out.append(ds)
-    return out
 
 
 def main() -> None:
@@ -44,7 +32,7 @@ def main() -> None:
         truth = copy.deepcopy(start)
         a, p = gravity_sinusoid("iiwa14", joint, [0.0] * 7, m)
         truth.effects[0].update(amplitude_nm=a, phase_rad=p + np.pi)
-        e = diagnose(_runs(truth, joint, 100 + 2 * k), start).effect("position_dependent_load")
+        e = diagnose(described_runs(truth, joint, 100 + 2 * k), start).effect("position_dependent_load")
         if e is None or "payload_kg" not in e.detail:
             print(f"draw {k:3d} joint {joint}: {m:.3f} kg, no load named")
             continue

@@ -9,22 +9,14 @@ import numpy as np
 import pytest
 
 from iiwa_ident.diagnose import diagnose
+from iiwa_ident.diagnose.benchmark import described_runs
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
 from iiwa_ident.ident import physical_ranges, starting_model
 from iiwa_ident.sim import SimulatedJoint, plant_from_model
 
 
 def _runs(plant_model, joint: int, seed: int, range_rad: float = 1.2):
-    """Position-controlled constant-velocity runs over ``range_rad`` and a hand-guided run of the simulated joint,
-    labelled as ``joint`` of an iiwa 14 standing straight up."""
-    out = []
-    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=range_rad, mode="position"),
-                                 HandGuided(duration_s=8.0))):
-        ds = record(SimulatedJoint(plant_from_model(plant_model), seed=seed + i), program, record_every=5 if i == 0 else 1)
-        ds.joint = joint
-        ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
-        out.append(ds)
-    return out
+    return described_runs(plant_model, joint, seed, range_rad)
 
 
 def test_a_heavier_load_is_named_against_the_description():

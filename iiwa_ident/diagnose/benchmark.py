@@ -34,13 +34,14 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
+from iiwa_ident.excite import (ConstantVelocity, HandGuided, HiddenEffectScenario, draw_hidden_effects, record,
+                               simulate_hidden_effects)
 from iiwa_ident.ident import fit_model
 from iiwa_ident.model import JointModel, table1_model
-from iiwa_ident.sim import make_effect, plant_from_model
+from iiwa_ident.sim import SimulatedJoint, make_effect, plant_from_model
 
 __all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
-           "score_case", "run_case", "draw_cause_case", "CAUSE_RANGES", "final_effects", "user_protocol",
+           "score_case", "run_case", "draw_cause_case", "CAUSE_RANGES", "described_runs", "final_effects", "user_protocol",
            "run_user_case"]
 
 #: Tolerances per parameter: ``(relative, absolute)``; a value passes within either.
@@ -115,6 +116,19 @@ def draw_cause_case(seed: int) -> Case:
     hidden[name] = {k: float(rng.uniform(*v)) for k, v in CAUSE_RANGES[name].items()}
     dynamics = dict(draw_case(seed, 0).dynamics)
     return Case(seed, hidden, expected_findings(hidden, dynamics), dynamics, [])
+
+
+def described_runs(model: JointModel, joint: int, seed: int, range_rad: float = 1.2) -> list[Dataset]:
+    """A 200 Hz position-controlled constant-velocity run over ``range_rad`` and a 1 kHz hand-guided run of the
+    simulated joint ``model``, labelled as ``joint`` of an iiwa 14 standing straight up (its description's pose)."""
+    out = []
+    for i, program in enumerate((ConstantVelocity([0.3, 0.6], range_rad=range_rad, mode="position"),
+                                 HandGuided(duration_s=8.0))):
+        ds = record(SimulatedJoint(plant_from_model(model), seed=seed + i), program, record_every=5 if i == 0 else 1)
+        ds.joint = joint
+        ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
+        out.append(ds)
+    return out
 
 
 def case_model(case: Case) -> JointModel:
