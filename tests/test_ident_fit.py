@@ -28,7 +28,7 @@ from iiwa_ident.ident.initial import initial_estimate
 from iiwa_ident.ident.tf_fit import cramer_rao_std, fit_transfer_function
 from iiwa_ident.model import discretize, simulate_outputs
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response
-from iiwa_ident.sim import SimulatedJoint, default_plant
+from iiwa_ident.sim import SimulatedJoint, TorqueLogFilter, default_plant, make_effect
 
 TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 REL_TOL = 0.03  # required accuracy of Jc, bc, K, Jl
@@ -42,8 +42,11 @@ def random_truth(seed: int) -> dict[str, float]:
     return {k: v * rng.uniform(0.6, 1.4) for k, v in TABLE1.items()}
 
 
-def simulate_chirp(truth: dict[str, float], seed: int, ripple: bool = True, **chirp) -> Dataset:
+def simulate_chirp(truth: dict[str, float], seed: int, ripple: bool = True, log_filter_hz: float | None = None,
+                   **chirp) -> Dataset:
     plant = default_plant() if ripple else default_plant().without_effects()
+    if log_filter_hz is not None:  # the logged torque through a first-order low-pass
+        plant = plant.with_effects(make_effect("torque_log_filter", {"cutoff_hz": log_filter_hz}))
     plant.dynamics.update(truth)
     return record(SimulatedJoint(plant, seed=seed), Chirp(**chirp))
 
@@ -270,6 +273,25 @@ class TestFitTransferFunction:
         single = fit_transfer_function(datasets[:1])
         # Two files carry more information than one.
         assert result.std["K"] < single.std["K"]
+
+    def test_through_a_log_filter(self):
+        # The logged torque passed a first-order low-pass: with the filter in the model (its cut-off a sixth
+        # parameter, started 30 % off) the parameters come out as without one (the simulator's own delay error
+        # aside, the same with and without), the cut-off within 0.5 %.
+        rng = np.random.default_rng(41)
+        truth, fc = random_truth(41), float(rng.uniform(8.0, 15.0))
+        ds = simulate_chirp(truth, 41, ripple=False, log_filter_hz=fc)
+        start = {k: v * (1.2 if k != "Td" else 1.0) for k, v in truth.items()}
+        result = fit_transfer_function([ds], initial=start, log_filter=TorqueLogFilter({"cutoff_hz": 0.7 * fc}))
+        for name in ("Jc", "bc", "K", "Jl"):
+            assert result.parameters[name] == pytest.approx(truth[name], rel=0.005, abs=0), name
+        assert result.parameters["Td"] == pytest.approx(truth["Td"], rel=0, abs=0.1e-3)
+        got = result.log_filter
+        assert got["order"] == 1 and 0 < got["std"] and got["cutoff_hz"] == pytest.approx(fc, rel=0.005), (got, fc)
+        assert result.noise[0]["tau_j_nm"] < 0.03
+        # Without the filter in the model the same data are fitted far worse.
+        plain = fit_transfer_function([ds], initial=start)
+        assert plain.noise[0]["tau_j_nm"] > 3 * result.noise[0]["tau_j_nm"]
 
     def test_given_start_values(self, ripple_files):
         path, truth = ripple_files[2]

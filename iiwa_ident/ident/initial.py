@@ -21,6 +21,7 @@ from iiwa_ident.ident import frf as _frf
 from iiwa_ident.ident.frf import levy_fit
 from iiwa_ident.ident.records import FitRecord, prepare_records
 from iiwa_ident.model import discretize
+from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["MIN_COHERENCE", "MAX_DELAY_S", "initial_estimate", "initial_candidates", "delay_candidates", "record_frf",
            "coherent_bands", "without_known"]
@@ -76,11 +77,15 @@ def initial_estimate(datasets: Sequence[Dataset]) -> list[dict[str, float]]:
     return initial_candidates(prepare_records(datasets))
 
 
-def without_known(rec: FitRecord, params: dict[str, float]) -> FitRecord:
-    """``rec`` with the response to its known torques taken out of ``tau_j`` and ``q_m`` (itself without)."""
+def without_known(rec: FitRecord, params: dict[str, float], log_filter: TorqueLogFilter | None = None) -> FitRecord:
+    """``rec`` with the response to its known torques taken out of ``tau_j`` and ``q_m`` (itself without);
+    the torque's response through ``log_filter`` where the log
+    has one."""
     if not rec.known:
         return rec
     y = sum(discretize(params, rec.T, kind).simulate(signal) for kind, signal in rec.known)
+    if log_filter is not None:
+        y[0] = log_filter.apply(y[0], rec.T)
     return replace(rec, tau=rec.tau - y[0], q=rec.q - y[1], spectra=None, known=[])
 
 

@@ -107,6 +107,7 @@ from iiwa_ident.ident.records import FitRecord, prepare_record, prepare_records
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
 from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values
+from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = [
     "BandQuality",
@@ -117,6 +118,7 @@ __all__ = [
     "STD_FISHER",
     "RIPPLE_HARMONICS",
     "RippleTerms",
+    "LOG_FILTER_MIN_HZ",
 ]
 
 #: :attr:`FitResult.std_method` of the output-error fit.
@@ -137,6 +139,9 @@ _COLOURED_WARN = 3.0  # warn when the sandwich std exceeds the Fisher std by thi
 # the sampled model can neither overflow nor become singular.
 _LOWER = (1e-4, 1e-3, 1.0, 1e-4)
 _UPPER = (1e4, 1e6, 1e8, 1e5)
+#: Lowest cut-off of a log filter the search considers [Hz]: slower, it is a misfit of the motion, not a
+#: driver's filter.
+LOG_FILTER_MIN_HZ = 1.0
 
 
 # --------------------------------------------------------------------------
@@ -244,9 +249,12 @@ class _Problem:
     and a small Cholesky solve per evaluation.
     """
 
-    def __init__(self, records: list[FitRecord], nuisance: bool = True) -> None:
+    def __init__(self, records: list[FitRecord], nuisance: bool = True, log_filter_order: int = 0) -> None:
         self.records = records
         self.nuisance = nuisance
+        #: Stages of a filter between the torque sensor and the log, whose cut-off is the sixth parameter
+        #: (``x[5] = log cutoff_hz``); 0 without.
+        self.log_filter_order = log_filter_order
         # Per record and channel: per-block noise std (starts uniform).
         self.sigma = [[np.ones(r.n_blocks), np.ones(r.n_blocks)] for r in records]
         self._weights: list[tuple[np.ndarray, np.ndarray, float, Any]] = []
@@ -261,8 +269,24 @@ class _Problem:
         return (*np.exp(x[:4]), x[4] * 1e-3)
 
     @staticmethod
-    def params_to_x(p: Sequence[float]) -> np.ndarray:
-        return np.array([*np.log(np.asarray(p[:4], float)), p[4] * 1e3])
+    def params_to_x(p: Sequence[float], cutoff_hz: float | None = None) -> np.ndarray:
+        x = [*np.log(np.asarray(p[:4], float)), p[4] * 1e3]
+        return np.array(x if cutoff_hz is None else [*x, math.log(cutoff_hz)])
+
+    def log_filter(self, x: np.ndarray) -> TorqueLogFilter | None:
+        """The log's filter at ``x`` (None without one)."""
+        if not self.log_filter_order:
+            return None
+        return TorqueLogFilter({"cutoff_hz": float(np.exp(x[5])), "order": float(self.log_filter_order)})
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The search's bounds on ``x``: the physical ones, the delay in ``[0, 50 ms]``, a log filter's cut-off
+        from :data:`LOG_FILTER_MIN_HZ` to 0.45 of the fastest record's sampling rate."""
+        lower, upper = [*np.log(_LOWER), 0.0], [*np.log(_UPPER), MAX_DELAY_S * 1e3]
+        if self.log_filter_order:
+            lower.append(math.log(LOG_FILTER_MIN_HZ))
+            upper.append(math.log(0.45 / min(r.T for r in self.records)))
+        return np.array(lower), np.array(upper)
 
     def update_projections(self) -> None:
         """Weights and the factorised normal equations of the nuisance fits."""
@@ -290,16 +314,16 @@ class _Problem:
     def residual(self, x: np.ndarray) -> np.ndarray:
         self.n_evaluations += 1
         parts = []
-        p = self.x_to_params(x)
+        p, lf = self.x_to_params(x), self.log_filter(x)
         for i, (r, weights) in enumerate(zip(self.records, self._weights)):
-            y = self._outputs(i, p)
+            y = self._outputs(i, p, lf)
             if not np.all(np.isfinite(y)):  # no model there: a cost no step can accept
                 return np.full(2 * sum(rec.n for rec in self.records), 1e150)
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
             if r.ripple_basis:
-                fitted = self._ripple_fit(p, i, e_t, e_q)
+                fitted = self._ripple_fit(p, i, e_t, e_q, lf)
                 if fitted is None:
                     return np.full(2 * sum(rec.n for rec in self.records), 1e150)
                 e_t -= fitted[1][:r.n]
@@ -307,29 +331,35 @@ class _Problem:
             parts.extend((e_t, e_q))
         return np.concatenate(parts)
 
-    def _outputs(self, i: int, p: Sequence[float]) -> np.ndarray:
-        """Record ``i``'s model outputs ``(2, n)`` for its command and known torques at ``p``."""
+    def _outputs(self, i: int, p: Sequence[float], lf: TorqueLogFilter | None = None) -> np.ndarray:
+        """Record ``i``'s model outputs ``(2, n)`` for its command and known torques at ``p``, the torque
+        through the log's filter ``lf``."""
         r = self.records[i]
         known = self._delay_free(i, p, "known", lambda: _known_response(p, r, self.substeps))
-        return _simulate_record(p, r, self.substeps, known)
+        y = _simulate_record(p, r, self.substeps, known)
+        if lf is not None:
+            y[0] = lf.apply(y[0], r.T)
+        return y
 
-    def _delay_free(self, i: int, p: Sequence[float], what: str, make: Callable[[], Any]) -> Any:
+    def _delay_free(self, i: int, p: Sequence[float], what: str, make: Callable[[], Any],
+                    lf: TorqueLogFilter | None = None) -> Any:
         """``make()``: record ``i``'s response to inputs without delay (``what``: the known torques, the
-        ripple's columns) at ``p``. It does not depend on ``Td``, so the Jacobian's ``Td`` column and the
-        steps that move only ``Td`` reuse it. One entry per record and kind; emptied when the weights change."""
-        key = (self.substeps, tuple(p[:4]))
+        ripple's columns) at ``p`` (and the log filter ``lf`` where ``make`` applies it). It does not depend on
+        ``Td``, so the Jacobian's ``Td`` column and the steps that move only ``Td`` reuse it. One entry per
+        record and kind; emptied when the weights change."""
+        key = (self.substeps, tuple(p[:4]), None if lf is None else lf.values["cutoff_hz"])
         hit = self._responses.get((i, what))
         if hit is None or hit[0] != key:
             hit = self._responses[(i, what)] = (key, make())
         return hit[1]
 
-    def _ripple_fit(self, p: Sequence[float], i: int, e_t: np.ndarray, e_q: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def _ripple_fit(self, p: Sequence[float], i: int, e_t: np.ndarray, e_q: np.ndarray,
+                    lf: TorqueLogFilter | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Record ``i``'s ripple coefficients fitted to its weighted residual: (coefficients, their weighted
         projected response, their response in signal units ``(2, n)``), or ``None`` where the model does
         not exist."""
         r, weights = self.records[i], self._weights[i]
-        columns = self._delay_free(i, p, "ripple", lambda: self._ripple_columns(p, r, weights))
+        columns = self._delay_free(i, p, "ripple", lambda: self._ripple_columns(p, r, weights, lf), lf)
         if columns is None:
             return None
         C_t, C_q, gram, Y = columns
@@ -337,7 +367,7 @@ class _Problem:
         coef, *_ = np.linalg.lstsq(gram, C_t.T @ e_t + C_q.T @ e_q, rcond=None)
         return coef, np.concatenate([C_t @ coef, C_q @ coef]), Y @ coef
 
-    def _ripple_columns(self, p: Sequence[float], r: FitRecord, weights: tuple
+    def _ripple_columns(self, p: Sequence[float], r: FitRecord, weights: tuple, lf: TorqueLogFilter | None = None
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """The ripple columns' weighted, projected responses (tau_j, q_m), their Gram matrix and their
         response in signal units ``(2, n, columns)``; ``None`` where the model does not exist."""
@@ -351,6 +381,8 @@ class _Problem:
                     Y = np.stack([_input_response(p, r.T, "deflection", d, self.substeps)
                                   + _input_response(p, r.T, "reaction", rx, self.substeps)
                                   for d, rx in r.ripple_basis], axis=2)
+                if lf is not None:
+                    Y[0] = lf.apply(Y[0], r.T)
                 w_t, w_q = weights[0], weights[1]
                 C_t, C_q = w_t[:, None] * Y[0], w_q[:, None] * Y[1]
                 self._project(r, C_t, C_q, weights)  # every column at once
@@ -362,16 +394,16 @@ class _Problem:
 
     def ripple_response(self, x: np.ndarray) -> list[np.ndarray | None]:
         """Per record, the fitted ripple's output response ``(2, n)`` in signal units (``None`` without)."""
-        p = self.x_to_params(x)
+        p, lf = self.x_to_params(x), self.log_filter(x)
         out: list[np.ndarray | None] = []
         for i, (r, weights) in enumerate(zip(self.records, self._weights)):
             if not r.ripple_basis:
                 out.append(None)
                 continue
-            y = self._outputs(i, p)
+            y = self._outputs(i, p, lf)
             e_t, e_q = weights[0] * (r.tau - y[0]), weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
-            fitted = self._ripple_fit(p, i, e_t, e_q)
+            fitted = self._ripple_fit(p, i, e_t, e_q, lf)
             out.append(None if fitted is None else fitted[2])
         return out
 
@@ -403,7 +435,7 @@ class _Problem:
 
     def jacobian(self, x: np.ndarray, central: bool = True, r0: np.ndarray | None = None) -> np.ndarray:
         """Finite-difference Jacobian of the weighted residual."""
-        steps = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-4])  # relative for the logs, ms for Td
+        steps = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-4, 1e-6][:len(x)])  # relative for the logs, ms for Td
         if r0 is None and not central:
             r0 = self.residual(x)
         cols = []
@@ -445,8 +477,7 @@ def _solve(problem: _Problem, x0: np.ndarray, max_iterations: int = 40) -> _Solu
     is the Fisher information): closer than that, the finite-difference
     Jacobian's own error decides the steps, which then mostly fail.
     """
-    lower = np.array([*np.log(_LOWER), 0.0])
-    upper = np.array([*np.log(_UPPER), MAX_DELAY_S * 1e3])
+    lower, upper = problem.bounds()
     x = np.clip(np.asarray(x0, float), lower, upper)
     r = problem.residual(x)
     cost = 0.5 * float(np.sum(r * r))
@@ -598,6 +629,9 @@ class FitResult:
     std_robust: dict[str, float] = field(default_factory=dict)
     #: How :attr:`std_robust` was computed (named in the JSON).
     std_robust_method: str = ""
+    #: A filter between the torque sensor and the log fitted with the parameters: ``cutoff_hz`` [Hz], its
+    #: ``std`` [Hz] and ``order`` (stages); None when the model has none.
+    log_filter: dict[str, float] | None = None
 
     @property
     def model_rejected(self) -> bool:
@@ -743,7 +777,8 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
 def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, float] | None = None,
                           max_starts: int = 3, outer_iterations: int = 4,
                           known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
-                          ripple: RippleTerms | None = None, refine: bool = True) -> FitResult:
+                          ripple: RippleTerms | None = None, refine: bool = True,
+                          log_filter: TorqueLogFilter | None = None) -> FitResult:
     """Fit eq (4) with delay to one or more torque-commanded chirps of one joint.
 
     Parameters
@@ -769,6 +804,11 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     refine : bool
         False: no search; the fit's diagnostics (noise levels, fit quality,
         harmonics, Fisher std) at ``initial``.
+    log_filter : TorqueLogFilter, optional
+        A filter between the torque sensor and the log: the modelled
+        ``tau_j`` passes it (``q_m`` does not) and its cut-off is fitted as
+        a sixth parameter, starting from this one's (the number of stages
+        kept); the result's :attr:`FitResult.log_filter` holds it.
 
     Returns
     -------
@@ -788,14 +828,16 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
             raise IiwaIdentError(f"{rec.label}: no band with coherence above {MIN_COHERENCE} between tau_c and tau_j: "
                                  "nothing to fit")
     starts = initial_candidates(records) if initial is None else [dict(initial)]
-    problem = _Problem(records)
+    order = 0 if log_filter is None else int(log_filter.values["order"])
+    fc0 = None if log_filter is None else float(log_filter.values["cutoff_hz"])
+    problem = _Problem(records, log_filter_order=order)
 
     # Noise levels for comparing the starts: from the best start's residuals.
-    x_first = _Problem.params_to_x([starts[0][k] for k in PARAMETER_NAMES])
+    x_first = _Problem.params_to_x([starts[0][k] for k in PARAMETER_NAMES], fc0)
     problem.reweight(x_first, per_block=False)
     best = None
     for cand in starts[:max_starts]:
-        x0 = _Problem.params_to_x([cand[k] for k in PARAMETER_NAMES])
+        x0 = _Problem.params_to_x([cand[k] for k in PARAMETER_NAMES], fc0)
         sol = _solve(problem, x0, max_iterations=40 if refine else 0)
         if best is None or sol.cost < best.cost:
             best = sol
@@ -825,7 +867,8 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     S = scores.T @ scores
     cov_s = Finv @ S @ Finv
     p = np.array(_Problem.x_to_params(x))
-    D = np.diag([*p[:4], 1e-3])  # d(SI)/dx
+    lf = problem.log_filter(x)
+    D = np.diag([*p[:4], 1e-3] + ([] if lf is None else [lf.values["cutoff_hz"]]))  # d(SI)/dx
     cov = D @ Finv @ D
     std_method = STD_FISHER
     if any(kind in ("deflection", "reaction") for rec in records for kind, _ in rec.known) or \
@@ -843,6 +886,12 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         widen = np.maximum(np.sqrt(np.diag(D @ cov_s @ D) / np.diag(cov)), 1.0)
         cov = cov * np.outer(widen, widen)
         std_method = STD_FISHER + STD_RIPPLE
+    log_filter_fit = None
+    if lf is not None:
+        # The cut-off's std from the full covariance; the parameters' (5 x 5) block is their marginal one.
+        log_filter_fit = {"cutoff_hz": float(lf.values["cutoff_hz"]), "std": float(math.sqrt(cov[5, 5])),
+                          "order": order}
+        cov, cov_s, D = cov[:5, :5], cov_s[:5, :5], D[:5, :5]
     std = np.sqrt(np.diag(cov))
     corr = cov / np.outer(std, std)
     np.fill_diagonal(corr, 1.0)
@@ -858,12 +907,13 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         tests.append(residual_tests(e_t, rec.u) if len(e_t) == len(rec.u) else None)
         # With known torques (the fitted link-side effects) the model's linear part is compared with the
         # data less those torques' response: eq (4) alone is not the model then.
-        plain = without_known(rec, values)
+        plain = without_known(rec, values, lf)
         if y_ripple is not None:
             plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
         est_t, _ = record_frf(plain, delay_s=values["Td"])
         dm = discretize(values, rec.T)
-        model = est_t.band_average(lambda f: dm.frequency_response(f)[0])
+        model = est_t.band_average(lambda f: dm.frequency_response(f)[0] * (
+            1.0 if lf is None else lf.frequency_response(f, rec.T)))
         frfs.append(est_t)
         model_frfs.append(model)
         bands.extend(_band_quality(rec.label, est_t, model, rec.f_lo, rec.f_hi))
@@ -907,7 +957,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
                      covariance=cov, noise=noise,
                      frf=frfs, model_frf=model_frfs, bands=bands, harmonics=harmonics, nonlinear=nonlinear,
                      warnings=warnings, initial=starts, labels=labels, cost=cost, n_evaluations=n_eval,
-                     sample_times_s=[r.T for r in records], residual_tests=tests)
+                     sample_times_s=[r.T for r in records], residual_tests=tests, log_filter=log_filter_fit)
 
 
 # --------------------------------------------------------------------------

@@ -623,15 +623,22 @@ class TorqueLogFilter(Effect):
         return [1.0 - g, g - a], [1.0, -a]
 
     def apply(self, x: np.ndarray, dt: float) -> np.ndarray:
-        """The filtered signal of ``x`` sampled every ``dt`` [s] (each stage at rest on ``x[0]``)."""
+        """The filtered signal of ``x`` sampled every ``dt`` [s] along its first axis (each stage at rest on
+        ``x[0]``; a matrix's columns each filtered)."""
         from scipy import signal as _signal
 
         b, a = self.coefficients_at(dt)
         y = np.asarray(x, float)
         for _ in range(int(self.values["order"])):
             if len(y):
-                y = _signal.lfilter(b, a, y, zi=_signal.lfilter_zi(b, a) * y[0])[0]
+                y = _signal.lfilter(b, a, y, axis=0, zi=np.multiply.outer(_signal.lfilter_zi(b, a), y[0]))[0]
         return y
+
+    def frequency_response(self, f_hz: np.ndarray, dt: float) -> np.ndarray:
+        """The sampled filter's response at ``f_hz`` [Hz] for the sample period ``dt`` [s] (all stages)."""
+        (b0, b1), (_, na) = self.coefficients_at(dt)
+        z1 = np.exp(-2j * np.pi * np.asarray(f_hz, float) * dt)
+        return ((b0 + b1 * z1) / (1.0 + na * z1)) ** int(self.values["order"])
 
     def step(self, state: list[tuple[float, float]] | None, x: float, dt: float
              ) -> tuple[list[tuple[float, float]], float]:
