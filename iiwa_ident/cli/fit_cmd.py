@@ -62,6 +62,7 @@ def format_fit(result: FitResult) -> str:
         noise levels, fit quality per octave band and the nonlinear share
         per octave band.
     """
+    from iiwa_ident.ident import log_filter_text
     from iiwa_ident.model import PARAMETER_NAMES
 
     lines = _parameter_lines(result.parameters, result.std)
@@ -82,6 +83,9 @@ def format_fit(result: FitResult) -> str:
             lines.append(f"  {'*' if e.significant else ' '} {e.name}: {vals}")
             if e.note:
                 lines.append(f"      ({e.note})")
+        lines.append("")
+    if result.log_filter is not None:
+        lines.append(f"torque_log_filter (the log of tau_j only): {log_filter_text(result.log_filter)}")
         lines.append("")
     for label, noise in zip(result.labels, result.noise):
         lines.append(f"residual noise ({Path(label).name}): tau_j {noise['tau_j_nm']:.3g} Nm RMS, "

@@ -63,7 +63,7 @@ from scipy import optimize, signal
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import LOG_FILTER_MIN_HZ, PhysicalRanges, line_ratio
+from iiwa_ident.ident import LOG_FILTER_MIN_HZ, LOG_ONLY, PhysicalRanges, line_ratio
 from iiwa_ident.model import JointModel, RippleTable
 from iiwa_ident.sim import (EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TorqueLogFilter,
                             TransmissionRipple, make_effect)
@@ -732,9 +732,6 @@ class TorqueSensorScaleCandidate(CandidateEffect):
         return ctx.tau, "measured joint torque [Nm]"
 
 
-#: What a filter before the log means for the robot (said with it wherever it is named).
-LOG_ONLY = ("the log only: the robot's torque loop, its observer and a controller the runtime runs use the "
-            "unfiltered torque; the model's other parameters and effects are of the unfiltered joint")
 
 #: Largest residual SSE, relative to the first order's, at which another shape of the log's filter is preferred.
 LOG_FILTER_OTHER_SHAPE = 0.8

@@ -7,6 +7,7 @@ position correction live in :mod:`iiwa_ident.model`.
 from iiwa_ident.ident.bla import BlaFit
 from iiwa_ident.ident.joint_fit import METHODS, fit_joint, fit_model
 from iiwa_ident.ident.lines import line_ratio
+from iiwa_ident.ident.log_filter import LOG_FILTER_MIN_HZ, LOG_ONLY, log_filter_text
 from iiwa_ident.ident.model_file import model_from_dict, read_model, write_model
 from iiwa_ident.ident.resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
 from iiwa_ident.ident.ripple_passes import find_passes
@@ -31,10 +32,10 @@ from iiwa_ident.ident.starting_model import (
     payload_of_load,
     starting_model,
 )
-from iiwa_ident.ident.tf_fit import LOG_FILTER_MIN_HZ, FitResult
+from iiwa_ident.ident.tf_fit import FitResult
 
 __all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "ripple_model", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description",
            "Payload", "payload_of_load", "PAYLOAD_LEVER_MIN_M", "ResidualTest",
-           "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG", "LOG_FILTER_MIN_HZ"]
+           "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG", "LOG_FILTER_MIN_HZ", "LOG_ONLY", "log_filter_text"]

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from iiwa_ident.datasets import Dataset, dataset_pose, read_dataset, sha256_file
+from iiwa_ident.datasets import Dataset, band_limited_problem, dataset_pose, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
 from iiwa_ident.ident.idim import (
@@ -33,7 +33,11 @@ from iiwa_ident.ident.idim import (
     LinkEffectEstimate,
     fit_idim,
 )
+from iiwa_ident.ident.initial import initial_estimate
+from iiwa_ident.ident.log_filter import LOG_ONLY, LogFilterEstimate, estimate_log_filter, log_filter_text, unfiltered
 from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.ident.records import prepare_records
+from iiwa_ident.sim import TorqueLogFilter
 from iiwa_ident.model import JointModel, Parameter, RippleTable, Source, table1_model
 from iiwa_ident.ident.starting_model import check_model_matches
 from iiwa_ident.model import PARAMETER_UNITS
@@ -67,9 +71,12 @@ _METHOD_TEXT = {
 }
 
 
-def _from_idim(idim: IdimResult, datasets: Sequence[Dataset]) -> FitResult:
-    """The IDIM-IV estimate with the output-error fit's diagnostics at its values (no search)."""
-    result = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs, refine=False)
+def _from_idim(idim: IdimResult, datasets: Sequence[Dataset], log_filter: TorqueLogFilter | None = None
+               ) -> FitResult:
+    """The IDIM-IV estimate with the output-error fit's diagnostics at its values (no search; a log filter at
+    its start value)."""
+    result = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs, refine=False,
+                                   log_filter=log_filter)
     result.std = dict(idim.std)
     result.std_sandwich = dict(idim.std)
     result.std_method = ("block sandwich of the inverse-dynamics (IDIM-IV) estimating equations over quarter-second "
@@ -143,13 +150,65 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
     """
     if method not in METHODS:
         raise IiwaIdentError(f"unknown fit method {method!r} (known: {', '.join(METHODS)})")
+    candidate = _log_filter_candidate(datasets)
+    if candidate is None:
+        return _fit_joint(datasets, method, ripple_period_rad, ripple_table, None)
+    # The data ask for a filter before the log: fitted through it, and without it where that fits at all;
+    # the likelihood (BIC: the cut-off is one more parameter) decides.
+    try:
+        plain: FitResult | None = _fit_joint(datasets, method, ripple_period_rad, ripple_table, None)
+        refusal = None
+    except IiwaIdentError as err:
+        plain, refusal = None, err
+    try:
+        filtered = _fit_joint(datasets, method, ripple_period_rad, ripple_table, candidate.effect())
+    except IiwaIdentError:
+        if plain is None:
+            raise refusal from None
+        return plain
+    penalty = 0.5 * math.log(sum(2 * ds.n_samples for ds in datasets))
+    if plain is not None and _nll(plain.noise, datasets) - _nll(filtered.noise, datasets) <= penalty:
+        return plain
+    lf = filtered.log_filter
+    assert lf is not None
+    filtered.warnings.insert(0, f"tau_j was low-pass filtered before it was logged: {log_filter_text(lf)}, fitted "
+                                f"with the parameters; {LOG_ONLY}")
+    return filtered
+
+
+def _log_filter_candidate(datasets: Sequence[Dataset]) -> LogFilterEstimate | None:
+    """A filter before the log the data ask for: the import's check calls a run band-limited
+    (:func:`~iiwa_ident.datasets.band_limited_problem`) or the phase of ``tau_j`` against ``q_m`` shows one
+    (:func:`~iiwa_ident.ident.log_filter.estimate_log_filter`), and the phase has a filter's shape; None
+    otherwise."""
+    try:
+        estimate = estimate_log_filter(prepare_records(datasets))
+    except IiwaIdentError:
+        return None  # the fit itself says what is wrong with the data
+    if estimate is None or not estimate.filter_shaped:
+        return None
+    if estimate.shown or any(band_limited_problem(ds) for ds in datasets):
+        return estimate
+    return None
+
+
+def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_period_rad: float | None,
+               ripple_table: RippleTable | None, log_filter: TorqueLogFilter | None) -> FitResult:
+    """:func:`fit_joint` with or without a filter before the log: the starts (inverse dynamics, eq (4)'s
+    start values) from the torque with the filter undone (:func:`~iiwa_ident.ident.log_filter.unfiltered`), every
+    output-error fit through it."""
+    starts = datasets
+    if log_filter is not None:
+        tops = [r.f_hi for r in prepare_records(datasets)]
+        starts = [unfiltered(ds, log_filter, top) for ds, top in zip(datasets, tops)]
     if method == "eq4":
-        result = fit_transfer_function(datasets)
+        result = fit_transfer_function(datasets, log_filter=log_filter,
+                                       initial=None if log_filter is None else initial_estimate(starts)[0])
         result.method = "eq4"
         other = None
         if result.model_rejected:  # a second estimate only where the std needs it
             try:
-                other = fit_idim(datasets)
+                other = fit_idim(starts)
             except IiwaIdentError:
                 pass
         _model_error_std(result, other and other.parameters, other and other.std,
@@ -157,7 +216,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         return result
     if ripple_table is not None:
         ripple_period_rad = ripple_table.period_rad
-    idim = fit_idim(datasets, ripple_period_rad)
+    idim = fit_idim(starts, ripple_period_rad)
     ripple = idim.effect("transmission_ripple")
     terms = None
     if ripple_table is not None:
@@ -172,10 +231,11 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         method = "idim" if sticks else "joint"
     oe: FitResult | None = None  # the output-error estimate, to compare with IDIM-IV's
     if method == "idim":
-        result = _from_idim(idim, datasets)
+        result = _from_idim(idim, datasets, log_filter)
     else:
         start = dict(idim.parameters)
-        result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs, ripple=terms)
+        result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs, ripple=terms,
+                                       log_filter=log_filter)
         if any(idim.known_inputs):
             # The inverse dynamics' effect terms can absorb its own approximation error (the gravity-model
             # terms did so at 20-40 std on joints without any) or a disturbance it has no term for (a hum
@@ -186,10 +246,14 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
             options = [idim.known_inputs] + ([link_only] if link_only != idim.known_inputs else []) + \
                 [[[] for _ in datasets]]
             here = result.parameters
-            nll = [_nll(output_residual_rms(datasets, here, known, terms), datasets) for known in options]
+            fitted_filter = None if result.log_filter is None else TorqueLogFilter(
+                {"cutoff_hz": result.log_filter["cutoff_hz"], "order": float(result.log_filter["order"])})
+            nll = [_nll(output_residual_rms(datasets, here, known, terms, fitted_filter), datasets)
+                   for known in options]
             best = int(np.argmin(nll))
             if best:
-                result = fit_transfer_function(datasets, initial=here, known=options[best], ripple=terms)
+                result = fit_transfer_function(datasets, initial=here, known=options[best], ripple=terms,
+                                               log_filter=fitted_filter)
         if terms is not None:
             method = "joint+ripple"
         oe = result
@@ -200,7 +264,8 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
             # torque signal (a hum) can throw the inverse dynamics off instead: eq (4) alone, searched
             # from the data, decides which of the two it agrees with.
             try:
-                alone = fit_transfer_function(datasets, ripple=terms)
+                alone = fit_transfer_function(datasets, ripple=terms, log_filter=log_filter,
+                                              initial=None if log_filter is None else initial_estimate(starts)[0])
             except IiwaIdentError:
                 alone = None
             if alone is not None and not _departure(result.parameters, alone.parameters) \
@@ -208,7 +273,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
                 result.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
                                        "kept, as the fit of eq (4) alone agrees with it")
             else:
-                fallback = _from_idim(idim, datasets)
+                fallback = _from_idim(idim, datasets, log_filter)
                 fallback.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
                                          "the inverse-dynamics values are kept")
                 result, method = fallback, "idim"
@@ -218,7 +283,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         if oe is None and result.model_rejected:  # the output-error estimate only where the std needs it
             try:
                 oe = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs,
-                                           ripple=terms)
+                                           ripple=terms, log_filter=log_filter)
             except IiwaIdentError:
                 pass
         _model_error_std(result, oe and oe.parameters, oe and oe.std, "the output-error estimate")
@@ -418,9 +483,14 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
             "nonlinear_share": [b.share for _, b in nl],
         })
     effects = model_effects(result.effects)
+    std_of = {(e.name, k): s for e in result.effects for k, s in e.std.items()}
+    if result.log_filter is not None:  # the logged torque's filter, for compare and diagnose to simulate
+        lf = result.log_filter
+        effects.append({"name": "torque_log_filter", "cutoff_hz": lf["cutoff_hz"], "order": float(lf["order"])})
+        std_of[("torque_log_filter", "cutoff_hz")] = lf["std"]
+        std_of[("torque_log_filter", "order")] = 0.0
     if effects:
         fit_table["effect_std_names"] = [f"{e['name']}.{k}" for e in effects for k in e if k != "name"]
-        std_of = {(e.name, k): s for e in result.effects for k, s in e.std.items()}
         fit_table["effect_std"] = [std_of[tuple(n.split(".", 1))] for n in fit_table["effect_std_names"]]
     if result.warnings:
         fit_table["warnings"] = list(result.warnings)

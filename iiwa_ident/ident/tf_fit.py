@@ -103,6 +103,7 @@ from iiwa_ident.ident.initial import (
     record_frf,
     without_known,
 )
+from iiwa_ident.ident.log_filter import LOG_FILTER_MIN_HZ, unfiltered_torque
 from iiwa_ident.ident.records import FitRecord, prepare_record, prepare_records
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
 from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
@@ -118,7 +119,6 @@ __all__ = [
     "STD_FISHER",
     "RIPPLE_HARMONICS",
     "RippleTerms",
-    "LOG_FILTER_MIN_HZ",
 ]
 
 #: :attr:`FitResult.std_method` of the output-error fit.
@@ -139,9 +139,6 @@ _COLOURED_WARN = 3.0  # warn when the sandwich std exceeds the Fisher std by thi
 # the sampled model can neither overflow nor become singular.
 _LOWER = (1e-4, 1e-3, 1.0, 1e-4)
 _UPPER = (1e4, 1e6, 1e8, 1e5)
-#: Lowest cut-off of a log filter the search considers [Hz]: slower, it is a misfit of the motion, not a
-#: driver's filter.
-LOG_FILTER_MIN_HZ = 1.0
 
 
 # --------------------------------------------------------------------------
@@ -672,6 +669,7 @@ class FitResult:
             "std_robust_method": self.std_robust_method or "equal to std",
             "effects": {e.name: e.to_json() for e in self.effects},
             "spectral_lines_hz": [float(f) for f in self.lines_hz],
+            "log_filter": None if self.log_filter is None else dict(self.log_filter),
             "residual_tests": [{"dataset": label, "passed": t.passed,
                                 "tests": [{k: v for k, v in x.to_json().items()
                                            if k not in ("lags", "correlation", "bound")} for x in t.tests]}
@@ -726,9 +724,10 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
 
 
 def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np.ndarray]]] | None,
-             ripple: RippleTerms | None = None) -> list[FitRecord]:
+             ripple: RippleTerms | None = None, log_filter: TorqueLogFilter | None = None) -> list[FitRecord]:
     """The fit's records of ``datasets`` with their known inputs and ripple terms (see
-    :func:`fit_transfer_function`)."""
+    :func:`fit_transfer_function`); the ripple's reaction from the torque before ``log_filter`` (the
+    transmission carries the torque, not its log)."""
     if not datasets:
         raise IiwaIdentError("fit needs at least one dataset")
     records = prepare_records(datasets)
@@ -741,14 +740,16 @@ def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np
     if ripple is not None:
         for rec in records:
             q_m = rec.q + rec.q0
-            rec.known = rec.known + ripple.known_inputs(q_m, rec.tau)
-            rec.ripple_basis, rec._ripple_inputs = ripple.basis(q_m, rec.tau), None
+            tau = rec.tau if log_filter is None else unfiltered_torque(rec.tau, rec.T, log_filter, rec.f_hi)
+            rec.known = rec.known + ripple.known_inputs(q_m, tau)
+            rec.ripple_basis, rec._ripple_inputs = ripple.basis(q_m, tau), None
     return records
 
 
 def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
                         known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
-                        ripple: RippleTerms | None = None) -> list[dict[str, float]]:
+                        ripple: RippleTerms | None = None, log_filter: TorqueLogFilter | None = None
+                        ) -> list[dict[str, float]]:
     """RMS output errors of eq (4) at ``params``, per dataset, after the nuisance fits (unweighted).
 
     Parameters
@@ -761,6 +762,8 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
         Known torques besides the command, as for :func:`fit_transfer_function`.
     ripple : RippleTerms, optional
         As for :func:`fit_transfer_function` (its coefficients fitted at ``params``).
+    log_filter : TorqueLogFilter, optional
+        A filter before the log the modelled torque passes (at its cut-off).
 
     Returns
     -------
@@ -768,8 +771,10 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
         ``{"tau_j_nm": ..., "q_m_rad": ...}`` per dataset: the simulated outputs' errors less a constant
         (``tau_j``) and the drift spline (``q_m``). Compares models that differ in their known inputs.
     """
-    problem = _Problem(_records(datasets, known, ripple))
-    x = _Problem.params_to_x([params[k] for k in PARAMETER_NAMES])
+    order = 0 if log_filter is None else int(log_filter.values["order"])
+    problem = _Problem(_records(datasets, known, ripple, log_filter), log_filter_order=order)
+    x = _Problem.params_to_x([params[k] for k in PARAMETER_NAMES],
+                             None if log_filter is None else float(log_filter.values["cutoff_hz"]))
     return [{"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))}
             for e_t, e_q in problem.unweighted(x)]
 
@@ -821,7 +826,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         excited, has no coherent band, or the joints differ; the message
         names the file.
     """
-    records = _records(datasets, known, ripple)
+    records = _records(datasets, known, ripple, log_filter)
     for rec in records:  # every file must carry information, not just the first
         est_t, _ = record_frf(rec)
         if int(np.sum(coherent_bands(est_t))) < 4:

@@ -1,0 +1,175 @@
+"""A filter between the torque sensor and the log, seen in a chirp: its start value and the unfiltered torque.
+
+A driver that low-passes the logged ``tau_j`` (a ROS state topic's filter) leaves ``q_m`` as it was, so the
+two outputs of one chirp disagree in phase by the filter's lag. From eqs (2)-(3) ``q_m / tau_j = 1/K +
+1/(Jl s^2)`` is real at every frequency (negative below the link's antiresonance ``sqrt(K/Jl)``, positive above):
+the phase of ``H_tau / H_q``, both H1 from the command, is the filter's phase modulo pi, whatever the joint's
+parameters, the delay or the torque loop. :func:`estimate_log_filter` fits the cut-off of one or two
+first-order stages to it (weighted by the H1's phase std); the output-error fit refines it with the
+parameters (:func:`~iiwa_ident.ident.tf_fit.fit_transfer_function`).
+
+The inverse-dynamics start (:func:`~iiwa_ident.ident.idim.fit_idim`) needs the torque itself:
+:func:`unfiltered` undoes the filter in the frequency domain up to the excitation's top and holds the inverse's
+gain beyond it, so that the sensor's noise is not amplified without bound.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.ident.initial import record_frf
+from iiwa_ident.ident.records import FitRecord
+from iiwa_ident.sim import TorqueLogFilter
+
+__all__ = ["LogFilterEstimate", "estimate_log_filter", "unfiltered", "unfiltered_torque", "log_filter_text", "LOG_FILTER_MIN_LAG_SIGMA", "LOG_FILTER_MIN_EXPLAINED",
+           "LOG_FILTER_MIN_HZ", "LOG_ONLY"]
+
+#: Lowest cut-off of a log filter searched [Hz]: slower, it is a misfit of the motion, not a driver's filter.
+LOG_FILTER_MIN_HZ = 1.0
+
+#: What a filter before the log means for the robot (said wherever it is named).
+LOG_ONLY = ("the log only: the robot's torque loop, its observer and a controller the runtime runs use the "
+            "unfiltered torque; the model's other parameters and effects are of the unfiltered joint")
+
+#: How clearly the phase must show a filter to make it a candidate: the square root of the weighted squared
+#: phase error it removes (a chi-square of one degree of freedom), in std.
+LOG_FILTER_MIN_LAG_SIGMA = 5.0
+#: Least share of the weighted squared phase a filter must explain to be one (a filter leaves the noise only:
+#: 0.9999 in simulation; link damping, a load or the apart data path's model leave 0.03-0.83).
+LOG_FILTER_MIN_EXPLAINED = 0.95
+_TOP_SHARE = 0.45  # the highest cut-off considered, as a share of the sampling rate
+_AT_TOP = 0.8  # a cut-off above this share of the highest is the search's bound, not a filter the data show
+
+
+@dataclass(frozen=True)
+class LogFilterEstimate:
+    """The phase's fit of a log filter (:func:`estimate_log_filter`).
+
+    Attributes
+    ----------
+    cutoff_hz : float
+        Cut-off of each stage [Hz].
+    order : int
+        First-order stages (1 or 2).
+    lag_sigma : float
+        How clearly the phase shows it: the square root of the weighted squared phase error the filter
+        removes [std].
+    explained : float
+        The share of the weighted squared phase the filter explains: near 1 for a filter; a link's damping or
+        a load turns the phase with another shape, which a filter explains in part only.
+    at_bound : bool
+        The cut-off is at either end of the search (a filter faster than the sampling shows, or a slow
+        misfit).
+    """
+
+    cutoff_hz: float
+    order: int
+    lag_sigma: float
+    explained: float
+    at_bound: bool
+
+    @property
+    def filter_shaped(self) -> bool:
+        """Whether the phase has a filter's shape (:data:`LOG_FILTER_MIN_EXPLAINED`) within the search's ends."""
+        return self.explained >= LOG_FILTER_MIN_EXPLAINED and not self.at_bound
+
+    @property
+    def shown(self) -> bool:
+        """Whether the data show a filter: of its shape and clearly (:data:`LOG_FILTER_MIN_LAG_SIGMA`)."""
+        return self.filter_shaped and self.lag_sigma >= LOG_FILTER_MIN_LAG_SIGMA
+
+    def effect(self) -> TorqueLogFilter:
+        """The simulator's effect with these values (the fit's start)."""
+        return TorqueLogFilter({"cutoff_hz": self.cutoff_hz, "order": float(self.order)})
+
+
+def log_filter_text(fit: dict[str, float]) -> str:
+    """A fitted log filter (:attr:`~iiwa_ident.ident.tf_fit.FitResult.log_filter`) in words: its stages and
+    cut-off with its std."""
+    stages = "one first-order stage" if int(fit["order"]) == 1 else f"{int(fit['order'])} first-order stages"
+    return f"{stages} at {fit['cutoff_hz']:.4g} +- {fit['std']:.2g} Hz"
+
+
+def _wrapped(x: np.ndarray) -> np.ndarray:
+    """``x`` modulo pi, in ``[-pi/2, pi/2)``."""
+    return (x + np.pi / 2) % np.pi - np.pi / 2
+
+
+def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | None:
+    """The cut-off of a filter before the log, from the phase of ``tau_j`` against ``q_m`` (module docstring).
+
+    Parameters
+    ----------
+    records : sequence of FitRecord
+        Chirps of one joint (:func:`~iiwa_ident.ident.records.prepare_records`).
+
+    Returns
+    -------
+    LogFilterEstimate or None
+        The best of one and two first-order stages (cut-off searched from :data:`LOG_FILTER_MIN_HZ` to
+        0.45 of the sampling rate); None where no band has both outputs' phase.
+    """
+    f_all, phase_all, w_all, T_all = [], [], [], []
+    for rec in records:
+        est_t, est_q = record_frf(rec)
+        ok = np.isfinite(est_t.H) & np.isfinite(est_q.H) & (np.abs(est_q.H) > 0)
+        var = est_t.std_phase_rad**2 + est_q.std_phase_rad**2
+        ok &= np.isfinite(var) & (var > 0)
+        f_all.append(est_t.f_mean_hz[ok])
+        phase_all.append(np.angle(est_t.H[ok] / est_q.H[ok]))
+        w_all.append(1.0 / var[ok])
+        T_all.append(np.full(int(ok.sum()), rec.T))
+    f, phase, w, T = (np.concatenate(a) for a in (f_all, phase_all, w_all, T_all))
+    if len(f) < 3:
+        return None
+
+    def cost(log_fc: float, order: int) -> float:
+        lf = TorqueLogFilter({"cutoff_hz": math.exp(log_fc), "order": float(order)})
+        model = np.concatenate([np.angle(lf.frequency_response(fr, Tr[0])) for fr, Tr in zip(f_all, T_all) if len(fr)])
+        return float(np.sum(w * _wrapped(phase - model) ** 2))
+
+    lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(_TOP_SHARE / float(np.max(T)))
+    best: tuple[float, float, int] | None = None
+    for order in (1, 2):
+        grid = np.linspace(lo, hi, 25)
+        costs = [cost(x, order) for x in grid]
+        k = int(np.argmin(costs))
+        a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        res = minimize_scalar(lambda x: cost(x, order), bounds=(a, b), method="bounded",
+                              options={"xatol": 1e-4})
+        if best is None or res.fun < best[0]:
+            best = (float(res.fun), float(res.x), order)
+    assert best is not None
+    sse, log_fc, order = best
+    total = float(np.sum(w * _wrapped(phase) ** 2))
+    gain = total - sse
+    return LogFilterEstimate(cutoff_hz=math.exp(log_fc), order=order, lag_sigma=math.sqrt(max(gain, 0.0)),
+                             explained=gain / total if total > 0 else 0.0,
+                             at_bound=log_fc > hi + math.log(_AT_TOP) or log_fc < lo + 0.01)
+
+
+def unfiltered(ds: Dataset, log_filter: TorqueLogFilter, top_hz: float) -> Dataset:
+    """``ds`` with its logged ``tau_j`` put back through the inverse of ``log_filter`` (the sampled filter's own
+    response), exactly up to ``top_hz`` [Hz] and with the inverse's gain held at its value there above (its
+    phase kept), so the sensor's noise is amplified at most that much."""
+    back = unfiltered_torque(np.asarray(ds["tau_j"], float), 1.0 / float(ds.sample_rate_hz), log_filter, top_hz)
+    return dataclasses.replace(ds, signals={**ds.signals, "tau_j": back})
+
+
+def unfiltered_torque(tau: np.ndarray, T: float, log_filter: TorqueLogFilter, top_hz: float) -> np.ndarray:
+    """The torque ``tau`` [Nm] sampled every ``T`` [s] before ``log_filter``, as :func:`unfiltered`."""
+    n = len(tau)
+    # Even extension: the periodic continuation has no jump to ring.
+    x = np.concatenate([tau, tau[::-1]])
+    f = np.fft.rfftfreq(len(x), T)
+    inverse = 1.0 / log_filter.frequency_response(f, T)
+    cap = abs(1.0 / log_filter.frequency_response(np.array([top_hz]), T)[0])
+    inverse = np.where(np.abs(inverse) > cap, inverse / np.abs(inverse) * cap, inverse)
+    return np.fft.irfft(np.fft.rfft(x) * inverse, len(x))[:n]
