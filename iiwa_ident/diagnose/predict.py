@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import signal
+from scipy.linalg import expm
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.model import JointModel
@@ -170,10 +171,33 @@ class Context:
         return signal.lfilter(b, a, x, zi=zi)[0]
 
 
-def _discrete(num: list[float], den: list[float], dt: float) -> tuple[np.ndarray, np.ndarray]:
-    b, a, _ = signal.cont2discrete((num, den), dt, method="zoh")
-    b = np.atleast_1d(np.squeeze(b))
-    return b / a[0], a / a[0]
+def _discrete_all(nums: dict[str, np.ndarray], den: np.ndarray, dt: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each ``nums[name] / den`` sampled with a zero-order hold at ``dt`` [s], as ``(b, a)``.
+
+    The transfer functions share their denominator, so they share the controllable canonical form's ``A, B``
+    and its discretisation: one matrix exponential and one characteristic polynomial for all of them (what
+    :func:`scipy.signal.cont2discrete` computes for each, by the same formulas: ``tf2ss``, ``expm``,
+    ``ss2tf``).
+    """
+    den = np.asarray(den, float)
+    n = len(den) - 1
+    A = np.zeros((n, n))
+    A[0, :] = -den[1:] / den[0]
+    A[1:, :-1] = np.eye(n - 1)
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n] = A * dt
+    M[0, n] = dt
+    E = expm(M)
+    Ad, Bd = E[:n, :n], E[:n, n:]
+    a = np.poly(Ad).real
+    out = {}
+    for name, num in nums.items():
+        num = np.asarray(num, float) / den[0]
+        num = np.concatenate([np.zeros(n + 1 - len(num)), num])
+        D, C = num[0], num[1:] - num[0] * den[1:] / den[0]
+        b = np.poly(Ad - Bd @ C[None, :]).real + (D - 1.0) * a
+        out[name] = (b / a[0], a / a[0])
+    return out
 
 
 def _transfer_functions(p: dict[str, float], dt: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -186,15 +210,15 @@ def _transfer_functions_of(Jc: float, bc: float, K: float, Jl: float, dt: float
     # Cached: a parameter search predicts every channel of every dataset at the same parameters.
     p = (Jc, bc, K, Jl, 0.0)
     gc, den = polynomials(p, "motor")
-    return {
-        "Gc": _discrete(gc, den, dt),
-        "Gd": _discrete(-polynomials(p, "link")[0], den, dt),  # the channel subtracts G_d d
+    return _discrete_all({
+        "Gc": gc,
+        "Gd": -polynomials(p, "link")[0],  # the channel subtracts G_d d
         # S = Jc Jl s^2 / den = 1 + (S - 1) per unit of tau_J's own deflection: the direct path and the strictly
         # proper rest, -(Jl bc s + (Jc + Jl) K) / den.
-        "S-1": _discrete(-den[1:], den, dt),
-        "1-Gc": _discrete(np.polysub(den, gc), den, dt),
-        "R": _discrete(polynomials(p, "reaction")[0], den, dt),
-    }
+        "S-1": -np.asarray(den[1:], float),
+        "1-Gc": np.polysub(den, gc),
+        "R": polynomials(p, "reaction")[0],
+    }, den, dt)
 
 
 def command_prediction(ctx: Context, Td: float, params: dict[str, float] | None = None) -> np.ndarray:
