@@ -166,14 +166,31 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         if plain is None:
             raise refusal from None
         return plain
+    assert filtered.log_filter is not None
+    moved = filtered.log_filter["cutoff_hz"] / candidate.cutoff_hz - 1.0
+    if abs(moved) > _REFIT_CUTOFF_SHARE:
+        # The starts came from the torque undone with the phase's cut-off: once more with the fitted one.
+        again = TorqueLogFilter({"cutoff_hz": filtered.log_filter["cutoff_hz"], "order": float(candidate.order)})
+        try:
+            filtered = _fit_joint(datasets, method, ripple_period_rad, ripple_table, again)
+        except IiwaIdentError:
+            pass
     penalty = 0.5 * math.log(sum(2 * ds.n_samples for ds in datasets))
     if plain is not None and _nll(plain.noise, datasets) - _nll(filtered.noise, datasets) <= penalty:
         return plain
     lf = filtered.log_filter
     assert lf is not None
+    # The phase's estimate and the output-error fit's weigh the data differently: where the model misses
+    # part of the response, their difference is added to the std, as for the parameters (_model_error_std).
+    lf["std_robust"] = math.hypot(lf["std"], lf["cutoff_hz"] - candidate.cutoff_hz) if filtered.model_rejected \
+        else lf["std"]
     filtered.warnings.insert(0, f"tau_j was low-pass filtered before it was logged: {log_filter_text(lf)}, fitted "
                                 f"with the parameters; {LOG_ONLY}")
     return filtered
+
+
+#: Relative change of the cut-off between the phase's estimate and the fit above which the starts are made again.
+_REFIT_CUTOFF_SHARE = 0.01
 
 
 def _log_filter_candidate(datasets: Sequence[Dataset]) -> LogFilterEstimate | None:
@@ -231,7 +248,19 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_period_rad: floa
         method = "idim" if sticks else "joint"
     oe: FitResult | None = None  # the output-error estimate, to compare with IDIM-IV's
     if method == "idim":
+        if log_filter is not None:
+            # The inverse dynamics do not fit the cut-off: the output-error fit from their values does.
+            try:
+                oe = fit_transfer_function(datasets, initial=dict(idim.parameters), known=idim.known_inputs,
+                                           ripple=terms, log_filter=log_filter)
+                assert oe.log_filter is not None
+                log_filter = TorqueLogFilter({"cutoff_hz": oe.log_filter["cutoff_hz"],
+                                              "order": log_filter.values["order"]})
+            except IiwaIdentError:
+                pass
         result = _from_idim(idim, datasets, log_filter)
+        if oe is not None:
+            result.log_filter = oe.log_filter
     else:
         start = dict(idim.parameters)
         result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs, ripple=terms,
@@ -487,7 +516,7 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
     if result.log_filter is not None:  # the logged torque's filter, for compare and diagnose to simulate
         lf = result.log_filter
         effects.append({"name": "torque_log_filter", "cutoff_hz": lf["cutoff_hz"], "order": float(lf["order"])})
-        std_of[("torque_log_filter", "cutoff_hz")] = lf["std"]
+        std_of[("torque_log_filter", "cutoff_hz")] = lf.get("std_robust", lf["std"])
         std_of[("torque_log_filter", "order")] = 0.0
     if effects:
         fit_table["effect_std_names"] = [f"{e['name']}.{k}" for e in effects for k in e if k != "name"]

@@ -94,16 +94,48 @@ def log_filter_text(fit: dict[str, float]) -> str:
     """A fitted log filter (:attr:`~iiwa_ident.ident.tf_fit.FitResult.log_filter`) in words: its stages and
     cut-off with its std."""
     stages = "one first-order stage" if int(fit["order"]) == 1 else f"{int(fit['order'])} first-order stages"
-    return f"{stages} at {fit['cutoff_hz']:.4g} +- {fit['std']:.2g} Hz"
+    text = f"{stages} at {fit['cutoff_hz']:.4g} +- {fit['std']:.2g} Hz"
+    if fit.get("std_robust", fit["std"]) > fit["std"]:
+        text += f" (+- {fit['std_robust']:.2g} Hz with the model's error)"
+    return text
 
 
-def _wrapped(x: np.ndarray) -> np.ndarray:
-    """``x`` modulo pi, in ``[-pi/2, pi/2)``."""
-    return (x + np.pi / 2) % np.pi - np.pi / 2
+def _link_misfit(Y: np.ndarray, s: np.ndarray, scale: np.ndarray) -> float:
+    """Weighted squared error of the best ``Y = 1/K + 1/L(s)``, ``L = Jl s^2 + c s + k`` (the link's
+    impedance: inertia, damping, a spring or a hold), for the measured ``Y = q_m / tau_j`` at ``s = 2 pi j f``;
+    ``scale``: each point's std [same unit as ``Y``].
+
+    Alternating least squares: ``1/K`` given ``L`` is a weighted mean; ``L = 1 / (Y - 1/K)`` given ``K`` is
+    linear in ``(Jl, c, k)``, its rows weighted by ``1 / |dL/dY|`` so that the error stays the output's.
+    """
+    w2 = 1.0 / scale**2
+    top = np.argsort(np.abs(s))[-max(3, len(s) // 8):]
+    kappa = float(np.average(Y[top].real, weights=w2[top]))  # above the link's resonance Y -> 1/K
+    cost = math.inf
+    for _ in range(12):
+        Z = 1.0 / (Y - kappa)
+        w = 1.0 / (scale * np.abs(Z) ** 2)  # dY = -dZ / Z^2
+        A = np.column_stack([s**2, s, np.ones_like(s)]) * w[:, None]
+        M = np.vstack([A.real, A.imag])
+        rhs = np.concatenate([(Z * w).real, (Z * w).imag])
+        norm = np.linalg.norm(M, axis=0)
+        norm[norm == 0] = 1.0
+        theta = np.linalg.lstsq(M / norm, rhs, rcond=None)[0] / norm
+        L = theta[0] * s**2 + theta[1] * s + theta[2]
+        if not np.all(np.isfinite(L)) or np.any(L == 0):
+            return math.inf
+        kappa = float(np.sum(w2 * (Y - 1.0 / L).real) / np.sum(w2))
+        new = float(np.sum(w2 * np.abs(Y - kappa - 1.0 / L) ** 2))
+        if not math.isfinite(new):
+            return math.inf
+        if new >= cost * (1 - 1e-6):
+            return min(new, cost)
+        cost = new
+    return cost
 
 
 def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | None:
-    """The cut-off of a filter before the log, from the phase of ``tau_j`` against ``q_m`` (module docstring).
+    """The cut-off of a filter before the log, from ``q_m`` against ``tau_j`` (module docstring).
 
     Parameters
     ----------
@@ -114,28 +146,33 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
     -------
     LogFilterEstimate or None
         The best of one and two first-order stages (cut-off searched from :data:`LOG_FILTER_MIN_HZ` to
-        0.45 of the sampling rate); None where no band has both outputs' phase.
+        0.45 of the sampling rate); None where no band has both outputs.
     """
-    f_all, phase_all, w_all, T_all = [], [], [], []
+    parts = []
     for rec in records:
         est_t, est_q = record_frf(rec)
-        ok = np.isfinite(est_t.H) & np.isfinite(est_q.H) & (np.abs(est_q.H) > 0)
-        var = est_t.std_phase_rad**2 + est_q.std_phase_rad**2
-        ok &= np.isfinite(var) & (var > 0)
-        f_all.append(est_t.f_mean_hz[ok])
-        phase_all.append(np.angle(est_t.H[ok] / est_q.H[ok]))
-        w_all.append(1.0 / var[ok])
-        T_all.append(np.full(int(ok.sum()), rec.T))
-    f, phase, w, T = (np.concatenate(a) for a in (f_all, phase_all, w_all, T_all))
-    if len(f) < 3:
+        ok = np.isfinite(est_t.H) & np.isfinite(est_q.H) & (np.abs(est_t.H) > 0)
+        # The ratio's relative std: the two H1's phase std (a complex estimate's relative std) together.
+        rel = np.sqrt(est_t.std_phase_rad**2 + est_q.std_phase_rad**2)
+        ok &= np.isfinite(rel) & (rel > 0)
+        Y = est_q.H[ok] / est_t.H[ok]
+        parts.append((est_t.f_mean_hz[ok], Y, rel[ok] * np.abs(Y), rec.T))
+    f = np.concatenate([p[0] for p in parts])
+    if len(f) < 8:
         return None
+    s_all = np.concatenate([2j * np.pi * p[0] for p in parts])
+    scale = np.concatenate([p[2] for p in parts])
+
+    def cost_of(lf: TorqueLogFilter | None) -> float:
+        # With the filter, the torque before it is the logged one over F: q / tau = Y F.
+        Y = np.concatenate([p[1] * (1.0 if lf is None else lf.frequency_response(p[0], p[3])) for p in parts])
+        return _link_misfit(Y, s_all, scale)
 
     def cost(log_fc: float, order: int) -> float:
-        lf = TorqueLogFilter({"cutoff_hz": math.exp(log_fc), "order": float(order)})
-        model = np.concatenate([np.angle(lf.frequency_response(fr, Tr[0])) for fr, Tr in zip(f_all, T_all) if len(fr)])
-        return float(np.sum(w * _wrapped(phase - model) ** 2))
+        return cost_of(TorqueLogFilter({"cutoff_hz": math.exp(log_fc), "order": float(order)}))
 
-    lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(_TOP_SHARE / float(np.max(T)))
+    T_max = max(p[3] for p in parts)
+    lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(_TOP_SHARE / T_max)
     best: tuple[float, float, int] | None = None
     for order in (1, 2):
         grid = np.linspace(lo, hi, 25)
@@ -148,7 +185,7 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
             best = (float(res.fun), float(res.x), order)
     assert best is not None
     sse, log_fc, order = best
-    total = float(np.sum(w * _wrapped(phase) ** 2))
+    total = cost_of(None)
     gain = total - sse
     return LogFilterEstimate(cutoff_hz=math.exp(log_fc), order=order, lag_sigma=math.sqrt(max(gain, 0.0)),
                              explained=gain / total if total > 0 else 0.0,

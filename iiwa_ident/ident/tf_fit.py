@@ -627,7 +627,8 @@ class FitResult:
     #: How :attr:`std_robust` was computed (named in the JSON).
     std_robust_method: str = ""
     #: A filter between the torque sensor and the log fitted with the parameters: ``cutoff_hz`` [Hz], its
-    #: ``std`` [Hz] and ``order`` (stages); None when the model has none.
+    #: ``std`` [Hz], ``order`` (stages) and, from the joint fit, ``std_robust`` [Hz] (as :attr:`std_robust`);
+    #: None when the model has none.
     log_filter: dict[str, float] | None = None
 
     @property
