@@ -217,8 +217,14 @@ class TestTorqueLogFilter:
         assert d.effect("torque_log_filter").parameters["cutoff_hz"] == pytest.approx(fc, rel=0.1)
         assert [e["name"] for e in d.extended.effects if e["name"] == "torque_log_filter"] == ["torque_log_filter"]
         before = {(r.dataset, r.channel): r.rms_nm for r in compare(data, table1_model())}
-        for r in compare(data, d.extended):
+        extended = compare(data, d.extended)
+        for r in extended:
             assert r.rms_nm < 0.5 * before[(r.dataset, r.channel)], (r.dataset, r.channel)
+        # The diagnosis's "after" is the extended model's prediction, the filter whole: one verdict in both.
+        after = {(c.dataset, c.channel): c.after for c in d.channels}
+        for r in extended:
+            a = after[(r.dataset, r.channel)]
+            assert a.fit_pct == pytest.approx(r.fit_pct, abs=0.05) and a.passed == r.passed, (r.dataset, r.channel)
 
     def test_the_report_says_the_filter_acts_on_the_log_only(self):
         from iiwa_ident.report.pdf import _diagnose_pages

@@ -286,6 +286,11 @@ class CandidateEffect:
         another shape ('' when they do not; default: never)."""
         return ""
 
+    def carried(self, coef: np.ndarray) -> np.ndarray:
+        """The coefficients the extended model carries for fitted ``coef`` (default: the same; an effect whose
+        written parameters do not hold its coefficient gives back what they imply)."""
+        return coef
+
     def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
         """Coefficients of an effect the model already has (plant-effect values), or None.
 
@@ -840,6 +845,10 @@ class TorqueLogFilterCandidate(CandidateEffect):
     def plausible(self, coef):
         # The column is the filter's whole action: a coefficient far from 1 is some other lag or misfit.
         return 0.7 <= float(coef[0]) <= 1.3
+
+    def carried(self, coef):
+        # The model file holds the cut-off: the filter acts whole.
+        return np.ones_like(coef)
 
     def from_values(self, values):
         self.effect = make_effect(self.name, values)

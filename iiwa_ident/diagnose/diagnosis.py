@@ -149,11 +149,12 @@ class Diagnosis:
     sign_reversed: list[dict[str, str]] = field(default_factory=list)
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
-        """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length."""
+        """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length, as
+        the extended model carries them (:meth:`~iiwa_ident.diagnose.candidates.CandidateEffect.carried`)."""
         total = np.zeros_like(ctx.t)
         for cand, sl in zip(self.selection.selected, self.selection.slices):
             if only is None or cand.name == only:
-                total = total + _contribution(cand, self.selection.coef[sl], ctx).get(channel, 0.0)
+                total = total + _contribution(cand, cand.carried(self.selection.coef[sl]), ctx).get(channel, 0.0)
         return total
 
     def residual_after(self, ctx: Context, channel: str) -> np.ndarray:
@@ -299,19 +300,21 @@ def _channel_list(channels: Sequence[ChannelReport]) -> str:
     return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
 
 
-def reversed_sign(dataset: Dataset, model: JointModel) -> str | None:
+def reversed_sign(dataset: Dataset, model: JointModel, logged_rms: float | None = None) -> str | None:
     """Why ``dataset``'s torque reading has the other sign than the toolkit's convention, or None.
 
     First the check ``import`` makes (:func:`~iiwa_ident.datasets.torque_sign_problem`: the description's gravity,
     or the friction, read with a factor near -1), so the two say the same; where it does not decide, the model:
     the run reads the other way round when the model predicts it with the torque turned over at most
-    :data:`SIGN_RMS_RATIO` times the residual RMS as logged (a scale near -1).
+    :data:`SIGN_RMS_RATIO` times the residual RMS as logged (a scale near -1); ``logged_rms``: that RMS [Nm] where
+    the caller has it (:func:`_channels_rms`).
     """
     why = torque_sign_problem(dataset)
     if why is not None or not dataset.has("tau_j"):
         return why
     try:
-        logged = _rms([np.array([r[2] for r in residual_rms([dataset], model)])])
+        logged = _rms([np.array([r[2] for r in residual_rms([dataset], model)])]) if logged_rms is None \
+            else logged_rms
         turned = _rms([np.array([r[2] for r in residual_rms([_turned_over(dataset)], model)])])
     except IiwaIdentError:
         return None
@@ -319,6 +322,11 @@ def reversed_sign(dataset: Dataset, model: JointModel) -> str | None:
         return (f"tau_j reads the other way round: the model predicts it at {turned:.3g} Nm RMS turned over against "
                 f"{logged:.3g} Nm as logged (a torque scale of -1); import the log with --scale tau_j=-1")
     return None
+
+
+def _channels_rms(ctx: Context) -> float:
+    """The RMS over a context's channels of their residual RMS [Nm] (as :func:`reversed_sign` judges it)."""
+    return _rms([np.array([_rms([ctx.residual[ch][ctx.masks[ch]]]) for ch in ctx.channels])])
 
 
 def _turned_over(dataset: Dataset) -> Dataset:
@@ -433,13 +441,15 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     # phase pi, a friction that pushes) an artefact of it.
     sign_reversed = []
     turned = list(datasets)
-    for i, ds in enumerate(datasets):
-        why = reversed_sign(ds, model)
+    work, contexts, known = _residuals(datasets, model)
+    for i, (ds, ctx) in enumerate(zip(datasets, contexts)):
+        why = reversed_sign(ds, model, _channels_rms(ctx))
         if why is not None:
             sign_reversed.append({"dataset": str(ds.path.name) if ds.path else f"dataset {i}", "why": why})
             turned[i] = _turned_over(ds)
-    datasets = turned
-    work, contexts, known = _residuals(datasets, model)
+    if sign_reversed:
+        datasets = turned
+        work, contexts, known = _residuals(datasets, model)
     tested = {(ctx.index, ch): channel_comparison(ctx, ch, ctx.residual[ch]) for ctx in contexts for ch in ctx.channels}
     blocks = _blocks(contexts)
     if not blocks:
