@@ -1,9 +1,11 @@
 """Benchmark of ``diagnose`` on hidden-effect cases: hit rate, false positives, confusion, timing.
 
-Run: ``.venv/bin/python bench/bench_diagnose.py [--cases 30] [--first-seed 1]``.
+Run: ``.venv/bin/python bench/bench_diagnose.py [--cases 30] [--first-seed 1] [--causes] [--apart]``.
 Each case hides 0, 1 or 2 random plant effects in the simulated joint
 (:mod:`iiwa_ident.diagnose.benchmark`), simulates the typical input and
-diagnoses it with the Table I model.
+diagnoses it with the Table I model (the case's own eq (4)); ``--causes``: a log filter or a link
+spring, alone or beside another effect; ``--apart``: on the joint simulated apart from the project's
+simulator.
 """
 
 from __future__ import annotations
@@ -22,11 +24,13 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--causes", action="store_true", help="a log filter or a link spring, alone or beside "
                         "one effect of the shared generator (draw_cause_case)")
+    parser.add_argument("--apart", action="store_true", help="the second data path: a joint simulated apart from "
+                        "the project's simulator (iiwa_ident.diagnose.apart)")
     args = parser.parse_args()
     rows = []
     t0 = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.cases):
-        r = run_case(seed, causes=args.causes)
+        r = run_case(seed, causes=args.causes, apart=args.apart)
         rows.append(r)
         status = "hit " if r["hit"] else "MISS"
         print(f"seed {seed:4d} {status} hidden={','.join(r['hidden']) or '-':<48} named={','.join(r['named']) or '-':<48}"

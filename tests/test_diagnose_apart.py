@@ -222,3 +222,17 @@ class TestScoring:
         # Without a scale the truth is the joint's own K.
         plain = Case(0, {}, {}, dyn)
         assert score_case(plain, named(1.08, 1.0), fit_error)["bad_parameters"] == ["model_parameters.K_nm_rad"]
+
+
+class TestCausesRealLogsShow:
+    @pytest.mark.parametrize("seed", [9, 11, 16])
+    def test_a_drivers_smoothing_and_a_spring_written_apart_are_named(self, seed):
+        # This path's own filter (a driver's exponential smoothing of the logged reading, noise included) and
+        # its own spring, alone or beside a load: named exactly, with their parameters within tolerance.
+        from iiwa_ident.diagnose.apart import draw_apart_cause_case
+        from iiwa_ident.diagnose.benchmark import run_case
+
+        case = draw_apart_cause_case(seed)
+        assert {"torque_log_filter", "link_spring"} & set(case.expected) and not case.reshaped
+        out = run_case(seed, causes=True, apart=True)
+        assert out["hit"], out

@@ -14,7 +14,9 @@ equations, with its own integrator, its own effects in other shapes and its own 
   harmonic it does not know, in the other shape), an offset of the reading the loop regulates or, in half
   the draws, of the logged reading only (drifting linearly in the other shape), a sensor scale, a hum
   (with harmonics in the other shape), a ripple of harmonics 1, 2 (and 4 in the other shape), an extra
-  delay;
+  delay; and the causes real logs show (:func:`draw_apart_cause_case`): a spring on the link about a rest
+  angle (stiffening with the cube of the stretch in the other shape) and a driver's exponential smoothing
+  of the logged reading, noise included (two stages in the other shape);
 * a linear-sweep chirp under a weak position hold, trapezoidal constant-velocity runs tracked by a
   client PD with feed-forward, and a hand that guides the link through its own impedance; the torque
   noise coloured (first-order autoregressive), the encoder quantised, a pre-roll under the client's
@@ -35,7 +37,7 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 
-__all__ = ["ApartCase", "CHIRP_AMPLITUDE_NM", "draw_apart_case", "simulate_apart_case"]
+__all__ = ["ApartCase", "CHIRP_AMPLITUDE_NM", "draw_apart_case", "draw_apart_cause_case", "simulate_apart_case"]
 
 CHIRP_AMPLITUDE_NM = 8.0  # the chirp's torque amplitude [Nm], unless a refused fit asks for a stronger one
 
@@ -135,6 +137,32 @@ def draw_apart_case(seed: int, n_effects: int | None = None) -> ApartCase:
     return case
 
 
+def draw_apart_cause_case(seed: int) -> ApartCase:
+    """A link spring or a filter before the log (alternating by seed; half in another shape), alone on every third
+    seed, else beside one effect of :func:`draw_apart_case` (not an extra delay, judged elsewhere)."""
+    rng = np.random.default_rng([seed, 64])
+    case = draw_apart_case(seed, 0 if seed % 3 == 0 else 1)
+    if "model_parameters" in case.effects:
+        case.effects.pop("model_parameters")
+        case.expected.pop("model_parameters")
+    name = ("link_spring", "torque_log_filter")[seed % 2]
+    other = bool(rng.uniform() < 0.5)
+    if name == "link_spring":
+        k, rest = float(rng.uniform(2.0, 6.0)), float(rng.uniform(-0.5, 0.5))
+        # The other shape: a hose that stiffens, k (1 + (x / 0.6)^2) x for a stretch x (0.6 rad: a third more at 0.35).
+        e: dict[str, Any] = {"stiffness_nm_rad": k, "rest_rad": rest, "cubic": 1.0 / 0.6**2 if other else 0.0}
+        exp = {"stiffness_nm_rad": k, "rest_rad": rest}
+    else:
+        fc = float(rng.uniform(8.0, 15.0))
+        e = {"cutoff_hz": fc, "stages": 2 if other else 1}
+        exp = {"cutoff_hz": fc}
+    if other:
+        case.reshaped.append(name)
+    case.effects[name] = e
+    case.expected[name] = exp
+    return case
+
+
 class _Joint:
     """The joint of one case: right-hand side, torques and the robot's own compensation."""
 
@@ -156,6 +184,8 @@ class _Joint:
         self.logged = 0.0 if in_loop else off["offset_nm"]
         self.scale = fx.get("torque_sensor_scale", {"scale": 1.0})["scale"]
         self.hum = fx.get("periodic_disturbance")
+        self.spring = fx.get("link_spring")
+        self.smoothing = fx.get("torque_log_filter")
 
     def theta_j(self, theta_m: float) -> float:
         """Eq (5): the joint position behind the transmission."""
@@ -173,7 +203,26 @@ class _Joint:
         if self.load is not None:
             out += self.load["amplitude_nm"] * math.cos(th + self.load["psi_rad"]) \
                 + self.load["harmonic2_nm"] * math.sin(2 * th + self.load["harmonic2_rad"])
+        if self.spring is not None:
+            x = th - self.spring["rest_rad"]
+            out -= self.spring["stiffness_nm_rad"] * x * (1.0 + self.spring["cubic"] * x * x)
         return out
+
+    def log(self, reading: np.ndarray) -> np.ndarray:
+        """The log of the reading: a driver's exponential smoothing, ``y += a (x - y)`` per cycle with the pole of
+        the cut-off, from the first sample (none without)."""
+        if self.smoothing is None:
+            return reading
+        a = 1.0 - math.exp(-2 * math.pi * self.smoothing["cutoff_hz"] * _T)
+        y = np.asarray(reading, float)
+        for _ in range(int(self.smoothing["stages"])):
+            out = np.empty_like(y)
+            acc = y[0]
+            for i, x in enumerate(y):
+                acc += a * (x - acc)
+                out[i] = acc
+            y = out
+        return y
 
     def compensation(self, theta_m: float) -> float:
         """What the robot adds to the loop's target: its model of the gravity load (not the harmonic), on the
@@ -251,7 +300,7 @@ def _simulate(case: ApartCase, client, hand, n: int, seed: int, preroll: int = 5
         acc = 0.4 * acc + math.sqrt(1 - 0.16) * white[i, 0]
         colored[i] = acc
     return {"t": rows[:, 4] - rows[0, 4], "q_m": np.round(rows[:, 0] / _TICK) * _TICK,
-            "tau_j": rows[:, 1] + 0.025 * colored, "tau_c": cmds, "q_l_ref": rows[:, 2] + 1e-6 * white[:, 1],
+            "tau_j": j.log(rows[:, 1] + 0.025 * colored), "tau_c": cmds, "q_l_ref": rows[:, 2] + 1e-6 * white[:, 1],
             "tau_ext_ref": rows[:, 3] + 0.05 * white[:, 2]}
 
 

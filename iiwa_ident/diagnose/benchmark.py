@@ -208,9 +208,10 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
 
 
 def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, fit: bool = False,
-             causes: bool = False) -> dict[str, Any]:
+             causes: bool = False, apart: bool = False) -> dict[str, Any]:
     """Draw, simulate, diagnose and score one case; adds timing [s]; ``causes``: a case of
-    :func:`draw_cause_case`.
+    :func:`draw_cause_case`; ``apart``: of the second data path (:mod:`iiwa_ident.diagnose.apart`:
+    :func:`~iiwa_ident.diagnose.apart.draw_apart_cause_case` with ``causes``).
 
     The model is the case's true eq (4), or with ``fit`` the eq (4) parameters of
     :func:`~iiwa_ident.ident.joint_fit.fit_joint` on the case's chirp (10 s then; the
@@ -218,9 +219,16 @@ def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, f
     """
     from iiwa_ident.diagnose.diagnosis import diagnose
 
-    case = draw_cause_case(seed) if causes else draw_case(seed, n_effects, shapes=shapes)
     t0 = time.perf_counter()
-    data = simulate_case(case, chirp_s=10.0 if fit else 4.0)
+    if apart:  # the second data path's joint (its own simulator and experiments)
+        from iiwa_ident.diagnose.apart import draw_apart_case, draw_apart_cause_case, simulate_apart_case
+
+        ac = draw_apart_cause_case(seed) if causes else draw_apart_case(seed, n_effects)
+        case = Case(seed, dict(ac.effects), dict(ac.expected), dict(ac.dynamics), list(ac.reshaped))
+        data = simulate_apart_case(ac, chirp_s=10.0 if fit else 4.0)
+    else:
+        case = draw_cause_case(seed) if causes else draw_case(seed, n_effects, shapes=shapes)
+        data = simulate_case(case, chirp_s=10.0 if fit else 4.0)
     t1 = time.perf_counter()
     model = case_model(case)
     fit_error: dict[str, float] = {}
