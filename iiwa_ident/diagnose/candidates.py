@@ -793,7 +793,8 @@ class TorqueLogFilterCandidate(CandidateEffect):
         col: Column = []
         for ch, point in (("command", "command_raw"), ("link", "link_raw")):
             if ch in ctx.predicted:
-                p = ctx.with_effects.get(ch, ctx.predicted[ch])
+                # The model's own effects where they did not pass the filter already (the model carries it).
+                p = ctx.predicted[ch] if ctx.effects_filtered else ctx.with_effects.get(ch, ctx.predicted[ch])
                 phi = self._filtered(p, ctx.dt) - p
                 if ch == "link" and ctx.link_from_eq9:  # eq (9) takes the link from the logged reading too
                     phi = phi + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(phi))
@@ -988,11 +989,14 @@ class ModelParametersCandidate(CandidateEffect):
         out = {}
         for ch in ctx.channels:
             # The link channel depends on K and Jl only: the delay's grid and its finite differences reuse it.
-            key = (ctx.index, ch, *(params[k] for k in _CHANNEL_PARAMETERS[ch]))
+            lf = ctx.log_filter
+            key = (ctx.index, ch, None if lf is None else lf.values["cutoff_hz"],
+                   *(params[k] for k in _CHANNEL_PARAMETERS[ch]))
             if key not in self._predictions:
                 if len(self._predictions) >= 16:  # a few recent ones are all the reuse there is
                     del self._predictions[next(iter(self._predictions))]
-                self._predictions[key] = predict_channel(ctx, ch, params) - ctx.predicted[ch]
+                change = predict_channel(ctx, ch, params) - ctx.predicted[ch]
+                self._predictions[key] = change if lf is None else lf.apply(change, ctx.dt)
             out[ch] = self._predictions[key]
         return out
 

@@ -36,6 +36,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import (PhysicalRanges, against_description, check_model_matches, payload_of_load,
                               physical_ranges)
 from iiwa_ident.model import JointModel
+from iiwa_ident.sim import make_effect
 
 __all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "undecided_sentence", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]
@@ -345,7 +346,13 @@ def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict
 
 
 def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tuple[CandidateEffect, np.ndarray]]:
-    """Subtract the model's own extra effects from the residuals; return them by name with coefficients."""
+    """Subtract the model's own extra effects from the residuals; return them by name with coefficients. A filter
+    before the log goes into the contexts first: the other effects' torques reach the log through it."""
+    for entry in model.effects:
+        if entry["name"] == "torque_log_filter":
+            lf = make_effect(entry["name"], {k: v for k, v in entry.items() if k != "name"})
+            for ctx in contexts:
+                ctx.log_filter, ctx.effects_filtered = lf, True
     known = {}
     for entry in model.effects:
         name = entry["name"]
@@ -629,6 +636,23 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         if c.name in known:
             c.base_coef = known[c.name][1]
     sel = select_effects(blocks, ys, cands, **selection_options)
+    contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
+    named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
+    if named_filter is not None and named_filter.shape != "pure delay" and \
+            all(ctx.log_filter is None for ctx in contexts):
+        # The filter acts on every effect's logged torque: named again with the others' columns through it (a
+        # pure delay extends the model as a filter of its lag, not a shape to pass the others through).
+        for ctx in contexts:
+            ctx.log_filter = named_filter.effect
+        # A refit of the model's own parameters the first pass did not name stays out: beside the filter's
+        # column its delay trades with the cut-off.
+        chosen = {c.name for c in sel.selected}
+        again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
+                          ys, selection_options, ranges)
+        if any(c.name == "torque_log_filter" for c in again[0].selected):
+            return again
+        for ctx in contexts:
+            ctx.log_filter = None
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
     after = cv_residuals(sel.columns(blocks), ys) if sel.selected else list(before)
     extended = copy.deepcopy(model)

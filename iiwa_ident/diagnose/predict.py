@@ -63,6 +63,7 @@ from iiwa_ident.datasets import Dataset
 from iiwa_ident.model import JointModel
 from iiwa_ident.model import polynomials, sample_means
 from iiwa_ident.sim import INJECTIONS as EFFECT_POINTS
+from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",
            "command_prediction", "predict_channel"]
@@ -116,6 +117,12 @@ class Context:
     with_effects : dict of str to numpy.ndarray
         Per channel, the prediction with the model's own extra effects (its gravity, friction, ...) [Nm]: the
         model's estimate of the whole torque (what a filter before the log acts on).
+    log_filter : TorqueLogFilter or None
+        A filter before the log the model carries or the diagnosis named: every effect's change of the logged
+        torque passes it (:func:`channel_columns`).
+    effects_filtered : bool
+        Whether the model's own effects in :attr:`with_effects` reached the log through :attr:`log_filter` (the
+        model carries the filter); the filter's own column is then ``F(p) - p`` of the prediction alone.
     """
 
     index: int
@@ -142,6 +149,8 @@ class Context:
     predicted: dict[str, np.ndarray] = field(default_factory=dict)
     residual: dict[str, np.ndarray] = field(default_factory=dict)
     with_effects: dict[str, np.ndarray] = field(default_factory=dict)
+    log_filter: TorqueLogFilter | None = None
+    effects_filtered: bool = False
     _sos: np.ndarray | None = None
     _tf: dict = field(default_factory=dict)
 
@@ -391,4 +400,12 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
             out["command"] = phi
     if injection == "link_raw" and "link" in ctx.masks:
         out["link"] = phi
+    if ctx.log_filter is not None and injection not in _AFTER_THE_LOG_FILTER:
+        # The logged torque is the filtered one: so is every change an effect makes to it.
+        out = {ch: ctx.log_filter.apply(v, ctx.dt) for ch, v in out.items()}
     return out
+
+
+#: Injection points a filter before the log does not act on: the log itself, and the raw columns (already what
+#: the log shows: the filter's own, a refit's prediction, which filters itself).
+_AFTER_THE_LOG_FILTER = ("logged", "command_raw", "link_raw")
