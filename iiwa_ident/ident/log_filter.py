@@ -29,10 +29,12 @@ from iiwa_ident.ident.records import FitRecord
 from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["LogFilterEstimate", "estimate_log_filter", "unfiltered", "unfiltered_torque", "log_filter_text", "LOG_FILTER_MIN_LAG_SIGMA", "LOG_FILTER_MIN_EXPLAINED",
-           "LOG_FILTER_MIN_HZ", "LOG_ONLY"]
+           "LOG_FILTER_MIN_HZ", "LOG_FILTER_MAX_HZ", "LOG_ONLY"]
 
 #: Lowest cut-off of a log filter searched [Hz]: slower, it is a misfit of the motion, not a driver's filter.
 LOG_FILTER_MIN_HZ = 1.0
+#: Highest cut-off searched [Hz] (below 0.45 of the rate too): the simulator's effect's range.
+LOG_FILTER_MAX_HZ = next(p.upper for p in TorqueLogFilter.params if p.name == "cutoff_hz")
 
 #: What a filter before the log means for the robot (said wherever it is named).
 LOG_ONLY = ("the log only: the robot's torque loop, its observer and a controller the runtime runs use the "
@@ -120,7 +122,10 @@ def _link_misfit(Y: np.ndarray, s: np.ndarray, scale: np.ndarray) -> float:
         rhs = np.concatenate([(Z * w).real, (Z * w).imag])
         norm = np.linalg.norm(M, axis=0)
         norm[norm == 0] = 1.0
-        theta = np.linalg.lstsq(M / norm, rhs, rcond=None)[0] / norm
+        try:
+            theta = np.linalg.lstsq(M / norm, rhs, rcond=None)[0] / norm
+        except np.linalg.LinAlgError:  # non-finite ratios: no fit there
+            return math.inf
         L = theta[0] * s**2 + theta[1] * s + theta[2]
         if not np.all(np.isfinite(L)) or np.any(L == 0):
             return math.inf
@@ -172,7 +177,7 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
         return cost_of(TorqueLogFilter({"cutoff_hz": math.exp(log_fc), "order": float(order)}))
 
     T_max = max(p[3] for p in parts)
-    lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(_TOP_SHARE / T_max)
+    lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(min(_TOP_SHARE / T_max, LOG_FILTER_MAX_HZ))
     best: tuple[float, float, int] | None = None
     for order in (1, 2):
         grid = np.linspace(lo, hi, 25)
