@@ -104,3 +104,14 @@ class TestFitThroughTheFilter:
         assert res.exit_code == 0, res.output
         lf = next(e for e in read_model(out).effects if e["name"] == "torque_log_filter")
         assert lf["cutoff_hz"] == pytest.approx(12.0, rel=0.02)
+
+
+def test_the_reports_fit_page_says_the_filter_acts_on_the_log_only():
+    from iiwa_ident.report.pdf import _fit_pages
+
+    ds, _ = chirp(16, 10.0, duration_s=6.0)
+    result = fit_joint([ds])
+    assert result.log_filter is not None
+    caption = _fit_pages({"fit": result}, None)[-1].caption
+    assert "The logged tau_J passed a filter, one first-order stage at" in caption
+    assert "the log only: the robot's torque loop" in caption

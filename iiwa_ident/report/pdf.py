@@ -455,8 +455,18 @@ def _fit_pages(r: dict[str, Any], doc: dict[str, Any] | None) -> list[Page]:
         Page("fit", "Parameter table", "The five parameters with their standard deviations (and, on the "
              "simulated joint, the error against the plant that was simulated, in % and in std), with the "
              "correlation of the estimates. Look for errors within 3 standard deviations" + _ripple_shift(doc)
-             + ".", table),
+             + "." + _log_filter_said(fit), table),
     ]
+
+
+def _log_filter_said(fit: Any) -> str:
+    """The fitted filter before the log, in words (empty without one)."""
+    if getattr(fit, "log_filter", None) is None:
+        return ""
+    from iiwa_ident.ident import LOG_ONLY, log_filter_text
+
+    return (f" The logged tau_J passed a filter, {log_filter_text(fit.log_filter)}, fitted with the parameters "
+            f"(the Bode plot's model includes it); it acts on {LOG_ONLY}.")
 
 
 def _ripple_shift(doc: dict[str, Any] | None) -> str:
