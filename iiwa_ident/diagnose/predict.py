@@ -176,7 +176,7 @@ class Context:
         ``params``: other eq (4) parameters than the model's.
         """
         b, a = (self._tf if params is None else _transfer_functions(params, self.dt))[name]
-        zi = signal.lfilter_zi(b, a) * x[0] if steady else np.zeros(max(len(a), len(b)) - 1)
+        zi = _steady_state(tuple(b), tuple(a)) * x[0] if steady else np.zeros(max(len(a), len(b)) - 1)
         return signal.lfilter(b, a, x, zi=zi)[0]
 
 
@@ -207,6 +207,12 @@ def _discrete_all(nums: dict[str, np.ndarray], den: np.ndarray, dt: float) -> di
         b = np.poly(Ad - Bd @ C[None, :]).real + (D - 1.0) * a
         out[name] = (b / a[0], a / a[0])
     return out
+
+
+@functools.lru_cache(maxsize=256)
+def _steady_state(b: tuple[float, ...], a: tuple[float, ...]) -> np.ndarray:
+    """:func:`scipy.signal.lfilter_zi` of ``(b, a)`` (cached: a parameter search filters with few of them)."""
+    return signal.lfilter_zi(b, a)
 
 
 def _transfer_functions(p: dict[str, float], dt: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
