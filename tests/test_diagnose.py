@@ -304,6 +304,14 @@ def files(tmp_path_factory):
 
 
 class TestCli:
+    def test_help_names_every_candidate(self):
+        # The help's list of candidate effects is the library's (a new candidate must be added to both).
+        res = CliRunner().invoke(app, ["diagnose", "--help"], terminal_width=200)
+        assert res.exit_code == 0
+        text = " ".join(res.output.split())
+        missing = [name for name in CANDIDATES if name not in text]
+        assert not missing, missing
+
     def test_json_and_extended_model(self, files):
         tmp, paths = files
         res = CliRunner().invoke(app, ["diagnose", "--model", str(tmp / "model.toml"), "--json", str(tmp / "d.json"),

@@ -27,9 +27,10 @@ def diagnose_cmd(
     """Compare the model with measurements, name the effects it misses, extend it and measure the gain.
 
     Candidate effects: transmission_ripple, link_friction, position_dependent_load,
-    torque_sensor_offset, torque_sensor_scale, periodic_disturbance, and
-    model_parameters (the model's own Jc, bc, K, Jl and Td refitted together,
-    e.g. an extra input delay or Table I on another joint). An effect is named
+    link_spring, torque_sensor_offset, torque_sensor_scale, torque_log_filter,
+    periodic_disturbance, and model_parameters (the model's own Jc, bc, K, Jl
+    and Td refitted together, e.g. an extra input delay or Table I on another
+    joint). A torque read the other way round is named first. An effect is named
     only when it lowers the held-out residual
     (blocked cross-validation, BIC, t-test confidence) and is at least twice
     the residual's noise; on data the model explains, nothing is named. Each

@@ -164,7 +164,10 @@ def fit_cmd(
     parameters with those effects as known torques. Prints the parameters
     with their standard deviations, the effects, the fit quality and the
     nonlinear share per octave band, and warnings. A parameter the data
-    cannot identify is refused with the reason.
+    cannot identify is refused with the reason. A joint torque low-pass
+    filtered before it was logged (a driver's filter) is fitted through:
+    its cut-off with the parameters, kept where the likelihood asks for it;
+    it acts on the log only.
 
     Examples:
 
