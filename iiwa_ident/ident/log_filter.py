@@ -178,6 +178,8 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
 
     T_max = max(p[3] for p in parts)
     lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(min(_TOP_SHARE / T_max, LOG_FILTER_MAX_HZ))
+    if hi <= lo + 0.1:  # sampled too slowly to show a filter above the search's bottom
+        return None
     best: tuple[float, float, int] | None = None
     for order in (1, 2):
         grid = np.linspace(lo, hi, 25)
