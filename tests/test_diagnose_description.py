@@ -186,3 +186,21 @@ def test_a_payload_the_pose_does_not_determine():
     r7 = type(ranges)(ranges.Jl_kgm2, ranges.load_nm, ranges.Jl_described_kgm2, 1.0, "iiwa14", 7, ranges.pose_rad)
     pay = payload_of_load(r7, 2.0, 0.3)
     assert not pay.determined and "the pose does not determine a payload" in pay.text()
+
+
+@pytest.mark.parametrize("seed", [51, 52])
+def test_a_slow_log_filter_beside_friction_is_named_and_carries_the_friction(seed):
+    # The real 200 Hz logs' filters lie at 0.85-3 Hz: a first-order filter of 0.5-2 Hz (drawn) beside link
+    # friction on joint 1 (no gravity). The filter acts on the friction's torque too: named with its cut-off, and
+    # the friction named whole beside it (its Coulomb level, not what the filter leaves of it).
+    rng = np.random.default_rng(seed)
+    fc, coulomb = float(np.exp(rng.uniform(np.log(0.5), np.log(2.0)))), rng.uniform(0.5, 1.5)
+    start = starting_model("iiwa14", 1)
+    truth = copy.deepcopy(start)
+    truth.effects = truth.effects + [{"name": "link_friction", "coulomb_nm": coulomb, "viscous_nms_rad": 0.0},
+                                     {"name": "torque_log_filter", "cutoff_hz": fc}]
+    d = diagnose(_runs(truth, 1, seed), start)
+    assert {e.name for e in d.effects} == {"link_friction", "torque_log_filter"}, \
+        [(e.name, e.parameters) for e in d.effects]
+    assert d.effect("torque_log_filter").parameters["cutoff_hz"] == pytest.approx(fc, rel=0.1)
+    assert d.effect("link_friction").parameters["coulomb_nm"] == pytest.approx(coulomb, rel=0.05)

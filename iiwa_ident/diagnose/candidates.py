@@ -78,6 +78,7 @@ __all__ = [
     "register_candidate",
     "make_candidate",
     "block_sse",
+    "context_columns",
     "TransmissionRippleCandidate",
     "LinkFrictionCandidate",
     "PositionDependentLoadCandidate",
@@ -90,6 +91,7 @@ __all__ = [
     "TorqueLogFilterCandidate",
     "LOG_FILTER_SHAPES",
     "LOG_FILTER_OTHER_SHAPE",
+    "LOG_FILTER_DETERMINED",
     "LOG_FILTER_MIN_HZ",
     "PeriodicDisturbanceCandidate",
     "ModelParametersCandidate",
@@ -139,22 +141,28 @@ class EvidenceChannel:
         self.name, self.X, self.y, self.false_alarm = name, X, y, false_alarm
 
 
+def context_columns(ctx: Context, columns: Callable[[Context], list[Column]], n: int) -> list[dict[str, np.ndarray]]:
+    """Each of a candidate's ``n`` columns in ``ctx`` as the change it makes to each residual channel [Nm per unit
+    coefficient] (every sample, unweighted)."""
+    per_col = []
+    for col in columns(ctx):
+        acc: dict[str, np.ndarray] = {}
+        for injection, phi in col:
+            for ch, v in channel_columns(ctx, injection, phi).items():
+                acc[ch] = acc.get(ch, 0.0) + v
+        per_col.append(acc)
+    if len(per_col) != n:
+        raise ValueError("a candidate returned the wrong number of columns")
+    return per_col
+
+
 def block_columns(blocks: Sequence[Block], columns: Callable[[Context], list[Column]], n: int) -> list[np.ndarray]:
     """Weighted regressor matrix (samples x n) of each block for a candidate's columns."""
     cache: dict[int, list[dict[str, np.ndarray]]] = {}
     out = []
     for b in blocks:
         if b.ctx.index not in cache:
-            per_col = []
-            for col in columns(b.ctx):
-                acc: dict[str, np.ndarray] = {}
-                for injection, phi in col:
-                    for ch, v in channel_columns(b.ctx, injection, phi).items():
-                        acc[ch] = acc.get(ch, 0.0) + v
-                per_col.append(acc)
-            if len(per_col) != n:
-                raise ValueError("a candidate returned the wrong number of columns")
-            cache[b.ctx.index] = per_col
+            cache[b.ctx.index] = context_columns(b.ctx, columns, n)
         m = np.count_nonzero(b.mask)
         X = np.zeros((m, n))
         for j, acc in enumerate(cache[b.ctx.index]):
@@ -222,6 +230,9 @@ class CandidateEffect:
         self.ranges: PhysicalRanges | None = None
         #: The plant effect at the current nonlinear parameters (defaults until found).
         self.effect: Effect | None = self._default_effect() if self.is_effect else None
+        #: The effects named before this candidate is tried, with their coefficients in the current fit (set by
+        #: the selection at each step, before :meth:`prepare`).
+        self.beside: list[tuple[CandidateEffect, np.ndarray]] = []
 
     def _default_effect(self) -> Effect:
         return make_effect(self.name)
@@ -741,6 +752,10 @@ class TorqueSensorScaleCandidate(CandidateEffect):
 #: Largest residual SSE, relative to the first order's, at which another shape of the log's filter is preferred.
 LOG_FILTER_OTHER_SHAPE = 0.8
 
+#: Least share of the residual a filter removes at its cut-off that it must lose at the slowest cut-off searched
+#: (:data:`LOG_FILTER_MIN_HZ`) for the cut-off to be one the data determine.
+LOG_FILTER_DETERMINED = 0.1
+
 #: The shapes of a filter before the log the diagnosis compares, each with one searched parameter: one or two
 #: first-order stages at a cut-off, or a pure delay.
 LOG_FILTER_SHAPES = ("first order", "second order", "pure delay")
@@ -769,6 +784,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
         super().__init__()
         self.shape = LOG_FILTER_SHAPES[0]
         self._delay_s = 0.0
+        self._named: dict[int, dict[str, np.ndarray]] = {}
 
     def _filtered(self, x: np.ndarray, dt: float) -> np.ndarray:
         if self.shape == "pure delay":
@@ -786,23 +802,46 @@ class TorqueLogFilterCandidate(CandidateEffect):
         else:
             self.effect.values["cutoff_hz"] = value
 
+    def set_cutoff(self, cutoff_hz: float) -> None:
+        """The filter's shape at another cut-off [Hz] (a pure delay at the same low-frequency lag)."""
+        self._set(self.shape, 1.0 / (2.0 * math.pi * cutoff_hz) if self.shape == "pure delay" else cutoff_hz)
+
     def n_columns(self):
         return 1
 
     def columns(self, ctx):
         col: Column = []
+        named = self._named.get(ctx.index, {}) if ctx.log_filter is None else {}
         for ch, point in (("command", "command_raw"), ("link", "link_raw")):
             if ch in ctx.predicted:
-                # The model's own effects where they did not pass the filter already (the model carries it).
+                # The model's own effects where they did not pass the filter already (the model carries it), and
+                # what the effects named so far add: the filter acts on the whole torque.
                 p = ctx.predicted[ch] if ctx.effects_filtered else ctx.with_effects.get(ch, ctx.predicted[ch])
+                p = p + named.get(ch, 0.0)
                 phi = self._filtered(p, ctx.dt) - p
                 if ch == "link" and ctx.link_from_eq9:  # eq (9) takes the link from the logged reading too
                     phi = phi + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(phi))
                 col.append((point, phi))
         return [col]
 
+    def _sum_named(self, blocks: Sequence[Block]) -> dict[int, dict[str, np.ndarray]]:
+        """Per dataset and channel, the torque the effects named so far add to the model's (:attr:`beside`),
+        where their columns did not pass a filter already (a context carrying one filters them itself)."""
+        out: dict[int, dict[str, np.ndarray]] = {}
+        for ctx in {b.ctx.index: b.ctx for b in blocks}.values():
+            if ctx.log_filter is not None:
+                continue
+            acc: dict[str, np.ndarray] = {}
+            for cand, coef in self.beside:
+                for c, col in zip(coef, context_columns(ctx, cand.columns, cand.n_columns())):
+                    for ch, v in col.items():
+                        acc[ch] = acc.get(ch, 0.0) + c * v
+            out[ctx.index] = acc
+        return out
+
     def prepare(self, blocks, residuals) -> bool:
         super().prepare(blocks, residuals)
+        self._named = self._sum_named(blocks)
         fs = 1.0 / max(b.ctx.dt for b in blocks)
         top = 0.4 * fs
         if top <= 2.0:
@@ -826,8 +865,13 @@ class TorqueLogFilterCandidate(CandidateEffect):
         if best[shape][1] > LOG_FILTER_OTHER_SHAPE * best[LOG_FILTER_SHAPES[0]][1]:
             shape = LOG_FILTER_SHAPES[0]
         lx = best[shape][0]
-        if lx <= math.log(LOG_FILTER_MIN_HZ) + 0.01:
-            return False  # at the search's lower bound: a slow misfit, not a cut-off the data determine
+        # The cut-off must be determined: the slowest one searched must lose a share of what the best explains
+        # (far below the motion's band a filter only attenuates, the shape of a fast torque the model predicts too
+        # large, and the fit improves towards the bound).
+        none = float(sum(np.sum(r ** 2) for r in residuals))
+        slowest = sse(math.log(LOG_FILTER_MIN_HZ), shape)
+        if slowest - best[shape][1] < LOG_FILTER_DETERMINED * (none - best[shape][1]):
+            return False
         self._set(shape, 1.0 / (2.0 * math.pi * math.exp(lx)) if shape == "pure delay" else math.exp(lx))
         low = best[shape][1]
         self.detail = {"shape": shape, "log_only": LOG_ONLY,
@@ -845,7 +889,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     def plausible(self, coef):
         # The column is the filter's whole action: a coefficient far from 1 is some other lag or misfit.
-        return 0.7 <= float(coef[0]) <= 1.3
+        return 0.5 <= float(coef[0]) <= 1.5
 
     def carried(self, coef):
         # The model file holds the cut-off: the filter acts whole.

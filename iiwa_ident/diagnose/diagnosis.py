@@ -26,12 +26,15 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset, torque_sign_problem
-from iiwa_ident.diagnose.candidates import CANDIDATES, Block, CandidateEffect, block_columns, make_candidate
+from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_MIN_HZ, Block, CandidateEffect, block_columns,
+                                           block_sse, make_candidate)
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
-from iiwa_ident.diagnose.select import BANDS, MIN_GAIN, NOISE_FACTOR, Selection, cv_residuals, noise_floor, select_effects
+from iiwa_ident.diagnose.select import (BANDS, MIN_GAIN, NOISE_FACTOR, Selection, Step, cv_residuals, noise_floor,
+                                        select_effects)
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import (PhysicalRanges, against_description, check_model_matches, payload_of_load,
                               physical_ranges)
@@ -624,10 +627,12 @@ def _alike(sel: Selection, effects: list[EffectReport], names: list[str], known:
 
 
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
-              ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None
+              ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None,
+              first: Sequence[tuple[CandidateEffect, Step]] = ()
               ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]]:
     """The selection among the candidates ``names``, its effect reports, the extended model and the held-out
-    residuals with the named effects; ``ranges``: what the robot's description makes physically possible."""
+    residuals with the named effects; ``ranges``: what the robot's description makes physically possible;
+    ``first``: effects named before the search (:func:`~iiwa_ident.diagnose.select.select_effects`)."""
     cands = [make_candidate(n) for n in names]
     for c in cands:
         c.ranges = ranges
@@ -635,24 +640,49 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
             c.base_table = work.ripple
         if c.name in known:
             c.base_coef = known[c.name][1]
-    sel = select_effects(blocks, ys, cands, **selection_options)
+    sel = select_effects(blocks, ys, cands, **selection_options, first=first)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
+    if first and first[0][0].name == "torque_log_filter" and contexts[0].log_filter is not None:
+        _refine_log_filter(sel, blocks, ys)
+    # A named effect whose shape holds a simpler one's must still be more than that in the final fit: a spring
+    # that later effects turned into an offset (a slope of nothing or of the wrong sign) is not named, and the
+    # rest named again without it (the offset then stands on its own).
+    given = {c.name for c, _ in first}
+    stale = [c.name for c, sl in zip(sel.selected, sel.slices) if c.contains and c.name not in given and
+             c.name not in sel.other_shape and not (c.plausible(c.total(sel.coef[sl])) and c.relevant(sel.coef[sl]))]
+    if stale:
+        return _selected([n for n in names if n not in stale], work, model, known, blocks, ys, selection_options,
+                         ranges, first)
     named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
     if named_filter is not None and named_filter.shape != "pure delay" and \
             all(ctx.log_filter is None for ctx in contexts):
-        # The filter acts on every effect's logged torque: named again with the others' columns through it (a
-        # pure delay extends the model as a filter of its lag, not a shape to pass the others through).
+        # The filter acts on every effect's logged torque: the others named again with their columns through it
+        # and the filter's in the fit from the start (named later, it finds effects fitted to what it explains:
+        # a spring to the inertia's torque the log does not show). A pure delay extends the model as a filter
+        # of its lag, not a shape to pass the others through.
         for ctx in contexts:
             ctx.log_filter = named_filter.effect
         # A refit of the model's own parameters the first pass did not name stays out: beside the filter's
         # column its delay trades with the cut-off.
         chosen = {c.name for c in sel.selected}
+        record = next(s for s in sel.steps if s.name == named_filter.name and s.accepted)
+        first_cutoff = float(named_filter.effect.values["cutoff_hz"])
         again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
-                          ys, selection_options, ranges)
-        if any(c.name == "torque_log_filter" for c in again[0].selected):
-            return again
+                          ys, selection_options, ranges, first=[(named_filter, record)])
+        # Kept where the filter, whole, still explains the data beside the others (they fit better through it
+        # than without it).
+        rest = again[0].columns(blocks, held=1)
+        whole = block_columns(blocks, named_filter.columns, 1)
+        sse_filtered = block_sse(rest, [y - X[:, 0] for y, X in zip(ys, whole)])[0]
+        kept = [ctx.log_filter for ctx in contexts]
         for ctx in contexts:
             ctx.log_filter = None
+        sse_plain = block_sse(again[0].columns(blocks, held=1), ys)[0]
+        if sse_filtered < sse_plain:
+            for ctx, f in zip(contexts, kept):
+                ctx.log_filter = f
+            return again
+        named_filter.set_cutoff(first_cutoff)
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
     after = cv_residuals(sel.columns(blocks), ys) if sel.selected else list(before)
     extended = copy.deepcopy(model)
@@ -694,6 +724,30 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
         extended.description = (extended.description + " | " if extended.description else "") + \
             "extended by diagnose: " + ", ".join(e.name for e in effects)
     return sel, effects, extended, after
+
+
+def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> None:
+    """The cut-off of the filter the selection holds first, searched again (within a factor 4) with every named
+    effect's columns through it, and the selection's coefficients refitted there: the first pass searched it
+    beside the others' fit without the filter, which lends the filter some of their torque's shape."""
+    cand = sel.selected[0]
+    contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
+    top = math.log(0.4 / max(ctx.dt for ctx in contexts))
+    x0 = math.log(float(cand.effect.values["cutoff_hz"]))
+
+    def sse(log_fc: float) -> float:
+        # The filter whole (coefficient 1, as the model carries it), the others fitted beside it.
+        cand.set_cutoff(math.exp(log_fc))
+        for ctx in contexts:
+            ctx.log_filter = cand.effect
+        whole = block_columns(blocks, cand.columns, 1)
+        return block_sse(sel.columns(blocks, held=1), [y - X[:, 0] for y, X in zip(ys, whole)])[0]
+
+    lo, hi = max(x0 - math.log(4.0), math.log(LOG_FILTER_MIN_HZ)), min(x0 + math.log(4.0), top)
+    best = minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+    sse(float(best.x))
+    whole = block_columns(blocks, cand.columns, 1)
+    sel.coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), [y - X[:, 0] for y, X in zip(ys, whole)])[1]])
 
 
 def _coefficient_cov(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> np.ndarray:

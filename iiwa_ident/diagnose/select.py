@@ -218,10 +218,10 @@ class Selection:
     other_shape: dict[str, str] = field(default_factory=dict)
     steps: list[Step] = field(default_factory=list)
 
-    def columns(self, blocks: Sequence[Block], skip: str | None = None) -> list[np.ndarray]:
-        """Weighted regressors of the selected effects (optionally without one)."""
+    def columns(self, blocks: Sequence[Block], skip: str | None = None, held: int = 0) -> list[np.ndarray]:
+        """Weighted regressors of the selected effects (optionally without one, or without the first ``held``)."""
         mats = [[np.zeros((np.count_nonzero(b.mask), 0))] for b in blocks]
-        for cand in self.selected:
+        for cand in self.selected[held:]:
             if cand.name == skip:
                 continue
             for i, X in enumerate(block_columns(blocks, cand.columns, cand.n_columns())):
@@ -364,7 +364,7 @@ def _accept(sel: "Selection", cand: CandidateEffect, record: Step, width: int) -
 
 def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates: Sequence[CandidateEffect],
                    min_gain: float = MIN_GAIN, min_confidence: float = MIN_CONFIDENCE,
-                   max_effects: int = MAX_EFFECTS) -> Selection:
+                   max_effects: int = MAX_EFFECTS, first: Sequence[tuple[CandidateEffect, Step]] = ()) -> Selection:
     """Greedy forward selection of candidate effects (see the module docstring).
 
     Parameters
@@ -377,18 +377,30 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
         Acceptance thresholds.
     max_effects : int
         Most effects named.
+    first : list of (CandidateEffect, Step)
+        Effects named before the search, with the step that named them (prepared: their searched parameters
+        stay), held whole: their columns, at coefficient 1 (as the model carries a filter), leave the residual
+        before the search and their coefficients stay 1.
 
     Returns
     -------
     Selection
     """
     sel = Selection()
-    remaining = list(candidates)
+    given = {cand.name for cand, _ in first}
+    remaining = [c for c in candidates if c.name not in given]
     filters = _band_filters(blocks)
     ys = list(ys)
+    n0 = 0  # the columns held whole, first in the coefficient vector
+    for cand, record in first:
+        for i, X in enumerate(block_columns(blocks, cand.columns, cand.n_columns())):
+            ys[i] = ys[i] - X.sum(axis=1)
+        _accept(sel, cand, record, n0)
+        n0 += cand.n_columns()
     ys_band = {band: _in_band(band, filters, ys) for band in BANDS}
     cur_X = [np.zeros((len(y), 0)) for y in ys]
     in_sample = list(ys)
+    coef = np.zeros(0)
     step = 0
     while remaining and len(sel.selected) < max_effects:
         step += 1
@@ -401,6 +413,8 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
             # is not tried (their shared part would be split at random between them).
             if any(cand.name in c.contains or c.name in cand.contains for c in sel.selected):
                 continue
+            full = np.concatenate([np.ones(n0), coef])
+            cand.beside = [(c, full[sl]) for c, sl in zip(sel.selected, sel.slices)]
             if not cand.prepare(blocks, in_sample):
                 continue
             Xc = block_columns(blocks, cand.columns, cand.n_columns())
@@ -474,15 +488,16 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
             record, named = pair
             sel.steps.append(record)
         for cand, Xc in named:
-            _accept(sel, cand, record, cur_X[0].shape[1])
+            _accept(sel, cand, record, n0 + cur_X[0].shape[1])
             remaining.remove(cand)
             cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
         X, y = np.vstack(cur_X), np.concatenate(ys)
         coef = np.linalg.lstsq(X, y, rcond=None)[0]
         in_sample = [yb - Xb @ coef for yb, Xb in zip(ys, cur_X)]
-    if sel.selected:
+    if len(sel.selected) > len(first):
         # Searched parameters may have moved after later selections: rebuild the columns once more.
-        cur_X = sel.columns(blocks)
+        cur_X = sel.columns(blocks, held=len(first))
         X, y = np.vstack(cur_X), np.concatenate(ys)
-        sel.coef = np.linalg.lstsq(X, y, rcond=None)[0]
+        coef = np.linalg.lstsq(X, y, rcond=None)[0]
+    sel.coef = np.concatenate([np.ones(n0), coef]) if sel.selected else coef
     return sel

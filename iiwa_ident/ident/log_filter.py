@@ -29,10 +29,11 @@ from iiwa_ident.ident.records import FitRecord
 from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["LogFilterEstimate", "estimate_log_filter", "unfiltered", "unfiltered_torque", "log_filter_text", "LOG_FILTER_MIN_LAG_SIGMA", "LOG_FILTER_MIN_EXPLAINED",
-           "LOG_FILTER_MIN_HZ", "LOG_FILTER_MAX_HZ", "LOG_ONLY"]
+           "LOG_FILTER_MIN_HZ", "LOG_FILTER_MAX_HZ", "LOG_ONLY", "lowest_cutoff_hz"]
 
-#: Lowest cut-off of a log filter searched [Hz]: slower, it is a misfit of the motion, not a driver's filter.
-LOG_FILTER_MIN_HZ = 1.0
+#: Lowest cut-off of a log filter searched [Hz] (a time constant of 0.8 s): slower, a lag is a misfit of the
+#: motion, not a filter. The real iiwa 14 logs at 200 Hz show filters at 0.85-2.6 Hz.
+LOG_FILTER_MIN_HZ = 0.2
 #: Highest cut-off searched [Hz] (below 0.45 of the rate too): the simulator's effect's range.
 LOG_FILTER_MAX_HZ = next(p.upper for p in TorqueLogFilter.params if p.name == "cutoff_hz")
 
@@ -48,6 +49,13 @@ LOG_FILTER_MIN_LAG_SIGMA = 5.0
 LOG_FILTER_MIN_EXPLAINED = 0.95
 _TOP_SHARE = 0.45  # the highest cut-off considered, as a share of the sampling rate
 _AT_TOP = 0.8  # a cut-off above this share of the highest is the search's bound, not a filter the data show
+
+
+def lowest_cutoff_hz(records: Sequence[FitRecord]) -> float:
+    """The lowest cut-off [Hz] a fit of ``records`` searches: :data:`LOG_FILTER_MIN_HZ`, or the chirps' lowest
+    frequency where that is higher (below its band a chirp does not determine a filter: two stages far below
+    it fit a chirp's ratio as well as the true one above it)."""
+    return max(LOG_FILTER_MIN_HZ, min(float(r.f_lo) for r in records))
 
 
 @dataclass(frozen=True)
@@ -150,7 +158,7 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
     Returns
     -------
     LogFilterEstimate or None
-        The best of one and two first-order stages (cut-off searched from :data:`LOG_FILTER_MIN_HZ` to
+        The best of one and two first-order stages (cut-off searched from :func:`lowest_cutoff_hz` to
         0.45 of the sampling rate); None where no band has both outputs.
     """
     parts = []
@@ -177,7 +185,7 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
         return cost_of(TorqueLogFilter({"cutoff_hz": math.exp(log_fc), "order": float(order)}))
 
     T_max = max(p[3] for p in parts)
-    lo, hi = math.log(LOG_FILTER_MIN_HZ), math.log(min(_TOP_SHARE / T_max, LOG_FILTER_MAX_HZ))
+    lo, hi = math.log(lowest_cutoff_hz(records)), math.log(min(_TOP_SHARE / T_max, LOG_FILTER_MAX_HZ))
     if hi <= lo + 0.1:  # sampled too slowly to show a filter above the search's bottom
         return None
     best: tuple[float, float, int] | None = None

@@ -103,7 +103,7 @@ from iiwa_ident.ident.initial import (
     record_frf,
     without_known,
 )
-from iiwa_ident.ident.log_filter import LOG_FILTER_MAX_HZ, LOG_FILTER_MIN_HZ, unfiltered_torque
+from iiwa_ident.ident.log_filter import LOG_FILTER_MAX_HZ, lowest_cutoff_hz, unfiltered_torque
 from iiwa_ident.ident.records import FitRecord, prepare_record, prepare_records
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
 from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
@@ -278,10 +278,11 @@ class _Problem:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The search's bounds on ``x``: the physical ones, the delay in ``[0, 50 ms]``, a log filter's cut-off
-        from :data:`LOG_FILTER_MIN_HZ` to :data:`LOG_FILTER_MAX_HZ` and 0.45 of the fastest record's sampling rate."""
+        from :func:`~iiwa_ident.ident.log_filter.lowest_cutoff_hz` to :data:`LOG_FILTER_MAX_HZ` and 0.45 of the
+        fastest record's sampling rate."""
         lower, upper = [*np.log(_LOWER), 0.0], [*np.log(_UPPER), MAX_DELAY_S * 1e3]
         if self.log_filter_order:
-            lower.append(math.log(LOG_FILTER_MIN_HZ))
+            lower.append(math.log(lowest_cutoff_hz(self.records)))
             upper.append(math.log(min(0.45 / min(r.T for r in self.records), LOG_FILTER_MAX_HZ)))
         return np.array(lower), np.array(upper)
 
