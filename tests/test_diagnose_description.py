@@ -204,3 +204,28 @@ def test_a_slow_log_filter_beside_friction_is_named_and_carries_the_friction(see
         [(e.name, e.parameters) for e in d.effects]
     assert d.effect("torque_log_filter").parameters["cutoff_hz"] == pytest.approx(fc, rel=0.1)
     assert d.effect("link_friction").parameters["coulomb_nm"] == pytest.approx(coulomb, rel=0.05)
+
+
+@pytest.mark.parametrize("joint, seed", [(3, 61), (3, 62), (4, 63)])
+def test_a_curved_cable_torque_is_fitted_where_gravity_cannot_make_it(joint, seed):
+    # A cable's torque with a curvature over the travel (drawn): on the vertical joint 3 the spring is fitted
+    # with its curvature (stiffness, rest angle and curvature named); on joint 4, where gravity's cosine makes the
+    # same shape, the spring is fitted straight (curvature 0) and the load takes the curvature.
+    rng = np.random.default_rng(seed)
+    k, rest, kappa = rng.uniform(2.0, 6.0), rng.uniform(-0.5, 0.5), rng.choice([-1, 1]) * rng.uniform(1.0, 3.0)
+    start = starting_model("iiwa14", joint)
+    truth = copy.deepcopy(start)
+    truth.effects = truth.effects + [{"name": "link_spring", "stiffness_nm_rad": k, "rest_rad": rest,
+                                      "curvature_nm_rad2": kappa}]
+    runs = _runs(truth, joint, seed)
+    d = diagnose(runs, start)
+    spring = d.effect("link_spring")
+    assert spring is not None, [(e.name, e.parameters) for e in d.effects]
+    if joint == 3:
+        # (the described joint 3's runs also name a refit of eq (4)'s parameters, with a straight spring too)
+        assert d.effect("position_dependent_load") is None
+        assert spring.parameters["stiffness_nm_rad"] == pytest.approx(k, rel=0.03)
+        assert spring.parameters["rest_rad"] == pytest.approx(rest, abs=0.02)
+        assert spring.parameters["curvature_nm_rad2"] == pytest.approx(kappa, rel=0.03)
+    else:
+        assert spring.parameters["curvature_nm_rad2"] == 0.0

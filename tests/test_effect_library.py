@@ -22,7 +22,7 @@ def _draw(name: str, rng: np.random.Generator) -> dict:
     if name == "position_dependent_load":
         return {"amplitude_nm": u(1, 30), "phase_rad": u(-3, 3), "compensated": u(0, 1)}
     if name == "link_spring":
-        return {"stiffness_nm_rad": u(0.5, 10), "rest_rad": u(-1, 1)}
+        return {"stiffness_nm_rad": u(0.5, 10), "rest_rad": u(-1, 1), "curvature_nm_rad2": u(-2, 2)}
     if name == "torque_sensor_offset":
         return {"offset_nm": u(-2, 2)}
     if name == "torque_sensor_scale":

@@ -85,6 +85,7 @@ __all__ = [
     "LinkSpringCandidate",
     "SPRING_MAX_NM_RAD",
     "SPRING_MIN_SLOPE_SHARE",
+    "SPRING_CURVED_MAX_LOAD_NM",
     "TorqueSensorOffsetCandidate",
     "TorqueSensorScaleCandidate",
     "SCALE_RELEVANT",
@@ -647,6 +648,9 @@ class PositionDependentLoadCandidate(CandidateEffect):
 #: The stiffest spring cables and hoses make [Nm/rad]; beyond it a torque linear in the position is some
 #: other misfit (a hard stop, a wrong model).
 SPRING_MAX_NM_RAD = 200.0
+#: Largest gravity amplitude the description allows (with the rated payload) on a joint whose spring is fitted
+#: with a curvature [Nm]: below it gravity's cosine makes no curvature a joint-torque sensor shows.
+SPRING_CURVED_MAX_LOAD_NM = 0.01
 #: Least share of its torque at mid-travel the spring's slope must change over the travel: a spring whose
 #: slope the travel barely shows is a constant, the torque sensor offset's shape.
 SPRING_MIN_SLOPE_SHARE = 0.1
@@ -667,16 +671,48 @@ class LinkSpringCandidate(CandidateEffect):
     def __init__(self) -> None:
         super().__init__()
         self._travel = (0.0, 0.0)
+        #: Whether the curvature is fitted (a spring the model carries acts with all its terms).
+        self.curved = True
 
     def prepare(self, blocks, residuals) -> bool:
         super().prepare(blocks, residuals)
         th = np.concatenate([b.ctx.theta_l[b.mask] for b in blocks])
         self._travel = (float(th.min()), float(th.max())) if len(th) else (0.0, 0.0)
+        # A curvature looks like gravity's cosine on any travel: it is fitted only where the description says
+        # gravity exerts no torque the sensor shows (a vertical axis), where a curved position torque can only be
+        # the cables'.
+        self.curved = self.ranges is not None and self.ranges.load_nm[1] <= SPRING_CURVED_MAX_LOAD_NM
         return self._travel[1] > self._travel[0]
 
+    def n_columns(self):
+        return 3 if self.curved else 2
+
+    def columns(self, ctx):
+        return super().columns(ctx)[:self.n_columns()]
+
+    def total(self, coef):
+        base = self.base_coef
+        return coef + base[:len(coef)] if base is not None else coef
+
+    def _full(self, coef: np.ndarray) -> np.ndarray:
+        """The effect's three coefficients from a total of the fitted ones (the model's curvature, or none, where
+        the curvature is not fitted)."""
+        if len(coef) == 3:
+            return np.asarray(coef, float)
+        return np.array([*coef, float(self.base_coef[2]) if self.base_coef is not None else 0.0])
+
+    def parameters(self, coef):
+        return self.effect.reported(self._full(coef))
+
+    def extend(self, model, coef):
+        super().extend(model, self._full(coef))
+
     def plausible(self, coef):
-        # A restoring spring no stiffer than cables make.
-        return 0.0 < float(coef[0]) <= SPRING_MAX_NM_RAD
+        # A spring that restores at its rest angle, no stiffer than cables make, the rest angle one the model file
+        # holds (beyond, it is an offset and a slope).
+        v = self.effect.values_from(self._full(coef))
+        rest = next(p for p in self.effect.params if p.name == "rest_rad")
+        return 0.0 < v["stiffness_nm_rad"] <= SPRING_MAX_NM_RAD and rest.lower <= v["rest_rad"] <= rest.upper
 
     def relevant(self, coef):
         # Its slope must show over the travel beside its torque there; else it is a constant (an offset's shape).

@@ -498,35 +498,39 @@ class PositionDependentLoad(Effect):
 
 @register_effect
 class LinkSpring(Effect):
-    """A torque linear in the link position about a rest angle: ``-k (theta_l - theta_0)`` [Nm].
+    """A torque of the link position: ``-k (theta_l - theta_0) - kappa theta_l^2`` [Nm].
 
     Cables and hoses along the arm act as a spring on the joints they cross, on any axis (gravity loads only
-    those whose axis is not vertical); the robot's model does not know it. Over a travel of a radian or more
-    its straight line is told from gravity's sine by its shape; over a short one the two look alike.
+    those whose axis is not vertical); the robot's model does not know it. Its curvature ``kappa`` (about the
+    joint's zero, default 0) is the next term of a cable's torque over a wide travel; ``theta_0`` is where the
+    straight part is zero. Over a travel of a radian or more the straight line is told from gravity's sine by
+    its shape; over a short one the two look alike, and a curvature looks like gravity's cosine on any travel.
     """
 
     name = "link_spring"
-    summary = "spring torque -k (theta_l - theta_0) on the link (cables, hoses)"
+    summary = "spring torque -k (theta_l - theta_0) - kappa theta_l^2 on the link (cables, hoses)"
     params = (
         Param("stiffness_nm_rad", 4.0, "Nm/rad", -1000.0, 1000.0, "stiffness k"),
-        Param("rest_rad", 0.0, "rad", -10.0, 10.0, "rest angle theta_0 of the link"),
+        Param("rest_rad", 0.0, "rad", -10.0, 10.0, "rest angle theta_0 of the link (of the straight part)"),
+        Param("curvature_nm_rad2", 0.0, "Nm/rad^2", -1000.0, 1000.0, "curvature kappa about the joint's zero"),
     )
 
     def link_torque(self, theta_l, omega_l, P):
-        return -P["stiffness_nm_rad"] * (theta_l - P["rest_rad"])
+        return -P["stiffness_nm_rad"] * (theta_l - P["rest_rad"]) - P["curvature_nm_rad2"] * theta_l * theta_l
 
     def columns(self, s):
-        # -k theta_l + k theta_0: the slope and the torque at theta_l = 0.
-        return [[("link", -s.theta_l)], [("link", np.ones_like(s.theta_l))]]
+        # -k theta_l + k theta_0 - kappa theta_l^2: the slope and the torque at theta_l = 0, and the curvature.
+        return [[("link", -s.theta_l)], [("link", np.ones_like(s.theta_l))], [("link", -s.theta_l ** 2)]]
 
     def coefficients(self):
         k = self.values["stiffness_nm_rad"]
-        return np.array([k, k * self.values["rest_rad"]])
+        return np.array([k, k * self.values["rest_rad"], self.values["curvature_nm_rad2"]])
 
     def values_from(self, coef):
         """The rest angle is the torque at zero over the stiffness (0 without a stiffness)."""
         k, c = float(coef[0]), float(coef[1])
-        return {"stiffness_nm_rad": k, "rest_rad": c / k if k != 0 else 0.0}
+        return {"stiffness_nm_rad": k, "rest_rad": c / k if k != 0 else 0.0,
+                "curvature_nm_rad2": float(coef[2]) if len(coef) > 2 else 0.0}
 
 
 @register_effect
