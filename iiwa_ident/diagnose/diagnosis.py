@@ -653,36 +653,9 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
     if stale:
         return _selected([n for n in names if n not in stale], work, model, known, blocks, ys, selection_options,
                          ranges, first)
-    named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
-    if named_filter is not None and named_filter.shape != "pure delay" and \
-            all(ctx.log_filter is None for ctx in contexts):
-        # The filter acts on every effect's logged torque: the others named again with their columns through it
-        # and the filter's in the fit from the start (named later, it finds effects fitted to what it explains:
-        # a spring to the inertia's torque the log does not show). A pure delay extends the model as a filter
-        # of its lag, not a shape to pass the others through.
-        for ctx in contexts:
-            ctx.log_filter = named_filter.effect
-        # A refit of the model's own parameters the first pass did not name stays out: beside the filter's
-        # column its delay trades with the cut-off.
-        chosen = {c.name for c in sel.selected}
-        record = next(s for s in sel.steps if s.name == named_filter.name and s.accepted)
-        first_cutoff = float(named_filter.effect.values["cutoff_hz"])
-        again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
-                          ys, selection_options, ranges, first=[(named_filter, record)])
-        # Kept where the filter, whole, still explains the data beside the others (they fit better through it
-        # than without it).
-        rest = again[0].columns(blocks, held=1)
-        whole = block_columns(blocks, named_filter.columns, 1)
-        sse_filtered = block_sse(rest, [y - X[:, 0] for y, X in zip(ys, whole)])[0]
-        kept = [ctx.log_filter for ctx in contexts]
-        for ctx in contexts:
-            ctx.log_filter = None
-        sse_plain = block_sse(again[0].columns(blocks, held=1), ys)[0]
-        if sse_filtered < sse_plain:
-            for ctx, f in zip(contexts, kept):
-                ctx.log_filter = f
-            return again
-        named_filter.set_cutoff(first_cutoff)
+    again = _named_through_filter(sel, names, work, model, known, blocks, ys, selection_options, ranges)
+    if again is not None:
+        return again
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys], ys)
     after = cv_residuals(sel.columns(blocks), ys) if sel.selected else list(before)
     extended = copy.deepcopy(model)
@@ -726,6 +699,48 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
     return sel, effects, extended, after
 
 
+def _named_through_filter(sel: Selection, names: list[str], work: JointModel, model: JointModel, known: dict,
+                          blocks: list[Block], ys: list[np.ndarray], selection_options: dict[str, Any],
+                          ranges: PhysicalRanges | None
+                          ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]] | None:
+    """:func:`_selected` again where ``sel`` named a filter before the log (not a pure delay) and the contexts carry
+    none: the filter held whole, every other effect named again with its columns through it; None where that
+    does not hold (the contexts and the filter then as they were)."""
+    named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
+    contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
+    if named_filter is None or named_filter.shape == "pure delay" or \
+            any(ctx.log_filter is not None for ctx in contexts):
+        # (a pure delay extends the model as a filter of its lag, not a shape to pass the others through)
+        return None
+    # Named after the others, the filter finds effects fitted to what it explains (a spring to the inertia's
+    # torque the log does not show). A refit of the model's own parameters the first pass did not name stays
+    # out: beside the filter's column its delay trades with the cut-off.
+    for ctx in contexts:
+        ctx.log_filter = named_filter.effect
+    chosen = {c.name for c in sel.selected}
+    record = next(s for s in sel.steps if s.name == named_filter.name and s.accepted)
+    first_cutoff = float(named_filter.effect.values["cutoff_hz"])
+    again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
+                      ys, selection_options, ranges, first=[(named_filter, record)])
+    # Kept where the filter, whole, still explains the data beside the others: they fit better through it than
+    # without it.
+    sse_filtered = block_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, named_filter))[0]
+    kept = [ctx.log_filter for ctx in contexts]
+    for ctx in contexts:
+        ctx.log_filter = None
+    if sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
+        for ctx, f in zip(contexts, kept):
+            ctx.log_filter = f
+        return again
+    named_filter.set_cutoff(first_cutoff)
+    return None
+
+
+def _without_filter(ys: list[np.ndarray], blocks: list[Block], log_filter: CandidateEffect) -> list[np.ndarray]:
+    """The weighted residuals ``ys`` with a filter's whole column (coefficient 1) taken out."""
+    return [y - X[:, 0] for y, X in zip(ys, block_columns(blocks, log_filter.columns, 1))]
+
+
 def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> None:
     """The cut-off of the filter the selection holds first, searched again (within a factor 4) with every named
     effect's columns through it, and the selection's coefficients refitted there: the first pass searched it
@@ -740,14 +755,12 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
         cand.set_cutoff(math.exp(log_fc))
         for ctx in contexts:
             ctx.log_filter = cand.effect
-        whole = block_columns(blocks, cand.columns, 1)
-        return block_sse(sel.columns(blocks, held=1), [y - X[:, 0] for y, X in zip(ys, whole)])[0]
+        return block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[0]
 
     lo, hi = max(x0 - math.log(4.0), math.log(LOG_FILTER_MIN_HZ)), min(x0 + math.log(4.0), top)
     best = minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
     sse(float(best.x))
-    whole = block_columns(blocks, cand.columns, 1)
-    sel.coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), [y - X[:, 0] for y, X in zip(ys, whole)])[1]])
+    sel.coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
 
 
 def _coefficient_cov(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> np.ndarray:
