@@ -30,7 +30,7 @@ from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset, torque_sign_problem
 from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_MIN_HZ, Block, CandidateEffect, block_columns,
-                                           block_sse, make_candidate)
+                                           block_sse, contribution, make_candidate)
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import (BANDS, MIN_GAIN, NOISE_FACTOR, Selection, Step, cv_residuals, noise_floor,
@@ -158,7 +158,7 @@ class Diagnosis:
         total = np.zeros_like(ctx.t)
         for cand, sl in zip(self.selection.selected, self.selection.slices):
             if only is None or cand.name == only:
-                total = total + _contribution(cand, cand.carried(self.selection.coef[sl]), ctx).get(channel, 0.0)
+                total = total + contribution(cand, cand.carried(self.selection.coef[sl]), ctx).get(channel, 0.0)
         return total
 
     def residual_after(self, ctx: Context, channel: str) -> np.ndarray:
@@ -338,16 +338,6 @@ def _turned_over(dataset: Dataset) -> Dataset:
     return dataclasses.replace(dataset, signals={**dataset.signals, "tau_j": -np.asarray(dataset["tau_j"], float)})
 
 
-def _contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
-    """What an effect with coefficients ``coef`` adds to each residual channel of ``ctx`` [Nm], full length."""
-    out: dict[str, np.ndarray] = {}
-    for col, c in zip(cand.columns(ctx), coef):
-        for injection, phi in col:
-            for ch, v in channel_columns(ctx, injection, phi).items():
-                out[ch] = out.get(ch, 0.0) + c * v
-    return out
-
-
 def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tuple[CandidateEffect, np.ndarray]]:
     """Subtract the model's own extra effects from the residuals; return them by name with coefficients. A filter
     before the log goes into the contexts first: the other effects' torques reach the log through it."""
@@ -367,7 +357,7 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
         if coef is None:
             continue
         for ctx in contexts:
-            for ch, v in _contribution(cand, coef, ctx).items():
+            for ch, v in contribution(cand, coef, ctx).items():
                 ctx.residual[ch] = ctx.residual[ch] - v
                 ctx.with_effects[ch] = ctx.with_effects.get(ch, ctx.predicted[ch]) + v
         known[name] = (cand, coef)
@@ -485,7 +475,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         back: dict[int, dict[str, np.ndarray]] = {ctx.index: {} for ctx in contexts}
         for n in drop:
             for ctx in contexts:
-                for ch, v in _contribution(*known[n], ctx).items():
+                for ch, v in contribution(*known[n], ctx).items():
                     back[ctx.index][ch] = back[ctx.index].get(ch, 0.0) + v
         ys_b = [y + back[b.ctx.index].get(b.channel, np.zeros_like(b.ctx.t))[b.mask] * b.weight
                 for y, b in zip(ys, blocks)]
