@@ -49,6 +49,7 @@ the effect's shape (tested for every effect).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -595,67 +596,88 @@ class TorqueSensorScale(Effect):
         return {"scale": 1.0 / (1.0 - float(coef[0]))}
 
 
+@functools.lru_cache(maxsize=256)
+def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, dt: float
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """``(b, a)`` of :class:`TorqueLogFilter` (cached: a simulation asks for them every sample)."""
+    from scipy import signal as _signal
+
+    w = 2.0 * math.pi * cutoff_hz
+    den = [1.0, w] if order == 1.0 else [1.0, 2.0 * damping * w, w * w]
+    b, a, _ = _signal.cont2discrete(([den[-1]], den), dt, method="foh")
+    b, a = np.ravel(b), np.ravel(a)
+    return b / a[0], a / a[0]
+
+
 @register_effect
 class TorqueLogFilter(Effect):
     """A low-pass between the joint-torque sensor and the log (a driver's filter, e.g. a ROS state topic's).
 
-    ``order`` first-order stages at ``cutoff_hz`` each, the continuous filter discretised at the logging rate
-    for an input linear between samples (:meth:`coefficients_at`), started at rest on the first sample. Only the logged ``tau_j`` passes it: the internal torque loop,
-    the robot's external-torque observer and a controller the runtime runs use the unfiltered reading.
+    ``order`` 1: one first-order stage at ``cutoff_hz``. ``order`` 2: the second order
+    ``w^2 / (s^2 + 2 damping w s + w^2)`` with ``w = 2 pi cutoff_hz``: ``damping`` 1 is two equal first-order
+    stages, 0.71 a Butterworth filter (whose gain is 1/sqrt(2) at the cut-off). The continuous filter is
+    discretised at the logging rate for an input linear between samples (:meth:`coefficients_at`), started at
+    rest on the first sample. Only the logged ``tau_j`` passes it: the internal torque loop, the robot's
+    external-torque observer and a controller the runtime runs use the unfiltered reading.
     """
 
     name = "torque_log_filter"
     summary = "low-pass of the logged torque (a driver's filter; the robot's loop does not see it)"
     params = (
-        Param("cutoff_hz", 12.0, "Hz", 0.1, 500.0, "cut-off of each first-order stage"),
-        Param("order", 1.0, "1", 1.0, 2.0, "number of first-order stages (1 or 2)"),
+        Param("cutoff_hz", 12.0, "Hz", 0.1, 500.0, "cut-off of each first-order stage (order 2: the pair's "
+              "natural frequency)"),
+        Param("order", 1.0, "1", 1.0, 2.0, "order of the filter (1 or 2)"),
+        Param("damping", 1.0, "1", 0.3, 1.0, "damping ratio of the second order (1: two equal first-order "
+              "stages; 0.71: Butterworth)"),
     )
 
     def _init_extra(self, values: dict[str, Any], where: str) -> None:
         if self.values["order"] not in (1.0, 2.0):
-            raise PlantError(f"{where}.order: 1 or 2 first-order stages, got {self.values['order']:g}")
+            raise PlantError(f"{where}.order: 1 or 2, got {self.values['order']:g}")
+        if self.values["order"] == 1.0 and self.values["damping"] != 1.0:
+            raise PlantError(f"{where}.damping: a first-order filter has no damping ratio, got "
+                             f"{self.values['damping']:g}")
 
     def log_filter(self) -> "TorqueLogFilter":
         return self
 
-    def coefficients_at(self, dt: float) -> tuple[list[float], list[float]]:
-        """``(b, a)`` of one stage at the sample period ``dt`` [s]: the continuous first order, exact for an input
-        linear between samples (first-order hold), so that it lags as the continuous filter does at any rate."""
-        alpha = 2.0 * math.pi * self.values["cutoff_hz"] * dt
-        a = math.exp(-alpha)
-        g = (1.0 - a) / alpha
-        return [1.0 - g, g - a], [1.0, -a]
+    def coefficients_at(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(b, a)`` of the whole filter at the sample period ``dt`` [s]: the continuous filter, exact for an
+        input linear between samples (first-order hold), so that it lags as the
+        continuous filter does at any rate."""
+        b, a = _log_filter_coefficients(float(self.values["cutoff_hz"]), float(self.values["order"]),
+                                        float(self.values["damping"]), float(dt))
+        return b.copy(), a.copy()
 
     def apply(self, x: np.ndarray, dt: float) -> np.ndarray:
-        """The filtered signal of ``x`` sampled every ``dt`` [s] along its first axis (each stage at rest on
-        ``x[0]``; a matrix's columns each filtered)."""
+        """The filtered signal of ``x`` sampled every ``dt`` [s] along its first axis (at rest on ``x[0]``; a
+        matrix's columns each filtered)."""
         from scipy import signal as _signal
 
         b, a = self.coefficients_at(dt)
         y = np.asarray(x, float)
-        for _ in range(int(self.values["order"])):
-            if len(y):
-                y = _signal.lfilter(b, a, y, axis=0, zi=np.multiply.outer(_signal.lfilter_zi(b, a), y[0]))[0]
-        return y
+        if not len(y):
+            return y
+        return _signal.lfilter(b, a, y, axis=0, zi=np.multiply.outer(_signal.lfilter_zi(b, a), y[0]))[0]
 
     def frequency_response(self, f_hz: np.ndarray, dt: float) -> np.ndarray:
-        """The sampled filter's response at ``f_hz`` [Hz] for the sample period ``dt`` [s] (all stages)."""
-        (b0, b1), (_, na) = self.coefficients_at(dt)
+        """The sampled filter's response at ``f_hz`` [Hz] for the sample period ``dt`` [s]."""
+        b, a = self.coefficients_at(dt)
         z1 = np.exp(-2j * np.pi * np.asarray(f_hz, float) * dt)
-        return ((b0 + b1 * z1) / (1.0 + na * z1)) ** int(self.values["order"])
+        return np.polyval(b[::-1], z1) / np.polyval(a[::-1], z1)
 
-    def step(self, state: list[tuple[float, float]] | None, x: float, dt: float
-             ) -> tuple[list[tuple[float, float]], float]:
-        """One sample of :meth:`apply`: the new state (each stage's last input and output) and the output."""
-        (b0, b1), (_, na) = self.coefficients_at(dt)
-        n = int(self.values["order"])
-        state = list(state) if state is not None else [(x, x)] * n
-        for i in range(n):
-            x_prev, y_prev = state[i]
-            y = -na * y_prev + b0 * x + b1 * x_prev
-            state[i] = (x, y)
-            x = y
-        return state, x
+    def step(self, state: np.ndarray | None, x: float, dt: float) -> tuple[np.ndarray, float]:
+        """One sample of :meth:`apply`: the new state (the transposed direct form's) and the output."""
+        from scipy import signal as _signal
+
+        b, a = self.coefficients_at(dt)
+        if state is None:
+            state = _signal.lfilter_zi(b, a) * x
+        y = b[0] * x + state[0]
+        new = np.empty_like(state)
+        for i in range(len(state)):
+            new[i] = b[i + 1] * x - a[i + 1] * y + (state[i + 1] if i + 1 < len(state) else 0.0)
+        return new, float(y)
 
 
 @register_effect
