@@ -229,3 +229,21 @@ def test_a_curved_cable_torque_is_fitted_where_gravity_cannot_make_it(joint, see
         assert spring.parameters["curvature_nm_rad2"] == pytest.approx(kappa, rel=0.03)
     else:
         assert spring.parameters["curvature_nm_rad2"] == 0.0
+
+
+@pytest.mark.parametrize("seed", [71, 72])
+def test_a_second_order_log_filter_is_named_with_its_damping(seed):
+    # A driver's Butterworth-like second order (damping 0.5-0.9, cut-off 1.5-3 Hz, drawn) on joint 2, whose 80
+    # Nm gravity torque it lags: the shape is searched once the rest is named; the second order named with its
+    # cut-off and damping, the gravity as described (nothing else).
+    rng = np.random.default_rng(seed)
+    fc, zeta = float(rng.uniform(1.5, 3.0)), float(rng.uniform(0.5, 0.9))
+    start = starting_model("iiwa14", 2)
+    truth = copy.deepcopy(start)
+    truth.effects = truth.effects + [{"name": "torque_log_filter", "cutoff_hz": fc, "order": 2.0, "damping": zeta}]
+    d = diagnose(_runs(truth, 2, seed), start)
+    f = d.effect("torque_log_filter")
+    assert f is not None and f.detail["shape"] == "second order", [(e.name, e.parameters) for e in d.effects]
+    assert f.parameters["cutoff_hz"] == pytest.approx(fc, rel=0.1)
+    assert f.parameters["damping"] == pytest.approx(zeta, abs=0.1)
+    assert [e.name for e in d.effects] == ["torque_log_filter"], [(e.name, e.parameters) for e in d.effects]

@@ -52,7 +52,7 @@ TOLERANCES: dict[str, dict[str, tuple[float, float]]] = {
     "torque_sensor_offset": {"offset_nm": (0.1, 0.05), "logged_nm": (0.1, 0.05)},
     "torque_sensor_scale": {"scale": (0.0, 0.01)},
     "periodic_disturbance": {"frequency_hz": (0.005, 0.0), "amplitude_nm": (0.2, 0.02)},
-    "torque_log_filter": {"cutoff_hz": (0.1, 0.0), "order": (0.0, 0.0)},
+    "torque_log_filter": {"cutoff_hz": (0.1, 0.0), "order": (0.0, 0.0), "damping": (0.0, 0.15)},
     "link_spring": {"stiffness_nm_rad": (0.1, 0.3), "rest_rad": (0.0, 0.1), "curvature_nm_rad2": (0.1, 0.3)},
     # A hidden extra input delay is the model's Td being off: named as model_parameters with the total delay.
     "model_parameters": {"Td_s": (0.0, 3e-4), "K_nm_rad": (0.03, 0.0), "Jl_kgm2": (0.05, 0.0)},

@@ -92,6 +92,8 @@ __all__ = [
     "SCALE_RELEVANT",
     "TorqueLogFilterCandidate",
     "LOG_FILTER_SHAPES",
+    "LOG_FILTER_DAMPINGS",
+    "RIPPLE_MAX_AMPLITUDE_RAD",
     "LOG_FILTER_OTHER_SHAPE",
     "LOG_FILTER_DETERMINED",
     "LOG_FILTER_MIN_HZ",
@@ -380,6 +382,11 @@ def _sse_of(blocks: Sequence[Block], residuals: Sequence[np.ndarray], columns, n
 
 # ----------------------------------------------------------------------------- ripple
 
+#: Largest deflection ripple named [rad] (half its peak-to-peak): three times a strain-wave gear's catalogued
+#: transmission error of about one arcminute (3e-4 rad), ten times the real iiwa 14's (4e-5-1e-4 rad).
+RIPPLE_MAX_AMPLITUDE_RAD = 1e-3
+
+
 @register_candidate
 class TransmissionRippleCandidate(CandidateEffect):
     """Position-periodic transmission deflection f(theta_m mod rho), eq (5).
@@ -506,6 +513,11 @@ class TransmissionRippleCandidate(CandidateEffect):
 
     def parameters(self, coef):
         return TransmissionRipple.shape(self.period, self.harmonics).reported(coef)
+
+    def plausible(self, coef):
+        # A strain-wave gear's transmission error is about an arcminute: a deflection ripple many times that is
+        # some other torque at the line's frequency (a log filter's column of a fast line, divided by its gain).
+        return self.parameters(coef)["amplitude_rad"] <= RIPPLE_MAX_AMPLITUDE_RAD
 
     def extend(self, model, coef):
         lut = TransmissionRipple.table(coef, 256)
@@ -806,6 +818,10 @@ LOG_FILTER_DETERMINED = 0.1
 #: first-order stages at a cut-off, or a pure delay.
 LOG_FILTER_SHAPES = ("first order", "second order", "pure delay")
 
+#: The damping ratios of a second-order filter before the log searched once the other effects are named (1: two
+#: equal first-order stages; 0.71: Butterworth, the usual driver's second order).
+LOG_FILTER_DAMPINGS = (1.0, 0.85, 0.71, 0.55, 0.4)
+
 
 @register_candidate
 class TorqueLogFilterCandidate(CandidateEffect):
@@ -838,10 +854,11 @@ class TorqueLogFilterCandidate(CandidateEffect):
             return np.interp(t - self._delay_s, t, x)
         return self.effect.apply(x, dt)
 
-    def _set(self, shape: str, value: float) -> None:
+    def _set(self, shape: str, value: float, damping: float = 1.0) -> None:
         """The shape at its parameter: a cut-off [Hz] (filters) or a delay [s]; not range checked."""
         self.shape = shape
-        self.effect = TorqueLogFilter({"order": 2.0 if shape == "second order" else 1.0})
+        second = shape == "second order"
+        self.effect = TorqueLogFilter({"order": 2.0 if second else 1.0, "damping": damping if second else 1.0})
         if shape == "pure delay":
             self._delay_s = value
             self.effect.values["cutoff_hz"] = 1.0 / (2.0 * math.pi * value)
@@ -850,7 +867,20 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     def set_cutoff(self, cutoff_hz: float) -> None:
         """The filter's shape at another cut-off [Hz] (a pure delay at the same low-frequency lag)."""
-        self._set(self.shape, 1.0 / (2.0 * math.pi * cutoff_hz) if self.shape == "pure delay" else cutoff_hz)
+        self.set_shape(self.shape, cutoff_hz, float(self.effect.values["damping"]))
+
+    def set_shape(self, shape: str, cutoff_hz: float, damping: float = 1.0) -> None:
+        """The filter as ``shape`` (one of :data:`LOG_FILTER_SHAPES`) at the cut-off ``cutoff_hz`` [Hz] (a pure delay
+        of the first order's low-frequency lag there) and, for the second order, the damping ratio ``damping``."""
+        self._set(shape, 1.0 / (2.0 * math.pi * cutoff_hz) if shape == "pure delay" else cutoff_hz, damping)
+
+    @property
+    def lag_s(self) -> float:
+        """The shape's low-frequency lag [s]: ``1/w`` (first order), ``2 damping / w`` (second), the delay."""
+        if self.shape == "pure delay":
+            return self._delay_s
+        w = 2.0 * math.pi * float(self.effect.values["cutoff_hz"])
+        return (2.0 * float(self.effect.values["damping"]) if self.shape == "second order" else 1.0) / w
 
     def n_columns(self):
         return 1
@@ -925,6 +955,8 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     def parameters(self, coef):
         out = {"cutoff_hz": float(self.effect.values["cutoff_hz"]), "order": float(self.effect.values["order"])}
+        if self.shape == "second order":
+            out["damping"] = float(self.effect.values["damping"])
         if self.shape == "pure delay":
             out["delay_s"] = float(self._delay_s)
         return out

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset, torque_sign_problem
-from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_MIN_HZ, Block, CandidateEffect, block_columns,
+from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_DAMPINGS, LOG_FILTER_MIN_HZ, LOG_FILTER_OTHER_SHAPE, Block, CandidateEffect, block_columns,
                                            block_sse, contribution, make_candidate)
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
@@ -460,8 +460,11 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     ranges = physical_ranges(model)
     for cand, _ in known.values():
         cand.ranges = ranges
+    entry_filters = [ctx.log_filter for ctx in contexts]
     sel, effects, extended, after, ambiguous, undecided = _named(names, work, model, known, blocks, ys,
                                                                  selection_options, ranges)
+    # The filters before the log the contexts carry for the outcome kept (a named one passes the others).
+    named_filters = [ctx.log_filter for ctx in contexts]
     replaced: list[dict[str, Any]] = []
     # The model without one of its effects (then without all of them: a fit can take one effect for two
     # others), judged like the model: when the data then predict the held-out runs better, or a named
@@ -482,7 +485,9 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         others = {k: v for k, v in known.items() if k not in drop}
         without = copy.deepcopy(model)
         without.effects = [e for e in without.effects if e.get("name") not in drop]
+        _carry(contexts, entry_filters)
         trial = _named(names, work, without, others, blocks, ys_b, selection_options, ranges)
+        trial_filters = [ctx.log_filter for ctx in contexts]
         renamed = {c.name for c in trial[0].selected} & set(drop)
         sse_b, sse = _sse(trial[3], range(len(trial[3]))), _sse(after, range(len(after)))
         if not renamed >= set(drop) and trial[0].selected:
@@ -493,6 +498,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
             if all(c.plausible(c.total(coef[sl])) for c, sl in zip(trial[0].selected, trial[0].slices)):
                 keep = cv_residuals(cols, ys)
                 sse = min(sse, _sse(keep, range(len(keep))))
+        _carry(contexts, named_filters)
         # Better held out; or not worse with no effect the model's selection did not name anyway (the dropped
         # effect is not needed beside them).
         better = sse_b <= (1.0 - MIN_GAIN) * sse or \
@@ -515,6 +521,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         kept = [u for u in undecided if u.get("alike") and u["name"] in renamed
                 and not any(x["name"] == u["name"] and x["or_shape_of"] == u["or_shape_of"] for x in trial[5])]
         sel, effects, extended, after, ambiguous, undecided = trial
+        named_filters = trial_filters
+        _carry(contexts, named_filters)
         undecided = undecided + kept
         known, model, ys = others, without, ys_b
         for ctx in contexts:
@@ -543,6 +551,12 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     return diag
 
 
+def _carry(contexts: list[Context], filters: list[Any]) -> None:
+    """The contexts carry ``filters`` before the log (one each, or None): an outcome's, or the model's own."""
+    for ctx, lf in zip(contexts, filters):
+        ctx.log_filter = lf
+
+
 def _named(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
            ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None
            ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray], list[dict[str, Any]],
@@ -551,7 +565,11 @@ def _named(names: list[str], work: JointModel, model: JointModel, known: dict, b
     undecided ones (:func:`_ambiguous`)."""
     ambiguous: list[dict[str, Any]] = []
     left = list(names)
+    contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
+    carried = [ctx.log_filter for ctx in contexts]
     while True:
+        # Each naming starts from the model's own filter (a filter named in the last one is named again or not).
+        _carry(contexts, carried)
         sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options, ranges)
         more, undecided = _ambiguous(sel, effects, blocks, ys)
         if not more:
@@ -698,18 +716,22 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     does not hold (the contexts and the filter then as they were)."""
     named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
-    if named_filter is None or named_filter.shape == "pure delay" or \
-            any(ctx.log_filter is not None for ctx in contexts):
-        # (a pure delay extends the model as a filter of its lag, not a shape to pass the others through)
+    if named_filter is None or any(ctx.log_filter is not None for ctx in contexts):
         return None
     # Named after the others, the filter finds effects fitted to what it explains (a spring to the inertia's
     # torque the log does not show). A refit of the model's own parameters the first pass did not name stays
     # out: beside the filter's column its delay trades with the cut-off.
-    for ctx in contexts:
-        ctx.log_filter = named_filter.effect
     chosen = {c.name for c in sel.selected}
     record = next(s for s in sel.steps if s.name == named_filter.name and s.accepted)
-    first_cutoff = float(named_filter.effect.values["cutoff_hz"])
+    first_shape = (named_filter.shape, float(named_filter.effect.values["cutoff_hz"]),
+                   float(named_filter.effect.values["damping"]))
+    first_detail = dict(named_filter.detail)
+    if named_filter.shape == "pure delay":
+        # A delay is not a filter the others pass through: the first order of its lag is (its shape searched
+        # again when the others are named).
+        named_filter.set_shape("first order", first_shape[1])
+    for ctx in contexts:
+        ctx.log_filter = named_filter.effect
     again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
                       ys, selection_options, ranges, first=[(named_filter, record)])
     # Kept where the filter, whole, still explains the data beside the others: they fit better through it than
@@ -718,11 +740,17 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     kept = [ctx.log_filter for ctx in contexts]
     for ctx in contexts:
         ctx.log_filter = None
-    if sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
+    better = sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]
+    if better and first_shape[0] == "pure delay":
+        # A delay turned into a filter: kept where the others through it predict the held-out data as well.
+        mine = cv_residuals(sel.columns(blocks), ys)
+        better = _sse(again[3], range(len(again[3]))) <= _sse(mine, range(len(mine)))
+    if better:
         for ctx, f in zip(contexts, kept):
             ctx.log_filter = f
         return again
-    named_filter.set_cutoff(first_cutoff)
+    named_filter.set_shape(*first_shape)
+    named_filter.detail = first_detail
     return None
 
 
@@ -732,24 +760,55 @@ def _without_filter(ys: list[np.ndarray], blocks: list[Block], log_filter: Candi
 
 
 def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> None:
-    """The cut-off of the filter the selection holds first, searched again (within a factor 4) with every named
-    effect's columns through it, and the selection's coefficients refitted there: the first pass searched it
-    beside the others' fit without the filter, which lends the filter some of their torque's shape."""
+    """The shape and cut-off of the filter the selection holds first, searched again with every named effect's
+    columns through it, and the selection's coefficients refitted there: the first pass searched it beside the
+    others' fit without the filter, which lends the filter some of their torque's shape.
+
+    Each shape's cut-off is searched within a factor 4 of the first pass's low-frequency lag: the first order,
+    and the second order at each damping ratio of :data:`LOG_FILTER_DAMPINGS` (the best one refined between its
+    neighbours). The first order is kept unless the second leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its
+    residual with every named effect physically possible through it (a pure delay is not a shape the others pass
+    through)."""
     cand = sel.selected[0]
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     top = math.log(0.4 / max(ctx.dt for ctx in contexts))
-    x0 = math.log(float(cand.effect.values["cutoff_hz"]))
+    lag = cand.lag_s
 
-    def sse(log_fc: float) -> float:
+    def sse(shape: str, damping: float, log_fc: float) -> float:
         # The filter whole (coefficient 1, as the model carries it), the others fitted beside it.
-        cand.set_cutoff(math.exp(log_fc))
+        cand.set_shape(shape, math.exp(log_fc), damping)
         for ctx in contexts:
             ctx.log_filter = cand.effect
         return block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[0]
 
-    lo, hi = max(x0 - math.log(4.0), math.log(LOG_FILTER_MIN_HZ)), min(x0 + math.log(4.0), top)
-    best = minimize_scalar(sse, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
-    sse(float(best.x))
+    def at_best_cutoff(shape: str, damping: float) -> tuple[float, float]:
+        x0 = math.log((2.0 * damping if shape == "second order" else 1.0) / (2.0 * math.pi * lag))
+        lo, hi = max(x0 - math.log(4.0), math.log(LOG_FILTER_MIN_HZ)), min(x0 + math.log(4.0), top)
+        best = minimize_scalar(lambda x: sse(shape, damping, x), bounds=(lo, hi), method="bounded",
+                               options={"xatol": 1e-3})
+        return float(best.fun), float(best.x)
+
+    first = at_best_cutoff("first order", 1.0)
+    second = {z: at_best_cutoff("second order", z) for z in LOG_FILTER_DAMPINGS}
+    z0 = min(second, key=lambda z: second[z][0])
+    i = LOG_FILTER_DAMPINGS.index(z0)
+    zs = LOG_FILTER_DAMPINGS[max(i - 1, 0)], LOG_FILTER_DAMPINGS[min(i + 1, len(LOG_FILTER_DAMPINGS) - 1)]
+    if zs[0] != zs[1]:
+        z = minimize_scalar(lambda z: at_best_cutoff("second order", z)[0], bounds=(min(zs), max(zs)),
+                            method="bounded", options={"xatol": 0.01})
+        if z.fun < second[z0][0]:
+            z0 = float(z.x)
+            second[z0] = at_best_cutoff("second order", z0)
+    chosen = False
+    if second[z0][0] <= LOG_FILTER_OTHER_SHAPE * first[0]:
+        # Not where an effect through it becomes physically impossible (a fast line divided by its small gain).
+        sse("second order", z0, second[z0][1])
+        coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
+        chosen = all(c.plausible(c.total(coef[sl])) for c, sl in zip(sel.selected[1:], sel.slices[1:]))
+    if not chosen:
+        sse("first order", 1.0, first[1])
+    cand.detail = {**cand.detail, "shape": cand.shape,
+                   "sse_second_order_vs_first": second[z0][0] / first[0] if first[0] > 0 else 1.0}
     sel.coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
 
 
@@ -896,10 +955,16 @@ def _suspects(sel: Selection) -> list[dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for s in sel.steps:
         # Only the residual channels: an effect's own evidence channel can show a small correction of an
-        # effect the model already has plainly, while the torque prediction gains nothing from it.
-        if s.step != last or s.accepted or s.gain < LARGE_GAIN or s.band not in BANDS:
+        # effect the model already has plainly, while the torque prediction gains nothing from it; unless the
+        # torque's fit of what that channel shows is not physically possible (a ripple through a filter before
+        # the log that would need a deflection beyond a transmission's).
+        own_impossible = s.band not in BANDS and s.implausible
+        if s.step != last or s.accepted or s.gain < LARGE_GAIN or (s.band not in BANDS and not own_impossible):
             continue
-        if s.implausible:
+        if own_impossible:
+            failed = (f"its own evidence ({s.band}) shows it, but its fit to the torque is not physically possible "
+                      f"(a filter before the log named beside it may not act on it)")
+        elif s.implausible:
             failed = "its fitted parameters are not physically possible"
         elif s.irrelevant:
             failed = "the change it describes is below the identification's accuracy"

@@ -641,6 +641,13 @@ class TorqueLogFilter(Effect):
     def log_filter(self) -> "TorqueLogFilter":
         return self
 
+    def reported(self, coef):
+        """``cutoff_hz``, ``order`` and, for the second order, ``damping`` (a first order has none)."""
+        out = super().reported(coef)
+        if out.get("order") == 1.0:
+            out.pop("damping", None)
+        return out
+
     def coefficients_at(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(b, a)`` of the whole filter at the sample period ``dt`` [s]: the continuous filter, exact for an
         input linear between samples (first-order hold), so that it lags as the
