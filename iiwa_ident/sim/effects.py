@@ -598,7 +598,7 @@ class TorqueSensorScale(Effect):
 
 @functools.lru_cache(maxsize=256)
 def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, dt: float
-                             ) -> tuple[np.ndarray, np.ndarray]:
+                             ) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """``(b, a)`` of :class:`TorqueLogFilter` (cached: a simulation asks for them every sample)."""
     from scipy import signal as _signal
 
@@ -606,7 +606,7 @@ def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, dt:
     den = [1.0, w] if order == 1.0 else [1.0, 2.0 * damping * w, w * w]
     b, a, _ = _signal.cont2discrete(([den[-1]], den), dt, method="foh")
     b, a = np.ravel(b), np.ravel(a)
-    return b / a[0], a / a[0]
+    return tuple(float(x) for x in b / a[0]), tuple(float(x) for x in a / a[0])
 
 
 @register_effect
@@ -652,9 +652,12 @@ class TorqueLogFilter(Effect):
         """``(b, a)`` of the whole filter at the sample period ``dt`` [s]: the continuous filter, exact for an
         input linear between samples (first-order hold), so that it lags as the
         continuous filter does at any rate."""
-        b, a = _log_filter_coefficients(float(self.values["cutoff_hz"]), float(self.values["order"]),
+        b, a = self._coefficients(dt)
+        return np.array(b), np.array(a)
+
+    def _coefficients(self, dt: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return _log_filter_coefficients(float(self.values["cutoff_hz"]), float(self.values["order"]),
                                         float(self.values["damping"]), float(dt))
-        return b.copy(), a.copy()
 
     def apply(self, x: np.ndarray, dt: float) -> np.ndarray:
         """The filtered signal of ``x`` sampled every ``dt`` [s] along its first axis (at rest on ``x[0]``; a
@@ -673,18 +676,17 @@ class TorqueLogFilter(Effect):
         z1 = np.exp(-2j * np.pi * np.asarray(f_hz, float) * dt)
         return np.polyval(b[::-1], z1) / np.polyval(a[::-1], z1)
 
-    def step(self, state: np.ndarray | None, x: float, dt: float) -> tuple[np.ndarray, float]:
+    def step(self, state: list[float] | None, x: float, dt: float) -> tuple[list[float], float]:
         """One sample of :meth:`apply`: the new state (the transposed direct form's) and the output."""
-        from scipy import signal as _signal
-
-        b, a = self.coefficients_at(dt)
-        if state is None:
-            state = _signal.lfilter_zi(b, a) * x
+        b, a = self._coefficients(dt)
+        if state is None:  # at rest on x (the filter's gain at zero frequency is 1)
+            state = [0.0] * (len(a) - 1)
+            for i in range(len(state) - 1, -1, -1):
+                state[i] = (b[i + 1] - a[i + 1]) * x + (state[i + 1] if i + 1 < len(state) else 0.0)
         y = b[0] * x + state[0]
-        new = np.empty_like(state)
-        for i in range(len(state)):
-            new[i] = b[i + 1] * x - a[i + 1] * y + (state[i + 1] if i + 1 < len(state) else 0.0)
-        return new, float(y)
+        new = [b[i + 1] * x - a[i + 1] * y + (state[i + 1] if i + 1 < len(state) else 0.0)
+               for i in range(len(state))]
+        return new, y
 
 
 @register_effect
