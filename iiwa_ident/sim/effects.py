@@ -603,7 +603,11 @@ def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, dt:
     from scipy import signal as _signal
 
     w = 2.0 * math.pi * cutoff_hz
-    den = [1.0, w] if order == 1.0 else [1.0, 2.0 * damping * w, w * w]
+    if order == 1.0:  # the first-order hold's closed form (a fit asks for a new cut-off at every step)
+        p = math.exp(-w * dt)
+        g = (1.0 - p) / (w * dt)
+        return (1.0 - g, g - p), (1.0, -p)
+    den = [1.0, 2.0 * damping * w, w * w]
     b, a, _ = _signal.cont2discrete(([den[-1]], den), dt, method="foh")
     b, a = np.ravel(b), np.ravel(a)
     return tuple(float(x) for x in b / a[0]), tuple(float(x) for x in a / a[0])
