@@ -246,4 +246,5 @@ def test_a_second_order_log_filter_is_named_with_its_damping(seed):
     assert f is not None and f.detail["shape"] == "second order", [(e.name, e.parameters) for e in d.effects]
     assert f.parameters["cutoff_hz"] == pytest.approx(fc, rel=0.1)
     assert f.parameters["damping"] == pytest.approx(zeta, abs=0.1)
+    assert "shape: second order (residual SSE of the others: first order x" in d.summary()
     assert [e.name for e in d.effects] == ["torque_log_filter"], [(e.name, e.parameters) for e in d.effects]

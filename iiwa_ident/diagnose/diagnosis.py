@@ -807,8 +807,11 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
         chosen = all(c.plausible(c.total(coef[sl])) for c, sl in zip(sel.selected[1:], sel.slices[1:]))
     if not chosen:
         sse("first order", 1.0, first[1])
-    cand.detail = {**cand.detail, "shape": cand.shape,
-                   "sse_second_order_vs_first": second[z0][0] / first[0] if first[0] > 0 else 1.0}
+    # The shapes compared here, each relative to the best (the first pass's comparison is replaced).
+    low = min(first[0], second[z0][0])
+    cand.detail = {**{k: v for k, v in cand.detail.items() if not k.endswith("_vs_best")}, "shape": cand.shape,
+                   "sse_first_order_vs_best": first[0] / low if low > 0 else 1.0,
+                   "sse_second_order_vs_best": second[z0][0] / low if low > 0 else 1.0}
     sel.coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
 
 
