@@ -31,7 +31,7 @@ demo: $(STAMP)
 # wall-clock timing. The few tests that must run in real time are marked `realtime` and run apart.
 # One BLAS thread per worker: two workers with a BLAS thread pool each oversubscribe the cores.
 test: $(STAMP)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not realtime" --durations=12
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not realtime" --durations=25
 
 test-realtime: $(STAMP)
 	$(BIN)/python -m pytest -q -m realtime

@@ -34,7 +34,7 @@ def _run(path, speed, duration_s, rate_hz, cycles_per_rev, amplitude_rad, seed, 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(cpr=st.floats(100.0, 1000.0), runs=st.integers(1, 6), rate=st.sampled_from([200.0, 500.0, 1000.0]),
-       duration=st.floats(0.5, 4.0), amplitude=st.one_of(st.just(0.0), st.floats(1e-6, 1e-4)),
+       duration=st.floats(0.5, 2.5), amplitude=st.one_of(st.just(0.0), st.floats(1e-6, 1e-4)),
        speeds=st.lists(st.floats(0.05, 1.5), min_size=6, max_size=6), signs=st.lists(st.booleans(), min_size=6,
                                                                                       max_size=6),
        seed=st.integers(0, 2**16))

@@ -29,8 +29,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset, torque_sign_problem
-from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_DAMPINGS, LOG_FILTER_MIN_HZ, LOG_FILTER_OTHER_SHAPE, Block, CandidateEffect, block_columns,
-                                           block_sse, contribution, make_candidate)
+from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_DAMPINGS, LOG_FILTER_MIN_HZ, LOG_FILTER_OTHER_SHAPE,
+                                           Block, CandidateEffect, block_columns, block_sse, contribution,
+                                           make_candidate)
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
 from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
 from iiwa_ident.diagnose.select import (BANDS, MIN_GAIN, NOISE_FACTOR, Selection, Step, cv_residuals, noise_floor,
@@ -799,11 +800,14 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
         if z.fun < second[z0][0]:
             z0 = float(z.x)
             second[z0] = at_best_cutoff("second order", z0)
+    def refitted() -> np.ndarray:
+        return np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
+
     chosen = False
     if second[z0][0] <= LOG_FILTER_OTHER_SHAPE * first[0]:
         # Not where an effect through it becomes physically impossible (a fast line divided by its small gain).
         sse("second order", z0, second[z0][1])
-        coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
+        coef = refitted()
         chosen = all(c.plausible(c.total(coef[sl])) for c, sl in zip(sel.selected[1:], sel.slices[1:]))
     if not chosen:
         sse("first order", 1.0, first[1])
@@ -812,7 +816,7 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
     cand.detail = {**{k: v for k, v in cand.detail.items() if not k.endswith("_vs_best")}, "shape": cand.shape,
                    "sse_first_order_vs_best": first[0] / low if low > 0 else 1.0,
                    "sse_second_order_vs_best": second[z0][0] / low if low > 0 else 1.0}
-    sel.coef = np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
+    sel.coef = refitted()
 
 
 def _coefficient_cov(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> np.ndarray:
