@@ -829,14 +829,15 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     The column is what the filter does to the model's own predictions, ``F(p) - p`` on each channel (the
     prediction with the model's own effects, its gravity above all, is the model's estimate of the unfiltered
-    torque), with a coefficient near 1. The cut-off is
-    searched on a logarithmic grid from :data:`LOG_FILTER_MIN_HZ` to 0.4 of the logging rate and refined (a
-    best fit at the lower bound is not tested); three shapes are compared
-    at their best parameter (:data:`LOG_FILTER_SHAPES`): the first order is kept unless another leaves at most
-    :data:`LOG_FILTER_OTHER_SHAPE` of its residual (``detail``: ``shape``, and each shape's residual SSE relative
-    to the smallest). A pure delay extends the model as
-    the first-order filter of the same low-frequency lag, ``f_c = 1 / (2 pi d)``. It acts on the log only: the
-    robot's loop, its observer and a controller the runtime runs see the unfiltered torque.
+    torque), with a coefficient near 1. The cut-off is searched on a logarithmic grid from
+    :data:`LOG_FILTER_MIN_HZ` to 0.4 of the logging rate and refined; it must be one the data determine
+    (:data:`LOG_FILTER_DETERMINED`). Three shapes are compared at their best parameter
+    (:data:`LOG_FILTER_SHAPES`; the second order here two equal stages): the first order is kept unless another
+    leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its residual (``detail``: ``shape``, and each shape's
+    residual SSE relative to the smallest). The diagnosis searches the shape again, the second order's damping
+    with it, once the other effects are named through the filter (:meth:`set_shape`). A pure delay extends the
+    model as the first-order filter of the same low-frequency lag, ``f_c = 1 / (2 pi d)``. It acts on the log
+    only: the robot's loop, its observer and a controller the runtime runs see the unfiltered torque.
     """
 
     name = "torque_log_filter"

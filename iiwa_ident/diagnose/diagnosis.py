@@ -712,9 +712,9 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
                           blocks: list[Block], ys: list[np.ndarray], selection_options: dict[str, Any],
                           ranges: PhysicalRanges | None
                           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]] | None:
-    """:func:`_selected` again where ``sel`` named a filter before the log (not a pure delay) and the contexts carry
-    none: the filter held whole, every other effect named again with its columns through it; None where that
-    does not hold (the contexts and the filter then as they were)."""
+    """:func:`_selected` again where ``sel`` named a filter before the log (a pure delay as the first order of its
+    lag) and the contexts carry none: the filter held whole, every other effect named again with its columns
+    through it; None where that does not hold (the contexts and the filter then as they were)."""
     named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     if named_filter is None or any(ctx.log_filter is not None for ctx in contexts):

@@ -654,8 +654,8 @@ class TorqueLogFilter(Effect):
 
     def coefficients_at(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(b, a)`` of the whole filter at the sample period ``dt`` [s]: the continuous filter, exact for an
-        input linear between samples (first-order hold), so that it lags as the
-        continuous filter does at any rate."""
+        input linear between samples (first-order hold), so that it lags as the continuous filter does at any
+        rate."""
         b, a = self._coefficients(dt)
         return np.array(b), np.array(a)
 
