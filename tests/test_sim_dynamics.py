@@ -96,7 +96,7 @@ class TestAgainstReferenceModel:
 class TestStepAndBatchAgree:
     """start() + step() per cycle gives the same signals as run_open_loop()."""
 
-    @pytest.mark.parametrize("log_filter", [None, {"cutoff_hz": 12.0, "order": 2.0}])
+    @pytest.mark.parametrize("log_filter", [None, {"cutoff_hz": 12.0, "order": 2.0}, {"order": 0.0, "delay_s": 0.0123}])
     def test_identical_with_noise(self, log_filter):
         from iiwa_ident.sim import make_effect
 

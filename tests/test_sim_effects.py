@@ -228,3 +228,35 @@ class TestTorqueLogFilter:
                 np.testing.assert_allclose(one, got, rtol=0, atol=1e-9 * np.abs(x).max())
         with pytest.raises(PlantError, match="damping"):
             TorqueLogFilter({"cutoff_hz": 5.0, "order": 1.0, "damping": 0.7})
+
+    def test_a_pure_delay_is_the_input_shifted(self):
+        # Order 0: the logged torque is the torque delay_s earlier, linear between samples (a shift by whole
+        # samples at a multiple of the sample period), at rest on the first sample; one sample at a time the
+        # same; its response exp(-2 pi j f d) where the input is slow against the samples; it keeps only the
+        # keys of its order.
+        from iiwa_ident.errors import PlantError
+        from iiwa_ident.sim import TorqueLogFilter
+
+        rng = np.random.default_rng(13)
+        x = rng.normal(size=800).cumsum()
+        for dt in (1e-3, 5e-3):
+            t = np.arange(len(x)) * dt
+            d = float(rng.uniform(0.0, 150.0)) * dt
+            lf = TorqueLogFilter({"order": 0.0, "delay_s": d})
+            got = lf.apply(x, dt)
+            np.testing.assert_allclose(got, np.interp(t - d, t, x), rtol=0, atol=1e-9 * np.abs(x).max())
+            state, one = None, []
+            for v in x:
+                state, y = lf.step(state, float(v), dt)
+                one.append(y)
+            np.testing.assert_allclose(one, got, rtol=0, atol=1e-9 * np.abs(x).max())
+            whole = TorqueLogFilter({"order": 0.0, "delay_s": 7 * dt}).apply(x, dt)
+            np.testing.assert_array_equal(whole[7:], x[:-7])
+            f = np.array([0.01, 0.05]) / dt
+            np.testing.assert_allclose(lf.frequency_response(f, dt), np.exp(-2j * np.pi * f * d), rtol=0, atol=0.02)
+            assert lf.lag_s == d and lf.reported(np.ones(1)) == {"order": 0.0, "delay_s": d}
+        for bad, word in (({"order": 0.0}, "delay_s"), ({"order": 0.0, "delay_s": 0.1, "cutoff_hz": 3.0}, "cut-off"),
+                          ({"order": 1.0, "delay_s": 0.1}, "delay_s"), ({"order": 0.0, "delay_s": 0.1, "damping": 0.7},
+                                                                        "damping")):
+            with pytest.raises(PlantError, match=word):
+                TorqueLogFilter(bad)

@@ -597,11 +597,20 @@ class TorqueSensorScale(Effect):
 
 
 @functools.lru_cache(maxsize=256)
-def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, dt: float
+def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, delay_s: float, dt: float
                              ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """``(b, a)`` of :class:`TorqueLogFilter` (cached: a simulation asks for them every sample)."""
+    """``(b, a)`` of :class:`TorqueLogFilter`, ``a`` as long as ``b`` (cached: a simulation asks for them every
+    sample)."""
     from scipy import signal as _signal
 
+    if order == 0.0:  # the delayed samples of an input linear between them: two taps round the delay
+        n, frac = divmod(delay_s / dt, 1.0)
+        if frac > 1.0 - 1e-9:  # a whole number of samples up to rounding
+            n, frac = n + 1.0, 0.0
+        elif frac < 1e-9:
+            frac = 0.0
+        b = [0.0] * int(n) + [1.0 - frac, frac]
+        return tuple(b), (1.0,) + (0.0,) * (len(b) - 1)
     w = 2.0 * math.pi * cutoff_hz
     if order == 1.0:  # the first-order hold's closed form (a fit asks for a new cut-off at every step)
         p = math.exp(-w * dt)
@@ -615,42 +624,62 @@ def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, dt:
 
 @register_effect
 class TorqueLogFilter(Effect):
-    """A low-pass between the joint-torque sensor and the log (a driver's filter, e.g. a ROS state topic's).
+    """A low-pass or a delay between the joint-torque sensor and the log (a driver's filter, e.g. a ROS state
+    topic's, or a late time stamp).
 
     ``order`` 1: one first-order stage at ``cutoff_hz``. ``order`` 2: the second order
     ``w^2 / (s^2 + 2 damping w s + w^2)`` with ``w = 2 pi cutoff_hz``: ``damping`` 1 is two equal first-order
-    stages, 0.71 a Butterworth filter (whose gain is 1/sqrt(2) at the cut-off). The continuous filter is
-    discretised at the logging rate for an input linear between samples (:meth:`coefficients_at`), started at
-    rest on the first sample. Only the logged ``tau_j`` passes it: the internal torque loop, the robot's
-    external-torque observer and a controller the runtime runs use the unfiltered reading.
+    stages, 0.71 a Butterworth filter (whose gain is 1/sqrt(2) at the cut-off). ``order`` 0: a pure delay of
+    ``delay_s`` (no cut-off; ``exp(-s delay_s)``). The continuous filter is discretised at the logging rate for
+    an input linear between samples (:meth:`coefficients_at`; the delay interpolates linearly between the two
+    samples round it), started at rest on the first sample. Only the logged ``tau_j`` passes it: the internal
+    torque loop, the robot's external-torque observer and a controller the runtime runs use the unfiltered
+    reading.
     """
 
     name = "torque_log_filter"
-    summary = "low-pass of the logged torque (a driver's filter; the robot's loop does not see it)"
+    summary = "low-pass or delay of the logged torque (a driver's filter; the robot's loop does not see it)"
     params = (
         Param("cutoff_hz", 12.0, "Hz", 0.1, 500.0, "cut-off of each first-order stage (order 2: the pair's "
-              "natural frequency)"),
-        Param("order", 1.0, "1", 1.0, 2.0, "order of the filter (1 or 2)"),
+              "natural frequency; order 0: none)"),
+        Param("order", 1.0, "1", 0.0, 2.0, "order of the filter (1 or 2; 0: a pure delay)"),
         Param("damping", 1.0, "1", 0.3, 1.0, "damping ratio of the second order (1: two equal first-order "
               "stages; 0.71: Butterworth)"),
+        Param("delay_s", 0.0, "s", 0.0, 1.0, "the pure delay of order 0"),
     )
 
     def _init_extra(self, values: dict[str, Any], where: str) -> None:
-        if self.values["order"] not in (1.0, 2.0):
-            raise PlantError(f"{where}.order: 1 or 2, got {self.values['order']:g}")
-        if self.values["order"] == 1.0 and self.values["damping"] != 1.0:
-            raise PlantError(f"{where}.damping: a first-order filter has no damping ratio, got "
-                             f"{self.values['damping']:g}")
+        order = self.values["order"]
+        if order not in (0.0, 1.0, 2.0):
+            raise PlantError(f"{where}.order: 0 (a pure delay), 1 or 2, got {order:g}")
+        if order != 2.0 and self.values["damping"] != 1.0:
+            raise PlantError(f"{where}.damping: only a second-order filter has a damping ratio, got "
+                             f"{self.values['damping']:g} with order {order:g}")
+        if order == 0.0 and "cutoff_hz" in values:
+            raise PlantError(f"{where}.cutoff_hz: a pure delay (order 0) has no cut-off")
+        if (order == 0.0) != (self.values["delay_s"] > 0.0):
+            raise PlantError(f"{where}.delay_s: " + ("a pure delay (order 0) needs a delay above 0" if order == 0.0
+                                                      else f"only a pure delay (order 0) has one, got order {order:g}"))
 
     def log_filter(self) -> "TorqueLogFilter":
         return self
 
     def reported(self, coef):
-        """``cutoff_hz``, ``order`` and, for the second order, ``damping`` (a first order has none)."""
-        out = super().reported(coef)
-        if out.get("order") == 1.0:
-            out.pop("damping", None)
-        return out
+        """``order`` with what the order has: ``cutoff_hz`` (orders 1, 2), ``damping`` (2), ``delay_s`` (0)."""
+        return self.to_dict()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The plant-file table with the keys of its order only (it round-trips through the constructor)."""
+        keys = {0.0: ("order", "delay_s"), 1.0: ("cutoff_hz", "order"), 2.0: ("cutoff_hz", "order", "damping")}
+        return {k: self.values[k] for k in keys[self.values["order"]]}
+
+    @property
+    def lag_s(self) -> float:
+        """The low-frequency lag [s]: ``1/w`` (first order), ``2 damping / w`` (second), the delay (order 0)."""
+        if self.values["order"] == 0.0:
+            return float(self.values["delay_s"])
+        w = 2.0 * math.pi * float(self.values["cutoff_hz"])
+        return (2.0 * float(self.values["damping"]) if self.values["order"] == 2.0 else 1.0) / w
 
     def coefficients_at(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``(b, a)`` of the whole filter at the sample period ``dt`` [s]: the continuous filter, exact for an
@@ -661,7 +690,7 @@ class TorqueLogFilter(Effect):
 
     def _coefficients(self, dt: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
         return _log_filter_coefficients(float(self.values["cutoff_hz"]), float(self.values["order"]),
-                                        float(self.values["damping"]), float(dt))
+                                        float(self.values["damping"]), float(self.values["delay_s"]), float(dt))
 
     def apply(self, x: np.ndarray, dt: float) -> np.ndarray:
         """The filtered signal of ``x`` sampled every ``dt`` [s] along its first axis (at rest on ``x[0]``; a
