@@ -204,7 +204,8 @@ class TestRealLogs:
         d = diagnose([real_constant_velocity(2)], dataset_model([real_constant_velocity(2)]))
         ripple = d.effect("transmission_ripple")
         assert ripple is not None
-        assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 1e-3
+        # (the run's travel, 1.6 rad, resolves the period to about 1 %)
+        assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 2e-3
         assert ripple.rms_after < ripple.rms_before
         # The log's lag of the arm's 80 Nm gravity torque is the largest discrepancy of the described model on
         # joint 2; the gravity load is named beside it.

@@ -836,8 +836,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
     leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its residual (``detail``: ``shape``, and each shape's
     residual SSE relative to the smallest). The diagnosis searches the shape again, the second order's damping
     with it, once the other effects are named through the filter (:meth:`set_shape`). A pure delay extends the
-    model as the first-order filter of the same low-frequency lag, ``f_c = 1 / (2 pi d)``. It acts on the log
-    only: the robot's loop, its observer and a controller the runtime runs see the unfiltered torque.
+    model as itself (the filter's order 0). It acts on the log only: the robot's loop, its observer and a controller the runtime runs see the unfiltered torque.
     """
 
     name = "torque_log_filter"
@@ -846,25 +845,24 @@ class TorqueLogFilterCandidate(CandidateEffect):
     def __init__(self) -> None:
         super().__init__()
         self.shape = LOG_FILTER_SHAPES[0]
-        self._delay_s = 0.0
         self._named: dict[int, dict[str, np.ndarray]] = {}
-
-    def _filtered(self, x: np.ndarray, dt: float) -> np.ndarray:
-        if self.shape == "pure delay":
-            t = np.arange(len(x)) * dt
-            return np.interp(t - self._delay_s, t, x)
-        return self.effect.apply(x, dt)
 
     def _set(self, shape: str, value: float, damping: float = 1.0) -> None:
         """The shape at its parameter: a cut-off [Hz] (filters) or a delay [s]; not range checked."""
         self.shape = shape
-        second = shape == "second order"
-        self.effect = TorqueLogFilter({"order": 2.0 if second else 1.0, "damping": damping if second else 1.0})
         if shape == "pure delay":
-            self._delay_s = value
-            self.effect.values["cutoff_hz"] = 1.0 / (2.0 * math.pi * value)
+            self.effect = TorqueLogFilter({"order": 0.0, "delay_s": value})
+        elif shape == "second order":
+            self.effect = TorqueLogFilter({"cutoff_hz": value, "order": 2.0, "damping": damping})
         else:
-            self.effect.values["cutoff_hz"] = value
+            self.effect = TorqueLogFilter({"cutoff_hz": value, "order": 1.0})
+
+    @property
+    def cutoff_hz(self) -> float:
+        """The cut-off [Hz]; of a pure delay, the first order's of the same low-frequency lag."""
+        if self.shape == "pure delay":
+            return 1.0 / (2.0 * math.pi * self.lag_s)
+        return float(self.effect.values["cutoff_hz"])
 
     def set_cutoff(self, cutoff_hz: float) -> None:
         """The filter's shape at another cut-off [Hz] (a pure delay at the same low-frequency lag)."""
@@ -877,11 +875,8 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     @property
     def lag_s(self) -> float:
-        """The shape's low-frequency lag [s]: ``1/w`` (first order), ``2 damping / w`` (second), the delay."""
-        if self.shape == "pure delay":
-            return self._delay_s
-        w = 2.0 * math.pi * float(self.effect.values["cutoff_hz"])
-        return (2.0 * float(self.effect.values["damping"]) if self.shape == "second order" else 1.0) / w
+        """The shape's low-frequency lag [s] (:attr:`TorqueLogFilter.lag_s`)."""
+        return self.effect.lag_s
 
     def n_columns(self):
         return 1
@@ -895,7 +890,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
                 # what the effects named so far add: the filter acts on the whole torque.
                 p = ctx.predicted[ch] if ctx.effects_filtered else ctx.with_effects.get(ch, ctx.predicted[ch])
                 p = p + named.get(ch, 0.0)
-                phi = self._filtered(p, ctx.dt) - p
+                phi = self.effect.apply(p, ctx.dt) - p
                 if ch == "link" and ctx.link_from_eq9:  # eq (9) takes the link from the logged reading too
                     phi = phi + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(phi))
                 col.append((point, phi))
@@ -955,15 +950,10 @@ class TorqueLogFilterCandidate(CandidateEffect):
         return True
 
     def parameters(self, coef):
-        out = {"cutoff_hz": float(self.effect.values["cutoff_hz"]), "order": float(self.effect.values["order"])}
-        if self.shape == "second order":
-            out["damping"] = float(self.effect.values["damping"])
-        if self.shape == "pure delay":
-            out["delay_s"] = float(self._delay_s)
-        return out
+        return self.effect.reported(coef)
 
     def extend(self, model, coef):
-        self._replace_effect(model, self.effect.clip(dict(self.effect.values)))
+        self._replace_effect(model, self.effect.to_dict())
 
     def plausible(self, coef):
         # The column is the filter's whole action: a coefficient far from 1 is some other lag or misfit. Named
@@ -977,7 +967,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     def from_values(self, values):
         self.effect = make_effect(self.name, values)
-        self.shape = "second order" if self.effect.values["order"] == 2.0 else "first order"
+        self.shape = {0.0: "pure delay", 1.0: "first order", 2.0: "second order"}[self.effect.values["order"]]
         return np.array([1.0])
 
     def evidence_axis(self, ctx):
@@ -1114,7 +1104,7 @@ class ModelParametersCandidate(CandidateEffect):
         for ch in ctx.channels:
             # The link channel depends on K and Jl only: the delay's grid and its finite differences reuse it.
             lf = ctx.log_filter
-            key = (ctx.index, ch, None if lf is None else lf.values["cutoff_hz"],
+            key = (ctx.index, ch, None if lf is None else tuple(lf.to_dict().items()),
                    *(params[k] for k in _CHANNEL_PARAMETERS[ch]))
             if key not in self._predictions:
                 if len(self._predictions) >= 16:  # a few recent ones are all the reuse there is

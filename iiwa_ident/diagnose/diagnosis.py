@@ -437,7 +437,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     joints = {ds.joint for ds in datasets}
     if len(joints) > 1:
         raise IiwaIdentError(f"diagnose: the datasets are from different joints ({sorted(joints)})")
-    original = model
+    original, given = model, list(datasets)
     # The sign before anything: a reversed reading makes every other effect (a load of twice the gravity at
     # phase pi, a friction that pushes) an artefact of it.
     sign_reversed = []
@@ -549,7 +549,65 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     # residual passes the tests that judge the model (or is not judged).
     diag.explained = not effects and not suspects and not ambiguous and not replaced and not sign_reversed \
         and not diag.unexplained_channels
+    carried = _not_carried(diag, datasets)
+    if carried:
+        # Named again without them: the others' fit must not lean on a column the model cannot carry.
+        again = diagnose(given, original, [n for n in names if n not in carried], **selection_options)
+        again.suspects = carried_suspects(carried) + again.suspects
+        again.explained = False
+        return again
     return diag
+
+
+#: Most a model's simulated prediction of the diagnosed runs may exceed the diagnosis's own fit of them
+#: (relative to the residual before; the effects are linearised columns, the model simulates them whole).
+CARRIED_TOLERANCE = 0.25
+
+
+def _not_carried(diag: Diagnosis, datasets: Sequence[Dataset]) -> dict[str, tuple[float, float]]:
+    """The named effects the extended model does not carry as the diagnosis fitted them: where the model, simulated
+    again, predicts the runs worse than the fit by more than :data:`CARRIED_TOLERANCE` of the residual before,
+    the effect whose leaving out of the model predicts them better; by name, the relative SSE with and without
+    it (the one that predicts best when left out; none where leaving out none predicts better)."""
+    if not diag.effects:
+        return {}
+    base = {(n, ch): r for n, ch, r in residual_rms(datasets, diag.model)}
+
+    def score(model: JointModel) -> float:
+        return sum((r / base[n, ch]) ** 2 for n, ch, r in residual_rms(datasets, model) if base[n, ch] > 0)
+
+    fitted = sum(float(np.mean(diag.residual_after(ctx, ch)[ctx.masks[ch]] ** 2)) / base[ctx.name, ch] ** 2
+                 for ctx in diag.contexts for ch in ctx.channels if base[ctx.name, ch] > 0)
+    simulated = score(diag.extended)
+    if math.sqrt(simulated) <= math.sqrt(fitted) + CARRIED_TOLERANCE * math.sqrt(len(base)):
+        return {}
+    # The one whose leaving out predicts best (the others' fit leans on it: it may be what spoils them).
+    alone = {e.name: score(_left_out(diag.extended, diag.model, e.name)) for e in diag.effects}
+    worst = min(alone, key=lambda n: alone[n])
+    return {worst: (simulated / len(base), alone[worst] / len(base))} if alone[worst] < simulated else {}
+
+
+def _left_out(extended: JointModel, model: JointModel, name: str) -> JointModel:
+    """``extended`` with the effect ``name`` as ``model`` has it (or without it)."""
+    out = copy.deepcopy(extended)
+    if name == "transmission_ripple":
+        out.ripple = copy.deepcopy(model.ripple)
+    elif name == "model_parameters":
+        for k, p in model.parameters.items():
+            if k != "Td":
+                out.parameters[k] = copy.deepcopy(p)
+    else:
+        out.effects = [e for e in out.effects if e.get("name") != name] + \
+            [copy.deepcopy(e) for e in model.effects if e.get("name") == name]
+    return out
+
+
+def carried_suspects(carried: dict[str, tuple[float, float]]) -> list[dict[str, Any]]:
+    """Suspects of :func:`_not_carried`'s effects, with the keys of :func:`_suspects`."""
+    return [{"name": n, "gain": 0.0, "band": "full", "confidence": 0.0, "delta_bic": 0.0,
+             "failed": f"the model extended by it predicts the runs worse than without it (relative SSE {w:.3g} "
+                       f"against {wo:.3g}): its fit is not the effect the model simulates"}
+            for n, (w, wo) in carried.items()]
 
 
 def _carry(contexts: list[Context], filters: list[Any]) -> None:
@@ -712,9 +770,9 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
                           blocks: list[Block], ys: list[np.ndarray], selection_options: dict[str, Any],
                           ranges: PhysicalRanges | None
                           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]] | None:
-    """:func:`_selected` again where ``sel`` named a filter before the log (a pure delay as the first order of its
-    lag) and the contexts carry none: the filter held whole, every other effect named again with its columns
-    through it; None where that does not hold (the contexts and the filter then as they were)."""
+    """:func:`_selected` again where ``sel`` named a filter before the log (or a delay) and the contexts carry
+    none: the filter held whole, every other effect named again with its columns through it; None where that
+    does not hold (the contexts and the filter then as they were)."""
     named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     if named_filter is None or any(ctx.log_filter is not None for ctx in contexts):
@@ -724,35 +782,37 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     # out: beside the filter's column its delay trades with the cut-off.
     chosen = {c.name for c in sel.selected}
     record = next(s for s in sel.steps if s.name == named_filter.name and s.accepted)
-    first_shape = (named_filter.shape, float(named_filter.effect.values["cutoff_hz"]),
-                   float(named_filter.effect.values["damping"]))
-    first_detail = dict(named_filter.detail)
-    if named_filter.shape == "pure delay":
-        # A delay is not a filter the others pass through: the first order of its lag is (its shape searched
-        # again when the others are named).
-        named_filter.set_shape("first order", first_shape[1])
-    for ctx in contexts:
-        ctx.log_filter = named_filter.effect
-    again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
-                      ys, selection_options, ranges, first=[(named_filter, record)])
-    # Kept where the filter, whole, still explains the data beside the others: they fit better through it than
-    # without it.
-    sse_filtered = block_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, named_filter))[0]
-    kept = [ctx.log_filter for ctx in contexts]
-    for ctx in contexts:
-        ctx.log_filter = None
-    better = sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]
-    if better and first_shape[0] == "pure delay":
-        # A delay turned into a filter: kept where the others through it predict the held-out data as well.
-        mine = cv_residuals(sel.columns(blocks), ys)
-        better = _sse(again[3], range(len(again[3]))) <= _sse(mine, range(len(mine)))
-    if better:
-        for ctx, f in zip(contexts, kept):
-            ctx.log_filter = f
-        return again
-    named_filter.set_shape(*first_shape)
-    named_filter.detail = first_detail
-    return None
+    first_shape = (named_filter.shape, named_filter.cutoff_hz, float(named_filter.effect.values["damping"]))
+    # A delay, the fast band as it is, and the first order of its lag, which attenuates it, lead the others to
+    # different fits there: both tried, the one whose naming predicts the held-out data better kept (the shape is
+    # searched again once the others are named).
+    starts = [first_shape] if first_shape[0] != "pure delay" else [("first order", first_shape[1]), first_shape]
+    best: tuple[float, Any, list[Any]] | None = None
+    for shape in starts:
+        trial_filter = copy.copy(named_filter)  # the first pass's filter stays as it is
+        trial_filter.detail = dict(named_filter.detail)
+        trial_filter.set_shape(*shape)
+        for ctx in contexts:
+            ctx.log_filter = trial_filter.effect
+        again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
+                          ys, selection_options, ranges, first=[(trial_filter, record)])
+        # Kept where the filter, whole, still explains the data beside the others: they fit better through it
+        # than without it.
+        sse_filtered = block_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter))[0]
+        kept = [ctx.log_filter for ctx in contexts]
+        for ctx in contexts:
+            ctx.log_filter = None
+        possible = all(c.plausible(c.total(again[0].coef[sl]))
+                       for c, sl in zip(again[0].selected[1:], again[0].slices[1:]) if c.name not in again[0].other_shape)
+        if possible and sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
+            heldout = _sse(again[3], range(len(again[3])))
+            if best is None or heldout < best[0]:
+                best = (heldout, again, kept)
+    if best is None:
+        return None
+    for ctx, f in zip(contexts, best[2]):
+        ctx.log_filter = f
+    return best[1]
 
 
 def _without_filter(ys: list[np.ndarray], blocks: list[Block], log_filter: CandidateEffect) -> list[np.ndarray]:
@@ -765,11 +825,11 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
     columns through it, and the selection's coefficients refitted there: the first pass searched it beside the
     others' fit without the filter, which lends the filter some of their torque's shape.
 
-    Each shape's cut-off is searched within a factor 4 of the first pass's low-frequency lag: the first order,
-    and the second order at each damping ratio of :data:`LOG_FILTER_DAMPINGS` (the best one refined between its
-    neighbours). The first order is kept unless the second leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its
-    residual with every named effect physically possible through it (a pure delay is not a shape the others pass
-    through)."""
+    Each shape's cut-off is searched within a factor 4 of the first pass's low-frequency lag: the first order, the
+    second order at each damping ratio of :data:`LOG_FILTER_DAMPINGS` (the best one refined between its
+    neighbours) and the pure delay (the delay at the cut-off's lag). The first order (the delay, where the
+    others were named through it) is kept unless another leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its
+    residual with every named effect physically possible through it (the one of least residual that does)."""
     cand = sel.selected[0]
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     top = math.log(0.4 / max(ctx.dt for ctx in contexts))
@@ -800,22 +860,30 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
         if z.fun < second[z0][0]:
             z0 = float(z.x)
             second[z0] = at_best_cutoff("second order", z0)
+    shapes = {"first order": (1.0, *first), "second order": (z0, *second[z0]),
+              "pure delay": (1.0, *at_best_cutoff("pure delay", 1.0))}
+
     def refitted() -> np.ndarray:
         return np.concatenate([[1.0], block_sse(sel.columns(blocks, held=1), _without_filter(ys, blocks, cand))[1]])
 
-    chosen = False
-    if second[z0][0] <= LOG_FILTER_OTHER_SHAPE * first[0]:
+    # The reference is the first order; the delay where the others were named through it.
+    chosen = "pure delay" if cand.shape == "pure delay" else "first order"
+    for shape in sorted((k for k in shapes if k != chosen), key=lambda k: shapes[k][1]):
+        damping, sse_shape, log_fc = shapes[shape]
+        if sse_shape > LOG_FILTER_OTHER_SHAPE * shapes[chosen][1]:
+            break
         # Not where an effect through it becomes physically impossible (a fast line divided by its small gain).
-        sse("second order", z0, second[z0][1])
+        sse(shape, damping, log_fc)
         coef = refitted()
-        chosen = all(c.plausible(c.total(coef[sl])) for c, sl in zip(sel.selected[1:], sel.slices[1:]))
-    if not chosen:
-        sse("first order", 1.0, first[1])
+        if all(c.plausible(c.total(coef[sl])) for c, sl in zip(sel.selected[1:], sel.slices[1:])):
+            chosen = shape
+            break
+    sse(chosen, *shapes[chosen][::2])
     # The shapes compared here, each relative to the best (the first pass's comparison is replaced).
-    low = min(first[0], second[z0][0])
+    low = min(v[1] for v in shapes.values())
     cand.detail = {**{k: v for k, v in cand.detail.items() if not k.endswith("_vs_best")}, "shape": cand.shape,
-                   "sse_first_order_vs_best": first[0] / low if low > 0 else 1.0,
-                   "sse_second_order_vs_best": second[z0][0] / low if low > 0 else 1.0}
+                   **{f"sse_{k.replace(' ', '_')}_vs_best": v[1] / low if low > 0 else 1.0
+                      for k, v in shapes.items()}}
     sel.coef = refitted()
 
 

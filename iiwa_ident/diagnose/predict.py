@@ -407,9 +407,20 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
     if injection == "link_raw" and "link" in ctx.masks:
         out["link"] = phi
     if ctx.log_filter is not None and injection not in _AFTER_THE_LOG_FILTER:
-        # The logged torque is the filtered one: so is every change an effect makes to it.
-        out = {ch: ctx.log_filter.apply(v, ctx.dt) for ch, v in out.items()}
+        # The logged torque is the filtered one: so is every change an effect makes to it; and eq (9) takes the
+        # link from the logged reading, which the filter moves by what it takes from the change (as the
+        # filter's own column has it).
+        out = {ch: _logged(ctx, ch, v) for ch, v in out.items()}
     return out
+
+
+def _logged(ctx: Context, channel: str, v: np.ndarray) -> np.ndarray:
+    """A change ``v`` of a residual channel as the log shows it, through the context's filter before the log."""
+    assert ctx.log_filter is not None
+    fv = ctx.log_filter.apply(v, ctx.dt)
+    if channel == "link" and ctx.link_from_eq9:
+        fv = fv + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(fv - v))
+    return fv
 
 
 #: Injection points a filter before the log does not act on: the log itself, and the raw columns (already what

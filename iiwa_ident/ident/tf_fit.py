@@ -748,6 +748,17 @@ def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np
     return records
 
 
+def _stages(log_filter: TorqueLogFilter | None) -> int:
+    """The equal first-order stages of a filter the fit searches through (0: none); a pure delay or an
+    underdamped second order is not one it searches."""
+    if log_filter is None:
+        return 0
+    if log_filter.values["order"] == 0.0 or log_filter.values["damping"] != 1.0:
+        raise IiwaIdentError(f"torque_log_filter {log_filter.to_dict()}: the fit searches one or two equal "
+                             "first-order stages only")
+    return int(log_filter.values["order"])
+
+
 def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
                         known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
                         ripple: RippleTerms | None = None, log_filter: TorqueLogFilter | None = None
@@ -773,7 +784,7 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
         ``{"tau_j_nm": ..., "q_m_rad": ...}`` per dataset: the simulated outputs' errors less a constant
         (``tau_j``) and the drift spline (``q_m``). Compares models that differ in their known inputs.
     """
-    order = 0 if log_filter is None else int(log_filter.values["order"])
+    order = _stages(log_filter)
     problem = _Problem(_records(datasets, known, ripple, log_filter), log_filter_order=order)
     x = _Problem.params_to_x([params[k] for k in PARAMETER_NAMES],
                              None if log_filter is None else float(log_filter.values["cutoff_hz"]))
@@ -835,7 +846,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
             raise IiwaIdentError(f"{rec.label}: no band with coherence above {MIN_COHERENCE} between tau_c and tau_j: "
                                  "nothing to fit")
     starts = initial_candidates(records) if initial is None else [dict(initial)]
-    order = 0 if log_filter is None else int(log_filter.values["order"])
+    order = _stages(log_filter)
     fc0 = None if log_filter is None else float(log_filter.values["cutoff_hz"])
     problem = _Problem(records, log_filter_order=order)
 

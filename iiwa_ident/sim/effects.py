@@ -596,6 +596,14 @@ class TorqueSensorScale(Effect):
         return {"scale": 1.0 / (1.0 - float(coef[0]))}
 
 
+def _delay_taps(delay_s: float, dt: float) -> tuple[int, float]:
+    """A delay [s] as whole samples and the fraction of one more (a whole number up to rounding has none)."""
+    n, frac = divmod(delay_s / dt, 1.0)
+    if frac > 1.0 - 1e-9:
+        return int(n) + 1, 0.0
+    return int(n), 0.0 if frac < 1e-9 else float(frac)
+
+
 @functools.lru_cache(maxsize=256)
 def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, delay_s: float, dt: float
                              ) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -604,12 +612,8 @@ def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, del
     from scipy import signal as _signal
 
     if order == 0.0:  # the delayed samples of an input linear between them: two taps round the delay
-        n, frac = divmod(delay_s / dt, 1.0)
-        if frac > 1.0 - 1e-9:  # a whole number of samples up to rounding
-            n, frac = n + 1.0, 0.0
-        elif frac < 1e-9:
-            frac = 0.0
-        b = [0.0] * int(n) + [1.0 - frac, frac]
+        n, frac = _delay_taps(delay_s, dt)
+        b = [0.0] * n + [1.0 - frac, frac]
         return tuple(b), (1.0,) + (0.0,) * (len(b) - 1)
     w = 2.0 * math.pi * cutoff_hz
     if order == 1.0:  # the first-order hold's closed form (a fit asks for a new cut-off at every step)
@@ -697,10 +701,14 @@ class TorqueLogFilter(Effect):
         matrix's columns each filtered)."""
         from scipy import signal as _signal
 
-        b, a = self.coefficients_at(dt)
         y = np.asarray(x, float)
         if not len(y):
             return y
+        if self.values["order"] == 0.0:  # the two taps by index (a long delay is many taps of a filter)
+            n, frac = _delay_taps(float(self.values["delay_s"]), dt)
+            k = np.arange(len(y))
+            return (1.0 - frac) * y[np.maximum(k - n, 0)] + frac * y[np.maximum(k - n - 1, 0)]
+        b, a = self.coefficients_at(dt)
         return _signal.lfilter(b, a, y, axis=0, zi=np.multiply.outer(_signal.lfilter_zi(b, a), y[0]))[0]
 
     def frequency_response(self, f_hz: np.ndarray, dt: float) -> np.ndarray:
