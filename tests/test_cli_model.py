@@ -95,8 +95,8 @@ def test_model_command_refusals(tmp_path):
 REAL = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared/data/real/iiwa14-constant-velocity"
 
 
-def _import_real(tmp_path, joint_dir: int, joint: int):
-    d = REAL / f"joint{joint_dir}" / "vel_p3"
+def _import_real(tmp_path, joint_dir: int, joint: int, run: str = "vel_p3"):
+    d = REAL / f"joint{joint_dir}" / run
     if not d.is_dir():
         pytest.skip(f"real iiwa 14 logs not found at {d}")
     out = tmp_path / f"j{joint}.h5"
@@ -123,21 +123,21 @@ def test_import_keeps_the_pose_and_warns_when_another_joint_moved(tmp_path):
 
 
 def test_diagnose_and_ripple_start_from_the_joints_own_model(tmp_path):
-    path, _ = _import_real(tmp_path, 2, 2)
+    path, _ = _import_real(tmp_path, 1, 1, "vel_1")
     r = invoke("diagnose", str(path), "--out", str(tmp_path / "ext.toml"))
     assert r.exit_code == 0, r.stderr
-    assert "starting model of iiwa14 joint 2" in r.stdout
+    assert "starting model of iiwa14 joint 1" in r.stdout
     ext = read_model(tmp_path / "ext.toml")
-    assert ext.joint == 2 and ext.value("Jl") == pytest.approx(describe_joint("iiwa14", 2).Jl_kgm2, rel=1e-3)
+    assert ext.joint == 1 and ext.value("Jl") == pytest.approx(describe_joint("iiwa14", 1).Jl_kgm2, rel=1e-3)
     r = invoke("ripple", str(path), "--out", str(tmp_path / "rip.toml"))
     assert r.exit_code == 0, r.stderr
     rip = read_model(tmp_path / "rip.toml")
-    assert rip.joint == 2 and rip.parameters["Jl"].origin == "description"
+    assert rip.joint == 1 and rip.parameters["Jl"].origin == "description"
     # A model of another joint is refused, by both.
-    j1 = tmp_path / "j1.toml"
-    assert invoke("model", "--joint", "1", "--out", str(j1)).exit_code == 0
+    j2 = tmp_path / "j2.toml"
+    assert invoke("model", "--joint", "2", "--out", str(j2)).exit_code == 0
     for cmd in ("diagnose", "ripple"):
-        _one_line_error(invoke(cmd, str(path), "--model", str(j1)), "a model of joint 1 on data of joint 2")
+        _one_line_error(invoke(cmd, str(path), "--model", str(j2)), "a model of joint 2 on data of joint 1")
 
 
 def test_dataset_model_refusals():

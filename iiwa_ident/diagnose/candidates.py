@@ -424,6 +424,7 @@ class TransmissionRippleCandidate(CandidateEffect):
         self._found: float | None = None
         self._passes: list = []
         self._false_alarm: float | None = None
+        self._bands: list[tuple[np.ndarray, np.ndarray] | None] | None = None
 
     def _default_effect(self) -> Effect:
         return TransmissionRipple.shape(TransmissionRipple.params[0].default, self.harmonics)
@@ -459,25 +460,39 @@ class TransmissionRippleCandidate(CandidateEffect):
 
         None when no pass resolves the line (too short, or the line above the band a pass can show).
         """
-        lo, hi = self.evidence_band
+        if self._bands is None:
+            self._bands = self._evidence_bands()
         per_ds: dict[int, tuple[list, list]] = {}
-        for ps in self._passes:
-            dt = float(np.median(np.diff(ps.t)))
-            f_line = abs(ps.speed) / self._found
-            if len(ps.f) < 32 or hi * f_line >= 0.45 / dt:
+        for ps, band in zip(self._passes, self._bands):
+            if band is None:
                 continue
-            sos = signal.butter(2, [lo * f_line, hi * f_line], btype="bandpass", fs=1.0 / dt, output="sos")
+            sos, y_band = band
             x = 2 * np.pi * ps.theta / period
             A = np.column_stack([np.cos(x), np.sin(x)])
             A = A - ps.nuisance @ (ps.nuisance.T @ A)
             Xs, ys = per_ds.setdefault(ps.dataset, ([], []))
             Xs.append(signal.sosfiltfilt(sos, A, axis=0) * ps.weight)
-            ys.append(signal.sosfiltfilt(sos, ps.f) * ps.weight)
+            ys.append(y_band)
         X = [np.vstack(Xs) for Xs, _ in per_ds.values()]
         y = [np.concatenate(ys) for _, ys in per_ds.values()]
         if not X:
             return None
         return EvidenceChannel("deflection", X, y, self._false_alarm)
+
+    def _evidence_bands(self) -> list[tuple[np.ndarray, np.ndarray] | None]:
+        """Per pass, the band-pass round the identified line and the pass's deflection through it, weighted (None:
+        the pass does not resolve the line); they do not depend on the period searched."""
+        lo, hi = self.evidence_band
+        out: list[tuple[np.ndarray, np.ndarray] | None] = []
+        for ps in self._passes:
+            dt = float(np.median(np.diff(ps.t)))
+            f_line = abs(ps.speed) / self._found
+            if len(ps.f) < 32 or hi * f_line >= 0.45 / dt:
+                out.append(None)
+                continue
+            sos = signal.butter(2, [lo * f_line, hi * f_line], btype="bandpass", fs=1.0 / dt, output="sos")
+            out.append((sos, signal.sosfiltfilt(sos, ps.f) * ps.weight))
+        return out
 
     def _identify(self, blocks) -> float:
         """The period by section III.B's identification (0.0: none found); it does not depend on the residual."""
@@ -497,7 +512,7 @@ class TransmissionRippleCandidate(CandidateEffect):
         if not r.detected:
             return 0.0
         self.detail = {"false_alarm_probability": r.false_alarm, "period_from_identification_rad": r.period_rad}
-        self._passes, self._false_alarm = list(r.passes), float(r.false_alarm)
+        self._passes, self._false_alarm, self._bands = list(r.passes), float(r.false_alarm), None
         return float(r.period_rad)
 
     def columns(self, ctx):
