@@ -78,7 +78,7 @@ def test_the_command(chirp, tmp_path):
 
 
 def test_real_joint_with_the_diagnosed_model(tmp_path):
-    folder = REAL / "iiwa14-constant-velocity" / "joint2"
+    folder = REAL / "iiwa14-constant-velocity" / "joint4"
     if not folder.is_dir():
         pytest.skip(f"real iiwa 14 logs not found at {folder} (expected ../shared beside the checkout)")
     from iiwa_ident.datasets import import_columns
@@ -88,14 +88,14 @@ def test_real_joint_with_the_diagnosed_model(tmp_path):
     run = folder / "vel_p3"
     # The recording's torque reads the other way round (import says so): read with the sign flipped.
     ds = import_columns({"t": run / "cur_traj_time_s.txt", "q_m": run / "joint_position_measured.txt",
-                         "tau_j": run / "joint_torque_measured.txt"}, joint=2, experiment="constant_velocity",
+                         "tau_j": run / "joint_torque_measured.txt"}, joint=4, experiment="constant_velocity",
                         robot_model="iiwa14", scale={"tau_j": -1.0})
     start = dataset_model([ds])
     before = compare([ds], start)[0]
     after = compare([ds], diagnose([ds], start).extended)[0]
     assert after.fit_pct > before.fit_pct and after.rms_nm < before.rms_nm
     with pytest.raises(IiwaIdentError):
-        compare([ds], table1_model())  # joint 1's model on joint 2's data
+        compare([ds], table1_model())  # joint 1's model on joint 4's data
 
 
 def test_the_fit_reports_its_residual_tests(tmp_path):
