@@ -496,9 +496,24 @@ class TransmissionRippleCandidate(CandidateEffect):
 
     def _identify(self, blocks) -> float:
         """The period by section III.B's identification (0.0: none found); it does not depend on the residual."""
+        ctxs = {b.ctx.index: b.ctx for b in blocks}.values()
+        base, p = self.base_table, next(iter(ctxs)).params
+        # The identification depends on the motion, K, Jl and the model's table only: once per diagnosis.
+        key = ("transmission_ripple", tuple(c.index for c in ctxs), p["K"], p["Jl"],
+               None if base is None else (base.period_rad, base.lut.tobytes()))
+        memo = next(iter(ctxs)).memo
+        if key not in memo:
+            memo[key] = self._identified(ctxs)
+        period, self.detail, passes, false_alarm = memo[key]
+        self._passes, self._false_alarm, self._bands = list(passes), false_alarm, None
+        self.detail = dict(self.detail)
+        return period
+
+    def _identified(self, ctxs) -> tuple[float, dict[str, Any], list, float | None]:
+        """Section III.B's identification on the contexts: the period (0.0: none), the detail, the passes and
+        the false-alarm probability."""
         from iiwa_ident.ident import identify_ripple
 
-        ctxs = {b.ctx.index: b.ctx for b in blocks}.values()
         p = next(iter(ctxs)).params
         data = []
         for c in ctxs:
@@ -508,12 +523,12 @@ class TransmissionRippleCandidate(CandidateEffect):
         try:
             r = identify_ripple(data, K=p["K"], Jl=p["Jl"])
         except IiwaIdentError:
-            return 0.0  # no constant-speed motion: a deflection cannot be told from other effects
+            return 0.0, {}, [], None  # no constant-speed motion: a deflection cannot be told from other effects
         if not r.detected:
-            return 0.0
-        self.detail = {"false_alarm_probability": r.false_alarm, "period_from_identification_rad": r.period_rad}
-        self._passes, self._false_alarm, self._bands = list(r.passes), float(r.false_alarm), None
-        return float(r.period_rad)
+            return 0.0, {}, [], None
+        return (float(r.period_rad), {"false_alarm_probability": r.false_alarm,
+                                      "period_from_identification_rad": r.period_rad},
+                list(r.passes), float(r.false_alarm))
 
     def columns(self, ctx):
         return TransmissionRipple.shape(self.period, self.harmonics).columns(self.signals(ctx))

@@ -151,6 +151,8 @@ class Context:
     with_effects: dict[str, np.ndarray] = field(default_factory=dict)
     log_filter: TorqueLogFilter | None = None
     effects_filtered: bool = False
+    #: What candidates compute from the measured signals alone, by key (a diagnosis prepares them many times).
+    memo: dict = field(default_factory=dict)
     _sos: np.ndarray | None = None
     _tf: dict = field(default_factory=dict)
 
