@@ -866,7 +866,8 @@ class TorqueLogFilterCandidate(CandidateEffect):
     leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its residual (``detail``: ``shape``, and each shape's
     residual SSE relative to the smallest). The diagnosis searches the shape again, the second order's damping
     with it, once the other effects are named through the filter (:meth:`set_shape`). A pure delay extends the
-    model as itself (the filter's order 0). It acts on the log only: the robot's loop, its observer and a controller the runtime runs see the unfiltered torque.
+    model as itself (the filter's order 0). It acts on the log only: the robot's loop, its observer and a
+    controller the runtime runs see the unfiltered torque.
     """
 
     name = "torque_log_filter"
@@ -881,11 +882,12 @@ class TorqueLogFilterCandidate(CandidateEffect):
         """The shape at its parameter: a cut-off [Hz] (filters) or a delay [s]; not range checked."""
         self.shape = shape
         if shape == "pure delay":
-            self.effect = TorqueLogFilter({"order": 0.0, "delay_s": value})
-        elif shape == "second order":
-            self.effect = TorqueLogFilter({"cutoff_hz": value, "order": 2.0, "damping": damping})
+            self.effect = TorqueLogFilter({"order": 0.0, "delay_s": 1e-3})
+            self.effect.values["delay_s"] = value
         else:
-            self.effect = TorqueLogFilter({"cutoff_hz": value, "order": 1.0})
+            second = shape == "second order"
+            self.effect = TorqueLogFilter({"order": 2.0 if second else 1.0, "damping": damping if second else 1.0})
+            self.effect.values["cutoff_hz"] = value
 
     @property
     def cutoff_hz(self) -> float:
@@ -983,7 +985,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
         return self.effect.reported(coef)
 
     def extend(self, model, coef):
-        self._replace_effect(model, self.effect.to_dict())
+        self._replace_effect(model, self.effect.clip(self.effect.to_dict()))
 
     def plausible(self, coef):
         # The column is the filter's whole action: a coefficient far from 1 is some other lag or misfit. Named

@@ -553,7 +553,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     if carried:
         # Named again without them: the others' fit must not lean on a column the model cannot carry.
         again = diagnose(given, original, [n for n in names if n not in carried], **selection_options)
-        again.suspects = carried_suspects(carried) + again.suspects
+        again.suspects = _carried_suspects(carried) + again.suspects
         again.explained = False
         return again
     return diag
@@ -602,7 +602,7 @@ def _left_out(extended: JointModel, model: JointModel, name: str) -> JointModel:
     return out
 
 
-def carried_suspects(carried: dict[str, tuple[float, float]]) -> list[dict[str, Any]]:
+def _carried_suspects(carried: dict[str, tuple[float, float]]) -> list[dict[str, Any]]:
     """Suspects of :func:`_not_carried`'s effects, with the keys of :func:`_suspects`."""
     return [{"name": n, "gain": 0.0, "band": "full", "confidence": 0.0, "delta_bic": 0.0,
              "failed": f"the model extended by it predicts the runs worse than without it (relative SSE {w:.3g} "
@@ -802,8 +802,9 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
         kept = [ctx.log_filter for ctx in contexts]
         for ctx in contexts:
             ctx.log_filter = None
-        possible = all(c.plausible(c.total(again[0].coef[sl]))
-                       for c, sl in zip(again[0].selected[1:], again[0].slices[1:]) if c.name not in again[0].other_shape)
+        trial = again[0]
+        possible = all(c.plausible(c.total(trial.coef[sl]))
+                       for c, sl in zip(trial.selected[1:], trial.slices[1:]) if c.name not in trial.other_shape)
         if possible and sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
             heldout = _sse(again[3], range(len(again[3])))
             if best is None or heldout < best[0]:
