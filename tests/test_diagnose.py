@@ -116,6 +116,27 @@ class TestExtendedModel:
         again = diagnose(data, ext)
         assert again.explained, [e.name for e in again.effects]
 
+    def test_an_effect_the_model_does_not_carry_is_a_suspect(self, monkeypatch):
+        # A candidate whose fit the extended model does not reproduce (here made so: the model gets the friction
+        # three times too strong) would show figures of a model nobody gets: the extended model predicts the runs
+        # worse with it than without it, so it is a suspect that says so and the rest is named without it.
+        from iiwa_ident.diagnose import CANDIDATES
+
+        friction = CANDIDATES["link_friction"]
+        carried = friction.extend
+
+        def tripled(self, model, coef):
+            carried(self, model, coef)
+            entry = next(e for e in model.effects if e["name"] == "link_friction")
+            entry["coulomb_nm"] = 3.0 * entry["coulomb_nm"]
+
+        data = simulate_case(_case(13, a="link_friction", b="transmission_ripple"))
+        monkeypatch.setattr(friction, "extend", tripled)
+        d = diagnose(data, table1_model())
+        assert d.effect("link_friction") is None and d.effect("transmission_ripple") is not None
+        suspect = next(s for s in d.suspects if s["name"] == "link_friction")
+        assert "predicts the runs worse than without it" in suspect["failed"] and not d.explained
+
     def test_delay_corrects_td(self):
         # An extra 2 ms of input delay in the plant is the model's Td being off: named as model_parameters.
         case = Case(14, hidden={"input_delay": {"extra_s": 0.002}})
