@@ -61,7 +61,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.diagnose.predict import Context, channel_columns, predict_channel
+from iiwa_ident.diagnose.predict import Context, channel_columns, logged_change, predict_channel
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import LOG_FILTER_MIN_HZ, LOG_ONLY, PhysicalRanges, line_ratio
 from iiwa_ident.model import JointModel, RippleTable
@@ -1142,7 +1142,7 @@ class ModelParametersCandidate(CandidateEffect):
                 if len(self._predictions) >= 16:  # a few recent ones are all the reuse there is
                     del self._predictions[next(iter(self._predictions))]
                 change = predict_channel(ctx, ch, params) - ctx.predicted[ch]
-                self._predictions[key] = change if lf is None else lf.apply(change, ctx.dt)
+                self._predictions[key] = logged_change(ctx, ch, change)
             out[ch] = self._predictions[key]
         return out
 

@@ -65,7 +65,7 @@ from iiwa_ident.model import polynomials, sample_means
 from iiwa_ident.sim import INJECTIONS as EFFECT_POINTS
 from iiwa_ident.sim import TorqueLogFilter
 
-__all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns",
+__all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns", "logged_change",
            "command_prediction", "predict_channel"]
 
 #: Cut-off of the zero-phase low-pass of the link channel [Hz].
@@ -412,13 +412,15 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
         # The logged torque is the filtered one: so is every change an effect makes to it; and eq (9) takes the
         # link from the logged reading, which the filter moves by what it takes from the change (as the
         # filter's own column has it).
-        out = {ch: _logged(ctx, ch, v) for ch, v in out.items()}
+        out = {ch: logged_change(ctx, ch, v) for ch, v in out.items()}
     return out
 
 
-def _logged(ctx: Context, channel: str, v: np.ndarray) -> np.ndarray:
-    """A change ``v`` of a residual channel as the log shows it, through the context's filter before the log."""
-    assert ctx.log_filter is not None
+def logged_change(ctx: Context, channel: str, v: np.ndarray) -> np.ndarray:
+    """A change ``v`` [Nm] of a residual channel of the torque as the log shows it: through the context's filter
+    before the log (none: ``v``), and on the link channel from eq (9) the link that the filter moves with it."""
+    if ctx.log_filter is None:
+        return v
     fv = ctx.log_filter.apply(v, ctx.dt)
     if channel == "link" and ctx.link_from_eq9:
         fv = fv + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(fv - v))
