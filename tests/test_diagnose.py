@@ -59,6 +59,31 @@ class TestPrediction:
                 r = ctx.residual[ch][ctx.masks[ch]]
                 assert np.sqrt(np.mean(r ** 2)) < 0.08, (ds.experiment, ch)
 
+    def test_cached_filters_and_columns_are_the_computed_ones(self):
+        # The link low-pass equals scipy's sosfiltfilt, and a column met again (the cache) equals one computed
+        # afresh, also through a filter before the log set after it was cached.
+        from scipy import signal
+
+        from iiwa_ident.diagnose.predict import channel_columns
+        from iiwa_ident.sim import TorqueLogFilter
+
+        ds = simulate_case(Case(6))[0]
+        ctx, fresh = build_context(ds, table1_model()), build_context(ds, table1_model())
+        x = np.random.default_rng(0).standard_normal(len(ctx.t))
+        np.testing.assert_allclose(ctx.lowpass(x), signal.sosfiltfilt(ctx._sos, x), rtol=0, atol=1e-12)
+        phi = np.sin(ctx.q_m / 0.02)
+        for log_filter in (None, TorqueLogFilter({"cutoff_hz": 12.0})):
+            for c in (ctx, fresh):
+                c.log_filter = log_filter
+            first = channel_columns(ctx, "sensor", phi)
+            again, other = channel_columns(ctx, "sensor", phi), channel_columns(ctx, "sensor", 2 * phi)
+            fresh.memo.clear()
+            expected = channel_columns(fresh, "sensor", phi)
+            for ch in expected:
+                np.testing.assert_array_equal(again[ch], expected[ch])
+                np.testing.assert_array_equal(first[ch], expected[ch])
+                np.testing.assert_allclose(other[ch], 2 * expected[ch], rtol=1e-9, atol=1e-12)
+
     def test_position_mode_has_link_channel_only(self):
         ds = record(SimulatedJoint(plant_from_model(table1_model()).without_effects(), seed=1),
                     ConstantVelocity([0.5], range_rad=0.4, mode="position"), record_every=5)

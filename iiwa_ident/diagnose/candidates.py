@@ -54,6 +54,7 @@ model_parameters
 
 from __future__ import annotations
 
+import hashlib
 import math
 from typing import Any, Callable, ClassVar, Sequence
 
@@ -1095,6 +1096,24 @@ _CHANNEL_PARAMETERS = {"link": ("K", "Jl"), "command": _MODEL_KEYS}  # what each
 _MODEL_JSON = {"Jc": "Jc_kgm2", "bc": "bc_nms_rad", "K": "K_nm_rad", "Jl": "Jl_kgm2", "Td": "Td_s"}
 
 
+def _state_digest(blocks: Sequence[Block], residuals: Sequence[np.ndarray], ctxs) -> str:
+    """A digest of what a search on the blocks' residuals depends on: the residuals, the blocks (channel, weight,
+    mask) and each context's model, prediction, table and filter before the log."""
+    h = hashlib.blake2b(digest_size=16)
+    for b, r in zip(blocks, residuals):
+        h.update(repr((b.ctx.index, b.channel, float(b.weight))).encode())
+        h.update(np.ascontiguousarray(b.mask).tobytes())
+        h.update(np.ascontiguousarray(r, float).tobytes())
+    for ctx in ctxs:
+        lf = ctx.log_filter
+        h.update(repr((ctx.index, sorted(ctx.params.items()), ctx.link_from_eq9,
+                       None if lf is None else sorted(lf.to_dict().items()))).encode())
+        for a in (*(ctx.predicted[ch] for ch in sorted(ctx.predicted)), ctx.f0, ctx.reaction):
+            if a is not None:
+                h.update(np.ascontiguousarray(a, float).tobytes())
+    return h.hexdigest()
+
+
 @register_candidate
 class ModelParametersCandidate(CandidateEffect):
     """The model's own eq (1)-(4) parameters are off: Jc, bc, K, Jl and Td refitted together.
@@ -1155,6 +1174,14 @@ class ModelParametersCandidate(CandidateEffect):
         free = list(_MODEL_KEYS) if has_command else ["K", "Jl"]
         self.n_nonlinear = len(free)
         ctxs = {b.ctx.index: b.ctx for b in blocks}
+        # The search is the diagnosis's costliest step, and a diagnosis that names again (through another filter
+        # start, without a suspect) meets the same residual again: once per residual and state of the contexts.
+        key = ("model_parameters", _state_digest(blocks, residuals, ctxs.values()))
+        memo = blocks[0].ctx.memo
+        if key in memo:
+            self.refit, self.n_nonlinear = dict(memo[key]), len(free)
+            self._cache = {}
+            return True
 
         def params_of(x: np.ndarray) -> dict[str, float]:
             p = dict(self._model)
@@ -1194,6 +1221,7 @@ class ModelParametersCandidate(CandidateEffect):
         except (ValueError, np.linalg.LinAlgError):
             x = x0
         self.refit = params_of(x)
+        memo[key] = dict(self.refit)
         self._cache = {}
         return True
 

@@ -162,8 +162,21 @@ class Context:
         return [c for c in CHANNELS if c in self.masks]
 
     def lowpass(self, x: np.ndarray) -> np.ndarray:
-        """The link channel's zero-phase low-pass of ``x``."""
-        return signal.sosfiltfilt(self._sos, x)
+        """The link channel's zero-phase low-pass of ``x``: :func:`scipy.signal.sosfiltfilt` with its default
+        odd extension, the filter's steady state computed once (a diagnosis low-passes tens of thousands of
+        columns)."""
+        if "lowpass_zi" not in self.memo:
+            sos = self._sos
+            edge = 3 * (2 * len(sos) + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum())))
+            self.memo["lowpass_zi"] = (signal.sosfilt_zi(sos), edge)
+        zi, edge = self.memo["lowpass_zi"]
+        x = np.asarray(x, float)
+        if len(x) <= edge:
+            return signal.sosfiltfilt(self._sos, x)  # (which says why it cannot)
+        ext = np.concatenate([2 * x[0] - x[edge:0:-1], x, 2 * x[-1] - x[-2:-edge - 2:-1]])
+        y = signal.sosfilt(self._sos, ext, zi=zi * ext[0])[0]
+        y = signal.sosfilt(self._sos, y[::-1], zi=zi * y[-1])[0]
+        return y[::-1][edge:-edge]
 
     def ddt(self, x: np.ndarray) -> np.ndarray:
         """Time derivative by central differences [unit/s]."""
@@ -278,11 +291,15 @@ def predict_channel(ctx: Context, channel: str, params: dict[str, float] | None 
     """
     p = ctx.params if params is None else params
     if channel == "link":
-        theta = ctx.theta_l
+        # Linear in Jl and in 1/K: the three signals once per context (a parameter search asks for thousands).
+        if "link_terms" not in ctx.memo:
+            ctx.memo["link_terms"] = (ctx.ddt(ctx.ddt(ctx.theta_l)), ctx.ddt(ctx.ddt(ctx.lowpass(ctx.tau))),
+                                      ctx.lowpass(ctx.tau_ext))
+        acc_l, acc_tau, tau_ext = ctx.memo["link_terms"]
         if ctx.link_from_eq9 and params is not None and p["K"] != ctx.params["K"]:
             # eq (9) with another K moves the link by tau_J (1/K_model - 1/K).
-            theta = theta + ctx.lowpass(ctx.tau) * (1.0 / ctx.params["K"] - 1.0 / p["K"])
-        return p["Jl"] * ctx.ddt(ctx.ddt(theta)) - ctx.lowpass(ctx.tau_ext)
+            acc_l = acc_l + acc_tau * (1.0 / ctx.params["K"] - 1.0 / p["K"])
+        return p["Jl"] * acc_l - tau_ext
     if channel == "command":
         tfp = None if params is None else p
         pred = command_prediction(ctx, p["Td"], tfp) - ctx.tf("Gd", ctx.tau_ext, params=tfp)
@@ -371,6 +388,43 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
     """
     if injection not in INJECTIONS:
         raise ValueError(f"unknown injection point {injection!r}")
+    # The same signal meets a context many times (each selection round, each filter the diagnosis tries): its
+    # columns before the filter once, the last few hundred kept.
+    phi = np.asarray(phi, float)
+    key = (injection, *_fingerprint(ctx, phi))
+    cache = ctx.memo.setdefault("channel_columns", {})
+    out = cache.pop(key, None)
+    if out is None:
+        out = _columns_before_the_log(ctx, injection, phi)
+        for v in out.values():
+            v.flags.writeable = False
+        while cache and sum(a.nbytes for c in cache.values() for a in c.values()) > _COLUMN_CACHE_BYTES:
+            del cache[next(iter(cache))]  # the least recently used
+    cache[key] = out
+    if ctx.log_filter is not None and injection not in _AFTER_THE_LOG_FILTER:
+        # The logged torque is the filtered one: so is every change an effect makes to it; and eq (9) takes the
+        # link from the logged reading, which the filter moves by what it takes from the change (as the
+        # filter's own column has it).
+        return {ch: logged_change(ctx, ch, v) for ch, v in out.items()}
+    return dict(out)
+
+
+def _fingerprint(ctx: Context, x: np.ndarray) -> tuple[float, ...]:
+    """A signal's identity for the context's caches: its length and three projections on fixed random weights
+    (two different signals share them only by a coincidence of measure zero; a digest of the bytes costs ten
+    times more)."""
+    w = ctx.memo.get("fingerprint_weights")
+    if w is None or w.shape[1] != len(x):
+        w = ctx.memo["fingerprint_weights"] = np.random.default_rng(len(x)).standard_normal((3, len(x)))
+    return (float(len(x)), *map(float, w @ x))
+
+
+#: Bytes of columns a context keeps (:func:`channel_columns`).
+_COLUMN_CACHE_BYTES = 32 * 2**20
+
+
+def _columns_before_the_log(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`channel_columns` without a filter before the log."""
     p = ctx.params
     out: dict[str, np.ndarray] = {}
     if "link" in ctx.masks:
@@ -408,12 +462,7 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
             out["command"] = phi
     if injection == "link_raw" and "link" in ctx.masks:
         out["link"] = phi
-    if ctx.log_filter is not None and injection not in _AFTER_THE_LOG_FILTER:
-        # The logged torque is the filtered one: so is every change an effect makes to it; and eq (9) takes the
-        # link from the logged reading, which the filter moves by what it takes from the change (as the
-        # filter's own column has it).
-        out = {ch: logged_change(ctx, ch, v) for ch, v in out.items()}
-    return out
+    return {ch: v.copy() if v is phi else v for ch, v in out.items()}  # (the cache freezes what it keeps)
 
 
 def logged_change(ctx: Context, channel: str, v: np.ndarray) -> np.ndarray:
