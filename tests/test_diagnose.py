@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -83,6 +84,36 @@ class TestPrediction:
                 np.testing.assert_array_equal(again[ch], expected[ch])
                 np.testing.assert_array_equal(first[ch], expected[ch])
                 np.testing.assert_allclose(other[ch], 2 * expected[ch], rtol=1e-9, atol=1e-12)
+
+    def test_eq9_through_a_filter_before_the_log_is_the_links_own_response(self):
+        # A filter F before the log: eq (9) places the link by the logged torque, so the link channel's torque v
+        # shows as v + (F - 1)(1 + P) / (1 + P (1 - F)) v, P = (Jl s^2 + 2 zeta sqrt(K Jl) s) / K. Steady
+        # sinusoids below, near and above the link's resonance against that response written here in
+        # continuous time (the sampled derivatives and filter differ by well under 1 % at 1 kHz up to 30 Hz).
+        from iiwa_ident.diagnose.predict import EQ9_LINK_DAMPING, logged_change
+        from iiwa_ident.sim import TorqueLogFilter
+
+        ctx = build_context(simulate_case(Case(6))[0], table1_model())
+        ctx.link_from_eq9 = True
+        Jl, K = ctx.params["Jl"], ctx.params["K"]
+        fc = 6.0
+        log_filter = TorqueLogFilter({"cutoff_hz": fc})
+        n = len(ctx.t)
+        middle = slice(n // 3, 2 * n // 3)
+        for f in (0.5, 5.0, 0.8 * np.sqrt(K / Jl) / (2 * np.pi), 30.0):
+            s = 2j * np.pi * f
+            F = 1.0 / (1.0 + s / (2 * np.pi * fc))
+            P = (Jl * s ** 2 + 2 * EQ9_LINK_DAMPING * np.sqrt(K * Jl) * s) / K
+            H = 1.0 + (F - 1.0) * (1.0 + P) / (1.0 + P * (1.0 - F))
+            v = np.sin(2 * np.pi * f * ctx.t)
+            expected = abs(H) * np.sin(2 * np.pi * f * ctx.t + np.angle(H))
+            got = logged_change(ctx, "link", v, log_filter)
+            np.testing.assert_allclose(got[middle], expected[middle], rtol=0, atol=0.01 * max(abs(H), 1.0))
+        # Far below the resonance it is the first-order account: F v + Jl/K (F v - v)''.
+        v = np.sin(2 * np.pi * 0.5 * ctx.t)
+        fv = log_filter.apply(v, ctx.dt)
+        first = fv + Jl / K * ctx.ddt(ctx.ddt(fv - v))
+        np.testing.assert_allclose(logged_change(ctx, "link", v, log_filter)[middle], first[middle], atol=2e-3)
 
     def test_position_mode_has_link_channel_only(self):
         ds = record(SimulatedJoint(plant_from_model(table1_model()).without_effects(), seed=1),
@@ -245,17 +276,31 @@ class TestRealLogs:
         with pytest.raises(IiwaIdentError, match="a model of joint 1 on data of joint 2"):
             diagnose([real_constant_velocity(2)], table1_model())
 
-    def test_joint2_ripple_named_with_the_papers_period(self):
+    def test_joint2_filter_gravity_and_the_ripple_in_its_deflection(self):
         # 200 Hz, position-controlled, gravity and friction present, the description's starting model.
-        d = diagnose([real_constant_velocity(2)], dataset_model([real_constant_velocity(2)]))
-        ripple = d.effect("transmission_ripple")
-        assert ripple is not None
-        # (the run's travel, 1.6 rad, resolves the period to about 1 %)
-        assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 2e-3
-        assert ripple.rms_after < ripple.rms_before
+        ds = real_constant_velocity(2)
+        d = diagnose([ds], dataset_model([ds]))
         # The log's lag of the arm's 80 Nm gravity torque is the largest discrepancy of the described model on
-        # joint 2; the gravity load is named beside it.
+        # joint 2; the gravity load is named beside it, within 5 % of the description's.
         assert [e.name for e in d.effects][:2] == ["torque_log_filter", "position_dependent_load"]
+        assert d.effect("position_dependent_load").parameters["amplitude_nm"] == pytest.approx(80.55, rel=0.05)
+        # The extended model predicts the run (eq (9)'s link through the filter, above the link's resonance
+        # too) within the Panda's 1.0 Nm held-out figure; a first-order account of eq (9) left 1.8 Nm.
+        # (the log's torque reads the other way round: the diagnosis says so and turns it over; so does this)
+        assert "reads the other way round" in d.summary()
+        turned = dataclasses.replace(ds, signals={**ds.signals, "tau_j": -np.asarray(ds["tau_j"], float)})
+        [(_, _, rms)] = residual_rms([turned], d.extended)
+        assert rms < 0.6, rms
+        # The ripple's deflection is plain in q_m at the paper's period; its 15 Hz torque line is not in a log
+        # filtered at a few Hz: named, or a suspect that says so.
+        own = [s for s in d.selection.steps if s.name == "transmission_ripple" and s.band == "deflection"]
+        assert own and all(s.gain > 0.3 and s.confidence >= 0.999 for s in own)
+        ripple = d.effect("transmission_ripple")
+        if ripple is not None:
+            assert abs(ripple.parameters["period_rad"] / PAPER_RHO - 1) < 2e-3
+        else:
+            suspect = next(s for s in d.suspects if s["name"] == "transmission_ripple")
+            assert suspect["band"] == "deflection" and "logged torque" in suspect["failed"]
 
     def test_joint4_ripple_named_and_plain_in_its_deflection(self):
         # Position-controlled: the ripple's torque signature is hundredths of a Nm, its deflection in q_m is plain:

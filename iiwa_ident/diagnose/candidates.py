@@ -923,10 +923,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
                 # what the effects named so far add: the filter acts on the whole torque.
                 p = ctx.predicted[ch] if ctx.effects_filtered else ctx.with_effects.get(ch, ctx.predicted[ch])
                 p = p + named.get(ch, 0.0)
-                phi = self.effect.apply(p, ctx.dt) - p
-                if ch == "link" and ctx.link_from_eq9:  # eq (9) takes the link from the logged reading too
-                    phi = phi + ctx.params["Jl"] / ctx.params["K"] * ctx.ddt(ctx.ddt(phi))
-                col.append((point, phi))
+                col.append((point, logged_change(ctx, ch, p, self.effect) - p))
         return [col]
 
     def _sum_named(self, blocks: Sequence[Block]) -> dict[int, dict[str, np.ndarray]]:

@@ -1034,12 +1034,18 @@ def _suspects(sel: Selection) -> list[dict[str, Any]]:
         # effect the model already has plainly, while the torque prediction gains nothing from it; unless the
         # torque's fit of what that channel shows is not physically possible (a ripple through a filter before
         # the log that would need a deflection beyond a transmission's).
+        # Nor where the torque does not show it at all (a ripple's line above a filter before the log).
         own_impossible = s.band not in BANDS and s.implausible
-        if s.step != last or s.accepted or s.gain < LARGE_GAIN or (s.band not in BANDS and not own_impossible):
+        own_unconfirmed = s.band not in BANDS and s.unconfirmed and s.delta_bic < 0
+        if s.step != last or s.accepted or s.gain < LARGE_GAIN or (s.band not in BANDS and not own_impossible
+                                                                   and not own_unconfirmed):
             continue
         if own_impossible:
             failed = (f"its own evidence ({s.band}) shows it, but its fit to the torque is not physically possible "
                       f"(a filter before the log named beside it may not act on it)")
+        elif own_unconfirmed:
+            failed = (f"its own evidence ({s.band}) shows it, but no band of the logged torque is predicted better "
+                      f"with it (a filter before the log named beside it may hide it there)")
         elif s.implausible:
             failed = "its fitted parameters are not physically possible"
         elif s.irrelevant:

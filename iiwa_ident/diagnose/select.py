@@ -188,6 +188,9 @@ class Step:
     negligible: bool = False
     #: How the effect's fit departs from its candidate's shape, when it was named in another shape.
     other_shape: str = ""
+    #: On an effect's own evidence channel: no band of the residual channels lowered the held-out SSE with it
+    #: (they do not confirm it, and it is not named on its own evidence).
+    unconfirmed: bool = False
 
 
 @dataclass
@@ -443,6 +446,7 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
             for band, record in records:
                 sel.steps.append(record)
                 if band == _OWN and not agrees:
+                    record.unconfirmed = True
                     continue
                 if not _passes_but_confidence(record, max(min_gain, cand.min_gain)):
                     continue
