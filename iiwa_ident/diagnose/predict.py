@@ -473,7 +473,7 @@ def logged_change(ctx: Context, channel: str, v: np.ndarray, log_filter: TorqueL
     log_filter = ctx.log_filter if log_filter is None else log_filter
     if log_filter is None:
         return v
-    if channel == "link" and ctx.link_from_eq9:
+    if channel == "link" and ctx.link_from_eq9 and len(v):
         return v + _eq9_change(ctx, log_filter, np.asarray(v, float))
     return log_filter.apply(v, ctx.dt)
 
@@ -499,6 +499,11 @@ def _eq9_change(ctx: Context, log_filter: TorqueLogFilter, v: np.ndarray) -> np.
     n = len(v)
     size = 1 << (2 * n + 64).bit_length()
     key = (size, tuple(sorted(log_filter.to_dict().items())))
+    # The selection asks for the same column through the same filter in every round: the last ones kept.
+    done = ctx.memo.setdefault("eq9_changes", {})
+    seen = (key, *_fingerprint(ctx, v))
+    if seen in done:
+        return done[seen]
     responses = ctx.memo.setdefault("eq9_responses", {})
     H = responses.pop(key, None)
     if H is None:
@@ -511,11 +516,19 @@ def _eq9_change(ctx: Context, log_filter: TorqueLogFilter, v: np.ndarray) -> np.
         if len(responses) >= 8:  # a search tries many filters, each a few times in a row
             del responses[next(iter(responses))]
     responses[key] = H
-    x = v - v[0]
-    # Held, then tapered to rest, so that the circular transform's wrap does not step.
-    tail = size - n
-    pad = x[-1] * 0.5 * (1.0 + np.cos(np.pi * np.arange(1, tail + 1) / tail))
-    return np.fft.irfft(np.fft.rfft(np.concatenate([x, pad])) * H, size)[:n]
+    if (size, n) not in ctx.memo:
+        # Held, then tapered to rest, so that the circular transform's wrap does not step.
+        tail = size - n
+        ctx.memo[(size, n)] = 0.5 * (1.0 + np.cos(np.pi * np.arange(1, tail + 1) / tail))
+    x = np.empty(size)
+    x[:n] = v - v[0]
+    x[n:] = x[n - 1] * ctx.memo[(size, n)]
+    out = np.fft.irfft(np.fft.rfft(x) * H, size)[:n]
+    out.flags.writeable = False
+    if len(done) * n * 8 >= _COLUMN_CACHE_BYTES // 2:
+        del done[next(iter(done))]
+    done[seen] = out
+    return out
 
 
 #: Injection points a filter before the log does not act on: the log itself, and the raw columns (already what
