@@ -15,6 +15,7 @@ Run: ``.venv/bin/python bench/bench_real_diagnose.py [--root ../shared/data/real
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import time
 from pathlib import Path
@@ -130,6 +131,18 @@ def main(argv: list[str] | None = None) -> int:
                 left.append(b)
                 print(f"    {ds.path} left out: the other runs name {', '.join(sorted(e.name for e in d.effects))}; "
                       f"it is predicted {a:.3f} -> {b:.3f} Nm ({100 * b / a:.1f} % of the starting RMS)")
+                if all(abs(o.sample_rate_hz - ds.sample_rate_hz) > 1e-6 * ds.sample_rate_hz for o in rest):
+                    # Logged another way: a filter before the log belongs to the recording path, which the other
+                    # runs did not see. The joint's effects from them, the path's filter from the run alone.
+                    joint_only = copy.deepcopy(d.extended)
+                    joint_only.effects = [e for e in joint_only.effects if e.get("name") != "torque_log_filter"]
+                    own = diagnose([ds], joint_only, candidates=["torque_log_filter"])
+                    c = _rms(residual_rms([ds], own.extended))
+                    f = own.effect("torque_log_filter")
+                    print(f"      logged at {ds.sample_rate_hz:.0f} Hz, the others at "
+                          f"{', '.join(sorted({f'{o.sample_rate_hz:.0f}' for o in rest}))} Hz: with its own path's "
+                          f"filter ({'none named' if f is None else ', '.join(f'{k} {v:.3g}' for k, v in f.parameters.items())}"
+                          f", identified on it alone) {c:.3f} Nm ({100 * c / a:.1f} %)")
             print(f"  joint {j}, leave one run out: {min(ratios) * 100:.0f}-{max(ratios) * 100:.0f} % of the "
                   f"starting RMS, {min(left):.3f}-{max(left):.3f} Nm ({_target(j)})")
     return 0

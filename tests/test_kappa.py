@@ -279,3 +279,31 @@ def test_any_valid_sweep_finishes_with_a_consistent_verdict():
             assert task.live_limit is None or task.live_limit < task.unstable_at
 
     check()
+
+
+def test_a_session_never_gets_one_port_twice(monkeypatch):
+    # The system may hand a port just closed out again; a session's FRI and F/T sockets open later, so two
+    # calls must give two ports (a repeated one once ended a sweep "cannot listen on UDP port: in use").
+    import iiwa_ident.pipeline.session as session
+
+    given = iter([61001, 61001, 61002])
+
+    class Socket:
+        def __init__(self, *args):
+            self.port = next(given)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def bind(self, address):
+            pass
+
+        def getsockname(self):
+            return ("127.0.0.1", self.port)
+
+    monkeypatch.setattr(session.socket, "socket", Socket)
+    monkeypatch.setattr(session, "_HANDED", set(), raising=False)
+    assert [session.free_udp_port(), session.free_udp_port()] == [61001, 61002]

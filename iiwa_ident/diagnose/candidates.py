@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, Callable, ClassVar, Iterable, Sequence
 
 import numpy as np
 from scipy import optimize, signal
@@ -1093,7 +1093,7 @@ _CHANNEL_PARAMETERS = {"link": ("K", "Jl"), "command": _MODEL_KEYS}  # what each
 _MODEL_JSON = {"Jc": "Jc_kgm2", "bc": "bc_nms_rad", "K": "K_nm_rad", "Jl": "Jl_kgm2", "Td": "Td_s"}
 
 
-def _state_digest(blocks: Sequence[Block], residuals: Sequence[np.ndarray], ctxs) -> str:
+def _state_digest(blocks: Sequence[Block], residuals: Sequence[np.ndarray], ctxs: Iterable[Context]) -> str:
     """A digest of what a search on the blocks' residuals depends on: the residuals, the blocks (channel, weight,
     mask) and each context's model, prediction, table and filter before the log."""
     h = hashlib.blake2b(digest_size=16)

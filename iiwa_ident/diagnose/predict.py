@@ -389,7 +389,7 @@ def channel_columns(ctx: Context, injection: str, phi: np.ndarray) -> dict[str, 
     if injection not in INJECTIONS:
         raise ValueError(f"unknown injection point {injection!r}")
     # The same signal meets a context many times (each selection round, each filter the diagnosis tries): its
-    # columns before the filter once, the last few hundred kept.
+    # columns before the filter once, the most recently used kept within _COLUMN_CACHE_BYTES.
     phi = np.asarray(phi, float)
     key = (injection, *_fingerprint(ctx, phi))
     cache = ctx.memo.setdefault("channel_columns", {})
@@ -516,13 +516,14 @@ def _eq9_change(ctx: Context, log_filter: TorqueLogFilter, v: np.ndarray) -> np.
         if len(responses) >= 8:  # a search tries many filters, each a few times in a row
             del responses[next(iter(responses))]
     responses[key] = H
-    if (size, n) not in ctx.memo:
+    taper = ("eq9_taper", size, n)
+    if taper not in ctx.memo:
         # Held, then tapered to rest, so that the circular transform's wrap does not step.
         tail = size - n
-        ctx.memo[(size, n)] = 0.5 * (1.0 + np.cos(np.pi * np.arange(1, tail + 1) / tail))
+        ctx.memo[taper] = 0.5 * (1.0 + np.cos(np.pi * np.arange(1, tail + 1) / tail))
     x = np.empty(size)
     x[:n] = v - v[0]
-    x[n:] = x[n - 1] * ctx.memo[(size, n)]
+    x[n:] = x[n - 1] * ctx.memo[taper]
     out = np.fft.irfft(np.fft.rfft(x) * H, size)[:n]
     out.flags.writeable = False
     if len(done) * n * 8 >= _COLUMN_CACHE_BYTES // 2:

@@ -11,10 +11,21 @@ __all__ = ["LOCKSTEP_GUARD_S", "free_udp_port", "fri_robot", "LateFriRobot"]
 
 
 def free_udp_port() -> int:
-    """A UDP port on the loopback interface that is free right now."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    """A UDP port on the loopback interface that is free right now and not handed out before by this process (the
+    system may give a port just closed again: two calls for one session's FRI and F/T sockets, opened later,
+    must not get the same one)."""
+    for _ in range(64):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        if port not in _HANDED:
+            _HANDED.add(port)
+            return port
+    return port
+
+
+#: The ports :func:`free_udp_port` gave.
+_HANDED: set[int] = set()
 
 
 #: Lockstep: the emulator takes a client that has not answered for this long [s] for gone. Each run has
