@@ -1041,11 +1041,11 @@ def _suspects(sel: Selection) -> list[dict[str, Any]]:
                                                                    and not own_unconfirmed):
             continue
         if own_impossible:
-            failed = (f"its own evidence ({s.band}) shows it, but its fit to the torque is not physically possible "
-                      f"(a filter before the log named beside it may not act on it)")
+            failed = (f"its fit to the torque is not physically possible, though its own evidence ({s.band}) shows "
+                      f"it (a filter before the log named beside it may not act on it)")
         elif own_unconfirmed:
-            failed = (f"its own evidence ({s.band}) shows it, but no band of the logged torque is predicted better "
-                      f"with it (a filter before the log named beside it may hide it there)")
+            failed = (f"no band of the logged torque is predicted better with it, though its own evidence "
+                      f"({s.band}) shows it (a filter before the log named beside it may hide it there)")
         elif s.implausible:
             failed = "its fitted parameters are not physically possible"
         elif s.irrelevant:
