@@ -71,7 +71,9 @@ class TestPrediction:
         ds = simulate_case(Case(6))[0]
         ctx, fresh = build_context(ds, table1_model()), build_context(ds, table1_model())
         x = np.random.default_rng(0).standard_normal(len(ctx.t))
-        np.testing.assert_allclose(ctx.lowpass(x), signal.sosfiltfilt(ctx._sos, x), rtol=0, atol=1e-12)
+        # (the channel's second-order Butterworth at its cut-off, as the module docstring states it)
+        sos = signal.butter(2, ctx.cutoff_hz, fs=1.0 / ctx.dt, output="sos")
+        np.testing.assert_allclose(ctx.lowpass(x), signal.sosfiltfilt(sos, x), rtol=0, atol=1e-12)
         phi = np.sin(ctx.q_m / 0.02)
         for log_filter in (None, TorqueLogFilter({"cutoff_hz": 12.0})):
             for c in (ctx, fresh):
@@ -114,6 +116,15 @@ class TestPrediction:
         fv = log_filter.apply(v, ctx.dt)
         first = fv + Jl / K * ctx.ddt(ctx.ddt(fv - v))
         np.testing.assert_allclose(logged_change(ctx, "link", v, log_filter)[middle], first[middle], atol=2e-3)
+
+    def test_a_record_too_short_is_refused_in_one_line(self):
+        # (a simulated hand-guided run of joint 7 once ended after 3 samples and the diagnosis raised a filter's
+        # ValueError)
+        ds = simulate_case(Case(5))[0]
+        n = int(0.5 * ds.sample_rate_hz)
+        short = dataclasses.replace(ds, signals={k: np.asarray(v)[:n] for k, v in ds.signals.items()})
+        with pytest.raises(IiwaIdentError, match=r"too short to diagnose \(at least 1 s"):
+            diagnose([ds, short], table1_model())
 
     def test_position_mode_has_link_channel_only(self):
         ds = record(SimulatedJoint(plant_from_model(table1_model()).without_effects(), seed=1),

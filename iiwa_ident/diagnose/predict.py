@@ -60,12 +60,13 @@ from scipy import signal
 from scipy.linalg import expm
 
 from iiwa_ident.datasets import Dataset
+from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointModel
 from iiwa_ident.model import polynomials, sample_means
 from iiwa_ident.sim import INJECTIONS as EFFECT_POINTS
 from iiwa_ident.sim import TorqueLogFilter
 
-__all__ = ["LINK_CUTOFF_HZ", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns", "logged_change",
+__all__ = ["LINK_CUTOFF_HZ", "MIN_DURATION_S", "CHANNELS", "INJECTIONS", "Context", "build_context", "channel_columns", "logged_change",
            "command_prediction", "predict_channel"]
 
 #: Cut-off of the zero-phase low-pass of the link channel [Hz].
@@ -74,6 +75,9 @@ LINK_CUTOFF_HZ = 20.0
 CHANNELS = ("link", "command")
 #: Injection points an effect may use.
 INJECTIONS = (*EFFECT_POINTS, "command_raw", "link_raw")  # the effects' points and the model's own changes
+
+#: Shortest dataset diagnosed [s]: what the channels' edges leave must still hold a few held-out folds.
+MIN_DURATION_S = 1.0
 
 _EDGE_S = 0.15  # filter and derivative edge effects of the link channel [s]
 _SETTLE_S = 0.3  # start-up transient of the command channel (robot released from standstill) [s]
@@ -331,6 +335,11 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
     Context
     """
     t = np.asarray(dataset["t"], float)
+    name = str(dataset.path.name) if dataset.path else f"dataset {index}"
+    if len(t) < 2 or t[-1] - t[0] < MIN_DURATION_S:
+        raise IiwaIdentError(f"{name}: {len(t)} samples over {t[-1] - t[0] if len(t) else 0.0:.3g} s: too short to "
+                             f"diagnose (at least {MIN_DURATION_S:g} s: the link channel drops {_EDGE_S:g} s at each "
+                             f"end and the command channel its first {_SETTLE_S:g} s)")
     dt = float(np.median(np.diff(t)))
     p = {k: model.value(k) for k in ("Jc", "bc", "K", "Jl", "Td")}
     fc = min(cutoff_hz, 0.2 / dt)
@@ -344,7 +353,7 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
     from_eq9 = not dataset.has("q_l_ref")
     theta_raw = q_m - f0 - tau / p["K"] if from_eq9 else np.asarray(dataset["q_l_ref"], float)
     tau_c = np.asarray(dataset["tau_c"], float) if dataset.has("tau_c") else None
-    ctx = Context(index=index, name=str(dataset.path.name) if dataset.path else f"dataset {index}",
+    ctx = Context(index=index, name=name,
                   experiment=dataset.experiment, dt=dt, t=t, q_m=q_m, tau=tau, theta_l=np.zeros_like(t),
                   omega_l=np.zeros_like(t), omega_fast=np.zeros_like(t), tau_ext=tau_ext, link_from_eq9=from_eq9, tau_c=tau_c, params=p,
                   cutoff_hz=fc, f0=f0 if model.ripple is not None else None,
