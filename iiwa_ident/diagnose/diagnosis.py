@@ -247,12 +247,19 @@ class Diagnosis:
                 if "log_only" in e.detail:
                     others = ", ".join(f"{k[4:-8].replace('_', ' ')} x{v:.3g}" for k, v in e.detail.items()
                                        if k.startswith("sse_") and k.endswith("_vs_best") and v > 1.0)
-                    lines.append(f"  {'':<24} shape: {e.detail['shape']} (residual SSE of the others: {others}); "
+                    on = f" on {e.detail['own_run']}, whose filter predicts the other runs best" \
+                        if "own_run" in e.detail else ""
+                    lines.append(f"  {'':<24} shape: {e.detail['shape']} (residual SSE of the others{on}: {others}); "
                                  f"{e.detail['log_only']}")
                 if e.detail.get("against_description"):
                     lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
                 if e.detail.get("payload"):
                     lines.append(f"  {'':<24} {e.detail['payload']}")
+                if e.detail.get("across_runs_pct"):
+                    worse = [r for r, g in e.detail["across_runs_pct"].items() if g < 0]
+                    gains = ", ".join(f"{r} {g:.0f} %" for r, g in e.detail["across_runs_pct"].items())
+                    lines.append(f"  {'':<24} each run predicted from the others, RMS lower with it: {gains}"
+                                 + (f" (worse on {', '.join(worse)}: not a cause every run shows)" if worse else ""))
         for x in self.ambiguous:
             lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
@@ -530,6 +537,11 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
             for ch, v in back[ctx.index].items():
                 ctx.residual[ch] = ctx.residual[ch] + v
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys0], ys0)
+    by_run = _across_runs(sel, blocks, ys)
+    for e in effects:
+        gains = by_run.get(e.name)
+        if gains is not None:
+            e.detail["across_runs_pct"] = gains
     suspects = _suspects(sel)
     if replaced:
         extended.description += " | replaced: " + ", ".join(f"{r['old']} -> {' + '.join(r['new'])}"
@@ -695,7 +707,7 @@ def _alike(sel: Selection, effects: list[EffectReport], names: list[str], known:
 
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
               ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None,
-              first: Sequence[tuple[CandidateEffect, Step]] = ()
+              first: Sequence[tuple[CandidateEffect, Step]] = (), refine: bool = True
               ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]]:
     """The selection among the candidates ``names``, its effect reports, the extended model and the held-out
     residuals with the named effects; ``ranges``: what the robot's description makes physically possible;
@@ -709,7 +721,7 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
             c.base_coef = known[c.name][1]
     sel = select_effects(blocks, ys, cands, **selection_options, first=first)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
-    if first and first[0][0].name == "torque_log_filter" and contexts[0].log_filter is not None:
+    if refine and first and first[0][0].name == "torque_log_filter" and contexts[0].log_filter is not None:
         _refine_log_filter(sel, blocks, ys)
     # A named effect whose shape holds a simpler one's must still be more than that in the final fit: a spring
     # that later effects turned into an offset (a slope of nothing or of the wrong sign) is not named, and the
@@ -719,7 +731,7 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
              c.name not in sel.other_shape and not (c.plausible(c.total(sel.coef[sl])) and c.relevant(sel.coef[sl]))]
     if stale:
         return _selected([n for n in names if n not in stale], work, model, known, blocks, ys, selection_options,
-                         ranges, first)
+                         ranges, first, refine)
     again = _named_through_filter(sel, names, work, model, known, blocks, ys, selection_options, ranges)
     if again is not None:
         return again
@@ -787,15 +799,21 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     # different fits there: both tried, the one whose naming predicts the held-out data better kept (the shape is
     # searched again once the others are named).
     starts = [first_shape] if first_shape[0] != "pure delay" else [("first order", first_shape[1]), first_shape]
+    if len(contexts) > 1:
+        starts += _own_filters(names, work, model, known, blocks, ys, selection_options, ranges)
     best: tuple[float, Any, list[Any]] | None = None
     for shape in starts:
         trial_filter = copy.copy(named_filter)  # the first pass's filter stays as it is
         trial_filter.detail = dict(named_filter.detail)
-        trial_filter.set_shape(*shape)
+        trial_filter.set_shape(*shape[:3])
+        if len(shape) > 3:
+            # A run's own filter, held: its shapes compared on that run, not the first pass's comparison.
+            trial_filter.detail = {**{k: v for k, v in trial_filter.detail.items() if not k.endswith("_vs_best")},
+                                   **shape[3]}
         for ctx in contexts:
             ctx.log_filter = trial_filter.effect
         again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
-                          ys, selection_options, ranges, first=[(trial_filter, record)])
+                          ys, selection_options, ranges, first=[(trial_filter, record)], refine=len(shape) < 4)
         # Kept where the filter, whole, still explains the data beside the others: they fit better through it
         # than without it.
         sse_filtered = block_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter))[0]
@@ -806,7 +824,9 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
         possible = all(c.plausible(c.total(trial.coef[sl]))
                        for c, sl in zip(trial.selected[1:], trial.slices[1:]) if c.name not in trial.other_shape)
         if possible and sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
-            heldout = _sse(again[3], range(len(again[3])))
+            heldout = _sse(again[3], range(len(again[3]))) if len(contexts) == 1 else \
+                sum(_run_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter),
+                             blocks).values())
             if best is None or heldout < best[0]:
                 best = (heldout, again, kept)
     if best is None:
@@ -814,6 +834,65 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     for ctx, f in zip(contexts, best[2]):
         ctx.log_filter = f
     return best[1]
+
+
+def _across_runs(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> dict[str, dict[str, float]]:
+    """Per named effect, how much lower each run's RMS is when the run is predicted by the effects fitted on
+    the other runs with it than without it [%] (negative: worse with it); empty for one run.
+
+    A cause of the joint lowers every run's prediction; an effect fitted to what one run alone shows does not.
+    A filter before the log held whole (the contexts carry it) is judged by the others' columns through it and
+    without it."""
+    contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
+    if len(contexts) < 2:
+        return {}
+    held = int(bool(sel.selected) and sel.selected[0].name == "torque_log_filter"
+               and contexts[0].log_filter is not None)
+    through = _without_filter(ys, blocks, sel.selected[0]) if held else ys
+    full = _run_sse(sel.columns(blocks, held=held), through, blocks)
+    out = {}
+    for k, cand in enumerate(sel.selected):
+        if k < held:
+            carried = [ctx.log_filter for ctx in contexts]
+            _carry(contexts, [None] * len(contexts))
+            without = _run_sse(sel.columns(blocks, held=held), ys, blocks)
+            _carry(contexts, carried)
+        else:
+            without = _run_sse(sel.columns(blocks, skip=cand.name, held=held), through, blocks)
+        out[cand.name] = {ctx.name: 100.0 * (1.0 - math.sqrt(full[ctx.index] / without[ctx.index]))
+                          if without[ctx.index] > 0 else 0.0 for ctx in contexts}
+    return out
+
+
+def _run_sse(Xs: list[np.ndarray], ys: list[np.ndarray], blocks: list[Block]) -> dict[int, float]:
+    """Per run (context index), the SSE of its blocks predicted by the columns ``Xs`` fitted on the other runs."""
+    out = {}
+    for index in {b.ctx.index for b in blocks}:
+        test = [i for i, b in enumerate(blocks) if b.ctx.index == index]
+        train = [i for i, b in enumerate(blocks) if b.ctx.index != index]
+        coef = np.linalg.lstsq(np.vstack([Xs[i] for i in train]), np.concatenate([ys[i] for i in train]),
+                               rcond=None)[0]
+        out[index] = sum(float(np.sum((ys[i] - Xs[i] @ coef) ** 2)) for i in test)
+    return out
+
+
+def _own_filters(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
+                 ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None
+                 ) -> list[tuple[str, float, float, dict[str, Any]]]:
+    """Each run's own filter before the log (shape, cut-off [Hz], damping, and its shapes compared on that run,
+    as :attr:`EffectReport.detail` keys): the one its naming alone holds."""
+    out = []
+    for index in sorted({b.ctx.index for b in blocks}):
+        idx = [i for i, b in enumerate(blocks) if b.ctx.index == index]
+        own = [blocks[i] for i in idx]
+        sel = _selected(names, work, model, known, own, [ys[i] for i in idx], selection_options, ranges)[0]
+        own[0].ctx.log_filter = None
+        f = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
+        if f is not None:
+            compared = {k: v for k, v in f.detail.items() if k.endswith("_vs_best")}
+            out.append((f.shape, f.cutoff_hz, float(f.effect.values["damping"]),
+                        {**compared, "shape": f.shape, "own_run": own[0].ctx.name}))
+    return out
 
 
 def _without_filter(ys: list[np.ndarray], blocks: list[Block], log_filter: CandidateEffect) -> list[np.ndarray]:

@@ -76,8 +76,9 @@ CHANNELS = ("link", "command")
 #: Injection points an effect may use.
 INJECTIONS = (*EFFECT_POINTS, "command_raw", "link_raw")  # the effects' points and the model's own changes
 
-#: Shortest dataset diagnosed [s]: what the channels' edges leave must still hold a few held-out folds.
-MIN_DURATION_S = 1.0
+#: Shortest dataset diagnosed [s]: what the channels' edges leave must still hold a few held-out folds (a run a
+#: safety stop ended within its first second still counts).
+MIN_DURATION_S = 0.5
 
 _EDGE_S = 0.15  # filter and derivative edge effects of the link channel [s]
 _SETTLE_S = 0.3  # start-up transient of the command channel (robot released from standstill) [s]
