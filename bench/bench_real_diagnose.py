@@ -118,6 +118,19 @@ def main(argv: list[str] | None = None) -> int:
         same = len(set(named_sets)) == 1
         print(f"  joint {j}: the runs name {'the same effects' if same else 'different effects'}: "
               + " | ".join(", ".join(s) or "nothing" for s in named_sets))
+        # The runs logged one way (a filter before the log belongs to the recording path) diagnosed together:
+        # each named effect judged on every run predicted from the others.
+        rate = max({ds.sample_rate_hz for ds in dss}, key=lambda r: sum(ds.sample_rate_hz == r for ds in dss))
+        together = [ds for ds in dss if ds.sample_rate_hz == rate]
+        if len(together) > 1:
+            d = diagnose(together, dataset_model(together))
+            worse = {e.name: [r for r, g in e.detail["across_runs_pct"].items() if g < 0] for e in d.effects}
+            per = "; ".join(f"{e.name} ({', '.join(f'{r} {g:.0f} %' for r, g in e.detail['across_runs_pct'].items())})"
+                            for e in d.effects)
+            print(f"  joint {j}, its {len(together)} runs at {rate:.0f} Hz together name: {per or 'nothing'} "
+                  f"(each run's RMS lower with the effect, predicted from the others); "
+                  + ("every effect lowers every run's" if not any(worse.values()) else
+                     "worse with it: " + "; ".join(f"{n} on {', '.join(w)}" for n, w in worse.items() if w)))
         if len(dss) >= 3:
             # Leave one run out: the joint's other runs diagnosed together (their speeds differ), the run left
             # out predicted.

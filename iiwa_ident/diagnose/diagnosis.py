@@ -799,10 +799,14 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     # different fits there: both tried, the one whose naming predicts the held-out data better kept (the shape is
     # searched again once the others are named).
     starts = [first_shape] if first_shape[0] != "pure delay" else [("first order", first_shape[1]), first_shape]
+    names = [n for n in names if n != "model_parameters" or n in chosen]
     if len(contexts) > 1:
         starts += _own_filters(names, work, model, known, blocks, ys, selection_options, ranges)
     best: tuple[float, Any, list[Any]] | None = None
+    tried: list[tuple[str, float, float]] = []
     for shape in starts:
+        if len(shape) > 3 and any(_alike_filter(shape, t) for t in tried):
+            continue  # a run's own filter another start reached already
         trial_filter = copy.copy(named_filter)  # the first pass's filter stays as it is
         trial_filter.detail = dict(named_filter.detail)
         trial_filter.set_shape(*shape[:3])
@@ -812,8 +816,8 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
                                    **shape[3]}
         for ctx in contexts:
             ctx.log_filter = trial_filter.effect
-        again = _selected([n for n in names if n != "model_parameters" or n in chosen], work, model, known, blocks,
-                          ys, selection_options, ranges, first=[(trial_filter, record)], refine=len(shape) < 4)
+        again = _selected(names, work, model, known, blocks, ys, selection_options, ranges,
+                          first=[(trial_filter, record)], refine=len(shape) < 4)
         # Kept where the filter, whole, still explains the data beside the others: they fit better through it
         # than without it.
         sse_filtered = block_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter))[0]
@@ -821,6 +825,8 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
         for ctx in contexts:
             ctx.log_filter = None
         trial = again[0]
+        tried.append((trial.selected[0].shape, trial.selected[0].cutoff_hz,
+                      float(trial.selected[0].effect.values["damping"])))
         possible = all(c.plausible(c.total(trial.coef[sl]))
                        for c, sl in zip(trial.selected[1:], trial.slices[1:]) if c.name not in trial.other_shape)
         if possible and sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
@@ -876,22 +882,36 @@ def _run_sse(Xs: list[np.ndarray], ys: list[np.ndarray], blocks: list[Block]) ->
     return out
 
 
+def _alike_filter(a: Sequence[Any], b: Sequence[Any]) -> bool:
+    """Two filters (shape, cut-off [Hz], damping) the same within 5 % of the cut-off and 0.05 of the damping."""
+    return a[0] == b[0] and abs(math.log(a[1] / b[1])) < 0.05 and abs(a[2] - b[2]) < 0.05
+
+
 def _own_filters(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
                  ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None
                  ) -> list[tuple[str, float, float, dict[str, Any]]]:
     """Each run's own filter before the log (shape, cut-off [Hz], damping, and its shapes compared on that run,
     as :attr:`EffectReport.detail` keys): the one its naming alone holds."""
     out = []
+    # Without a refit of the model's own parameters: beside a filter its delay trades with the cut-off, and on
+    # one run more so.
+    names = [n for n in names if n != "model_parameters"]
     for index in sorted({b.ctx.index for b in blocks}):
         idx = [i for i, b in enumerate(blocks) if b.ctx.index == index]
         own = [blocks[i] for i in idx]
-        sel = _selected(names, work, model, known, own, [ys[i] for i in idx], selection_options, ranges)[0]
-        own[0].ctx.log_filter = None
-        f = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
-        if f is not None:
-            compared = {k: v for k, v in f.detail.items() if k.endswith("_vs_best")}
-            out.append((f.shape, f.cutoff_hz, float(f.effect.values["damping"]),
-                        {**compared, "shape": f.shape, "own_run": own[0].ctx.name}))
+        # Once per run and candidates in a diagnosis: a start, not a result (the model without one of its
+        # effects, named again, starts from the filter the run named with it).
+        key = ("own_filter", tuple(names))
+        if key not in own[0].ctx.memo:
+            sel = _selected(names, work, model, known, own, [ys[i] for i in idx], selection_options, ranges)[0]
+            own[0].ctx.log_filter = None
+            f = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
+            compared = {} if f is None else {k: v for k, v in f.detail.items() if k.endswith("_vs_best")}
+            own[0].ctx.memo[key] = None if f is None else (
+                f.shape, f.cutoff_hz, float(f.effect.values["damping"]),
+                {**compared, "shape": f.shape, "own_run": own[0].ctx.name})
+        if own[0].ctx.memo[key] is not None:
+            out.append(own[0].ctx.memo[key])
     return out
 
 
