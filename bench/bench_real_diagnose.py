@@ -24,7 +24,7 @@ import numpy as np
 
 from bench_ripple_real import joint_runs, load_run
 from iiwa_ident.datasets import Dataset, torque_sign_problem
-from iiwa_ident.diagnose import diagnose, residual_rms
+from iiwa_ident.diagnose import ACROSS_RUNS_WORSE_PCT, diagnose, residual_rms
 from iiwa_ident.ident import dataset_model
 
 _ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
@@ -120,11 +120,13 @@ def main(argv: list[str] | None = None) -> int:
               + " | ".join(", ".join(s) or "nothing" for s in named_sets))
         # The runs logged one way (a filter before the log belongs to the recording path) diagnosed together:
         # each named effect judged on every run predicted from the others.
-        rate = max({ds.sample_rate_hz for ds in dss}, key=lambda r: sum(ds.sample_rate_hz == r for ds in dss))
-        together = [ds for ds in dss if ds.sample_rate_hz == rate]
+        rates = [round(ds.sample_rate_hz) for ds in dss]
+        rate = max(set(rates), key=rates.count)
+        together = [ds for ds, r in zip(dss, rates) if r == rate]
         if len(together) > 1:
             d = diagnose(together, dataset_model(together))
-            worse = {e.name: [r for r, g in e.detail["across_runs_pct"].items() if g < 0] for e in d.effects}
+            worse = {e.name: [r for r, g in e.detail["across_runs_pct"].items() if g < -ACROSS_RUNS_WORSE_PCT]
+                     for e in d.effects}
             per = "; ".join(f"{e.name} ({', '.join(f'{r} {g:.0f} %' for r, g in e.detail['across_runs_pct'].items())})"
                             for e in d.effects)
             print(f"  joint {j}, its {len(together)} runs at {rate:.0f} Hz together name: {per or 'nothing'} "
@@ -144,6 +146,15 @@ def main(argv: list[str] | None = None) -> int:
                 left.append(b)
                 print(f"    {ds.path} left out: the other runs name {', '.join(sorted(e.name for e in d.effects))}; "
                       f"it is predicted {a:.3f} -> {b:.3f} Nm ({100 * b / a:.1f} % of the starting RMS)")
+                alike = [o for o in rest if round(o.sample_rate_hz) == round(ds.sample_rate_hz)]
+                if len(alike) not in (0, len(rest)):
+                    # A filter before the log belongs to the recording path: from the runs logged as it was only.
+                    start_alike = dataset_model(alike)
+                    d_alike = diagnose(alike, start_alike)
+                    a2, b2 = _rms(residual_rms([ds], start_alike)), _rms(residual_rms([ds], d_alike.extended))
+                    print(f"      from the runs logged as it was only ({', '.join(str(o.path) for o in alike)}): they "
+                          f"name {', '.join(sorted(e.name for e in d_alike.effects))}; it is predicted {a2:.3f} -> "
+                          f"{b2:.3f} Nm ({100 * b2 / a2:.1f} % of the starting RMS)")
                 if all(abs(o.sample_rate_hz - ds.sample_rate_hz) > 1e-6 * ds.sample_rate_hz for o in rest):
                     # Logged another way: a filter before the log belongs to the recording path, which the other
                     # runs did not see. The joint's effects from them, the path's filter from the run alone.

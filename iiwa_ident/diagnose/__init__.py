@@ -2,8 +2,9 @@
 
 Public API
 ----------
-diagnose, Diagnosis, EffectReport, ChannelReport
-    Run the diagnosis on datasets with a model; the result, per effect and per channel.
+diagnose, Diagnosis, EffectReport, ChannelReport, ACROSS_RUNS_WORSE_PCT
+    Run the diagnosis on datasets with a model; the result, per effect and per channel; how much worse a run
+    predicted from the others must be with an effect to be said worse.
 residual_rms
     How well a model predicts datasets, per residual channel (nothing fitted).
 compare, ChannelComparison, fit_percent
@@ -17,10 +18,10 @@ build_context, Context
 from iiwa_ident.diagnose.candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
 from iiwa_ident.diagnose.channels import verdict_text
 from iiwa_ident.diagnose.compare import ChannelComparison, compare, fit_percent
-from iiwa_ident.diagnose.diagnosis import (ChannelReport, Diagnosis, EffectReport, diagnose, residual_rms,
-                                          undecided_sentence)
+from iiwa_ident.diagnose.diagnosis import (ACROSS_RUNS_WORSE_PCT, ChannelReport, Diagnosis, EffectReport, diagnose,
+                                          residual_rms, undecided_sentence)
 from iiwa_ident.diagnose.predict import Context, build_context
 
 __all__ = ["diagnose", "residual_rms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
            "EvidenceChannel", "register_candidate", "build_context", "Context", "compare", "ChannelComparison",
-           "fit_percent", "verdict_text", "undecided_sentence"]
+           "fit_percent", "verdict_text", "undecided_sentence", "ACROSS_RUNS_WORSE_PCT"]

@@ -42,7 +42,7 @@ from iiwa_ident.ident import (PhysicalRanges, against_description, check_model_m
 from iiwa_ident.model import JointModel
 from iiwa_ident.sim import make_effect
 
-__all__ = ["LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "undecided_sentence", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
+__all__ = ["ACROSS_RUNS_WORSE_PCT", "LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "undecided_sentence", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]
 
 _LINK_POINTS_PER_CUTOFF = 4.0  # link-channel samples kept per period of its cut-off (it is low-passed)
@@ -256,7 +256,7 @@ class Diagnosis:
                 if e.detail.get("payload"):
                     lines.append(f"  {'':<24} {e.detail['payload']}")
                 if e.detail.get("across_runs_pct"):
-                    worse = [r for r, g in e.detail["across_runs_pct"].items() if g < 0]
+                    worse = [r for r, g in e.detail["across_runs_pct"].items() if g < -ACROSS_RUNS_WORSE_PCT]
                     gains = ", ".join(f"{r} {g:.0f} %" for r, g in e.detail["across_runs_pct"].items())
                     lines.append(f"  {'':<24} each run predicted from the others, RMS lower with it: {gains}"
                                  + (f" (worse on {', '.join(worse)}: not a cause every run shows)" if worse else ""))
@@ -784,7 +784,11 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
                           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]] | None:
     """:func:`_selected` again where ``sel`` named a filter before the log (or a delay) and the contexts carry
     none: the filter held whole, every other effect named again with its columns through it; None where that
-    does not hold (the contexts and the filter then as they were)."""
+    does not hold (the contexts and the filter then as they were).
+
+    Of several runs, also through each run's own filter (:func:`_own_filters`), held as it is; the naming kept
+    is the one that predicts each run best from the others (:func:`_run_sse`), of one run the one with the
+    least held-out residual."""
     named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     if named_filter is None or any(ctx.log_filter is not None for ctx in contexts):
@@ -840,6 +844,11 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     for ctx, f in zip(contexts, best[2]):
         ctx.log_filter = f
     return best[1]
+
+
+#: A run predicted from the others by at least this much higher RMS with an effect than without it [%] is said
+#: to be made worse by it (less is a refit's noise).
+ACROSS_RUNS_WORSE_PCT = 1.0
 
 
 def _across_runs(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> dict[str, dict[str, float]]:
