@@ -152,9 +152,11 @@ def main(argv: list[str] | None = None) -> int:
                     start_alike = dataset_model(alike)
                     d_alike = diagnose(alike, start_alike)
                     a2, b2 = _rms(residual_rms([ds], start_alike)), _rms(residual_rms([ds], d_alike.extended))
+                    gains = "; ".join(f"{e.name} ({', '.join(f'{r} {g:.0f} %' for r, g in e.detail.get('across_runs_pct', {}).items())})"
+                                      for e in d_alike.effects)
                     print(f"      from the runs logged as it was only ({', '.join(str(o.path) for o in alike)}): they "
-                          f"name {', '.join(sorted(e.name for e in d_alike.effects))}; it is predicted {a2:.3f} -> "
-                          f"{b2:.3f} Nm ({100 * b2 / a2:.1f} % of the starting RMS)")
+                          f"name {gains} (each of them predicted from the others, RMS lower with the effect); it is "
+                          f"predicted {a2:.3f} -> {b2:.3f} Nm ({100 * b2 / a2:.1f} % of the starting RMS)")
                 if all(abs(o.sample_rate_hz - ds.sample_rate_hz) > 1e-6 * ds.sample_rate_hz for o in rest):
                     # Logged another way: a filter before the log belongs to the recording path, which the other
                     # runs did not see. The joint's effects from them, the path's filter from the run alone.

@@ -258,8 +258,11 @@ class Diagnosis:
                 if e.detail.get("across_runs_pct"):
                     worse = [r for r, g in e.detail["across_runs_pct"].items() if g < -ACROSS_RUNS_WORSE_PCT]
                     gains = ", ".join(f"{r} {g:.0f} %" for r, g in e.detail["across_runs_pct"].items())
+                    # Each of two runs is predicted from the other alone, whose fit may not fix the effect.
+                    why = "not a cause every run shows" if len(e.detail["across_runs_pct"]) > 2 else \
+                        "from the other run alone, which may not fix it"
                     lines.append(f"  {'':<24} each run predicted from the others, RMS lower with it: {gains}"
-                                 + (f" (worse on {', '.join(worse)}: not a cause every run shows)" if worse else ""))
+                                 + (f" (worse on {', '.join(worse)}: {why})" if worse else ""))
         for x in self.ambiguous:
             lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
