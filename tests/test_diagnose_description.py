@@ -293,3 +293,29 @@ def test_each_named_effect_is_judged_on_every_run_predicted_from_the_others():
     line = next(x for x in d.summary().splitlines() if "each run predicted from the others" in x and
                 f"dataset 0 {gains['dataset 0']:.0f} %, dataset 1 {gains['dataset 1']:.0f} %" in x)
     assert "worse" not in line
+
+
+def test_a_filter_named_in_a_pair_is_named_again_through_it():
+    # Two runs of joint 6, each at one speed, through a driver's second order (1.5-3 Hz, damping 0.5-0.8), with
+    # friction and a heavier load (drawn): the filter is named together with the load (a pair), then the others
+    # named again through it; the filter with its cut-off, the load and the friction beside it.
+    rng = np.random.default_rng(1)
+    start = starting_model("iiwa14", 6)
+    truth = copy.deepcopy(start)
+    fc, zeta = rng.uniform(1.5, 3.0), rng.uniform(0.5, 0.8)
+    truth.effects = truth.effects + [
+        {"name": "link_friction", "coulomb_nm": rng.uniform(0.04, 0.1), "viscous_nms_rad": rng.uniform(0.03, 0.08)},
+        {"name": "position_dependent_load", "amplitude_nm": rng.uniform(0.5, 1.5), "phase_rad": 0.0},
+        {"name": "torque_log_filter", "cutoff_hz": fc, "order": 2.0, "damping": zeta}]
+    runs = []
+    for i, v in enumerate(rng.permutation([0.3, 0.6, 1.0])[:2]):
+        ds = record(SimulatedJoint(plant_from_model(truth), seed=1 + i),
+                    ConstantVelocity([float(v)], range_rad=1.6, repeats=3, mode="position"), record_every=5)
+        ds.joint = 6
+        ds.experiment_attrs.update(robot_model="iiwa14", pose_rad=np.zeros(7))
+        runs.append(ds)
+    d = diagnose(runs, start)
+    named = {e.name for e in d.effects}
+    assert {"torque_log_filter", "position_dependent_load", "link_friction"} <= named, \
+        [(e.name, e.parameters) for e in d.effects]
+    assert d.effect("torque_log_filter").parameters["cutoff_hz"] == pytest.approx(fc, rel=0.1)
