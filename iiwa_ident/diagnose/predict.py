@@ -7,8 +7,10 @@ giving one *residual channel* (measured minus predicted, [Nm]):
     The link-side equation (2)-(3), ``tau_J = J_l theta_l'' - tau_ext``,
     with ``theta_l`` the external link reference ``q_l_ref`` when measured,
     else eq (9) ``theta_l = q_m - f(q_m mod rho) - tau_J / K`` with the
-    model's ripple table, and ``tau_ext`` the F/T reference (zero when not
-    measured and the experiment has no contact). Differentiating a quantised
+    model's ripple table, and ``tau_ext`` the F/T reference (zero in free
+    motion, whatever the F/T reads there: its noise alone, which a scale
+    beside a refit of J_l would otherwise fit; zero too when not measured and
+    the experiment has no contact). Differentiating a quantised
     position twice needs a low-pass: ``tau_J``, ``theta_l`` and ``tau_ext``
     all pass the same zero-phase Butterworth filter (cut-off :data:`LINK_CUTOFF_HZ`,
     at most 0.2 of the sample rate), so the equation holds filtered as it
@@ -83,6 +85,8 @@ MIN_DURATION_S = 0.5
 _EDGE_S = 0.15  # filter and derivative edge effects of the link channel [s]
 _SETTLE_S = 0.3  # start-up transient of the command channel (robot released from standstill) [s]
 _CONTACT = ("hand_guided", "quasi_static")  # experiments where someone pushes the link
+#: Experiments in which nothing touches the link (a ``free`` log may hold a push).
+_FREE_MOTION = ("chirp", "multisine", "constant_velocity", "step", "sine")
 
 
 @dataclass
@@ -349,7 +353,10 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
     tau = np.asarray(dataset["tau_j"], float)
     has_ext = dataset.has("tau_ext_ref")
     contact = dataset.experiment in _CONTACT
-    tau_ext = np.asarray(dataset["tau_ext_ref"], float) if has_ext else np.zeros_like(t)
+    # In free motion the external torque is zero: a reference sensor's reading there is its own noise, which a
+    # column built on the prediction (a scale beside a refit of Jl) would fit in the residual it also enters.
+    free_motion = dataset.experiment in _FREE_MOTION
+    tau_ext = np.asarray(dataset["tau_ext_ref"], float) if has_ext and not free_motion else np.zeros_like(t)
     f0 = model.ripple(q_m) if model.ripple is not None else np.zeros_like(q_m)
     from_eq9 = not dataset.has("q_l_ref")
     theta_raw = q_m - f0 - tau / p["K"] if from_eq9 else np.asarray(dataset["q_l_ref"], float)
