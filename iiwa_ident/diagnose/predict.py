@@ -311,7 +311,11 @@ def predict_channel(ctx: Context, channel: str, params: dict[str, float] | None 
         return p["Jl"] * acc_l - tau_ext
     if channel == "command":
         tfp = None if params is None else p
-        pred = command_prediction(ctx, p["Td"], tfp) - ctx.tf("Gd", ctx.tau_ext, params=tfp)
+        # The F/T reference through the link channel's low-pass: its noise above a push's band, passed by Gd,
+        # is what a refit of the loop's parameters would fit (it shrinks Gd where only that noise is).
+        if "tau_ext_lp" not in ctx.memo:
+            ctx.memo["tau_ext_lp"] = ctx.lowpass(ctx.tau_ext)
+        pred = command_prediction(ctx, p["Td"], tfp) - ctx.tf("Gd", ctx.memo["tau_ext_lp"], params=tfp)
         if ctx.f0 is not None:
             pred = pred + ripple_response(ctx, ctx.f0, ctx.reaction, tfp)
         return pred
