@@ -790,8 +790,9 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     does not hold (the contexts and the filter then as they were).
 
     Of several runs, also through each run's own filter (:func:`_own_filters`), held as it is; the naming kept
-    is the one that predicts each run best from the others (:func:`_run_sse`), of one run the one with the
-    least held-out residual."""
+    is, of three runs or more, the one that predicts each run best from the others (:func:`_run_sse`), of one
+    or two the one with the least held-out residual: one run at one speed does not split a friction into its
+    Coulomb and viscous parts, and predicts the other run's speed from an arbitrary split."""
     named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     if named_filter is None or any(ctx.log_filter is not None for ctx in contexts):
@@ -838,7 +839,7 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
         possible = all(c.plausible(c.total(trial.coef[sl]))
                        for c, sl in zip(trial.selected[1:], trial.slices[1:]) if c.name not in trial.other_shape)
         if possible and sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
-            heldout = _sse(again[3], range(len(again[3]))) if len(contexts) == 1 else \
+            heldout = _sse(again[3], range(len(again[3]))) if len(contexts) < 3 else \
                 sum(_run_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter),
                              blocks).values())
             if best is None or heldout < best[0]:
