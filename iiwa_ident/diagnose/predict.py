@@ -27,7 +27,9 @@ giving one *residual channel* (measured minus predicted, [Nm]):
     ``G_r = K J_l / den`` and ``den = J_c J_l s^2 + J_l b_c s + (J_c + J_l) K``;
     with a ripple table, ``delta_J = -K f(q_m)`` and the reaction
     ``r = tau_J f'(q_m)`` on the motor side (the transmission's ratio ``1 - f'``),
-    both from the measured signals as in the fit. The transfer
+    both from the measured signals as in the fit. The external torque in
+    ``d`` is the F/T reference through the link channel's low-pass (its
+    noise, passed by ``G_d``, is not a torque the loop saw). The transfer
     functions are discretised exactly (zero-order hold) at the dataset's
     rate; the delay is realised with linear interpolation between samples.
     This channel sees delay errors, sensor scale, the transmission ripple
