@@ -140,6 +140,16 @@ class TestIdentifyRipple:
         assert np.sqrt(np.mean(diff ** 2)) < 0.1 * amp
         assert lut_error(r, effect) < 0.10
 
+    def test_a_measured_link_run_in_the_family_of_a_one_speed_run(self):
+        # The demo's runs: one speed back and forth, and a quasi-static run whose link is measured (its passes
+        # static: no link motion chosen). Pooled, the family's refit took that run's "measured" for a link motion
+        # to restore and raised.
+        plant = default_plant()
+        qs = record(SimulatedJoint(plant, seed=7), QuasiStatic())
+        cv = cv_run(plant, seed=8, speeds=(0.3,), range_rad=1.0)
+        r = identify_ripple([cv, qs])
+        assert r.detected and abs(r.period_rad / PAPER_RHO - 1) < 1e-3
+
     def test_velocity_frequency_relation(self):
         r = identify_ripple([cv_run(default_plant(), seed=5, speeds=(0.6, 1.2), range_rad=0.8)])
         for row in r.velocity_table:

@@ -814,7 +814,9 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
     names = [lines.runs[i].name for i in support]
     h_max = max(h for _, h in lines.harmonics)
     harmonics = max(1, min(o["max_harmonics"], h_max))
-    motions = [r.get("link_motion") or "restored" for r in runs if r["run"] in names and r.get("usable", True)]
+    # A run whose link is measured (static passes) chose nothing: its link motion is neither restored nor neglected.
+    motions = [r.get("link_motion") if r.get("link_motion") in ("restored", "neglected") else "restored"
+               for r in runs if r["run"] in names and r.get("usable", True)]
     # The link motion most supporting runs chose; a tie is decided as one run's choice is, by the smaller
     # residual of the family's table (not by a set's order, which changes with the interpreter's hash seed).
     most = max((motions.count(m) for m in motions), default=0)
