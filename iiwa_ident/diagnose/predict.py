@@ -294,6 +294,13 @@ def ripple_response(ctx: Context, f: np.ndarray, reaction: np.ndarray | None = N
     return out
 
 
+def _tau_ext_lowpassed(ctx: Context) -> np.ndarray:
+    """The external torque through the link channel's low-pass, once per context (both channels use it)."""
+    if "tau_ext_lp" not in ctx.memo:
+        ctx.memo["tau_ext_lp"] = ctx.lowpass(ctx.tau_ext)
+    return ctx.memo["tau_ext_lp"]
+
+
 def predict_channel(ctx: Context, channel: str, params: dict[str, float] | None = None) -> np.ndarray:
     """The model's prediction of a residual channel [Nm] (module docstring), at the model's parameters or others.
 
@@ -305,7 +312,7 @@ def predict_channel(ctx: Context, channel: str, params: dict[str, float] | None 
         # Linear in Jl and in 1/K: the three signals once per context (a parameter search asks for thousands).
         if "link_terms" not in ctx.memo:
             ctx.memo["link_terms"] = (ctx.ddt(ctx.ddt(ctx.theta_l)), ctx.ddt(ctx.ddt(ctx.lowpass(ctx.tau))),
-                                      ctx.lowpass(ctx.tau_ext))
+                                      _tau_ext_lowpassed(ctx))
         acc_l, acc_tau, tau_ext = ctx.memo["link_terms"]
         if ctx.link_from_eq9 and params is not None and p["K"] != ctx.params["K"]:
             # eq (9) with another K moves the link by tau_J (1/K_model - 1/K).
@@ -315,9 +322,7 @@ def predict_channel(ctx: Context, channel: str, params: dict[str, float] | None 
         tfp = None if params is None else p
         # The F/T reference through the link channel's low-pass: its noise above a push's band, passed by Gd,
         # is what a refit of the loop's parameters would fit (it shrinks Gd where only that noise is).
-        if "tau_ext_lp" not in ctx.memo:
-            ctx.memo["tau_ext_lp"] = ctx.lowpass(ctx.tau_ext)
-        pred = command_prediction(ctx, p["Td"], tfp) - ctx.tf("Gd", ctx.memo["tau_ext_lp"], params=tfp)
+        pred = command_prediction(ctx, p["Td"], tfp) - ctx.tf("Gd", _tau_ext_lowpassed(ctx), params=tfp)
         if ctx.f0 is not None:
             pred = pred + ripple_response(ctx, ctx.f0, ctx.reaction, tfp)
         return pred
