@@ -133,6 +133,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"(each run's RMS lower with the effect, predicted from the others); "
                   + ("every effect lowers every run's" if not any(worse.values()) else
                      "worse with it: " + "; ".join(f"{n} on {', '.join(w)}" for n, w in worse.items() if w)))
+            # What the library's effects leave on runs they were fitted to: no prediction from other runs does
+            # better than this floor.
+            floor = "; ".join(f"{a[0]} {a[2]:.3f} -> {b[2]:.3f} ({100 * b[2] / a[2]:.1f} %)" for a, b in
+                              zip(residual_rms(together, dataset_model(together)), residual_rms(together, d.extended)))
+            print(f"      in-sample, the runs by the model they extended (starting -> extended, Nm): {floor}")
         if len(dss) >= 3:
             # Leave one run out: the joint's other runs diagnosed together (their speeds differ), the run left
             # out predicted.
