@@ -457,6 +457,41 @@ def test_hand_moves_the_link(tmp_path):
 
 
 @pytest.mark.realtime
+def _silent_after(n_active: int):
+    """Well-behaved until ``n_active`` messages of COMMANDING_ACTIVE, then never another answer."""
+    good = torque_policy(0.0)
+
+    def policy(client: Client, msg):
+        return SILENT if client.active_seen >= n_active else good(client, msg)
+
+    return policy
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_a_client_that_has_gone_ends_the_run(lockstep):
+    """The client's session ends (it stops answering) long before the duration: the robot drops the session and,
+    nothing heard for idle_timeout_s, the run ends (before, it waited for another client until max_wall_s)."""
+    kw = dict(FAST, duration_s=600.0, idle_timeout_s=0.3, max_wall_s=30.0)
+    with Client(_silent_after(30)) as client:
+        if lockstep:
+            report = run(client, **dict(kw, lockstep_guard_s=0.2))
+        else:
+            emu = RobotEmulator(EmulatorConfig(client=client.address, **{**PATIENT, **kw}))
+            report = emu.run()
+            client.settle()
+    assert report.end_reason == "client_gone", report.end_reason
+    assert [r for _, r in report.session_drops] == [f"no answer for {1e3 * (0.005 if lockstep else 0.25):.1f} ms"]
+    assert report.state_sequence()[-2:] == [S.MONITORING_WAIT, S.IDLE]
+    assert client.states()[-1] == S.IDLE  # told the session ended, had it come back
+
+
+def test_a_client_that_has_not_come_yet_is_waited_for():
+    """The idle timeout counts only after a client was heard: a robot side started first keeps waiting."""
+    with Client(lambda client, msg: SILENT) as client:
+        report = run(client, **dict(FAST, idle_timeout_s=0.05, max_wall_s=0.5))
+    assert report.end_reason == "max_wall"
+
+
 def test_stop_from_another_thread_in_real_time():
     def policy(client: Client, msg):
         if len(client.messages) == 100:  # never answers; stops the robot from its own thread
@@ -607,6 +642,7 @@ def test_cli_help_has_examples():
     (("--mode", "fast"), "--mode 'fast'"),
     (("--agent", "dog"), "--agent 'dog'"),
     (("--duration", "0"), "--duration 0"),
+    (("--idle-timeout", "-1"), "--idle-timeout -1: must be a number of seconds >= 0"),
     (("--plant", "missing.toml"), "missing.toml: no such file"),
     (("--stall", "2.0"), "--stall '2.0': expected START:LENGTH"),
     (("--stall", "2.0:-5"), "--stall '2.0:-5': expected START:LENGTH"),
@@ -657,6 +693,16 @@ def test_cli_names_a_safety_stop():
     assert res.exit_code == 0, res.output
     assert "safety stop: joint 1 at " in res.output and "SAFETY STOP at " in res.output
     assert "ended: safety_stop" in res.output
+
+
+def test_cli_ends_once_its_client_has_gone():
+    # The quick start's case: a client whose run is shorter than --duration; the emulator no longer waits
+    # in MONITORING_WAIT for ever.
+    with Client(_silent_after(50)) as client:
+        res = emulate_for(client, "--duration", "20", "--idle-timeout", "0.3", "--max-time", "30")
+    assert res.exit_code == 0, res.output
+    assert "no answer for 0.3 s: the client has gone, the run ends" in res.output
+    assert "ended: client_gone" in res.output
 
 
 def test_cli_stall_sends_nothing_and_keeps_the_time():

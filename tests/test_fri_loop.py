@@ -10,6 +10,7 @@ measures the real-time behaviour.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -296,13 +297,31 @@ class TestRunCommand:
                 assert len(_left_behind(proc.pid, tmp_path)) == 1
             emu.kill()  # the robot is gone: not one more message
             out = proc.communicate(timeout=120)[0]
-        assert proc.returncode == 0, out
+        # Written and reported, and a failure for the script that started it: the run did not go its course.
+        assert proc.returncode == 1, out
         assert "ended: FRI: no message from the robot for 2000 ms" in out and "Traceback" not in out
+        assert out.strip().splitlines()[-1].startswith("error: the run ended after ")
+        assert out.strip().endswith(" of 1000 s: FRI: no message from the robot for 2000 ms")
         ds = read_dataset(log)
         assert "incomplete" not in ds.experiment_attrs and "interrupted" not in ds.experiment_attrs
         assert ds.experiment_attrs["stop_reason"] == "FRI: no message from the robot for 2000 ms"
         assert len(ds["t"]) >= 100 and np.all(np.diff(ds["t"]) > 0)
         assert _left_behind(proc.pid, tmp_path) == []
+
+    def test_a_session_the_robot_ends_before_the_duration_fails_the_run(self, config_file, tmp_path):
+        # The robot side's commanding lasts 0.3 s, the run asks for 5: the run ramps out on the robot's
+        # word, keeps its log, and exits non-zero saying when and why.
+        port = free_port()
+        log = tmp_path / "run.h5"
+        with _emulator(port, duration_s=0.3) as emu:
+            proc = _start_run(config_file, port, log, 5, "--task", "zero")
+            out = proc.communicate(timeout=120)[0]
+            emu.stop()
+            emu.join(60.0)
+        assert proc.returncode == 1, out
+        assert re.fullmatch(r"error: the run ended after 0\.(29|30)\d s of 5 s: FRI: the robot left "
+                            r"COMMANDING_ACTIVE \(now MONITORING_READY\)", out.strip().splitlines()[-1]), out
+        assert read_dataset(log).n_samples >= 300
 
     def test_a_robot_that_never_connects_leaves_nothing(self, config_file, tmp_path):
         log = tmp_path / "run.h5"

@@ -68,7 +68,7 @@ def _check_positive(option: str, value: Optional[float]) -> None:
 
 def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed, agent,
             record, max_time, hand_speed, lockstep=False, stalls=(), pose=None, ft_port=None, ft_rate=1000.0,
-            ft_cutoff=152.0, ft_lever=None, ft_noise=(0.0, 0.0)) -> EmulatorConfig:
+            ft_cutoff=152.0, ft_lever=None, ft_noise=(0.0, 0.0), idle_timeout=None) -> EmulatorConfig:
     """The emulator settings from the options; every user error is an IiwaIdentError naming the option."""
     from iiwa_ident.emulator import AGENTS, DEFAULT_JOINT_POSITIONS, EmulatorConfig, Faults
     from iiwa_ident.fri import ClientCommandMode, ControlMode, parse_host_port
@@ -81,6 +81,9 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         raise IiwaIdentError(f"--agent {agent!r}: must be one of {', '.join(AGENTS)}")
     _check_positive("--duration", duration)
     _check_positive("--max-time", max_time)
+    if idle_timeout is not None and not (math.isfinite(idle_timeout) and idle_timeout >= 0):
+        raise IiwaIdentError(f"--idle-timeout {idle_timeout:g}: must be a number of seconds >= 0 (0: wait for "
+                             "clients for ever)")
     if not (math.isfinite(hand_speed) and hand_speed > 0):
         raise IiwaIdentError(f"--hand-speed {hand_speed:g}: must be a positive speed [rad/s]")
     if not (math.isfinite(jitter_ms) and 0.0 <= jitter_ms <= 1000.0):
@@ -104,6 +107,7 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         hand_peak_speed_rad_s=hand_speed,
         record=record,
         max_wall_s=max_time,
+        idle_timeout_s=idle_timeout or None,
         lockstep=lockstep,
         stalls=tuple(_stall(text) for text in stalls),
         ft_port=ft_port,
@@ -155,6 +159,9 @@ def emulate_cmd(
                                                    "simulated signal and the plant truth) here.")] = None,
     max_time: Annotated[Optional[float], typer.Option("--max-time", help="Stop after this many seconds of wall "
                                                       "time, whatever the session state.")] = None,
+    idle_timeout: Annotated[float, typer.Option("--idle-timeout", help="Once a client has been heard, end "
+                                                "after this many seconds without an answer outside "
+                                                "commanding (0: wait for clients for ever).")] = 10.0,
     json_out: Annotated[Optional[Path], json_option("the run report")] = None,
     lockstep: Annotated[bool, typer.Option("--lockstep", help="Wait for each answer, on a virtual clock: "
                                            "repeatable runs whatever the machine's load (no latency is "
@@ -186,6 +193,8 @@ def emulate_cmd(
     client's command to the simulated joint and drops the session after 5 ms without answers or on
     a malformed or inconsistent command, as the robot does. Prints the state transitions and a
     summary; Ctrl-C (SIGINT) or SIGTERM closes the session and still writes --record and --json.
+    The run ends after --duration seconds of commanding, or once its client has gone (silent for
+    --idle-timeout seconds after its session ended or dropped).
     With --lockstep the robot side waits for each answer before its next cycle (times in the
     output are then virtual): for testing a client, not for measuring it. --stall makes the robot's
     own cycle slip: no message and no answer awaited for that long, the time stamps keep the time.
@@ -207,7 +216,7 @@ def emulate_cmd(
     try:
         config = _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reorder, corrupt, seed,
                          agent, record, max_time, hand_speed, lockstep, stall or (), pose, ft_port, ft_rate,
-                         ft_cutoff, ft_lever, (ft_noise_n, ft_noise_nm))
+                         ft_cutoff, ft_lever, (ft_noise_n, ft_noise_nm), idle_timeout)
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
         raise fail(str(err))

@@ -190,3 +190,6 @@ def run_cmd(
             write_json(json_out, report.as_dict())
     except IiwaIdentError as err:
         raise fail(str(err))
+    if report.ended_early:
+        # The log and the report are written: a script still learns that the run did not go its course.
+        raise fail(f"the run ended after {report.duration_s:.3f} s of {duration:g} s: {report.stop_reason}", code=1)

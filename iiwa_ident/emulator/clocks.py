@@ -121,6 +121,10 @@ class RealTimeClock:
         """The robot side's time now [s] (send times, fault delays)."""
         return time.perf_counter()
 
+    def silence_s(self, k: int, heard_k: int) -> float:
+        """How long the client has been silent at cycle ``k``, last heard at cycle ``heard_k`` [s]."""
+        return (k - heard_k) * self.emu._period
+
     def wall(self) -> float:
         """Wall time since the start [s]."""
         return time.perf_counter() - self.t0
@@ -158,6 +162,7 @@ class LockstepClock(RealTimeClock):
         self.await_data = b""
         self.heard_seq = -1  # newest message an answer reflected
         self.heard_any = False
+        self.heard_wall = 0.0  # wall time of the newest answer [s]
         self.gone = False
         self.resent_seq = -1
         self.resent_heard = False
@@ -184,6 +189,7 @@ class LockstepClock(RealTimeClock):
         resend = self.gone or not self.heard_any  # no client (yet): stop the clock until one answers
         perf = time.perf_counter
         max_wall = cfg.max_wall_s
+        idle = cfg.idle_timeout_s
         now = perf()
         deadline = now + cfg.lockstep_guard_s
         next_resend = now + RESEND_S
@@ -192,6 +198,8 @@ class LockstepClock(RealTimeClock):
                 return k
             if max_wall is not None and now - self.t0 >= max_wall:
                 return k
+            if resend and idle is not None and self.heard_any and now - self.heard_wall >= idle:
+                return k  # a client that had answered fell silent: the run decides whether it ends
             if resend:
                 if now >= next_resend:
                     self._resend()
@@ -225,6 +233,10 @@ class LockstepClock(RealTimeClock):
     def stamp_ns(self) -> int:
         return self.epoch_ns + int(round(self.vt * 1e9))
 
+    def silence_s(self, k: int, heard_k: int) -> float:
+        # The virtual clock stops while no client answers: the silence is the wall's.
+        return time.perf_counter() - self.heard_wall
+
     def arrival(self, data: bytes, addr: Any) -> float | None:
         """Virtual arrival time of an answer; None for a second answer to a message sent again."""
         emu = self.emu
@@ -240,6 +252,7 @@ class LockstepClock(RealTimeClock):
                 return None
             self.resent_heard = True
         self.heard_any = True
+        self.heard_wall = time.perf_counter()
         self.gone = False
         slot = reflected & (RING - 1)
         if emu._ring_seq[slot] != reflected:

@@ -197,6 +197,12 @@ class EmulatorConfig:
     lockstep_guard_s : float
         Lockstep: wall time after which a client that has not answered is
         taken for gone [s].
+    idle_timeout_s : float or None
+        End the run once a client has been heard and nothing has come from it
+        for this long outside the commanding states [s] (its session over, or
+        dropped, and no client back); None waits for a client for ever. In
+        lockstep the silence is wall time (the virtual clock stops while no
+        client answers).
     stalls : tuple of (float, float)
         Robot-side stalls ``(start, length)`` [s], the start counted in time
         of ``COMMANDING_ACTIVE``: for ``length`` the robot sends no
@@ -247,6 +253,7 @@ class EmulatorConfig:
     lockstep: bool = False
     lockstep_latency_s: float = 0.2e-3
     lockstep_guard_s: float = 1.0
+    idle_timeout_s: float | None = None
     stalls: tuple[tuple[float, float], ...] = ()
     ft_port: int | None = None
     ft: NetFtSettings = field(default_factory=NetFtSettings)
@@ -286,6 +293,7 @@ def check_config(config: EmulatorConfig) -> None:
     _finite("max_wall_s", config.max_wall_s, allow_none=True, strict=True)
     _finite("timeout_s", config.timeout_s, strict=True)
     _finite("lockstep_guard_s", config.lockstep_guard_s, strict=True)
+    _finite("idle_timeout_s", config.idle_timeout_s, allow_none=True, strict=True)
     _finite("lockstep_latency_s", config.lockstep_latency_s)
     if config.lockstep_latency_s >= config.send_period_ms * 1e-3:
         raise IiwaIdentError(f"lockstep_latency_s must be below the send period, got {config.lockstep_latency_s!r}")

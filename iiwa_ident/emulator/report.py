@@ -117,7 +117,8 @@ class EmulatorReport:
     wall_s : float
         Wall time of the run [s].
     end_reason : str
-        ``"duration"``, ``"stopped"``, ``"max_wall"`` or ``"safety_stop"``.
+        ``"duration"``, ``"stopped"``, ``"max_wall"``, ``"client_gone"`` (silent for
+        :attr:`~iiwa_ident.emulator.EmulatorConfig.idle_timeout_s`) or ``"safety_stop"``.
     lockstep : bool
         Whether the run was in lockstep (times are then virtual).
     dataset : Path or None

@@ -79,6 +79,10 @@ Session rules
   ``IDLE`` (sent for ``idle_s``, so the client sees the session close) and
   the run ends. :meth:`RobotEmulator.stop` goes to that final ``IDLE`` at
   once.
+* With :attr:`~EmulatorConfig.idle_timeout_s`, a run whose client was heard
+  and has sent nothing for that long outside the commanding states (its
+  session over or dropped, no client back) goes to that final ``IDLE`` too
+  (``end_reason`` ``"client_gone"``), whatever ``duration_s`` still counts.
 
 Safety
 ------
@@ -308,6 +312,7 @@ class RobotEmulator:
         self._delay = Histogram()
         self._due = False  # an answer is due this cycle
         self._silent = 0  # consecutive cycles without a new answer while one was due
+        self._heard_k: int | None = None  # cycle of the newest answer
         self._timeout_cycles = max(1, int(round(cfg.timeout_s / T)))
         # Stalls as [first, end) counts of COMMANDING_ACTIVE cycles.
         self._stalls = [(int(round(a / T)), int(round(a / T)) + max(1, int(round(b / T)))) for a, b in cfg.stalls]
@@ -370,10 +375,21 @@ class RobotEmulator:
                     self._end("stopped", k)
                 elif max_wall is not None and clock.wall() >= max_wall:
                     self._end("max_wall", k)
+                elif self._client_left(k):
+                    if self._on_event is not None:
+                        self._on_event(k * self._period, f"no answer for {cfg.idle_timeout_s:g} s: the client has "
+                                       "gone, the run ends")
+                    self._end("client_gone", k)
             self._cycle(k)
             if self._finished:
                 return
             k += 1
+
+    def _client_left(self, k: int) -> bool:
+        """Whether a client that was heard has been silent for ``idle_timeout_s`` outside commanding."""
+        idle = self.config.idle_timeout_s
+        return (idle is not None and self._heard_k is not None and self._state not in _COMMANDING
+                and self._clock.silence_s(k, self._heard_k) >= idle)
 
     def _drain(self) -> None:
         sock = self._sock
@@ -409,6 +425,8 @@ class RobotEmulator:
                 self._window.add(1, answer[1] or 0.0)
         elif answer is not None:
             self._silent = 0
+        if answer is not None:
+            self._heard_k = k
         if state != SessionState.IDLE:
             self._quality = self._window.quality()
             rep.quality[self._quality.name] += 1
@@ -606,7 +624,7 @@ class RobotEmulator:
         self._enter(k, SessionState.MONITORING_WAIT)
 
     def _end(self, reason: str, k: int) -> None:
-        """Close the session at once (stop request or wall-time limit)."""
+        """Close the session at once (stop request, wall-time limit, a client gone)."""
         self._report.end_reason = self._report.end_reason or reason
         self._ending = True
         if self._state != SessionState.IDLE:

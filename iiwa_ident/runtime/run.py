@@ -266,6 +266,10 @@ class RunReport:
         Time covered [s].
     stop_reason : str
         Why the run ended ("duration" when it ran its course).
+    ended_early : bool
+        Whether the run ended before its duration for a fault: the robot side ended the session (left
+        COMMANDING_ACTIVE, fell silent, stopped itself) or the runtime's own limits did (over-speed, a
+        non-finite value, the F/T sensor); not when the task finished or a signal stopped it.
     watchdog_events : list of (float, str)
         Watchdog trips and recoveries (time [s], text).
     compute_us : dict
@@ -288,6 +292,7 @@ class RunReport:
     cycles: int
     duration_s: float
     stop_reason: str
+    ended_early: bool = False
     watchdog_events: list[tuple[float, str]] = field(default_factory=list)
     compute_us: dict[str, float] = field(default_factory=dict)
     logged: int = 0
@@ -300,7 +305,7 @@ class RunReport:
     def as_dict(self) -> dict:
         """JSON-ready form."""
         return {"cycles": self.cycles, "duration_s": self.duration_s, "stop_reason": self.stop_reason,
-                "watchdog_events": [[t, e] for t, e in self.watchdog_events], "compute_us": self.compute_us,
+                "ended_early": self.ended_early, "watchdog_events": [[t, e] for t, e in self.watchdog_events], "compute_us": self.compute_us,
                 "logged": self.logged, "lost_log_rows": self.lost_log_rows, "connection": self.connection,
                 "log": self.log, "first_answer_s": self.first_answer_s, "sensor": self.sensor}
 
@@ -445,9 +450,12 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
                               **({"ft_projection": sensor.projection.source}
                                  if sensor is not None and sensor.projection is not None else {}),
                               **task.result_attrs()})
+    # Ended early: before the duration, the task's end or a signal asked the runtime to stop, the robot ended the
+    # session (`reason`, from its SafetyStop) or the runtime's own limits stopped it.
+    early = not (runtime.stop_reason and runtime.stop_reason in ("duration", task.done, signals.flag))
     reason = reason or runtime.stop_reason
     facts = robot.describe()
-    return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, watchdog_events=list(runtime.watchdog.events),
+    return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, ended_early=early, watchdog_events=list(runtime.watchdog.events),
                      compute_us=_percentiles(compute[:k]), logged=stats.written, lost_log_rows=stats.lost,
                      connection=facts.get("connection", {}), log=str(log), first_answer_s=facts.get("first_answer_s"),
                      sensor=sensor.stats.as_dict() if sensor is not None else {})
