@@ -139,4 +139,4 @@ def test_robot_and_joint_needed_without_model_file(tmp_path):
     res = invoke("deploy", "--design", path, "--out", out)
     _assert_refused(res, out, "pass --robot-model and --joint")
     res = invoke("deploy", "--design", path, "--out", out, "--robot-model", "iiwa14", "--joint", 9)
-    _assert_refused(res, out, "joint must be 1..7")
+    _assert_refused(res, out, "--joint 9: an iiwa joint is 1-7")

@@ -51,6 +51,17 @@ class TestDesignCommand:
             assert text in res.output, text
         assert read_design(out).design.feedforward == "reference"
 
+    def test_every_printed_gain_is_its_value(self, default_run):
+        # Four decimals printed any gain below 5e-5 as 0.0000; the default form's Kr_d is 0 by design, and says so.
+        import re
+
+        res, out, _ = default_run
+        design = read_design(out).design
+        assert design.Kr_d == 0.0 and "Kr_d = 0 (the reference reaches the feedback through the model's y_ref" \
+            in res.output
+        assert float(re.search(r"Kr    = (\S+)", res.output).group(1)) == pytest.approx(design.Kr, rel=1e-3)
+        assert "0.0000" not in res.output
+
     def test_json_keys(self, default_run):
         res, _, js = default_run
         data = json.loads(js.read_text())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -79,6 +80,12 @@ class TestFitCommand:
             assert needle in text
         lines = {line.split()[0]: line for line in text.splitlines() if line.split()}
         assert "kg m^2" in lines["Jc"] and "Nm/rad" in lines["K"] and "ms" in lines["Td"]
+        # Every number shown is one: no "+- nan" for the ripple's searched period, no std of 0.000 ms for a
+        # delay known to microseconds, no warning cut short.
+        assert "nan" not in text and "period_rad = 0.01" in text and "(searched, no std)" in text
+        td = re.search(r"delay Td = (\S+) \+- (\S+) ms", text)
+        assert float(td.group(2)) > 0.0, td.group(0)
+        assert "the std holds only for the first" not in text
 
     def test_two_files(self, chirps, tmp_path):
         out, figs = tmp_path / "m.toml", tmp_path / "figs"

@@ -87,7 +87,7 @@ def test_model_command_refusals(tmp_path):
     _one_line_error(invoke("model", "--out", out), "give --joint N or --data")
     _one_line_error(invoke("model", "--joint", "2", "--pose", "0,1,2", "--out", out), "expected 7 comma-separated")
     _one_line_error(invoke("model", "--joint", "2", "--pose", "0,130,0,0,0,0,0", "--out", out), "beyond the iiwa14's limit")
-    _one_line_error(invoke("model", "--joint", "9", "--out", out), "joint must be 1..7")
+    _one_line_error(invoke("model", "--joint", "9", "--out", out), "--joint 9: an iiwa joint is 1-7")
     _one_line_error(invoke("model", "--robot", "ur5", "--joint", "2", "--out", out), "unknown robot model")
     assert not (tmp_path / "m.toml").exists()
 
@@ -177,3 +177,24 @@ def test_fit_refuses_a_base_model_of_another_joint(tmp_path):
     _one_line_error(invoke("fit", str(path), "--model", str(j4), "--out", str(tmp_path / "m.toml")),
                     "a model of joint 4 on data of joint 1")
     assert not (tmp_path / "m.toml").exists()
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["parameters"]["K"].update(sdt=10.0), "parameters.K.sdt: unknown key (known: value, std, unit, "
+                                                       "origin)"),
+    (lambda d: d.update(correlation={"names": [], "matrix": [], "rho": 1}), "correlation.rho: unknown key"),
+    (lambda d: d.update(sources=[{"file": "a.h5", "sha256": "0", "rolle": "fit"}]), "sources[0].rolle: unknown key"),
+])
+def test_a_misspelt_key_in_a_model_file_is_refused(edit, message, tmp_path):
+    # Misspelt, the std was dropped without a word and the model read as if it had none.
+    import re
+
+    from iiwa_ident._toml import dumps_toml
+    from iiwa_ident.model import ModelError
+
+    data = table1_model().to_dict()
+    edit(data)
+    path = tmp_path / "model.toml"
+    path.write_text(dumps_toml(data))
+    with pytest.raises(ModelError, match="^" + re.escape(f"{path}: {message}")):
+        read_model(path)

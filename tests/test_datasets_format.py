@@ -448,3 +448,26 @@ class TestSha256File:
         with pytest.raises(DatasetError) as excinfo:
             sha256_file(tmp_path / "nope")
         one_line_error(excinfo, tmp_path / "nope", "file not found")
+
+
+def test_folders_name_their_dataset_files_and_a_log_folder_says_how_to_import(tmp_path):
+    from typer.testing import CliRunner
+
+    from iiwa_ident.cli import app
+    from iiwa_ident.datasets import dataset_files
+
+    (tmp_path / "runs").mkdir()
+    for name in ("b.h5", "a.h5"):
+        (tmp_path / "runs" / name).write_bytes(b"")
+    assert dataset_files([tmp_path / "x.h5", tmp_path / "runs"]) == [tmp_path / "x.h5", tmp_path / "runs" / "a.h5",
+                                                                      tmp_path / "runs" / "b.h5"]
+    log = tmp_path / "vel_p3"
+    log.mkdir()
+    (log / "joint_position_measured.txt").write_text("0 0 0 0 0 0 0\n")
+    for command in ("compare", "diagnose", "ripple"):
+        res = CliRunner().invoke(app, [command, str(log)])
+        assert res.exit_code == 2 and res.stderr.strip() == (
+            f"error: {log}: a folder of column logs, not of dataset files: import it first ('iiwa-ident import "
+            "--columns ...', or 'iiwa-ident pipeline --logs' for a whole joint)"), res.output
+        res = CliRunner().invoke(app, [command, str(tmp_path / "runs" / "..")])
+        assert res.exit_code == 2 and "a folder with no dataset file (.h5) in it" in res.stderr

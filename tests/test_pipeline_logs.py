@@ -190,3 +190,78 @@ def test_a_driver_that_logs_the_command_as_the_position_is_named(tmp_path):
     assert imp.status == "ok", imp.error
     assert any("q_m equals q_cmd" in w for w in imp.headline["runs"][0]["warnings"]), imp.headline
     assert any("warning: joint1_vel_p4: q_m equals q_cmd" in x for x in lines)
+
+
+def _concatenated(folder: Path, *parts: Path) -> None:
+    """One column log holding the runs ``parts`` one after the other: its time restarts at each."""
+    folder.mkdir(parents=True)
+    for name in ("cur_traj_time_s.txt", "joint_position_measured.txt", "joint_torque_measured.txt"):
+        np.savetxt(folder / name, np.concatenate([np.loadtxt(p / name, ndmin=1) for p in parts]))
+
+
+@pytest.fixture(scope="module")
+def two_in_one(tmp_path_factory):
+    """A joint-1 folder with a good run and a log that holds two runs."""
+    tmp = tmp_path_factory.mktemp("two_in_one")
+    write_log(tmp / "parts" / "a", 0.3, 4)
+    write_log(tmp / "parts" / "b", 0.5, 5)
+    root = tmp / "joint1"
+    write_log(root / "vel_p4", 0.4, 6)
+    _concatenated(root / "twice", tmp / "parts" / "a", tmp / "parts" / "b")
+    return root
+
+
+_ONLY_IMPORT = tuple(s.name for s in LOG_STAGES if s.name != "import")
+
+
+def test_a_run_that_cannot_be_read_is_dropped_and_the_others_go_on(two_in_one, tmp_path):
+    lines: list[str] = []
+    result = run_log_pipeline(tmp_path / "w", [two_in_one], progress=lines.append, report=None, skip=_ONLY_IMPORT)
+    imp = next(s for s in result.stages if s.name == "import")
+    assert imp.status == "ok", imp.error
+    assert [r["run"] for r in imp.headline["runs"]] == ["joint1_vel_p4"]
+    (dropped,) = imp.headline["dropped"]
+    assert dropped["run"] == "joint1_twice" and "time goes back" in dropped["reason"]
+    assert "--split-runs" in dropped["reason"]
+    assert any(x.startswith("  dropped joint1_twice: ") for x in lines)
+
+
+def test_split_runs_imports_each_run_of_a_log(two_in_one, tmp_path):
+    result = run_log_pipeline(tmp_path / "w", [two_in_one], progress=lambda m: None, report=None,
+                              skip=_ONLY_IMPORT, split_runs=True)
+    imp = next(s for s in result.stages if s.name == "import").headline
+    assert [r["run"] for r in imp["runs"]] == ["joint1_twice_run1", "joint1_twice_run2", "joint1_vel_p4"]
+    assert imp["dropped"] == []
+    first, second = (read_dataset(tmp_path / "w" / r["file"]) for r in imp["runs"][:2])
+    assert first.joint == second.joint == 1
+    assert first["t"][-1] > second["t"][0]  # each run's own time, restarted
+
+
+def test_cli_logs_takes_several_paths_and_split_runs(two_in_one, tmp_path):
+    res = CliRunner().invoke(app, ["pipeline", "--logs", str(two_in_one / "vel_p4"), str(two_in_one / "twice"),
+                                   "--split-runs", "--skip", "ripple", "--no-report", "--workdir", str(tmp_path / "w")])
+    assert res.exit_code == 0, res.output
+    assert "3 run(s) of joint 1" in res.stdout
+    res = CliRunner().invoke(app, ["pipeline", "--workdir", str(tmp_path / "w"), str(two_in_one)])
+    assert res.exit_code == 2 and "paths are log runs of --logs" in res.stderr
+
+
+@pytest.mark.parametrize("args", [["chirp", "--joint", "9", "--out", "x.h5"],
+                                  ["simulate", "step", "--joint", "0", "--out", "x.h5"],
+                                  ["model", "--joint", "8", "--out", "x.toml"],
+                                  ["import", "--joint", "9", "--experiment", "free", "--columns", "t=t.txt",
+                                   "--out", "x.h5"],
+                                  ["deploy", "--design", "d.toml", "--joint", "9", "--out", "c.toml"],
+                                  ["pipeline", "--joint", "9", "--workdir", "w"]])
+def test_every_command_checks_its_joint(args, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2 and res.stderr.strip().endswith(f"--joint {args[args.index('--joint') + 1]}: an iiwa "
+                                                              "joint is 1-7"), res.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_simulated_joint_is_the_plant_s(tmp_path):
+    res = CliRunner().invoke(app, ["chirp", "--joint", "3", "--duration", "1", "--out", str(tmp_path / "x.h5")])
+    assert res.exit_code == 2 and "--joint 3: the simulated plant is joint 1" in res.stderr
+    assert not (tmp_path / "x.h5").exists()

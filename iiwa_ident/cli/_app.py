@@ -104,6 +104,14 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
     return typer.Exit(code)
 
 
+def check_joint(joint: int | None, option: str = "--joint") -> None:
+    """Refuse a joint number outside 1-7 in one line naming the option (None: not given)."""
+    from iiwa_ident.errors import IiwaIdentError
+
+    if joint is not None and not 1 <= joint <= 7:
+        raise IiwaIdentError(f"{option} {joint}: an iiwa joint is 1-7")
+
+
 def json_text(doc: dict) -> str:
     """The ``--json`` document as every command writes it."""
     return json.dumps(doc, indent=2) + "\n"

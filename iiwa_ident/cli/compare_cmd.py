@@ -35,7 +35,7 @@ def format_comparison(rows) -> str:
 
 @app.command("compare")
 def compare_cmd(
-    data: Annotated[list[Path], typer.Argument(help="Datasets of the model's joint (simulated, imported, held out).")],
+    data: Annotated[list[Path], typer.Argument(help="Datasets of the model's joint (simulated, imported, held out), or folders of them (a work folder's runs/).")],
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file (from fit, ripple, diagnose or model; "
                                                   "default: the joint's starting model from the robot's "
                                                   "description at the datasets' pose).")] = None,
@@ -57,11 +57,12 @@ def compare_cmd(
       iiwa-ident compare --model model_ext.toml run1.h5 run2.h5 --json compare.json --figures cmp
     """
     from iiwa_ident.ident import dataset_model, read_model
-    from iiwa_ident.datasets import read_dataset
+    from iiwa_ident.datasets import dataset_files, read_dataset
 
     from iiwa_ident.diagnose import compare
 
     try:
+        data = dataset_files(data)
         datasets = [read_dataset(p) for p in data]
         base = read_model(model) if model is not None else dataset_model(datasets)
         with progress(f"running the model on {len(datasets)} dataset(s)"):

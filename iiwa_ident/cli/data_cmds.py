@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, check_joint, fail
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["import_cmd", "info_cmd", "parse_pairs"]
@@ -163,6 +163,7 @@ def import_cmd(
                                      note_warnings, set_robot_name, write_dataset)
 
     try:
+        check_joint(joint)
         column_files = parse_pairs(columns, "--columns", "FILE")
         csv_map = parse_pairs(mapping, "--map", "COLUMN")
         factors = _parse_scale(scale)

@@ -8,7 +8,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json, json_option
+from iiwa_ident.cli._app import app, check_joint, fail, write_json, json_option
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
@@ -87,6 +87,7 @@ def deploy_cmd(
     from iiwa_ident.datasets import sha256_file
 
     try:
+        check_joint(joint)
         for value, option in ((torque_limit, "--torque-limit"), (rate_limit, "--rate-limit"),
                               (velocity_limit, "--velocity-limit"), (reference_rate, "--reference-rate")):
             _positive(value, option)

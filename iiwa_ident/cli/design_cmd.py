@@ -69,8 +69,10 @@ def format_design(design: AdditiveDesign, margins: OuterLoopMargins) -> str:
         f"observer poles:   {_pole_text(design.observer_poles)} rad/s",
         f"K_FSF = {_vec(design.K_fsf)}  [s^3, s^2, s, 1]",
         f"L     = {_vec(design.L)}  [s^-4, s^-3, s^-2, s^-1]",
-        f"Kr    = {design.Kr:.4f}  (unit DC gain of the feedback alone)",
-        f"discrete at {1 / T:g} Hz: Kd = {_vec(design.Kd)}, Ld = {_vec(design.Ld)}, Kr_d = {design.Kr_d:.4f}",
+        f"Kr    = {design.Kr:.4g}  (unit DC gain of the feedback alone)",
+        f"discrete at {1 / T:g} Hz: Kd = {_vec(design.Kd)}, Ld = {_vec(design.Ld)}, Kr_d = {design.Kr_d:.4g}"
+        + (" (the reference reaches the feedback through the model's y_ref, not through Kr_d)"
+           if design.Kr_d == 0.0 and design.feedforward == "reference" else ""),
     ]
     if design.feedforward == "none":
         lines.append("feed-forward: none")

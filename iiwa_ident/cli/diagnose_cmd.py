@@ -16,7 +16,7 @@ __all__ = ["diagnose_cmd"]
 
 @app.command("diagnose")
 def diagnose_cmd(
-    data: Annotated[list[Path], typer.Argument(help="Datasets of one joint (any experiment, torque or position mode).")],
+    data: Annotated[list[Path], typer.Argument(help="Datasets of one joint (any experiment, torque or position mode), or folders of them.")],
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file to check (e.g. from fit or ripple; "
                                                                   "default: the joint's starting model from the "
                                                                   "robot's description at the datasets' pose).")] = None,
@@ -47,11 +47,12 @@ def diagnose_cmd(
     """
     from iiwa_ident.ident import check_model_matches, dataset_model, read_model, write_model
     from iiwa_ident.model import Source
-    from iiwa_ident.datasets import read_dataset, sha256_file
+    from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
 
     from iiwa_ident.diagnose import diagnose
 
     try:
+        data = dataset_files(data)
         datasets = [read_dataset(p) for p in data]
         if model is not None:
             base = read_model(model)

@@ -43,7 +43,7 @@ def _parameter_lines(values: dict[str, float], std: dict[str, float]) -> list[st
     for name in PARAMETER_NAMES:
         v, s, r = _value_text(name, values[name], std[name])
         lines.append(f"{name:<10} {v:<20} {s:<16} {r}")
-    lines.append(f"delay Td = {values['Td'] * 1e3:.3f} +- {std['Td'] * 1e3:.3f} ms")
+    lines.append(f"delay Td = {values['Td'] * 1e3:.4g} +- {std['Td'] * 1e3:.2g} ms")
     return lines
 
 
@@ -78,7 +78,9 @@ def format_fit(result: FitResult) -> str:
         lines.append("")
         lines.append("link-side effects (simulator names; * = above 3 std)")
         for e in result.effects:
-            vals = ", ".join(f"{k} = {v:.4g} +- {e.std[k]:.2g}" for k, v in e.values.items()
+            # A value searched rather than estimated (the ripple's period) has no std to show.
+            vals = ", ".join(f"{k} = {v:.4g} +- {e.std[k]:.2g}" if math.isfinite(e.std[k]) else
+                             f"{k} = {v:.4g} (searched, no std)" for k, v in e.values.items()
                              if not (math.isfinite(e.std[k]) and e.std[k] == 0.0))
             lines.append(f"  {'*' if e.significant else ' '} {e.name}: {vals}")
             if e.note:

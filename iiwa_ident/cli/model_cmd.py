@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, parse_pose
+from iiwa_ident.cli._app import app, check_joint, fail, parse_pose
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["model_cmd"]
@@ -37,6 +37,7 @@ def model_cmd(
     from iiwa_ident.ident import starting_model, write_model
 
     try:
+        check_joint(joint)
         q = None if pose is None else parse_pose(pose, "--pose")
         if data is not None:
             ds = read_dataset(data)

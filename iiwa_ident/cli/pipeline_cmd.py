@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, check_joint, fail
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["pipeline_cmd"]
@@ -18,10 +18,15 @@ def pipeline_cmd(
     workdir: Annotated[Path, typer.Option("--workdir", help="Folder for every intermediate file and report.pdf.")],
     target: Annotated[str, typer.Option("--target", help="'sim' (simulated joint, validation against the FRI "
                                         "emulator) or 'robot' (FRI).")] = "sim",
-    logs: Annotated[Optional[list[Path]], typer.Option("--logs", help="Your own logs instead of experiments: a "
-                                                       "dataset file, a folder of column files "
-                                                       "(joint_position_measured.txt, ...) or a folder of such "
-                                                       "folders; repeat for more.")] = None,
+    logs: Annotated[Optional[list[Path]], typer.Option("--logs", help="Your own logs instead of experiments: "
+                                                       "dataset files, folders of column files "
+                                                       "(joint_position_measured.txt, ...) or folders of such "
+                                                       "folders: --logs A B C, or --logs repeated.")] = None,
+    more_logs: Annotated[Optional[list[Path]], typer.Argument(help="More --logs paths.", show_default=False,
+                                                              metavar="[PATHS]...")] = None,
+    split_runs: Annotated[bool, typer.Option("--split-runs", help="--logs: a column log whose time goes back "
+                                             "holds several runs: import each (else it is dropped, the "
+                                             "others go on).")] = False,
     model: Annotated[Optional[Path], typer.Option("--model", help="--logs: a model file of the joint to start "
                                                   "from (default: its starting model from the robot's "
                                                   "description at the logged pose).")] = None,
@@ -71,19 +76,26 @@ def pipeline_cmd(
       iiwa-ident pipeline --target sim --realtime --workdir run3
       iiwa-ident pipeline --target robot --robot 192.170.10.2 --joint 1 --workdir robot1
       iiwa-ident pipeline --logs my_logs/joint6 --workdir j6
+      iiwa-ident pipeline --logs j5/vel_p3 j5/vel_1 j5/chirp --split-runs --workdir j5
     """
     from iiwa_ident.pipeline import format_summary, run_log_pipeline, run_pipeline
     from iiwa_ident.report import build_report
 
     skipped = tuple(x.strip() for x in (skip or "").split(",") if x.strip())
     try:
+        check_joint(joint)
+        if more_logs and not logs:
+            raise IiwaIdentError(f"{more_logs[0]}: paths are log runs of --logs (--logs {more_logs[0]} ...)")
+        logs = [*(logs or []), *(more_logs or [])]
+        if split_runs and not logs:
+            raise IiwaIdentError("--split-runs applies to --logs")
         if logs:
             given = [name for name, value in (("--plant", plant), ("--robot", robot), ("--short", short or None),
                                               ("--realtime", realtime or None)) if value is not None]
             if target != "sim" or given:
                 raise IiwaIdentError(f"--logs runs on the logs alone: drop {', '.join(given) or '--target'}")
             result = run_log_pipeline(workdir, logs, robot_model=robot_model, joint=joint, torque_sign=torque_sign,
-                                      model=model,
+                                      model=model, split_runs=split_runs,
                                       progress=lambda m: typer.echo(m), report=None if no_report else build_report,
                                       skip=skipped)
         else:

@@ -132,7 +132,7 @@ def _run_verdict(run: dict, agree: set, alone: dict) -> str:
 
 @app.command("ripple")
 def ripple_cmd(
-    data: Annotated[list[Path], typer.Argument(help="Constant-velocity and/or quasi-static datasets of one joint.")],
+    data: Annotated[list[Path], typer.Argument(help="Constant-velocity and/or quasi-static datasets of one joint, or folders of them.")],
     model: Annotated[Optional[Path], typer.Option("--model", help="Model file for K and Jl (default: the joint's "
                                                                   "starting model from the robot's description at "
                                                                   "the datasets' pose, else Table I borrowed).")] = None,
@@ -168,9 +168,10 @@ def ripple_cmd(
     """
     from iiwa_ident.ident import check_model_matches, dataset_model, read_model, ripple_model, write_model
     from iiwa_ident.model import Source
-    from iiwa_ident.datasets import read_dataset, sha256_file
+    from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
 
     try:
+        data = dataset_files(data)
         datasets = [read_dataset(p) for p in data]
         if model is not None:
             base = read_model(model)

@@ -7,7 +7,7 @@ from typing import Annotated, Optional, TYPE_CHECKING
 
 import typer
 
-from iiwa_ident.cli._app import app, fail
+from iiwa_ident.cli._app import app, check_joint, fail
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
@@ -46,20 +46,27 @@ def _robot_target(experiment: Experiment, robot: Optional[str], port: int, robot
 
 def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], seed: int, rate: float,
                   out: Path, q0: float = 0.0, robot: Optional[str] = None, port: int = 30200,
-                  robot_model: str = "iiwa14", joint: int = 1, robot_name: Optional[str] = None) -> None:
-    """Run ``experiment`` on the simulated joint or on a robot over FRI, write the dataset, print its summary."""
+                  robot_model: str = "iiwa14", joint: Optional[int] = None, robot_name: Optional[str] = None) -> None:
+    """Run ``experiment`` on the simulated joint or on a robot over FRI, write the dataset, print its summary.
+
+    ``joint``: on the robot the joint under test (default 1); on the simulated joint, the plant's (refused if
+    another is asked for)."""
     from iiwa_ident.robot import RobotInterface
     from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
     from iiwa_ident.datasets import dataset_info, format_info, set_robot_name, write_dataset
     from iiwa_ident.excite import record
 
+    check_joint(joint)
     if target == "sim":
         the_plant = load_plant(plant) if plant else default_plant()
+        if joint is not None and joint != the_plant.joint:
+            raise IiwaIdentError(f"--joint {joint}: the simulated plant is joint {the_plant.joint} (another joint: "
+                                 "--plant with a plant file of it, see 'iiwa-ident plant --write-default')")
         target_robot: RobotInterface = SimulatedJoint(the_plant, seed=seed, q0=q0)
     elif target == "robot":
         if plant is not None:
             raise IiwaIdentError("--plant only applies to --target sim")
-        target_robot = _robot_target(experiment, robot, port, robot_model, joint)
+        target_robot = _robot_target(experiment, robot, port, robot_model, 1 if joint is None else joint)
     else:
         raise IiwaIdentError(f"--target {target}: expected 'sim' or 'robot'")
     cycle = target_robot.sample_time_s
@@ -80,7 +87,8 @@ def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], se
 _RobotOpt = Annotated[Optional[str], typer.Option("--robot", help="--target robot: robot controller HOST[:PORT].")]
 _PortOpt = Annotated[int, typer.Option("--port", help="--target robot: local FRI UDP port.")]
 _RobotModelOpt = Annotated[str, typer.Option("--robot-model", help="--target robot: iiwa7 | iiwa14.")]
-_JointOpt = Annotated[int, typer.Option("--joint", help="--target robot: joint under test, 1-7.")]
+_JointOpt = Annotated[Optional[int], typer.Option("--joint", help="Joint under test, 1-7 (--target robot: "
+                                                   "default 1; --target sim: the plant's).")]
 _RobotNameOpt = Annotated[Optional[str], typer.Option("--robot-name", help="Name of the robot (kept in the dataset; "
                                                                            "a fleet's key).")]
 
@@ -101,7 +109,7 @@ def chirp_cmd(
     robot: _RobotOpt = None,
     port: _PortOpt = 30200,
     robot_model: _RobotModelOpt = "iiwa14",
-    joint: _JointOpt = 1,
+    joint: _JointOpt = None,
     robot_name: _RobotNameOpt = None,
 ) -> None:
     """Record an exponential chirp (torque-commanded) as a dataset.
@@ -158,7 +166,7 @@ def simulate_cmd(
     robot: _RobotOpt = None,
     port: _PortOpt = 30200,
     robot_model: _RobotModelOpt = "iiwa14",
-    joint: _JointOpt = 1,
+    joint: _JointOpt = None,
     robot_name: _RobotNameOpt = None,
 ) -> None:
     """Run one of the other experiments on the simulated joint (or on the robot, --target robot).

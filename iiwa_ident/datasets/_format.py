@@ -38,7 +38,7 @@ import secrets
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import h5py
 import numpy as np
@@ -59,6 +59,7 @@ __all__ = [
     "validate_dataset",
     "write_dataset",
     "read_dataset",
+    "dataset_files",
     "read_truth",
     "sha256_file",
 ]
@@ -606,6 +607,43 @@ def _rows_flushed(h5: h5py.File) -> int | None:
     if not isinstance(node, h5py.Dataset) or node.shape != (1,) or node.dtype.kind not in ("i", "u"):
         return None
     return int(node[0])
+
+
+#: A file that marks a folder as a log of column files (one run), not a folder of datasets.
+_COLUMN_LOG_MARK = "joint_position_measured.txt"
+
+
+def dataset_files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
+    """The dataset files ``paths`` name: each file as given, each folder's ``.h5`` files (sorted by name).
+
+    Raises
+    ------
+    DatasetError
+        A folder that holds no dataset file (one that holds column logs says how to import them).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> for name in ("b.h5", "a.h5", "notes.txt"):
+    ...     _ = (d / name).write_text("")
+    >>> [p.name for p in dataset_files([d])]
+    ['a.h5', 'b.h5']
+    """
+    out: list[Path] = []
+    for given in map(Path, paths):
+        if not given.is_dir():
+            out.append(given)
+            continue
+        found = sorted(p for p in given.iterdir() if p.suffix == ".h5" and p.is_file())
+        if not found:
+            if (given / _COLUMN_LOG_MARK).is_file():
+                raise DatasetError(f"{given}: a folder of column logs, not of dataset files: import it first "
+                                   "('iiwa-ident import --columns ...', or 'iiwa-ident pipeline --logs' for a "
+                                   "whole joint)")
+            raise DatasetError(f"{given}: a folder with no dataset file (.h5) in it")
+        out += found
+    return out
 
 
 def read_dataset(path: str | os.PathLike[str]) -> Dataset:

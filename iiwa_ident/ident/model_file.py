@@ -35,6 +35,17 @@ __all__ = ["read_model", "write_model", "model_from_dict"]
 _POSITIVE = ("Jc", "K", "Jl", "KI")
 
 
+#: The keys of a parameter's entry.
+_PARAMETER_KEYS = ("value", "std", "unit", "origin")
+
+
+def _known_keys(table: dict[str, Any], known: tuple[str, ...], where: str) -> None:
+    """Refuse a key the format does not have (a misspelt ``sdt`` would be dropped without a word)."""
+    for key in table:
+        if key not in known:
+            raise ModelError(f"{where}.{key}: unknown key (known: {', '.join(known)})")
+
+
 def _number(where: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ModelError(f"{where}: expected a number, got {value!r}")
@@ -73,6 +84,7 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     for name, entry in raw.items():
         if not isinstance(entry, dict) or "value" not in entry:
             raise ModelError(f"{where}parameters.{name}: expected {{ value = ..., std = ..., unit = ... }}")
+        _known_keys(entry, _PARAMETER_KEYS, f"{where}parameters.{name}")
         value = _number(f"{where}parameters.{name}.value", entry["value"])
         std = entry.get("std")
         if std is not None:
@@ -95,6 +107,9 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     names, corr = [], None
     if "correlation" in data:
         c = data["correlation"]
+        if not isinstance(c, dict):
+            raise ModelError(f"{where}correlation: expected a table of names and matrix")
+        _known_keys(c, ("names", "matrix"), f"{where}correlation")
         names = list(c.get("names", []))
         try:
             corr = np.asarray(c.get("matrix"), dtype=float)
@@ -112,6 +127,7 @@ def model_from_dict(data: dict[str, Any], where: str = "") -> JointModel:
     for i, s in enumerate(data.get("sources", [])):
         if not isinstance(s, dict) or "file" not in s or "sha256" not in s:
             raise ModelError(f"{where}sources[{i}]: expected file and sha256")
+        _known_keys(s, ("file", "sha256", "role"), f"{where}sources[{i}]")
         sources.append(Source(str(s["file"]), str(s["sha256"]), str(s.get("role", "fit"))))
     effects = _effects(data.get("effects", []), where)
     joint = data.get("joint")

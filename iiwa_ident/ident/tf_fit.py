@@ -962,7 +962,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
             # benchmark's draws without any nuisance: whiteness failed on 3 of 4): said, not judged.
             warnings.append(f"{rec.label}: the residual is not white ({t.summary()}): the torque loop colours "
                             "the noise, and so does an effect the model lacks that does not follow the command "
-                            "(the ripple); the std holds only for the first")
+                            "(the ripple); the std covers the loop's colouring, not such an effect")
     tests = [t for t in tests if t is not None]
     for r in records:
         if r.filled_cycles:

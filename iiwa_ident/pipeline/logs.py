@@ -125,29 +125,37 @@ def _moving_speeds(ds) -> np.ndarray:
     return w[w > 0.5 * np.percentile(w, 95)] if w.size else w
 
 
-def _import_columns(run: LogRun, joint: int | None, robot_model: str):
+def _import_columns(run: LogRun, joint: int | None, robot_model: str, split_runs: bool = False) -> list:
+    """The run's datasets: one, or with ``split_runs`` one per stretch whose time does not go back."""
     from iiwa_ident.datasets import import_columns
 
     files = {sig: run.path / name for name, sig in LOG_FILES.items() if (run.path / name).is_file()}
     if "t" not in files or "tau_j" not in files:
         raise IiwaIdentError(f"{run.path}: a log folder needs cur_traj_time_s.txt, {_RUN_MARK} and "
                              "joint_torque_measured.txt")
-    ds = import_columns(files, joint=joint or 1, experiment="free", robot_model=robot_model)
-    travel = ds.experiment_attrs.get("joint_travel_rad")
-    if joint is None:
-        if travel is None:
-            raise IiwaIdentError(f"{run.path}: the position file has no column per joint: give --joint")
-        moved = int(np.argmax(travel)) + 1
-        if moved != ds.joint:
-            ds = import_columns(files, joint=moved, experiment="free", robot_model=robot_model)
-    # The experiment the log was: a torque-commanded record, constant speeds back and forth, or free motion.
-    if ds.has("tau_c"):
-        ds.experiment = "chirp"
-    else:
-        w = _moving_speeds(ds)
-        steady = w.size > 10 and np.percentile(w, 90) < _CONSTANT_SPEED_RATIO * np.percentile(w, 10)
-        ds.experiment = "constant_velocity" if steady else "free"
-    return ds
+
+    def read(j: int) -> list:
+        got = import_columns(files, joint=j, experiment="free", robot_model=robot_model, split_runs=split_runs)
+        return got if isinstance(got, list) else [got]
+
+    out = []
+    for k, ds in enumerate(read(joint or 1)):
+        travel = ds.experiment_attrs.get("joint_travel_rad")
+        if joint is None:
+            if travel is None:
+                raise IiwaIdentError(f"{run.path}: the position file has no column per joint: give --joint")
+            moved = int(np.argmax(travel)) + 1
+            if moved != ds.joint:
+                ds = read(moved)[k]
+        # The experiment the log was: a torque-commanded record, constant speeds back and forth, or free motion.
+        if ds.has("tau_c"):
+            ds.experiment = "chirp"
+        else:
+            w = _moving_speeds(ds)
+            steady = w.size > 10 and np.percentile(w, 90) < _CONSTANT_SPEED_RATIO * np.percentile(w, 10)
+            ds.experiment = "constant_velocity" if steady else "free"
+        out.append(ds)
+    return out
 
 
 # --------------------------------------------------------------------------- stages
@@ -158,12 +166,25 @@ def _runs(ctx: PipelineContext) -> list:
 def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import note_warnings, read_dataset, torque_sign_problem, write_dataset
 
-    runs = find_log_runs(ctx.results["log_paths"])
+    found = find_log_runs(ctx.results["log_paths"])
     joint = ctx.results.get("log_joint")
-    datasets = []
-    for run in runs:
-        ds = read_dataset(run.path) if run.kind == "dataset" else _import_columns(run, joint, ctx.robot_model)
-        datasets.append(ds)
+    split = bool(ctx.results.get("split_runs"))
+    runs, datasets, dropped = [], [], []
+    for run in found:
+        # A run that cannot be read is dropped with its reason; the others go on.
+        try:
+            got = [read_dataset(run.path)] if run.kind == "dataset" else _import_columns(run, joint, ctx.robot_model,
+                                                                                         split)
+        except IiwaIdentError as err:
+            dropped.append({"run": run.name, "source": str(run.path), "reason": str(err)})
+            ctx.progress(f"  dropped {run.name}: {err}")
+            continue
+        for k, ds in enumerate(got, start=1):
+            runs.append(run if len(got) == 1 else LogRun(f"{run.name}_run{k}", run.path, run.kind))
+            datasets.append(ds)
+    if not datasets:
+        raise IiwaIdentError(f"no run could be read ({len(dropped)} dropped: {dropped[0]['reason']})" if dropped
+                             else "no run found")
     joints = {ds.joint for ds in datasets}
     if len(joints) > 1:
         listed = ", ".join(f"{r.name} (joint {ds.joint})" for r, ds in zip(runs, datasets))
@@ -194,7 +215,8 @@ def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
            "flipped (--torque-sign -1)" if sign == "-1" else
            f"flipped: the gravity of {', '.join(deciding)} reads the other way round")
     ctx.progress(f"  {len(datasets)} run(s) of joint {ctx.joint}; torque sign {how}")
-    return {"runs": rows, "joint": ctx.joint, "robot_model": ctx.robot_model, "torque_sign": how}
+    return {"runs": rows, "dropped": dropped, "joint": ctx.joint, "robot_model": ctx.robot_model,
+            "torque_sign": how}
 
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
@@ -327,7 +349,8 @@ def _log_headline(records: list[StageRecord]) -> dict[str, Any]:
 def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_model: str = "iiwa14",
                      joint: int | None = None, torque_sign: str = "auto", model: str | Path | None = None,
                      progress: Callable[[str], None] = print,
-                     report: Callable[..., list] | None = None, skip: tuple[str, ...] = ()) -> PipelineResult:
+                     report: Callable[..., list] | None = None, skip: tuple[str, ...] = (),
+                     split_runs: bool = False) -> PipelineResult:
     """Run :data:`LOG_STAGES` on the runs under ``logs`` into ``workdir``; write ``pipeline.json``.
 
     Parameters
@@ -351,6 +374,10 @@ def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_m
         (needed where the logs do not say the other joints' positions).
     progress, report, skip
         As :func:`~iiwa_ident.pipeline.run_pipeline`.
+    split_runs : bool
+        A column log whose time goes back holds several runs: import each (named ``<run>_run1``, ...)
+        instead of dropping the log. A run that cannot be read is dropped with its reason (the import
+        stage's ``dropped``); the others go on.
 
     Raises
     ------
@@ -384,6 +411,7 @@ def run_log_pipeline(workdir: str | Path, logs: Sequence[str | Path], *, robot_m
     ctx = PipelineContext(workdir=workdir, target="logs", robot_model=robot_model, joint=joint or 0,
                           progress=progress)
     ctx.results.update(log_paths=[Path(p) for p in logs], log_joint=joint, torque_sign=torque_sign,
+                       split_runs=split_runs,
                        log_model=None if model is None else Path(model))
     inputs = {"logs": ", ".join(str(p) for p in logs), "robot_model": robot_model,
               "joint": "the one that moved" if joint is None else str(joint),
