@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -14,11 +16,91 @@ from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["app", "fail", "json_text", "write_json", "parse_pose", "json_option", "figures_option"]
 
-class _BracketsAsWritten(typer.core.TyperCommand):
-    """A command whose help shows square brackets as written.
+#: Width the help is laid out for: a terminal of 80 columns, less the margins rich keeps.
+HELP_WIDTH = 78
 
-    The help is rendered with rich markup, which takes ``[s]`` or ``[rad]`` for a style tag and
-    drops it ("Run length [s]." came out as "Run length ."): the brackets are escaped.
+
+def _command_lines(line: str, indent: str, width: int) -> list[str]:
+    """An example command, broken before its options (a ``\\`` continuation) to fit ``width``."""
+    if len(indent) + len(line) <= width:
+        return [indent + line]
+    words = re.split(r" (?=--?\w)", line)
+    out: list[str] = []
+    cur = words[0]
+    for w in words[1:]:
+        lead = indent if not out else indent + "    "
+        if len(lead) + len(cur) + len(w) + 3 > width:
+            out.append(lead + cur + " \\")
+            cur = w
+        else:
+            cur += " " + w
+    out.append((indent if not out else indent + "    ") + cur)
+    return out
+
+
+def reflow_help(text: str, width: int = HELP_WIDTH) -> str:
+    """A docstring laid out for the terminal: each prose paragraph one line (the terminal wraps it), indented
+    lines (examples, code) kept as they are, an example command too long for ``width`` broken before an option.
+
+    Examples
+    --------
+    >>> print(reflow_help('''Fit the joint.
+    ...
+    ...     Reads the chirp and
+    ...     writes a model.
+    ...
+    ...     Example:
+    ...       iiwa-ident fit chirp.h5 --out model.toml --json fit.json''', width=50))
+    Fit the joint.
+    <BLANKLINE>
+    Reads the chirp and writes a model.
+    <BLANKLINE>
+    Example:
+      iiwa-ident fit chirp.h5 --out model.toml \\
+          --json fit.json
+    """
+    out = []
+    for para in re.split(r"\n\s*\n", inspect.cleandoc(text)):
+        block: list[str] = []
+        prose: list[str] = []
+        command: list[str] = []  # the example being read: its indent, then its text
+
+        def flush() -> None:
+            if prose:
+                block.append(" ".join(prose))
+                prose.clear()
+            if command:
+                block.extend(_command_lines(command[1], command[0], width))
+                command.clear()
+
+        for line in para.split("\n"):
+            stripped = line.lstrip()
+            if command and line.startswith(" ") and stripped.startswith("-"):
+                # The example goes on, on its own line (with or without a backslash): one command.
+                command[1] = command[1].removesuffix("\\").rstrip() + " " + stripped
+                continue
+            if not line.startswith(" "):
+                if command:
+                    flush()
+                prose.append(line.strip())
+                continue
+            flush()
+            indent = line[:len(line) - len(stripped)]
+            if stripped.startswith("iiwa-ident "):
+                command[:] = [indent, stripped]
+            else:
+                block.append(line)
+        flush()
+        out.append("\n".join(block))
+    return "\n\n".join(out)
+
+
+class _BracketsAsWritten(typer.core.TyperCommand):
+    """A command whose help reads well on an 80-column terminal and shows square brackets as written.
+
+    The help is rendered with rich markup, which keeps a docstring's line breaks (prose broke twice per
+    line, examples mid-argument: :func:`reflow_help` lays it out) and takes ``[s]`` or ``[rad]`` for a
+    style tag and drops it ("Run length [s]." came out as "Run length ."): the brackets are escaped.
     """
 
     def __init__(self, *args, **kwargs) -> None:
@@ -26,7 +108,7 @@ class _BracketsAsWritten(typer.core.TyperCommand):
         from rich.markup import escape
 
         if self.help:
-            self.help = escape(self.help)
+            self.help = escape(reflow_help(self.help))
         for param in self.params:
             if getattr(param, "help", None):
                 param.help = escape(param.help)
@@ -50,8 +132,57 @@ class _Analysis(_BracketsAsWritten):
 ANALYSIS_COMMANDS = ("fit", "ripple", "diagnose", "design", "deploy", "report")
 
 
+#: The commands in the order of the work: everything at once; experiments and data; identification; the
+#: controller from design to the live run; reports and fleets.
+WORKFLOW = ("pipeline", "chirp", "simulate", "plant", "import", "info", "model", "fit", "ripple", "compare",
+            "diagnose", "design", "deploy", "emulate", "run", "kappa", "report", "fleet")
+
+
+def first_example(name: str, help_text: str) -> str | None:
+    """The first example of command ``name`` in its help, its continued lines joined (None: it has none).
+
+    Examples
+    --------
+    >>> first_example("fit", "Fit.\\n\\nExample:\\n  iiwa-ident fit a.h5 \\\\\\n      --out m.toml\\n")
+    'iiwa-ident fit a.h5 --out m.toml'
+    """
+    lines = [line.strip() for line in inspect.cleandoc(help_text or "").splitlines()]
+    found = []
+    for k, line in enumerate(lines):
+        if line.startswith(f"iiwa-ident {name} "):
+            parts = [line]
+            while parts[-1].endswith("\\") and k + 1 < len(lines):
+                parts[-1] = parts[-1].removesuffix("\\").rstrip()
+                k += 1
+                parts.append(lines[k])
+            found.append(" ".join(parts))
+    # One that stands alone: no shell variable set in the help's text around it.
+    return next((x for x in found if "$" not in x), found[0] if found else None)
+
+
+class _WorkflowGroup(typer.core.TyperGroup):
+    """The top level: commands listed in :data:`WORKFLOW` order, then one example of each, in that order."""
+
+    def list_commands(self, ctx) -> list[str]:
+        names = list(self.commands)
+        return sorted(names, key=lambda n: (WORKFLOW.index(n) if n in WORKFLOW else len(WORKFLOW), names.index(n)))
+
+    def format_help(self, ctx, formatter) -> None:
+        if self.epilog is None:
+            lines = []
+            for name in self.list_commands(ctx):
+                example = first_example(name, self.commands[name].help or "")
+                if example is not None:
+                    lines += _command_lines(example, "  ", HELP_WIDTH)
+            self.epilog = "One example of each, in the order of the work:\n" + "\n".join(lines)
+        super().format_help(ctx, formatter)
+
+
 class _App(typer.Typer):
     """The typer application, its commands showing units such as ``[s]`` in their help."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(cls=_WorkflowGroup, **kwargs)
 
     def command(self, name=None, *args, cls=None, **kwargs):
         default = _Analysis if name in ANALYSIS_COMMANDS else _BracketsAsWritten
