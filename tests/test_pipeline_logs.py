@@ -149,6 +149,23 @@ def test_the_report_of_measured_data(logs_run, tmp_path):
     changed = bool(diag["effects"] or diag["replaced"])  # residual pages only where the model changed
     assert any(t.startswith("Residuals before and after: joint1_vel_p6.h5") for t in titles) == changed, titles
     assert not any("dataset 0" in t or "not drawn" in t for t in titles), titles
+    # Every page one size; page 1's rows in the pipeline's stage order, a stage the logs cannot support
+    # neither passed nor warned (no torque command: fit, design and deploy), its reason said once.
+    import pypdf
+
+    from iiwa_ident.report.verdict import verdict_rows
+
+    pages = pypdf.PdfReader(tmp_path / "r.pdf").pages
+    assert {(round(float(p.mediabox.width)), round(float(p.mediabox.height))) for p in pages} == {(792, 612)}
+    first = " ".join(pages[0].extract_text().split())
+    assert "skipped: skipped" not in first and "SKIPPED" in first
+    rows = verdict_rows(doc)
+    assert [r.stage for r in rows if r.stage in ("import", "ripple", "diagnose", "held out", "fit")] == \
+        ["import", "ripple", "diagnose", "held out", "fit"]
+    assert {r.stage: r.verdict for r in rows if r.stage in ("fit", "design", "deploy")} == \
+        {"fit": "SKIPPED", "design": "SKIPPED", "deploy": "SKIPPED"}
+    fit_row = next(r for r in rows if r.stage == "fit")
+    assert fit_row.figure.startswith("no torque-commanded record")
 
 
 def test_the_simulated_report_says_so():

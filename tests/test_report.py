@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from iiwa_ident.errors import IiwaIdentError
@@ -155,7 +156,7 @@ class TestVerdictPage:
         flat = " ".join(first.split())
         for r in rows:
             assert " ".join(f"{r.stage} {r.figure.split()[0]}".split()) in flat, r
-            assert r.verdict in ("PASS", "WARN", "FAIL")
+            assert r.verdict in ("PASS", "WARN", "FAIL", "SKIPPED")
         ripple = next(s for s in doc["stages"] if s["name"] == "ripple")["headline"]
         assert f"rho = {ripple['period_rad']:.6f} rad" in flat
         import textwrap
@@ -214,3 +215,17 @@ class TestVerdictPage:
         rec = results["design"]
         results["design"] = dataclasses.replace(rec, filter=dataclasses.replace(rec.filter, beta=beta + 3.0))
         assert f"(beta = {beta + 3.0:g})" in captions(doc)["Spatial filter at several speeds (like Fig. 4)"]
+
+
+def test_the_spatial_spectrum_says_which_line_is_the_tallest():
+    # The note read "look for one sharp line" on pages whose detected period was not the tallest line.
+    from types import SimpleNamespace
+
+    from iiwa_ident.report.ripple_figures import _spectrum_note
+
+    period = np.array([0.0049, 0.0098, 0.0196, 0.04])
+    tallest_there = SimpleNamespace(detected=True, period_rad=0.0196, spectrum_stat=np.array([1.0, 2.0, 9.0, 1.0]))
+    assert _spectrum_note(tallest_there, period).startswith("The tallest line is at the detected period")
+    harmonic = SimpleNamespace(detected=True, period_rad=0.0196, spectrum_stat=np.array([1.0, 9.0, 4.0, 1.0]))
+    assert _spectrum_note(harmonic, period).startswith("The tallest line stands at 0.00980 rad, 2.00 times shorter")
+    assert _spectrum_note(SimpleNamespace(detected=False), period).startswith("No line stands out")

@@ -25,7 +25,7 @@ def report_cmd(
     """Build the PDF report from the files of a work folder (the analyses are re-run, no experiment is).
 
     Page 1 is the verdict: one row per stage (its key figure, the reference
-    it is judged by, PASS / WARN / FAIL), the warnings and the page index;
+    it is judged by, PASS / WARN / FAIL or SKIPPED), the warnings and the page index;
     then per stage its figures, each with a caption saying what to look at
     (a stage that failed gets a page saying what failed), and an appendix
     with the inputs and every file's sha256. Every page says whether its data are SIMULATED

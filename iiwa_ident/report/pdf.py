@@ -58,22 +58,51 @@ class Page:
 
 # --------------------------------------------------------------------------- layout helpers
 def _captioned(fig: plt.Figure, title: str, caption: str) -> plt.Figure:
-    """Add a caption band below the figure's axes (the axes keep their layout, shifted up)."""
-    w, h = fig.get_size_inches()
+    """The figure on a page (:func:`_on_page`) above a caption band that spans the page's width."""
     # About 12 characters of 8.5 pt text per inch of page width.
-    lines = textwrap.wrap(f"{title}. {caption}", width=int(w * 12))
+    lines = textwrap.wrap(f"{title}. {caption}", width=int(PAGE_INCHES[0] * 12))
     band = 0.35 + 0.17 * len(lines)
-    frac = band / (h + band)
-    fig.set_layout_engine("none")
-    fig.set_size_inches(w, h + band)
+    fig = _on_page(fig, bottom_in=band)
+    fig.text(0.03, (band - 0.1) / PAGE_INCHES[1], "\n".join(lines), fontsize=8.5, va="top", ha="left",
+             family="sans-serif")
+    return fig
+
+
+#: Every page's size [in]: US letter, landscape.
+PAGE_INCHES = (11.0, 8.5)
+
+
+def _laid_out(fig: plt.Figure) -> None:
+    """Fix the figure's layout as its layout engine computes it, so axes can be moved without it."""
+    if fig.get_layout_engine() is not None:
+        fig.draw_without_rendering()
+        fig.set_layout_engine("none")
+
+
+#: Band kept free at the top of every page for the banner [in].
+_BANNER_INCHES = 0.3
+
+
+def _on_page(fig: plt.Figure, bottom_in: float = 0.2) -> plt.Figure:
+    """The figure on a page of :data:`PAGE_INCHES`, scaled to fill it between the banner's band and
+    ``bottom_in`` inches at the bottom with its own proportions, centred (fonts keep their size)."""
+    w, h = fig.get_size_inches()
+    W, H = PAGE_INCHES
+    if abs(w - W) < 1e-6 and abs(h - H) < 1e-6 and bottom_in <= 0.2:
+        return fig
+    _laid_out(fig)
+    room = H - _BANNER_INCHES - bottom_in
+    scale = min(W / w, room / h)
+    fw, fh = w * scale / W, h * scale / H
+    x0, y0 = (1 - fw) / 2, (bottom_in + (room - h * scale) / 2) / H
+    fig.set_size_inches(W, H)
     for ax in fig.axes:
         p = ax.get_position()
-        ax.set_position([p.x0, frac + p.y0 * (1 - frac), p.width, p.height * (1 - frac)])
+        ax.set_position([x0 + p.x0 * fw, y0 + p.y0 * fh, p.width * fw, p.height * fh])
     for txt in fig.texts:
-        x, y = txt.get_position()
-        txt.set_position((x, frac + y * (1 - frac)))
-    fig.text(0.03, frac - 0.08 / (h + band), "\n".join(lines), fontsize=8.5, va="top", ha="left",
-             family="sans-serif")
+        if txt.get_transform() == fig.transFigure:
+            x, y = txt.get_position()
+            txt.set_position((x0 + x * fw, y0 + y * fh))
     return fig
 
 
@@ -263,7 +292,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
 
 
 # --------------------------------------------------------------------------- pages
-_VERDICT_COLOUR = {"PASS": "#c8e6c9", "WARN": "#ffe0b2", "FAIL": "#ffcdd2"}
+_VERDICT_COLOUR = {"PASS": "#c8e6c9", "WARN": "#ffe0b2", "FAIL": "#ffcdd2", "SKIPPED": "#eeeeee"}
 
 
 def _warnings(doc: dict[str, Any]) -> list[str]:
@@ -281,9 +310,16 @@ def _warnings(doc: dict[str, Any]) -> list[str]:
     return out
 
 
+#: Lines of warnings page 1 holds.
+_WARNING_LINES = 10
+
 #: Pages shown as thumbnails on page 1, by title (those the report has).
 _THUMBNAILS = ("Bode plot of tau_c -> tau_J", "Lookup tables (like Fig. 6)", "Step responses through FRI (like Fig. 8)",
                "kappa margin")
+
+
+#: Resolution of page 1's thumbnails [dots per inch]: their axis labels readable when printed.
+_THUMBNAIL_DPI = 90
 
 
 def _thumbnail(page: Page) -> Any:
@@ -295,7 +331,7 @@ def _thumbnail(page: Page) -> Any:
         if fig is None:
             return None
         buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=45)
+        fig.savefig(buf, format="png", dpi=_THUMBNAIL_DPI)
         plt.close(fig)
         buf.seek(0)
         return plt.imread(buf)
@@ -314,7 +350,7 @@ def _verdict_page(doc: dict[str, Any], index: list[str], thumbs: list[Page] = ()
         fig = plt.figure(figsize=(11.0, 8.5))
         head = banner(doc) or "no pipeline.json: no verdict"
         fig.text(0.04, 0.965, "iiwa-ident report", fontsize=16, weight="bold", va="top")
-        fig.text(0.04, 0.925, head, fontsize=10, weight="bold", va="top",
+        fig.text(0.04, 0.925, textwrap.fill(head, 125), fontsize=10, weight="bold", va="top",
                  color="C3" if head.startswith("MEASURED") else "C0")
         n_rows = max(len(rows), 1)
         height = min(0.036 * (n_rows + 1), 0.5)
@@ -338,21 +374,28 @@ def _verdict_page(doc: dict[str, Any], index: list[str], thumbs: list[Page] = ()
         y = 0.89 - height - 0.035
         images = [(p.title, im) for p in thumbs if (im := _thumbnail(p)) is not None]
         for k, (title, im) in enumerate(images):
-            ax_t = fig.add_axes((0.04 + 0.235 * k, y - 0.17, 0.215, 0.17))
+            ax_t = fig.add_axes((0.04 + 0.235 * k, y - 0.21, 0.225, 0.21))
             ax_t.imshow(im)
             ax_t.set_axis_off()
-            ax_t.set_title(f"p. {index.index(title) + 1}: {title}", fontsize=6.5)
+            ax_t.set_title(f"p. {index.index(title) + 1}: {title}", fontsize=7)
         if images:
-            y -= 0.2
+            y -= 0.24
         warn = _warnings(doc)
         fig.text(0.04, y, f"Warnings ({len(warn)})" if warn else "Warnings: none", fontsize=10, weight="bold",
                  va="top")
-        most = 5
-        shown = [textwrap.shorten(w, 165, placeholder=" ...") for w in warn[:most]]
-        if len(warn) > most:
-            shown.append(f"... and {len(warn) - most} more (the stages' pages and JSON files)")
-        fig.text(0.04, y - 0.025, "\n".join(shown), fontsize=7, va="top", family="sans-serif")
-        y_index = y - 0.045 - 0.016 * len(shown)
+        # Whole warnings, wrapped, as many as the page holds; the rest counted.
+        lines: list[str] = []
+        shown = 0
+        for w in warn:
+            wrapped = textwrap.wrap(w, 175, subsequent_indent="    ")
+            if len(lines) + len(wrapped) > _WARNING_LINES:
+                break
+            lines += wrapped
+            shown += 1
+        if shown < len(warn):
+            lines.append(f"... and {len(warn) - shown} more (the stages' pages and JSON files)")
+        fig.text(0.04, y - 0.025, "\n".join(lines), fontsize=7, va="top", family="sans-serif")
+        y_index = y - 0.045 - 0.016 * len(lines)
         fig.text(0.04, y_index, "Pages", fontsize=10, weight="bold", va="top")
         col = (len(index) + 2) // 3
         for c in range(3):
@@ -664,8 +707,9 @@ def _held_out_page(doc: dict[str, Any]) -> Page | None:
             if r.get("ratio") is not None:
                 fit = r.get("fit_pct", {}).get("link")
                 tests = r.get("residual_tests_passed", {}).get("link")
-                said = verdict_text(tests)
-                extra = "" if fit is None else f"\nfit {fit:.0f} %, tests {said}"
+                # A prediction worse than the run's mean does not model the run, whatever its residual's tests say.
+                said = "not modelled (below 0 %)" if fit is not None and fit < 0 else f"tests {verdict_text(tests)}"
+                extra = "" if fit is None else f"\nfit {fit:.0f} %, {said}"
                 ax.annotate(f"{100 * r['ratio']:.0f} %{extra}", (i + 0.2, r["after_nm"]), ha="center", va="bottom",
                             fontsize=8)
         ax.set_xticks(x, [r["run"] for r in rows], rotation=15, ha="right", fontsize=8)
@@ -791,12 +835,11 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
                     fig = page.draw()
                     if fig is None:
                         raise IiwaIdentError("nothing to draw for this page")
-                    if page.captioned:
-                        fig = _captioned(fig, page.title, page.caption)
+                    fig = _captioned(fig, page.title, page.caption) if page.captioned else _on_page(fig)
                     title = page.title
                     _rasterize_dense(fig)
                     if head:
-                        fig.text(0.5, 0.998, head, ha="center", va="top", fontsize=8, weight="bold",
+                        fig.text(0.5, 0.998, textwrap.fill(head, 160), ha="center", va="top", fontsize=8, weight="bold",
                                  color="C3" if head.startswith("MEASURED") else "C0")
                     fig.text(0.99, 0.003, f"page {i} of {len(pages)}", ha="right", va="bottom", fontsize=7)
                 except Exception as err:  # noqa: BLE001  (one bad page must not cost the others)

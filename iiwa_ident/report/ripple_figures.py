@@ -44,8 +44,23 @@ def spatial_spectrum_figure(result: RippleResult) -> plt.Figure:
     ax2.legend(loc="upper right")
     verdict = "detected" if result.detected else "none found"
     ax1.set_title(f"Spatial spectrum of the deflection ({verdict}, false-alarm probability {result.false_alarm:.1e})")
-    return _captioned(fig, "Look for one sharp line standing above a flat floor; a position-periodic deflection is "
-                      "phase-locked in every pass, noise is not.", 0.03)
+    return _captioned(fig, _spectrum_note(result, period), 0.03)
+
+
+def _spectrum_note(result: RippleResult, period: np.ndarray) -> str:
+    """What the spectrum shows, from its own lines: whether the detected period's line is the tallest."""
+    if not result.detected or not len(period):
+        return ("No line stands out as a position-periodic deflection would (phase-locked in every pass, noise is "
+                "not): the runs do not show a ripple this method can find.")
+    top = float(period[int(np.argmax(result.spectrum_stat))])
+    near = abs(top / result.period_rad - 1.0) < 0.02
+    if near:
+        return ("The tallest line is at the detected period: a position-periodic deflection is phase-locked in every "
+                "pass, noise is not.")
+    ratio = result.period_rad / top
+    return (f"The tallest line stands at {top:.5f} rad, {ratio:.2f} times shorter than the detected period: a "
+            "harmonic of the deflection (its shape is not a pure sine) or another line; the period is the family's "
+            "fundamental, which the runs agree on (ripple.json).")
 
 
 def lookup_table_figure(result: RippleResult) -> plt.Figure:

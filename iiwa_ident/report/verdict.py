@@ -8,7 +8,9 @@ Verdicts:
 
 - ``PASS``: the figure meets its reference (stated in the row);
 - ``WARN``: it misses it, but not by what makes the result unusable, or the data cannot decide;
-- ``FAIL``: the result contradicts the reference.
+- ``FAIL``: the result contradicts the reference;
+- ``SKIPPED``: the stage did not run, for the reason shown (the data cannot support it, the user skipped
+  it, or a stage it needs did not succeed, whose own row says why): neither a pass nor a warning.
 
 References: the paper's ripple period (0.01963 rad, given to 4 digits: 0.03 %) and its "about 3 times the
 gain margin"; a fitted parameter against the simulated plant within 3 standard deviations; an improved
@@ -22,9 +24,13 @@ from typing import Any
 
 from iiwa_ident.model import RIPPLE_PERIOD_RAD
 
-__all__ = ["VerdictRow", "verdict_rows", "PASS", "WARN", "FAIL"]
+__all__ = ["VerdictRow", "verdict_rows", "PASS", "WARN", "FAIL", "SKIPPED"]
 
-PASS, WARN, FAIL = "PASS", "WARN", "FAIL"
+PASS, WARN, FAIL, SKIPPED = "PASS", "WARN", "FAIL", "SKIPPED"
+
+#: The pipeline stage each row label belongs to (rows are listed in the pipeline's stage order).
+_ROW_STAGE = {"fit with table": "ripple", "observer": "design", "step": "validation", "sine": "validation",
+              "kappa live": "validation", "held out": "held_out"}
 
 #: Relative tolerance of the ripple period against the paper's value: its printed digits (0.01963).
 _PERIOD_DIGITS = 0.5e-5 / RIPPLE_PERIOD_RAD
@@ -106,14 +112,16 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
     Returns
     -------
     list of VerdictRow
-        In stage order; a failed stage is a ``FAIL`` row with its message, a skipped one a ``WARN`` row.
+        In the pipeline's stage order; a failed stage is a ``FAIL`` row with its message, a skipped one a
+        ``SKIPPED`` row with its reason.
     """
     rows: list[VerdictRow] = []
     for s in doc.get("stages", []):
         if s["status"] == "failed":
             rows.append(VerdictRow(s["name"], f"failed: {s.get('error', '')}", "the stage runs", FAIL))
         elif s["status"] == "skipped" and s["name"] != "report":
-            rows.append(VerdictRow(s["name"], f"skipped: {s.get('error', '')}", "the stage runs", WARN))
+            why = s.get("error", "").removeprefix("skipped: ")
+            rows.append(VerdictRow(s["name"], why, "the stage runs", SKIPPED))
     by = {s["name"]: s.get("headline", {}) for s in doc.get("stages", []) if s["status"] == "ok"}
 
     if "import" in by:
@@ -211,4 +219,7 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
                                       if worse else ""),
                                    "every run lower, every fit above 0 %",
                                    PASS if max(ratios) < 1 and not worse else WARN))
-    return rows
+    order = [s["name"] for s in doc.get("stages", [])]
+    where = {r: order.index(_ROW_STAGE.get(r.stage, r.stage)) if _ROW_STAGE.get(r.stage, r.stage) in order
+             else len(order) for r in rows}
+    return sorted(rows, key=lambda r: where[r])
