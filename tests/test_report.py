@@ -229,3 +229,43 @@ def test_the_spatial_spectrum_says_which_line_is_the_tallest():
     harmonic = SimpleNamespace(detected=True, period_rad=0.0196, spectrum_stat=np.array([1.0, 9.0, 4.0, 1.0]))
     assert _spectrum_note(harmonic, period).startswith("The tallest line stands at 0.00980 rad, 2.00 times shorter")
     assert _spectrum_note(SimpleNamespace(detected=False), period).startswith("No line stands out")
+
+
+def test_page_one_and_the_fit_page_say_one_thing_of_the_residual(workdir):
+    # Page 1 read "residual independent of the command" from the fit's own residual (the ripple's harmonics
+    # fitted alongside) while the fit page ran model.toml, which holds no table: 93.6 %, independence FAILED.
+    from iiwa_ident.diagnose import compare
+    from iiwa_ident.diagnose.channels import INDEPENDENCE
+    from iiwa_ident.report.pdf import _compared_model
+    from iiwa_ident.report.verdict import verdict_rows
+
+    doc = json.loads((workdir / "pipeline.json").read_text())
+    results = load_results(workdir, doc, ("fit", "ripple"))
+    model, said = _compared_model(results)
+    assert said.startswith("model_ripple.toml") and model.ripple is not None
+    (row,) = [c for c in compare([results["chirp"]], model) if c.channel == "command"]
+    independent = next(t for t in row.tests.tests if t.name == INDEPENDENCE).passed
+    rows = {r.stage: r for r in verdict_rows(doc)}
+    for stage in ("fit", "fit with table"):
+        claims = "independent of the command" in rows[stage].figure
+        assert claims == independent, (stage, rows[stage].figure, row.tests.summary())
+    assert "(the ripple's harmonics fitted alongside)" in rows["fit"].figure
+    titles = [p.title for p in report_pages(workdir, doc, results, "fit")]
+    page = next(p for p in report_pages(workdir, doc, results, "fit") if p.title == "Fitted model against the chirp")
+    assert page.caption.startswith("model_ripple.toml (the joint's parameters refitted"), titles
+
+
+def test_a_channel_said_explained_is_not_shown_failing_alone(workdir):
+    # The diagnosis page's title said "model explains the data" above a channel "FAIL / FAIL": a channel
+    # explained at the sensor's noise now says so beside its verdict.
+    from iiwa_ident.report.diagnose_figures import gain_table_figure
+
+    doc = json.loads((workdir / "pipeline.json").read_text())
+    d = load_results(workdir, doc, ("diagnose",))["diagnosis"]
+    fig = gain_table_figure(d)
+    cells = [t.get_text().get_text() for t in fig.axes[0].tables[0].get_celld().values()]
+    for c in d.channels:
+        if c.after is not None and c.after.explained and c.after.passed is False:
+            said = next(x for x in cells if x.endswith(" (at noise)") or x.endswith("FAIL"))
+            assert said.endswith("(at noise)"), cells
+    assert not any(x.endswith("FAIL") and d.explained for x in cells), cells

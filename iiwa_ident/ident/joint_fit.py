@@ -339,6 +339,10 @@ def _model_error_std(result: FitResult, other: dict[str, float] | None, other_st
     if not result.model_rejected:
         result.std_robust = dict(result.std)
         result.std_robust_method = "equal to std: the residual is independent of the command"
+        if "ripple" in result.method:
+            # The residual this speaks of is the fit's own: a model file without a table lacks those terms.
+            result.std_robust_method = ("equal to std: the fit's residual, with the ripple's harmonics fitted "
+                                        "alongside, is independent of the command")
         return
     if other is None or other_std is None:
         result.std_robust = {k: max(result.std[k], result.std_sandwich[k]) for k in PARAMETER_NAMES}

@@ -125,7 +125,9 @@ def gain_table_figure(d: Diagnosis) -> plt.Figure:
         fits = tests = ""
         if c.before is not None and c.after is not None:
             fits = f"{c.before.fit_pct:.1f} / {c.after.fit_pct:.1f}"
-            tests = f"{c.before.verdict} / {c.after.verdict}"
+            # A channel whose tests fail at the sensor's noise is explained (ChannelComparison.explained): said.
+            tests = " / ".join(x.verdict + (" (at noise)" if x.passed is False and x.at_noise else "")
+                               for x in (c.before, c.after))
         rows.append([f"{c.dataset} / {c.channel}", "", f"{c.rms_before:.4f}", f"{c.rms_after:.4f}",
                      f"{c.gain_pct:.1f}", fits, tests])
     fig, ax = plt.subplots(figsize=(11, 0.6 + 0.3 * (len(rows) + 1)))

@@ -489,11 +489,11 @@ def _fit_pages(r: dict[str, Any], doc: dict[str, Any] | None) -> list[Page]:
         Page("fit", "Harmonic distortion", "Harmonic impulse responses of the exponential sweep and the share of "
              "output power in harmonics per octave band. Look for small shares: the transmission ripple is the "
              "only nonlinearity and it adds little to a 10 Nm chirp.", lambda: harmonics_figure(fit)),
-        Page("fit", "Fitted model against the chirp", "The fitted model run on the chirp it was fitted to (as "
-             "'iiwa-ident compare' does): measured and predicted joint torque with the fit percentage, then the "
-             "residual's autocorrelation and its cross-correlation with the torque command with their 99 % bounds. "
-             "Look at the independence of the command: a residual that follows the command means the model misses "
-             "part of the response; whiteness fails in closed loop even for a complete model.",
+        Page("fit", "Fitted model against the chirp", f"{_compared_model(r)[1]} run on the chirp it was fitted "
+             "to (as 'iiwa-ident compare' does): measured and predicted joint torque with the fit percentage, then "
+             "the residual's autocorrelation and its cross-correlation with the torque command with their 99 % "
+             "bounds. Look at the independence of the command: a residual that follows the command means the model "
+             "misses part of the response; whiteness fails in closed loop even for a complete model.",
              lambda: _comparison(r)),
         Page("fit", "Parameter table", "The five parameters with their standard deviations (and, on the "
              "simulated joint, the error against the plant that was simulated, in % and in std), with the "
@@ -524,11 +524,32 @@ def _ripple_shift(doc: dict[str, Any] | None) -> str:
     return f"; the fit with the ripple's table (ripple stage) moves {said}" if said else ""
 
 
+def _compared_model(r: dict[str, Any]) -> tuple[Any, str]:
+    """The model the fit's comparison page runs, and what it is in words.
+
+    The fit estimates the ripple's harmonics alongside its parameters and leaves them out of its model file
+    (the ripple stage identifies the table): run without them, the chirp's ripple stays in the residual, which
+    then follows the command although the fit's own residual does not. Where the ripple stage wrote its
+    model, that model (the fit's parameters refitted with the table) is the one the fit stands for.
+    """
+    ripple = r.get("model_ripple")
+    if ripple is not None and ripple.ripple is not None:
+        return ripple, ("model_ripple.toml (the joint's parameters refitted with the ripple stage's table, the "
+                        "model every later stage uses)")
+    model = r.get("model")
+    if model is None:
+        return None, "The fitted model"
+    said = "model.toml (the fitted parameters"
+    if model.ripple is None:
+        said += "; it holds no ripple table, so the ripple the fit estimated alongside stays in this residual"
+    return model, said + ")"
+
+
 def _comparison(r: dict[str, Any]) -> plt.Figure:
     from iiwa_ident.diagnose import compare
     from iiwa_ident.report.diagnose_figures import comparison_figure
 
-    rows = [c for c in compare([r["chirp"]], r["model"]) if c.channel == "command"]
+    rows = [c for c in compare([r["chirp"]], _compared_model(r)[0]) if c.channel == "command"]
     if not rows:
         raise IiwaIdentError("the chirp has no torque command to compare the model on")
     return comparison_figure(rows[0])

@@ -81,8 +81,10 @@ def _fit_row(stage: str, h: dict[str, Any]) -> VerdictRow:
     params, rejected = h.get("parameters", {}), h.get("model_rejected")
     z = {k: abs(r["error_std"]) for k, r in params.items() if r.get("error_std") is not None}
     rel = max((abs(r["rel_std_pct"]) for r in params.values() if r.get("rel_std_pct") is not None), default=None)
-    tests = "" if rejected is None else ("; residual follows the command" if rejected else
-                                         "; residual independent of the command")
+    whose = "its residual (the ripple's harmonics fitted alongside)" if "ripple" in h.get("method", "") else \
+        "residual"
+    tests = "" if rejected is None else (f"; {whose} follows the command" if rejected else
+                                         f"; {whose} independent of the command")
     level, floor = h.get("residual_tau_j_nm"), h.get("sensor_noise_nm")
     above = level is not None and floor is not None and level > _NOISE_FLOOR_FACTOR * floor
     if level is not None:
