@@ -75,7 +75,8 @@ def _row(label: str, r: RippleResult, seconds: float) -> str:
     verdict = r.agreement.get("verdict", "-")
     agree = (f"{verdict}, p = {p:.2g}" if verdict == "reproduced" else f"p = {p:.2g}") if p is not None else verdict
     notes = "; ".join(w for w in r.warnings if any(x in w for x in ("weaker lines", "disagree", "edge", "rad/s only",
-                                                                    "compensated", "periodic in time", "Nyquist")))
+                                                                    "compensated", "periodic in time", "Nyquist",
+                                                                    "eq (6): ", "the deflection about the table")))
     return (f"| {label} | {runs} | {answer} | {agree} | {amp} | {r.false_alarm:.1g} | {seconds:.0f} s |"
             + (f" {notes}" if notes else ""))
 

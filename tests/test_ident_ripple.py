@@ -56,6 +56,8 @@ class TestIdentifyRipple:
         assert r.detected
         assert abs(r.period_rad / rho - 1) < 1e-4
         assert lut_error(r, effect) < 0.10
+        # What the period and table explain holds: eq (6) and the deflection about the table raise no warning.
+        assert not [w for w in r.warnings if w.startswith(("eq (6)", "the deflection about the table"))], r.warnings
 
     @pytest.mark.parametrize("seed", [11, 12])
     def test_a_second_harmonic_four_times_the_fundamental(self, seed):
@@ -406,6 +408,15 @@ class TestRealLogs:
         assert r.detected
         assert abs(r.period_rad / PAPER_RHO - 1) < 2e-3
         assert abs(r.period_ticks - 327680) < 700
+        # The deflection varies by several times the table's amplitude about it: said, not passed in silence.
+        said = [w for w in r.warnings if w.startswith("the deflection about the table is ")]
+        assert said and "times the table's amplitude" in said[0], r.warnings
+
+    def test_a_torque_line_away_from_eq6_is_said(self):
+        # Joint 6's slowest run: the torque spectrum's peak near |v| / rho is 18 % below it.
+        r = identify_ripple([real_constant_velocity(6)])
+        said = [w for w in r.warnings if w.startswith("eq (6): at 0.3 rad/s the torque spectrum peaks at ")]
+        assert said and "that line is not the ripple's" in said[0], r.warnings
 
 
 class TestPositionCorrection:

@@ -870,10 +870,13 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
                      supporting_speeds_rad_s=sorted(lines.runs[i].speed for i in support),
                      family_cycles_per_rev=2 * math.pi * k_hat,
                      lines_cycles_per_rev=[c.cycles_per_rev for c in lines.reproduced])
-    warnings = [w for w in pooled.warnings if "disagree" not in w]
+    table = _velocity_table(passes, period)
+    # The pooled fit's own consistency warnings are of its table: the family's replace them.
+    warnings = [w for w in pooled.warnings if "disagree" not in w and not w.startswith(_CONSISTENCY)] + \
+        _consistency_warnings(table, combined)
     return RippleResult(True, period, std_k / k_hat ** 2, lines.false_alarm(), pooled.statistic, combined.lut,
                         combined.amplitude_rad, methods, pooled.spectrum_k, pooled.spectrum_stat,
-                        pooled.spectrum_power, _velocity_table(passes, period), passes, warnings, pooled.K, pooled.Jl,
+                        pooled.spectrum_power, table, passes, warnings, pooled.K, pooled.Jl,
                         motion, runs=runs, agreement=agreement, lines=lines,
                         amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad))
 
@@ -968,8 +971,10 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
     period, period_std = best.period, best.period_std
 
     methods, combined = _methods(passes, period, max_harmonics, bins)
+    table = _velocity_table(passes, period)
+    base["warnings"] = warnings + _consistency_warnings(table, combined)
     return RippleResult(True, period, period_std, fap, stat, combined.lut, combined.amplitude_rad, methods,
-                        velocity_table=_velocity_table(passes, period),
+                        velocity_table=table,
                         amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad), **base)
 
 
@@ -1010,6 +1015,7 @@ def _velocity_table(passes: list[Pass], period: float) -> list[dict]:
     for speed, ps in sorted(groups.items()):
         f_pred = speed / period
         best = (0.0, float("nan"))
+        resolution = float("nan")
         for p in ps:
             dt = np.median(np.diff(p.t))
             if f_pred >= 0.5 / dt or len(p.t) < 16:
@@ -1021,5 +1027,36 @@ def _velocity_table(passes: list[Pass], period: float) -> list[dict]:
                 j = np.nonzero(band)[0][np.argmax(spec[band])]
                 if spec[j] > best[0]:
                     best = (spec[j], float(freqs[j]))
-        rows.append({"speed_rad_s": speed, "predicted_hz": f_pred, "measured_hz": best[1], "passes": len(ps)})
+                    resolution = float(freqs[1])
+        rows.append({"speed_rad_s": speed, "predicted_hz": f_pred, "measured_hz": best[1], "passes": len(ps),
+                     "resolution_hz": resolution})
     return rows
+
+
+#: Largest relative miss of eq (6) (the torque spectrum's peak against |v| / rho) said nothing of, beyond twice
+#: the spectrum's resolution.
+EQ6_MISS = 0.1
+#: Largest ratio of the deflection's residual about the table to the table's amplitude said nothing of.
+TABLE_RESIDUAL_RATIO = 2.0
+
+
+#: How the warnings of :func:`_consistency_warnings` begin.
+_CONSISTENCY = ("eq (6): ", "the deflection about the table ")
+
+
+def _consistency_warnings(velocity_table: list[dict], combined: "MethodResult") -> list[str]:
+    """What the found period and table fail to explain: a torque peak away from eq (6)'s frequency, a
+    deflection the table leaves mostly unexplained."""
+    out = []
+    for r in velocity_table:
+        f, m, res = r["predicted_hz"], r["measured_hz"], r.get("resolution_hz", 0.0)
+        if math.isfinite(m) and abs(m - f) > max(EQ6_MISS * f, 2.0 * res):
+            out.append(f"eq (6): at {r['speed_rad_s']:.3g} rad/s the torque spectrum peaks at {m:.3g} Hz where "
+                       f"|v| / rho predicts {f:.3g} Hz ({100 * (m / f - 1):+.0f} %): that line is not the "
+                       "ripple's (a filter before the log, another periodic torque)")
+    amp, resid = combined.amplitude_rad, combined.residual_rms_rad
+    if amp > 0 and resid > TABLE_RESIDUAL_RATIO * amp:
+        out.append(f"the deflection about the table is {resid * 1e6:.3g} µrad RMS, {resid / amp:.1f} times the "
+                   f"table's amplitude ({amp * 1e6:.3g} µrad): the period may hold, the table's shape is uncertain "
+                   "and the position correction of eq (9) removes a small part of what varies")
+    return out
