@@ -364,15 +364,24 @@ class TestSplitRuns:
         runs = import_columns(files, joint=1, experiment="free", split_runs=True)
         assert len(runs) == 1 and runs[0].n_samples == len(t)
 
-    def test_a_run_of_one_sample_is_named(self, two_runs, tmp_path):
+    def test_a_run_of_one_sample_is_left_out_and_named(self, two_runs, tmp_path):
+        # A stray row where the time restarts is no run: the others are imported, each saying what was left out
+        # (it made the whole log fail before).
         files, n1, n2, *_ = two_runs
         t = np.concatenate([np.arange(n1) + 10.0, [5.0], np.arange(n2)]) / RATE
         files["t"] = write_columns(tmp_path / "time.txt", t)
         for name in ("q_m", "tau_j"):
             files[name] = write_columns(tmp_path / f"{name}.txt", np.zeros((n1 + n2 + 1, 7)))
+        runs = import_columns(files, joint=1, experiment="free", split_runs=True)
+        assert [ds.n_samples for ds in runs] == [n1, n2]
+        assert all(ds.experiment_attrs["split_left_out"] == f"one sample, not a run: run 2 (sample {n1})"
+                   for ds in runs)
+        files["t"] = write_columns(tmp_path / "time.txt", np.array([3.0, 2.0, 1.0]))
+        for name in ("q_m", "tau_j"):
+            files[name] = write_columns(tmp_path / f"{name}.txt", np.zeros((3, 7)))
         with pytest.raises(DatasetError) as excinfo:
             import_columns(files, joint=1, experiment="free", split_runs=True)
-        one_line(excinfo, "run 2", "only 1 sample")
+        one_line(excinfo, "no run of 2 samples or more")
 
     def test_cli_writes_every_run_or_none(self, two_runs, tmp_path):
         from typer.testing import CliRunner

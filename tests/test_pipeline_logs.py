@@ -282,3 +282,59 @@ def test_the_simulated_joint_is_the_plant_s(tmp_path):
     res = CliRunner().invoke(app, ["chirp", "--joint", "3", "--duration", "1", "--out", str(tmp_path / "x.h5")])
     assert res.exit_code == 2 and "--joint 3: the simulated plant is joint 1" in res.stderr
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_split_runs_through_the_cli_on_any_log(tmp_path_factory):
+    # Fuzzed over its input space: 1-4 runs of any joint, lengths and rates in one column log, some of them
+    # too short to be a run; the import stage through the CLI never ends in a traceback, splits each
+    # readable stretch into its own run and drops the rest with their reason.
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(joint=st.integers(1, 7), lengths=st.lists(st.integers(1, 600), min_size=1, max_size=4),
+           rate=st.sampled_from([100.0, 200.0, 1000.0]), split=st.booleans(), seed=st.integers(0, 2**16))
+    def check(joint, lengths, rate, split, seed):
+        rng = np.random.default_rng(seed)
+        folder = tmp_path_factory.mktemp("fuzz") / f"joint{joint}" / "log"
+        folder.mkdir(parents=True)
+        t = np.concatenate([np.arange(n) / rate for n in lengths])
+        q = np.zeros((len(t), 7))
+        q[:, joint - 1] = 0.5 * np.sin(2 * np.pi * 0.2 * t) + rng.normal(0, 1e-5, len(t))
+        tau = rng.normal(0, 0.05, (len(t), 7))
+        np.savetxt(folder / "cur_traj_time_s.txt", t)
+        np.savetxt(folder / "joint_position_measured.txt", q)
+        np.savetxt(folder / "joint_torque_measured.txt", tau)
+        work = folder.parent.parent / "w"
+        args = ["pipeline", "--logs", str(folder), "--skip", "ripple", "--no-report", "--workdir", str(work)]
+        res = CliRunner().invoke(app, args + (["--split-runs"] if split else []))
+        assert "Traceback" not in res.output and res.exception is None or isinstance(res.exception, SystemExit), \
+            res.output
+        doc = json.loads((work / FILES["pipeline_json"]).read_text())
+        imp = next(s for s in doc["stages"] if s["name"] == "import")
+        if imp["status"] == "ok":
+            got = [r["run"] for r in imp["headline"]["runs"]]
+            if split and len(lengths) > 1:
+                assert all(r.startswith("joint" + str(joint) + "_log_run") for r in got), got
+            assert len(got) + len(imp["headline"]["dropped"]) >= 1
+        else:
+            assert imp["status"] == "failed" and imp["error"] and res.exit_code == 1, res.output
+
+    check()
+
+
+def test_a_stray_sample_where_the_time_restarts_is_left_out_and_said(two_in_one, tmp_path):
+    # One row after the last restart made the whole log fail with --split-runs ("only 1 sample").
+    folder = tmp_path / "joint1" / "stray"
+    folder.mkdir(parents=True)
+    for name in ("cur_traj_time_s.txt", "joint_position_measured.txt", "joint_torque_measured.txt"):
+        rows = np.loadtxt(two_in_one / "twice" / name, ndmin=1)
+        np.savetxt(folder / name, np.concatenate([rows, rows[:1]]))
+    lines: list[str] = []
+    result = run_log_pipeline(tmp_path / "w", [folder], progress=lines.append, report=None, skip=_ONLY_IMPORT,
+                              split_runs=True)
+    imp = next(s for s in result.stages if s.name == "import").headline
+    assert [r["run"] for r in imp["runs"]] == ["joint1_stray_run1", "joint1_stray_run2"]
+    (said,) = imp["dropped"]
+    assert said["reason"].startswith("one sample, not a run: run 3 (sample ")
+    assert any("one sample, not a run" in x for x in lines)

@@ -241,6 +241,9 @@ def import_cmd(
         )
         for problem in problems:
             typer.echo(f"warning: {path}: {problem}", err=True)
+    left_out = datasets[0].experiment_attrs.get("split_left_out") if split_runs and datasets else None
+    if left_out:
+        typer.echo(f"warning: {out}: {left_out}", err=True)
 
 
 @app.command("info")

@@ -142,6 +142,10 @@ def _read_column_file(path: Path, column: int | None, every: bool = False) -> np
     return np.asarray(rows if every else values, dtype=np.float64)
 
 
+#: Attribute of a run split from a log: the stretches of the log left out (one sample each).
+SPLIT_LEFT_OUT_ATTR = "split_left_out"
+
+
 def _assemble(
     raw: dict[str, np.ndarray],
     origin: dict[str, str],
@@ -168,12 +172,22 @@ def _assemble(
             raise DatasetError("splitting into runs needs a time signal (where the time restarts)")
         starts = [0, *(np.flatnonzero(np.diff(raw["t"]) < 0) + 1).tolist(), len(raw["t"])]
         runs = []
+        # A stretch of one sample (a stray row where the time restarts) is no run: left out, and said in
+        # every run of the log (SPLIT_LEFT_OUT_ATTR).
+        short = [f"run {k} (sample {a})" for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1)
+                 if b - a < 2]
+        if len(short) == len(starts) - 1:
+            raise DatasetError(f"{where}: no run of 2 samples or more between the times it goes back")
         for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1):
+            if b - a < 2:
+                continue
             # Samples are numbered from 0 in the whole log, so a message points at the rows of the file.
             there = {name: f"{text}, run {k} (samples {a}-{b - 1})" for name, text in origin.items()}
             runs.append(_assemble({name: arr[a:b] for name, arr in raw.items()}, there, joint, experiment,
                                   sample_rate_hz, scale, f"{where}, run {k}", robot_model=robot_model,
                                   positions=None if positions is None else positions[a:b], min_rate_hz=min_rate_hz))
+            if short:
+                runs[-1].experiment_attrs[SPLIT_LEFT_OUT_ATTR] = f"one sample, not a run: {', '.join(short)}"
         return runs
     lengths = {name: arr.shape[0] for name, arr in raw.items()}
     if len(set(lengths.values())) > 1:

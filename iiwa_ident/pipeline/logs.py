@@ -134,9 +134,13 @@ def _import_columns(run: LogRun, joint: int | None, robot_model: str, split_runs
         raise IiwaIdentError(f"{run.path}: a log folder needs cur_traj_time_s.txt, {_RUN_MARK} and "
                              "joint_torque_measured.txt")
 
+    imported: dict[int, list] = {}
+
     def read(j: int) -> list:
-        got = import_columns(files, joint=j, experiment="free", robot_model=robot_model, split_runs=split_runs)
-        return got if isinstance(got, list) else [got]
+        if j not in imported:  # each joint's import once, however many runs the log holds
+            got = import_columns(files, joint=j, experiment="free", robot_model=robot_model, split_runs=split_runs)
+            imported[j] = got if isinstance(got, list) else [got]
+        return imported[j]
 
     out = []
     for k, ds in enumerate(read(joint or 1)):
@@ -179,6 +183,10 @@ def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
             dropped.append({"run": run.name, "source": str(run.path), "reason": str(err)})
             ctx.progress(f"  dropped {run.name}: {err}")
             continue
+        left_out = got[0].experiment_attrs.get("split_left_out")
+        if left_out:
+            dropped.append({"run": run.name, "source": str(run.path), "reason": left_out})
+            ctx.progress(f"  {run.name}: {left_out}")
         for k, ds in enumerate(got, start=1):
             runs.append(run if len(got) == 1 else LogRun(f"{run.name}_run{k}", run.path, run.kind))
             datasets.append(ds)
