@@ -130,6 +130,10 @@ def test_real_joint2_through_the_cli(tmp_path):
     assert doc["headline"]["data"] == "measured"
     named = {e["name"] for e in doc["headline"]["named_effects"]}
     assert "position_dependent_load" in named  # the arm's gravity, against the description's
+    # What the table leaves unexplained, on the console and in the ripple stage's headline (page 1 lists it).
+    ripple = next(s for s in doc["stages"] if s["name"] == "ripple")["headline"]
+    said = [w for w in ripple["warnings"] if w.startswith("the deflection about the table is ")]
+    assert said and f"warning: {said[0]}" in res.stdout
 
 
 def test_the_report_of_measured_data(logs_run, tmp_path):

@@ -316,11 +316,14 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
     ctx.results.update(ripple=r, model_ripple=model)
+    for w in r.warnings:
+        ctx.progress(f"  warning: {w}")
     if refit is not None:
         ctx.results["fit_ripple"] = refit
     out: dict[str, Any] = {"detected": r.detected, "period_rad": _num(r.period_rad),
                            "period_std_rad": _num(r.period_std_rad), "period_ticks": _num(r.period_ticks),
-                           "amplitude_rad": _num(r.amplitude_rad), "methods": sorted(r.methods)}
+                           "amplitude_rad": _num(r.amplitude_rad), "methods": sorted(r.methods),
+                           "warnings": list(r.warnings)}
     if refit is not None:
         out["refit"] = {"parameters": parameter_rows(ctx, refit), "method": refit.method,
                         "warnings": list(refit.warnings), "model_rejected": refit.model_rejected,

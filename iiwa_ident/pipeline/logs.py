@@ -252,13 +252,15 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
     ctx.results.update(ripple=r, model_ripple=model, model_start=model)
+    for w in r.warnings:
+        ctx.progress(f"  warning: {w}")
     # A period the runs do not agree on is no answer (ripple.json keeps what each run saw).
     got = r.detected
     return {"detected": got, "period_rad": _num(r.period_rad) if got else None,
             "period_std_rad": _num(r.period_std_rad) if got else None,
             "cycles_per_rev": _num(r.cycles_per_rev) if got else None,
             "amplitude_rad": _num(r.amplitude_rad) if got else None,
-            "methods": sorted(r.methods), "verdict": r.agreement.get("verdict")}
+            "methods": sorted(r.methods), "verdict": r.agreement.get("verdict"), "warnings": list(r.warnings)}
 
 
 def _start(ctx: PipelineContext):
