@@ -237,8 +237,6 @@ def fail(message: str, code: int = 2) -> "typer.Exit":
 
 def check_joint(joint: int | None, option: str = "--joint") -> None:
     """Refuse a joint number outside 1-7 in one line naming the option (None: not given)."""
-    from iiwa_ident.errors import IiwaIdentError
-
     if joint is not None and not 1 <= joint <= 7:
         raise IiwaIdentError(f"{option} {joint}: an iiwa joint is 1-7")
 

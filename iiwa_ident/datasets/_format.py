@@ -60,6 +60,7 @@ __all__ = [
     "write_dataset",
     "read_dataset",
     "dataset_files",
+    "COLUMN_LOG_MARK",
     "read_truth",
     "sha256_file",
 ]
@@ -609,8 +610,8 @@ def _rows_flushed(h5: h5py.File) -> int | None:
     return int(node[0])
 
 
-#: A file that marks a folder as a log of column files (one run), not a folder of datasets.
-_COLUMN_LOG_MARK = "joint_position_measured.txt"
+#: The file that marks a folder as a log of column files (one run), not a folder of datasets.
+COLUMN_LOG_MARK = "joint_position_measured.txt"
 
 
 def dataset_files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
@@ -637,7 +638,7 @@ def dataset_files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
             continue
         found = sorted(p for p in given.iterdir() if p.suffix == ".h5" and p.is_file())
         if not found:
-            if (given / _COLUMN_LOG_MARK).is_file():
+            if (given / COLUMN_LOG_MARK).is_file():
                 raise DatasetError(f"{given}: a folder of column logs, not of dataset files: import it first "
                                    "('iiwa-ident import --columns ...', or 'iiwa-ident pipeline --logs' for a "
                                    "whole joint)")

@@ -234,8 +234,9 @@ class LockstepClock(RealTimeClock):
         return self.epoch_ns + int(round(self.vt * 1e9))
 
     def silence_s(self, k: int, heard_k: int) -> float:
-        # The virtual clock stops while no client answers: the silence is the wall's.
-        return time.perf_counter() - self.heard_wall
+        # The virtual clock stops while no client answers: the silence is the wall's, counted once the client
+        # was taken for gone (a client the machine's load slows is waited for, as everywhere in lockstep).
+        return time.perf_counter() - self.heard_wall if self.gone else 0.0
 
     def arrival(self, data: bytes, addr: Any) -> float | None:
         """Virtual arrival time of an answer; None for a second answer to a message sent again."""

@@ -202,7 +202,8 @@ class EmulatorConfig:
         for this long outside the commanding states [s] (its session over, or
         dropped, and no client back); None waits for a client for ever. In
         lockstep the silence is wall time (the virtual clock stops while no
-        client answers).
+        client answers), counted once the client was taken for gone
+        (``lockstep_guard_s``).
     stalls : tuple of (float, float)
         Robot-side stalls ``(start, length)`` [s], the start counted in time
         of ``COMMANDING_ACTIVE``: for ``length`` the robot sends no

@@ -21,6 +21,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from iiwa_ident._toml import write_atomic
+from iiwa_ident.datasets import COLUMN_LOG_MARK
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline.core import (
     FILES,
@@ -51,7 +52,7 @@ LOG_FILES = {
     "joint_torque_external.txt": "tau_ext_fri",
 }
 #: The file that makes a folder a log run.
-_RUN_MARK = "joint_position_measured.txt"
+_RUN_MARK = COLUMN_LOG_MARK  # a folder with this file is one run of column logs
 #: Imported runs go here in the work folder, one dataset per run.
 RUNS_DIR = FILES["runs_dir"]
 #: Folders searched below a given path for runs.
