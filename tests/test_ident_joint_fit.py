@@ -14,6 +14,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
 from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
+from iiwa_ident.ident.records import held_windows, prepare_record
 from iiwa_ident.ident.tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
 from iiwa_ident.sim import plant_from_model
@@ -147,6 +148,41 @@ def test_a_ripple_of_unknown_period_is_found_and_leaves_the_fit_unbiased(seed):
     for k in ("Jc", "bc", "K", "Jl", "Td"):
         value = realised_td if k == "Td" else sc.truth[k]
         assert abs(res.parameters[k] - value) < 4 * res.std[k], (k, sc.describe())
+
+
+@pytest.mark.parametrize("seed", [41, 43])
+def test_holds_at_the_antiresonance_and_a_searched_period_leave_the_std_honest(seed):
+    # A 30 s chirp at 1 kHz with sensor noise: near the antiresonance the motor stands almost still and the
+    # robot holds it where command and torque pass below 1 Nm (section II.A); the ripple's period, searched
+    # by the inverse dynamics, was 7.6e-4 off in noise. Either biased K by 40-130 ppm at 5-10 std on the
+    # default plant; the fit leaves the holds out and refines the period on its own residual.
+    rng = np.random.default_rng(seed)
+    sc = draw_scenario(seed, nuisances=["ripple"], duration_s=30.0, rate_hz=1000.0)
+    period = rng.uniform(0.015, 0.025)
+    sc.effects["transmission_ripple"] = {"period_rad": period, "harmonics": [
+        [rng.uniform(3e-5, 6e-5), rng.uniform(-math.pi, math.pi)], [1e-5, rng.uniform(-math.pi, math.pi)]]}
+    ds = simulate_scenario(sc)
+    assert prepare_record(ds, 0).held, "the draw must meet the robot's hold"
+    res = fit_joint([ds])
+    ripple = next(e for e in res.effects if e.name == "transmission_ripple")
+    assert ripple.values["period_rad"] == pytest.approx(period, rel=1e-4)
+    assert res.ripple_period_rad == ripple.values["period_rad"]
+    for k in ("Jc", "bc", "K", "Jl"):
+        assert abs(res.parameters[k] - sc.truth[k]) < 3 * res.std[k], (k, sc.describe(), _errors(res, sc.truth))
+
+
+def test_the_robot_s_holds_are_found_where_the_motor_stands_with_small_torques():
+    # Held: two samples without motion at small command and torque; a reversal at 10 Nm is not held.
+    n = 200
+    q = np.r_[np.linspace(0.0, 1e-3, 100), np.full(4, 1e-3), np.linspace(1e-3, 0.0, 96)]
+    small, large = np.zeros(n), np.full(n, 10.0)
+    assert held_windows(q, small, small, 1e-3) == [(96, 108)]
+    assert held_windows(q, large, small, 1e-3) == []
+    assert held_windows(q, small, large, 1e-3) == []
+    # The command acts after the delay: a small command up to 50 ms before counts.
+    late = np.where(np.arange(n) < 60, 0.0, 5.0)
+    assert held_windows(q, late, small, 1e-3) == [(96, 108)]
+    assert held_windows(q, np.where(np.arange(n) < 40, 0.0, 5.0), small, 1e-3) == []
 
 
 @pytest.mark.parametrize("seed, rate, lo, hi", [(61, 1000.0, 0.045, 0.09), (64, 200.0, 0.1, 0.18)])

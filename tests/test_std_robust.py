@@ -29,14 +29,14 @@ def test_equal_to_std_where_the_model_holds():
 
 def test_wider_where_the_residual_follows_the_command():
     # Gravity and a load harmonic on a held link (draw 1 of the robustness benchmark): the residual follows
-    # the command, the Fisher std misses the truth of Jl by 4 std; the model-error aware std covers every
-    # parameter, and the fit says which std to trust.
+    # the command; the model-error aware std is the wider and covers every parameter, and the fit says which
+    # std to trust.
     sc, res = _fit(1)
     assert res.model_rejected
     for k in PARAMETER_NAMES:
         assert res.std_robust[k] >= res.std[k] > 0
         assert abs(res.parameters[k] - sc.truth[k]) <= Z95 * res.std_robust[k], k
-    assert abs(res.parameters["Jl"] - sc.truth["Jl"]) > 3 * res.std["Jl"]
+    assert any(res.std_robust[k] > 1.5 * res.std[k] for k in PARAMETER_NAMES)
     doc = res.to_json()
     assert doc["model_rejected"] is True and "difference" in doc["std_robust_method"]
     assert all(math.isfinite(doc["parameters"][k]["std_robust"]) for k in PARAMETER_NAMES)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -265,6 +266,10 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_period_rad: floa
         start = dict(idim.parameters)
         result = fit_transfer_function(datasets, initial=start, known=idim.known_inputs, ripple=terms,
                                        log_filter=log_filter)
+        if terms is not None and terms.table is None and ripple is not None:
+            # The output-error fit refined the searched period: the later fits and the effect start there.
+            terms = replace(terms, period_rad=result.ripple_period_rad)
+            ripple.values["period_rad"] = result.ripple_period_rad
         if any(idim.known_inputs):
             # The inverse dynamics' effect terms can absorb its own approximation error (the gravity-model
             # terms did so at 20-40 std on joints without any) or a disturbance it has no term for (a hum

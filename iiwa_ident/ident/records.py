@@ -6,6 +6,12 @@ inverse dynamics (:mod:`iiwa_ident.ident.idim`). A record is refused, in one
 line naming the dataset, when it has no torque command, is too short, too
 little excited, sampled too slowly for its sweep or has lost too many robot
 cycles (a few lost FRI cycles are filled: the robot held the command).
+
+Where the robot held the motor because torque and speed were small (section
+II.A: torque control is suppressed when starting from zero velocity below
+1 Nm; a chirp meets it where the motor stands almost still, at the
+antiresonance), no linear model follows the joint: a record keeps those
+windows (:func:`held_windows`) so the fit can leave them out.
 """
 
 from __future__ import annotations
@@ -15,6 +21,8 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
+import scipy.sparse
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy.interpolate import BSpline
 
 from iiwa_ident.datasets import Dataset
@@ -23,7 +31,8 @@ from iiwa_ident.ident import frf as _frf
 from iiwa_ident.model import sample_means
 
 __all__ = ["MIN_DURATION_S", "MIN_COMMAND_STD_NM", "BLOCK_S", "MAX_LOST_SHARE", "MAX_LOST_RUN", "FitRecord",
-           "prepare_record", "prepare_records", "check_joints", "fill_lost_cycles", "record_label", "spline_basis"]
+           "prepare_record", "prepare_records", "check_joints", "fill_lost_cycles", "record_label", "spline_basis",
+           "STANDSTILL_TORQUE_NM", "HELD_SPEED_RAD_S", "HELD_MARGIN", "held_windows"]
 
 #: Shortest record the fit accepts [s].
 MIN_DURATION_S = 2.0
@@ -31,6 +40,15 @@ MIN_DURATION_S = 2.0
 MIN_COMMAND_STD_NM = 0.5
 #: Length of the blocks with their own noise level [s].
 BLOCK_S = 0.25
+#: Torque below which the robot suppresses torque control from standstill (section II.A) [Nm].
+STANDSTILL_TORQUE_NM = 1.0
+#: Motor speed below which a sample counts as held [rad/s]: a tenth of what the simulated robot calls
+#: standing, so a motor passing slowly through zero speed is not taken for held.
+HELD_SPEED_RAD_S = 2e-4
+#: Samples left out on either side of a held stretch: the switch falls between samples [samples].
+HELD_MARGIN = 3
+#: Longest command delay looked back over for the held command [s] (the fit's bound on ``Td``).
+HELD_LOOKBACK_S = 0.05
 
 
 @dataclass
@@ -59,19 +77,87 @@ class FitRecord:
     #: coefficients are fitted with the parameters (projected out of the residual), see :class:`RippleTerms`.
     ripple_basis: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     _ripple_inputs: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
+    #: Sample ranges ``[start, stop)`` where the robot held the motor (:func:`held_windows`), margins
+    #: included: the fit gives them no weight and restarts its model's state after each.
+    held: list[tuple[int, int]] = field(default_factory=list)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """1 where the record counts, 0 in its :attr:`held` windows."""
+        m = np.ones(self.n)
+        for a, b in self.held:
+            m[a:b] = 0.0
+        return m
 
     @property
     def n(self) -> int:
         return self.u.shape[0]
 
+    @property
+    def input_basis(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The inputs whose coefficients the fit estimates alongside the parameters, as ``(deflection [rad],
+        reaction [Nm])`` pairs: the :attr:`ripple_basis`, then three per :attr:`held` window that restart the
+        model's state where the robot let go of the motor (a deflection step moves the link, a deflection
+        ramp its speed, a reaction pulse the torque loop's integral; the position step is in the drift
+        basis)."""
+        out = list(self.ripple_basis)
+        k = np.arange(self.n)
+        zero = np.zeros(self.n)
+        for _, b in self.held:
+            free = b - HELD_MARGIN  # the first sample after the hold
+            after = (k >= free).astype(float)
+            out += [(after, zero), ((k - free) * self.T * after, zero), (zero, (k == free).astype(float))]
+        return out
+
     def ripple_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The ripple basis as input matrices (n, columns), built once: deflection, reaction and their
+        """The :attr:`input_basis` as input matrices (n, columns), built once: deflection, reaction and their
         :func:`~iiwa_ident.model.sample_means` (the inputs the sampled model sees, for every parameter set)."""
         if self._ripple_inputs is None:
-            D = np.asfortranarray(np.column_stack([d for d, _ in self.ripple_basis]))
-            RX = np.asfortranarray(np.column_stack([rx for _, rx in self.ripple_basis]))
+            basis = self.input_basis
+            D = np.asfortranarray(np.column_stack([d for d, _ in basis]))
+            RX = np.asfortranarray(np.column_stack([rx for _, rx in basis]))
             self._ripple_inputs = (D, RX, np.asfortranarray(sample_means(D)), np.asfortranarray(sample_means(RX)))
         return self._ripple_inputs
+
+
+def held_windows(q_m: np.ndarray, tau_c: np.ndarray, tau_j: np.ndarray, T: float) -> list[tuple[int, int]]:
+    """Sample ranges ``[start, stop)`` where the robot held the motor, :data:`HELD_MARGIN` added each side.
+
+    Held: the motor moved slower than :data:`HELD_SPEED_RAD_S` while the joint torque and the command at
+    some moment of the last :data:`HELD_LOOKBACK_S` (the command acts after the delay) were below
+    :data:`STANDSTILL_TORQUE_NM`, for at least two samples in a row.
+
+    Examples
+    --------
+    >>> q = np.r_[np.linspace(0, 1e-3, 50), np.full(5, 1e-3), np.linspace(1e-3, 2e-3, 50)]
+    >>> held_windows(q, np.zeros(105), np.zeros(105), 1e-3)
+    [(46, 59)]
+    """
+    q_m, tau_c, tau_j = (np.asarray(a, float) for a in (q_m, tau_c, tau_j))
+    n = len(q_m)
+    if n < 3:
+        return []
+    lag = max(1, int(round(HELD_LOOKBACK_S / T)))
+    recent = sliding_window_view(np.concatenate([np.full(lag, np.inf), np.abs(tau_c)]), lag + 1).min(axis=1)
+    still = np.abs(np.diff(q_m)) <= HELD_SPEED_RAD_S * T  # between samples k and k + 1
+    small = (np.abs(tau_j) < STANDSTILL_TORQUE_NM) & (recent < STANDSTILL_TORQUE_NM)
+    held = still & small[:-1] & small[1:]
+    out: list[tuple[int, int]] = []
+    k = 0
+    while k < n - 1:
+        if not held[k]:
+            k += 1
+            continue
+        j = k
+        while j < n - 1 and held[j]:
+            j += 1
+        if j - k >= 2 and k > 0:  # the record's first samples are the rest before the command
+            a, b = max(0, k - HELD_MARGIN), min(n, j + 1 + HELD_MARGIN)
+            if out and a <= out[-1][1]:
+                a = out.pop()[0]
+            out.append((a, b))
+        k = j
+    return out
 
 
 def record_label(ds: Dataset, index: int) -> str:
@@ -131,9 +217,15 @@ def prepare_record(ds: Dataset, index: int) -> FitRecord:
     n = u.shape[0]
     per_block = max(1, int(round(BLOCK_S / T)))
     block = np.minimum(np.arange(n) // per_block, max(n // per_block - 1, 0))
+    held = held_windows(q, u, tau_j, T)
+    drift = spline_basis(n, T, knot)
+    if held:
+        # After a hold the motor has lost ground for good: a step of the position for each.
+        steps = np.column_stack([(np.arange(n) >= b).astype(float) for _, b in held])
+        drift = scipy.sparse.hstack([drift, scipy.sparse.csr_matrix(steps)]).tocsr()
     return FitRecord(label=label, T=T, u=u, tau=tau_j, q=q - q[0], f_lo=f_lo, f_hi=f_hi,
-                   sweep=sweep, drift_basis=spline_basis(n, T, knot), block=block, n_blocks=int(block.max()) + 1,
-                   joint=int(ds.joint), filled_cycles=filled, q0=float(q[0]))
+                     sweep=sweep, drift_basis=drift, block=block, n_blocks=int(block.max()) + 1,
+                     joint=int(ds.joint), filled_cycles=filled, q0=float(q[0]), held=held)
 
 
 #: Largest share of robot cycles a record may have lost and still be fitted [-].

@@ -89,6 +89,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.optimize import minimize_scalar
 from scipy.linalg import cho_factor, cho_solve
 
 from iiwa_ident.datasets import Dataset
@@ -290,8 +291,9 @@ class _Problem:
         """Weights and the factorised normal equations of the nuisance fits."""
         self._weights = []
         for r, (s_t, s_q) in zip(self.records, self.sigma):
-            w_t = 1.0 / s_t[r.block]
-            w_q = 1.0 / s_q[r.block]
+            mask = r.mask  # a held window has no weight
+            w_t = mask / s_t[r.block]
+            w_q = mask / s_q[r.block]
             Bw = r.drift_basis.multiply(w_q[:, None]).tocsr()
             gram = (Bw.T @ Bw).toarray()
             gram += 1e-12 * np.trace(gram) / len(gram) * np.eye(len(gram))
@@ -320,7 +322,7 @@ class _Problem:
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
-            if r.ripple_basis:
+            if r.ripple_basis or r.held:
                 fitted = self._ripple_fit(p, i, e_t, e_q, lf)
                 if fitted is None:
                     return np.full(2 * sum(rec.n for rec in self.records), 1e150)
@@ -378,7 +380,7 @@ class _Problem:
                 else:
                     Y = np.stack([_input_response(p, r.T, "deflection", d, self.substeps)
                                   + _input_response(p, r.T, "reaction", rx, self.substeps)
-                                  for d, rx in r.ripple_basis], axis=2)
+                                  for d, rx in r.input_basis], axis=2)
                 if lf is not None:
                     Y[0] = lf.apply(Y[0], r.T)
                 w_t, w_q = weights[0], weights[1]
@@ -395,7 +397,7 @@ class _Problem:
         p, lf = self.x_to_params(x), self.log_filter(x)
         out: list[np.ndarray | None] = []
         for i, (r, weights) in enumerate(zip(self.records, self._weights)):
-            if not r.ripple_basis:
+            if not (r.ripple_basis or r.held):
                 out.append(None)
                 continue
             y = self._outputs(i, p, lf)
@@ -410,7 +412,9 @@ class _Problem:
         res = self.residual(x)
         out, k = [], 0
         for r, weights in zip(self.records, self._weights):
-            out.append((res[k:k + r.n] / weights[0], res[k + r.n:k + 2 * r.n] / weights[1]))
+            # A held window (no weight) reads as zero.
+            out.append(tuple(np.divide(res[k + j * r.n:k + (j + 1) * r.n], weights[j], out=np.zeros(r.n),
+                                       where=weights[j] > 0) for j in range(2)))
             k += 2 * r.n
         return out
 
@@ -420,9 +424,11 @@ class _Problem:
         for r, (e_t, e_q) in zip(self.records, self.unweighted(x)):
             chans = []
             for e, floor in ((e_t, 1e-4), (e_q, 1e-9)):
-                overall = max(float(np.sqrt(np.mean(e**2))), floor)
+                overall = max(float(np.sqrt(np.sum(e**2) / max(float(np.sum(r.mask)), 1.0))), floor)
                 if per_block:
-                    ms = np.bincount(r.block, weights=e**2, minlength=r.n_blocks) / np.bincount(r.block)
+                    counted = np.bincount(r.block, weights=r.mask, minlength=r.n_blocks)
+                    ms = np.bincount(r.block, weights=e**2, minlength=r.n_blocks) / np.maximum(counted, 1.0)
+                    ms[counted == 0] = overall**2
                     # A floor keeps a few lucky blocks from taking over the fit.
                     chans.append(np.maximum(np.sqrt(ms), _SIGMA_FLOOR * overall))
                 else:
@@ -631,6 +637,8 @@ class FitResult:
     #: ``std`` [Hz], ``order`` (stages) and, from the joint fit, ``std_robust`` [Hz] (as :attr:`std_robust`);
     #: None when the model has none.
     log_filter: dict[str, float] | None = None
+    #: The ripple's period the fit used [rad]: a searched one refined on the fit's residual (None without).
+    ripple_period_rad: float | None = None
 
     @property
     def model_rejected(self) -> bool:
@@ -741,11 +749,60 @@ def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np
             rec.known = [(kind, np.asarray(signal, float)) for kind, signal in inputs]
     if ripple is not None:
         for rec in records:
-            q_m = rec.q + rec.q0
-            tau = rec.tau if log_filter is None else unfiltered_torque(rec.tau, rec.T, log_filter, rec.f_hi)
-            rec.known = rec.known + ripple.known_inputs(q_m, tau)
-            rec.ripple_basis, rec._ripple_inputs = ripple.basis(q_m, tau), None
+            rec.known = rec.known + ripple.known_inputs(rec.q + rec.q0, _carried_torque(rec, log_filter))
+        _set_ripple_basis(records, ripple, log_filter)
     return records
+
+
+def _carried_torque(rec: FitRecord, log_filter: TorqueLogFilter | None) -> np.ndarray:
+    """The torque the transmission carries: the record's, before the log's filter."""
+    return rec.tau if log_filter is None else unfiltered_torque(rec.tau, rec.T, log_filter, rec.f_hi)
+
+
+def _set_ripple_basis(records: list[FitRecord], ripple: RippleTerms, log_filter: TorqueLogFilter | None) -> None:
+    """Each record's ripple basis at ``ripple``'s period."""
+    for rec in records:
+        rec.ripple_basis, rec._ripple_inputs = ripple.basis(rec.q + rec.q0, _carried_torque(rec, log_filter)), None
+
+
+#: Relative half-width of the search for a searched ripple period around its start [-]: well inside the cost's
+#: main lobe (about the period over the motion's range and the harmonics', more than 1 % on a chirp).
+PERIOD_SEARCH = 5e-3
+
+
+def _period_column(problem: _Problem, x: np.ndarray, ripple: RippleTerms,
+                   log_filter: TorqueLogFilter | None) -> np.ndarray:
+    """The weighted residual's derivative by the ripple's period [1/rad] at ``x`` (central difference); the
+    records' basis is left at ``ripple``'s period."""
+    h = ripple.period_rad * 1e-6
+    cols = []
+    for period in (ripple.period_rad + h, ripple.period_rad - h):
+        _set_ripple_basis(problem.records, replace(ripple, period_rad=period), log_filter)
+        problem._responses.clear()
+        cols.append(problem.residual(x))
+    _set_ripple_basis(problem.records, ripple, log_filter)
+    problem._responses.clear()
+    return (cols[0] - cols[1]) / (2 * h)
+
+
+def _refined_period(problem: _Problem, x: np.ndarray, ripple: RippleTerms,
+                    log_filter: TorqueLogFilter | None) -> RippleTerms:
+    """``ripple`` at the period that minimises the fit's cost at ``x``, its basis set in the records.
+
+    A period searched by the inverse dynamics is off by a few 1e-4 in noise, which biases the stiffness by
+    several std; the output-error residual pins it down.
+    """
+    def cost(period: float) -> float:
+        _set_ripple_basis(problem.records, replace(ripple, period_rad=period), log_filter)
+        problem._responses.clear()
+        return float(np.sum(problem.residual(x) ** 2))
+
+    p0 = ripple.period_rad
+    found = minimize_scalar(cost, bounds=(p0 * (1 - PERIOD_SEARCH), p0 * (1 + PERIOD_SEARCH)), method="bounded",
+                            options={"xatol": p0 * 1e-6})
+    best = replace(ripple, period_rad=float(found.x) if found.fun <= cost(p0) else p0)
+    cost(best.period_rad)
+    return best
 
 
 def _stages(log_filter: TorqueLogFilter | None) -> int:
@@ -860,6 +917,9 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         if best is None or sol.cost < best.cost:
             best = sol
     x = best.x
+    if refine and ripple is not None and ripple.table is None:
+        ripple = _refined_period(problem, x, ripple, log_filter)
+        x = _solve(problem, x).x
     if not refine:
         problem.reweight(x, per_block=True)
         sol = _solve(problem, x, max_iterations=0)
@@ -877,6 +937,10 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     # estimate tells whether the residuals are white enough for it to hold.
     J = problem.jacobian(x)
     r = problem.residual(x)
+    searched = refine and ripple is not None and ripple.table is None
+    if searched:
+        # The period was fitted too: its column, so that the parameters' std carry its uncertainty.
+        J = np.column_stack([J, _period_column(problem, x, ripple, log_filter)])
     F = np.einsum("ki,kj->ij", J, J)
     Finv = np.linalg.pinv(F)
     ids = problem.block_ids()
@@ -886,7 +950,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     cov_s = Finv @ S @ Finv
     p = np.array(_Problem.x_to_params(x))
     lf = problem.log_filter(x)
-    D = np.diag([*p[:4], 1e-3] + ([] if lf is None else [lf.values["cutoff_hz"]]))  # d(SI)/dx
+    D = np.diag([*p[:4], 1e-3] + ([] if lf is None else [lf.values["cutoff_hz"]]) + ([1.0] if searched else []))
     cov = D @ Finv @ D
     std_method = STD_FISHER
     if any(kind in ("deflection", "reaction") for rec in records for kind, _ in rec.known) or \
@@ -904,6 +968,8 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         widen = np.maximum(np.sqrt(np.diag(D @ cov_s @ D) / np.diag(cov)), 1.0)
         cov = cov * np.outer(widen, widen)
         std_method = STD_FISHER + STD_RIPPLE
+    if searched:  # the period's own std is not reported; the others are marginal over it
+        cov, cov_s, D = cov[:-1, :-1], cov_s[:-1, :-1], D[:-1, :-1]
     log_filter_fit = None
     if lf is not None:
         # The cut-off's std from the full covariance; the parameters' (5 x 5) block is their marginal one.
@@ -975,7 +1041,8 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
                      covariance=cov, noise=noise,
                      frf=frfs, model_frf=model_frfs, bands=bands, harmonics=harmonics, nonlinear=nonlinear,
                      warnings=warnings, initial=starts, labels=labels, cost=cost, n_evaluations=n_eval,
-                     sample_times_s=[r.T for r in records], residual_tests=tests, log_filter=log_filter_fit)
+                     sample_times_s=[r.T for r in records], residual_tests=tests, log_filter=log_filter_fit,
+                     ripple_period_rad=None if ripple is None else ripple.period_rad)
 
 
 # --------------------------------------------------------------------------
