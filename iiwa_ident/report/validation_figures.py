@@ -193,7 +193,8 @@ def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
     return fig
 
 
-def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any] | None = None) -> plt.Figure:
+def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any] | None = None,
+                           model: str = "model.toml") -> plt.Figure:
     """The fitted parameters of eq (4) with standard deviations (and errors against a simulated truth).
 
     Parameters
@@ -203,6 +204,8 @@ def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any]
         ``rel_std_pct`` and optionally ``simulated`` (the simulated plant's value) and ``error_pct``.
     correlation : dict, optional
         ``names`` and ``matrix`` of the fit's correlation, drawn beside the table.
+    model : str
+        The model file the table is of, named in the title (other pages may run another).
     """
     units = {"Jc": "kg m^2", "bc": "Nm s/rad", "K": "Nm/rad", "Jl": "kg m^2", "Td": "s"}
     params = headline["parameters"]
@@ -227,7 +230,7 @@ def parameter_table_figure(headline: dict[str, Any], correlation: dict[str, Any]
     table.set_fontsize(9)
     table.auto_set_column_width(list(range(len(cols))))
     table.scale(1.0, 1.5)
-    ax.set_title("Parameters of eq (4) from the chirp", fontsize=10)
+    ax.set_title(f"{model}: parameters of eq (4) fitted to the chirp", fontsize=10)
     if correlation:
         axc = fig.add_subplot(grid[0, 1])
         m = np.asarray(correlation["matrix"], float)
