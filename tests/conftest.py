@@ -57,6 +57,15 @@ def assert_not_blank(png) -> None:
     assert dark > 0.005, f"{png.name}: blank page ({100 * dark:.2f} % non-white pixels)"
 
 
+def figures_agree(shown: str, other: str) -> bool:
+    """Two printed numbers agree: equal once the one with more decimals is rounded to the other's."""
+    def decimals(s: str) -> int:
+        return len(s.split(".")[1]) if "." in s else 0
+
+    short, long_ = sorted((shown, other), key=decimals)
+    return round(float(long_), decimals(short)) == round(float(short), decimals(short))
+
+
 def pdf_pages(path) -> int:
     """Page count of a PDF as matplotlib writes it (one ``/Type /Page`` object per page)."""
     import re

@@ -17,6 +17,8 @@ from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.pipeline import FILES, LOG_STAGES, find_log_runs, run_log_pipeline
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
+from conftest import figures_agree
+
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
@@ -342,3 +344,30 @@ def test_a_stray_sample_where_the_time_restarts_is_left_out_and_said(two_in_one,
     (said,) = imp["dropped"]
     assert said["reason"].startswith("one sample, not a run: run 3 (sample ")
     assert any("one sample, not a run" in x for x in lines)
+
+
+
+def test_a_figure_shown_twice_in_a_logs_report_is_the_same_figure(logs_run, tmp_path):
+    # Page 1 against the pages that show the same quantity again: the ripple's period (its pages and the
+    # appendix), each held-out run's share of the starting model's RMS (its bar and the appendix's RMS).
+    import re
+
+    import pypdf
+
+    from iiwa_ident.report import build_report
+
+    workdir, _, _ = logs_run
+    build_report(tmp_path / "r.pdf", workdir, png_dpi=30)
+    pages = [" ".join(p.extract_text().split()) for p in pypdf.PdfReader(tmp_path / "r.pdf").pages]
+    first, later = pages[0], pages[1:]
+    rho = re.search(r"ripple rho = ([\d.]+) rad", first).group(1)
+    again = [v for p in later for v in re.findall(r"(?:ρ|rho) = ([\d.]+) rad", p)]
+    assert len(again) >= 3 and all(figures_agree(rho, v) for v in again), (rho, again)
+    lo, hi = re.search(r"held out each run predicted from the others at (\d+)-(\d+) %", first).groups()
+    (bars,) = [p for p in later if "Each run predicted from the other runs" in p]
+    shares = re.findall(r"(\d+) % fit", bars)
+    appendix = next(p for p in later if p.startswith("Appendix"))
+    rms = re.findall(r"predicted from the other runs, RMS ([\d.]+) -> ([\d.]+) Nm", appendix)
+    assert len(shares) == len(rms) == 2, (shares, rms)
+    assert min(map(int, shares)) == int(lo) and max(map(int, shares)) == int(hi), (lo, hi, shares)
+    assert all(abs(100 * float(b) / float(a) - int(s)) <= 0.5 + 100 * 0.005 / float(a) for (a, b), s in zip(rms, shares))

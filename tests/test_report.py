@@ -20,7 +20,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import run_pipeline
 from iiwa_ident.report.pdf import REPORT_STAGES, build_report, load_results, report_pages
 
-from conftest import assert_not_blank, pdf_pages
+from conftest import assert_not_blank, figures_agree, pdf_pages
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 
@@ -271,13 +271,6 @@ def test_a_channel_said_explained_is_not_shown_failing_alone(workdir):
         assert rows[f"{c.dataset} / {c.channel}"].endswith("FAIL (at noise)"), rows
 
 
-def _agree(shown: str, other: str) -> bool:
-    """Two printed numbers agree: equal once the longer is rounded to the shorter's digits."""
-    digits = lambda s: len(s.split(".")[1]) if "." in s else 0  # noqa: E731
-    short, long_ = sorted((shown, other), key=digits)
-    return round(float(long_), digits(short)) == round(float(short), digits(short))
-
-
 def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     # Page 1 against the pages that show the same quantity again, read from the PDF as a reader sees it:
     # the fit's worst parameter (error in % and in std) in the parameter table and in the appendix, the
@@ -296,10 +289,10 @@ def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     (table,) = [p for p in later if "model.toml: parameters of eq (4) fitted to the chirp" in p]
     row = re.search(rf"\b{name} \S+(?: \S+)? ([-\d.e+]+) ([\d.e+-]+) ([\d.]+) ([\d.e+-]+) ([-+\d.e]+) ([-+\d.]+)", table)
     assert row, table[:600]
-    assert _agree(err, row.group(5)) and _agree(z, row.group(6).lstrip("+-")), (m.group(0), row.group(0))
+    assert figures_agree(err, row.group(5)) and figures_agree(z, row.group(6).lstrip("+-")), (m.group(0), row.group(0))
     (appendix,) = [p for p in later if p.startswith("Appendix")]
     shown = re.search(rf"fit: .*?\b{name} ([-+\d.]+) %", appendix)
-    assert shown and _agree(shown.group(1), err), (shown and shown.group(0), err)
+    assert shown and figures_agree(shown.group(1), err), (shown and shown.group(0), err)
     rho = re.search(r"ripple rho = ([\d.]+) rad", first).group(1)
     again = [v for p in later for v in re.findall(r"ρ = ([\d.]+) rad", p)]
-    assert again and all(_agree(rho, v) for v in again), (rho, again)
+    assert again and all(figures_agree(rho, v) for v in again), (rho, again)
