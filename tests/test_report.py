@@ -296,3 +296,21 @@ def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     rho = re.search(r"ripple rho = ([\d.]+) rad", first).group(1)
     again = [v for p in later for v in re.findall(r"ρ = ([\d.]+) rad", p)]
     assert again and all(figures_agree(rho, v) for v in again), (rho, again)
+
+
+def test_the_paper_reproduction_page_is_a_table_of_the_printed_cells():
+    # It was the text table in a monospace font; now a table whose cells are the ones `design` prints.
+    from iiwa_ident.design import REPRODUCTION_COLUMNS, paper_reproduction, reproduction_cells, table1_parameters
+    from iiwa_ident.report.design_figures import reproduction_figure
+
+    t1, source = table1_parameters()
+    rows = paper_reproduction(t1)
+    fig = reproduction_figure(rows, source)
+    (table,) = fig.axes[0].tables
+    cells = table.get_celld()
+    assert tuple(cells[0, c].get_text().get_text() for c in range(8)) == REPRODUCTION_COLUMNS
+    for i, want in enumerate(reproduction_cells(rows), 1):
+        shown = tuple(cells[i, c].get_text().get_text() for c in range(8))
+        assert shown[:7] == want[:7] and " ".join(shown[7].split()) == " ".join(want[7].split()), (shown, want)
+    assert not any(t.get_fontfamily() == ["monospace"] for t in fig.texts)
+    assert tuple(fig.get_size_inches()) == (11.0, 8.5)

@@ -17,7 +17,7 @@ ControlCycle
     Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
 DesignRecord, DesignFileError, make_record, read_design, write_design
     The design file (:mod:`iiwa_ident.design.design_file`).
-paper_reproduction, format_reproduction
+paper_reproduction, format_reproduction, reproduction_cells, ReproductionRow
     The paper's numbers beside the computed ones (:mod:`iiwa_ident.design.paper`).
 """
 
@@ -70,7 +70,11 @@ from iiwa_ident.design.observers import (
     run_observers,
 )
 from iiwa_ident.design.paper import (
+    REPRODUCTION_COLUMNS,
+    REPRODUCTION_POLES,
+    ReproductionRow,
     format_reproduction,
+    reproduction_cells,
     paper_reproduction,
     table1_parameters,
 )
@@ -97,6 +101,7 @@ __all__ = [
     "DeployedLoop", "DeployedMargin", "deployed_kappa_max", "deployed_loop_matrix", "deployed_margin",
     "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "PAPER_FILTER", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",
+    "reproduction_cells", "REPRODUCTION_COLUMNS", "REPRODUCTION_POLES", "ReproductionRow",
     "ClosedLoopRun", "KappaMargin", "ControlCycle",
     "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "SAMPLE_TIME_S", "builtin_poles", "check_poles", "natural_frequency_damping",
     "design_json",

@@ -44,7 +44,8 @@ from iiwa_ident.design.additive import (
 )
 from iiwa_ident.model import JointParameters
 
-__all__ = ["PAPER_VALUES", "ReproductionRow", "paper_reproduction", "format_reproduction", "table1_parameters"]
+__all__ = ["PAPER_VALUES", "ReproductionRow", "paper_reproduction", "format_reproduction", "table1_parameters",
+           "REPRODUCTION_COLUMNS", "REPRODUCTION_POLES", "reproduction_cells"]
 
 #: Values printed in section V (built-in poles of V.A, gains of V.B).
 PAPER_VALUES: dict[str, float] = {
@@ -208,19 +209,27 @@ def _diff(rel: float) -> str:
     return f"x{rel + 1:.4g}" if abs(rel) > 10 else f"{100 * rel:+.2f}%"
 
 
+#: The reproduction's columns, as the text table and the report's page show them.
+REPRODUCTION_COLUMNS = ("quantity", "unit", "paper", "Table I", "diff", "bc=55 Jc", "diff", "explanation")
+#: What the reproduction's designs use: the paper's poles (section V).
+REPRODUCTION_POLES = "poles -180+-30j, -500+-1j; observer -620, -630, -1000, -1010 rad/s"
+
+
+def reproduction_cells(rows: list[ReproductionRow]) -> list[tuple[str, ...]]:
+    """Each row's cells as printed, one per :data:`REPRODUCTION_COLUMNS`."""
+    return [(r.quantity, r.unit, _num(r.paper), _num(r.computed), _diff(r.rel_diff),
+             _num(r.computed_bc), _diff(r.rel_diff_bc), r.explanation) for r in rows]
+
+
 def format_reproduction(rows: list[ReproductionRow], source: str = "", width: int = 60) -> str:
     """The reproduction as a fixed-width text table (explanations wrapped to ``width``)."""
-    head = ("quantity", "unit", "paper", "Table I", "diff", "bc=55 Jc", "diff", "explanation")
-    body = []
-    for r in rows:
-        body.append((r.quantity, r.unit, _num(r.paper), _num(r.computed), _diff(r.rel_diff),
-                     _num(r.computed_bc), _diff(r.rel_diff_bc), r.explanation))
+    head = REPRODUCTION_COLUMNS
+    body = reproduction_cells(rows)
     widths = [max(len(head[i]), *(len(b[i]) for b in body)) for i in range(7)]
     indent = sum(widths) + 2 * 7
     lines = []
     if source:
-        lines.append(f"Section V reproduction: model {source}, poles -180+-30j, -500+-1j; "
-                     "observer -620, -630, -1000, -1010 rad/s")
+        lines.append(f"Section V reproduction: model {source}, {REPRODUCTION_POLES}")
     lines.append("  ".join(h.ljust(w) if i < 2 else h.rjust(w) for i, (h, w) in enumerate(zip(head, widths)))
                  + "  " + head[7])
     lines.append("-" * (indent + len(head[7])))

@@ -1,6 +1,9 @@
-"""Figures of the design stage: the spatial filter (like the paper's Fig. 4) and the observers (Fig. 7)."""
+"""Figures of the design stage: the spatial filter (like the paper's Fig. 4), the observers (Fig. 7) and the
+reproduction of section V's numbers."""
 
 from __future__ import annotations
+
+import textwrap
 
 import matplotlib
 
@@ -11,20 +14,24 @@ import numpy as np  # noqa: E402
 from iiwa_ident.datasets import Dataset  # noqa: E402
 from iiwa_ident.design import (  # noqa: E402
     PAPER_FILTER,
+    REPRODUCTION_COLUMNS,
+    REPRODUCTION_POLES,
     FilterSettings,
     compare_observers,
     link_speed,
     observer_lag,
+    reproduction_cells,
     run_observers,
 )
 from iiwa_ident.design import (  # noqa: E402
+    ReproductionRow,
     SpatialFilter,
     ripple_line_cut,
     spatial_filter_response,
 )
 from iiwa_ident.model import JointModel  # noqa: E402
 
-__all__ = ["spatial_filter_figure", "observer_figure"]
+__all__ = ["spatial_filter_figure", "observer_figure", "reproduction_figure"]
 
 _COLOURS = {"reference": "k", "builtin": "C3", "improved": "C0", "filtered": "C2", "fri": "C7"}
 _LABELS = {"builtin": "built-in (motor velocity)", "improved": "link velocity, eq (9)",
@@ -209,4 +216,29 @@ def observer_figure(dataset: Dataset, model: JointModel, filter: FilterSettings 
              f"response (1/K_I = {1e3 / model.value('KI'):.0f} ms), an error common to all;\nthe lagged-reference "
              "columns show the error the improvements can remove.", fontsize=7.5, family="monospace", va="bottom")
     fig.tight_layout(rect=(0, 0.13, 1, 1))
+    return fig
+
+
+def reproduction_figure(rows: list[ReproductionRow], source: str) -> plt.Figure:
+    """Section V's printed numbers beside the ones computed from ``source`` (Table I), as a table whose
+    explanations wrap in their cells; one letter landscape page."""
+    cells = reproduction_cells(rows)
+    wrapped = [c[:7] + ("\n".join(textwrap.wrap(c[7], 88)) or "",) for c in cells]
+    lines = [max(1, c[7].count("\n") + 1) for c in wrapped]
+    fig = plt.figure(figsize=(11.0, 8.5))
+    ax = fig.add_axes((0.03, 0.03, 0.94, 0.86))
+    ax.set_axis_off()
+    table = ax.table(cellText=wrapped, colLabels=REPRODUCTION_COLUMNS, loc="upper center", cellLoc="right",
+                     colLoc="right", colWidths=[0.1, 0.055, 0.07, 0.07, 0.065, 0.07, 0.065, 0.5])
+    table.auto_set_font_size(False)
+    table.set_fontsize(7)
+    # The height of a line of text, so that every row holds its explanation and the table the page.
+    unit = min(0.84 / (sum(lines) + 0.8 * len(lines) + 1.8), 0.03)
+    for (row, col), cell in table.get_celld().items():
+        cell.set_height(unit * (1.8 if row == 0 else lines[row - 1] + 0.8))
+        if col in (0, 1, 7):
+            cell.get_text().set_horizontalalignment("left")
+            cell.PAD = 0.02
+    fig.text(0.03, 0.95, "Paper reproduction (section V)", fontsize=15, va="top", weight="bold")
+    fig.text(0.03, 0.91, f"model {source}, {REPRODUCTION_POLES}", fontsize=9, va="top")
     return fig

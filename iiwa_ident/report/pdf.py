@@ -584,12 +584,11 @@ def _design_pages(r: dict[str, Any]) -> list[Page]:
 
     from iiwa_ident.design import (
         builtin_poles,
-        format_reproduction,
         paper_reproduction,
         table1_parameters,
     )
     from iiwa_ident.report.control_figures import pole_figure
-    from iiwa_ident.report.design_figures import observer_figure, spatial_filter_figure
+    from iiwa_ident.report.design_figures import observer_figure, reproduction_figure, spatial_filter_figure
 
     rec = r["design"]
     pages = []
@@ -618,8 +617,7 @@ def _design_pages(r: dict[str, Any]) -> list[Page]:
 
     def reproduction() -> plt.Figure:
         t1, source = table1_parameters()
-        text = format_reproduction(paper_reproduction(t1), source, width=55)
-        return _text_page("Paper reproduction (section V)", text, mono=True, size=(11.0, 8.5))
+        return reproduction_figure(paper_reproduction(t1), source)
 
     pages.append(Page("design", "Paper reproduction table", "The paper's printed gains and matrices beside the "
                       "ones computed on Table I with the paper's poles, and with bc/Jc = 55 1/s. Look at the diff "
