@@ -58,12 +58,11 @@ def assert_not_blank(png) -> None:
 
 
 def figures_agree(shown: str, other: str) -> bool:
-    """Two printed numbers agree: equal once the one with more decimals is rounded to the other's."""
-    def decimals(s: str) -> int:
-        return len(s.split(".")[1]) if "." in s else 0
+    """Two printed numbers agree: one value rounds to both (they differ by at most their two half-steps)."""
+    def half_step(s: str) -> float:
+        return 0.5 * 10.0 ** -(len(s.split(".")[1]) if "." in s else 0)
 
-    short, long_ = sorted((shown, other), key=decimals)
-    return round(float(long_), decimals(short)) == round(float(short), decimals(short))
+    return abs(float(shown) - float(other)) <= (half_step(shown) + half_step(other)) * (1 + 1e-9)
 
 
 def pdf_pages(path) -> int:

@@ -20,7 +20,7 @@ from iiwa_ident.runtime import SweepSettings
 from iiwa_ident.pipeline import FILES, STAGES, ValidationSettings, run_pipeline, run_validation
 from iiwa_ident.report.pdf import build_report
 
-from conftest import assert_not_blank, pdf_pages
+from conftest import assert_not_blank, figures_agree, pdf_pages
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 
@@ -179,3 +179,42 @@ class TestFailures:
         assert proc.returncode == 2
         assert proc.stderr.startswith("error: ") and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
         assert "Traceback" not in proc.stderr
+
+
+
+def test_a_validation_figure_shown_twice_is_the_same_figure(short_run):
+    # Page 1's rows of the closed-loop runs against the pages that draw them: the step's overshoots, the
+    # sine's peak errors, the live kappa margins, the design's section V.C margins, the observer's RMS.
+    import re
+
+    import pypdf
+
+    workdir = short_run[0]
+    pages = [" ".join(p.extract_text().split()) for p in pypdf.PdfReader(workdir / "report.pdf").pages]
+    first, later = pages[0], " ".join(pages[1:])
+
+    def pair(pattern: str, text: str = first) -> tuple[str, str]:
+        m = re.search(pattern, text)
+        assert m, (pattern, text[:300])
+        return m.groups()
+
+    add, builtin = pair(r"step overshoot ([\d.]+) % additive, ([\d.]+) % built-in")
+    assert (builtin, add) == pair(r"built-in \(tau_c = tau_r\): .*? overshoot ([\d.]+) % .*?additive, eqs "
+                                  r"\(16\)-\(18\): .*? overshoot ([\d.]+) %", later)
+    add, builtin = pair(r"sine [\d.]+ Hz peak error ([\d.]+) Nm additive, ([\d.]+) Nm built-in")
+    b2, a2 = pair(r"built-in \(tau_c = tau_r\): peak error ([\d.]+) Nm, RMS [\d.]+ Nm tau_r.*?additive, eqs "
+                  r"\(16\)-\(18\): peak error ([\d.]+) Nm, RMS [\d.]+ Nm tau_r shifted by Td = [\d.]+ ms tau_J "
+                  r"measured tau_J,filt, eq \(15\) [\d. −]+ time since the start of the run \[s\] [−\d. ]+joint "
+                  r"torque \[Nm\] zoom on the last", later)
+    assert figures_agree(add, a2) and figures_agree(builtin, b2), (add, a2, builtin, b2)
+    builtin, add = pair(r"kappa live, F/T stable to ([\d.]+) built-in, ([\d.]+) additive")
+    b2, a2 = pair(r"built-in \(tau_c = tau_r\), tau_ext from ft: stable to kappa ([\d.]+).*?additive, eqs "
+                  r"\(16\)-\(18\), tau_ext from ft: stable to kappa ([\d.]+)", later)
+    assert figures_agree(add, a2) and figures_agree(builtin, b2), (add, a2, builtin, b2)
+    add, builtin = pair(r"design kappa margin \(linear, section V.C's model\) ([\d.]+) additive / ([\d.]+) built-in")
+    b2, a2 = pair(r"built-in section V.C model ([\d.]+) additive section V.C model ([\d.]+)", later)
+    assert figures_agree(add, a2) and figures_agree(builtin, b2), (add, a2, builtin, b2)
+    improved, builtin = pair(r"observer improved ([\d.]+) Nm against built-in ([\d.]+) Nm RMS")
+    b2, i2 = pair(r"lagged ref: all \|v\|>0.5 built-in \(motor velocity\) [\d.]+ [\d.]+ [\d.]+ ([\d.]+) link "
+                  r"velocity, eq \(9\) [\d.]+ [\d.]+ [\d.]+ ([\d.]+)", later)
+    assert figures_agree(improved, i2) and figures_agree(builtin, b2), (improved, i2, builtin, b2)
