@@ -94,6 +94,11 @@ class FitRecord:
         return self.u.shape[0]
 
     @property
+    def fits_inputs(self) -> bool:
+        """Whether the record has an :attr:`input_basis` (a ripple or a hold)."""
+        return bool(self.ripple_basis or self.held)
+
+    @property
     def input_basis(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """The inputs whose coefficients the fit estimates alongside the parameters, as ``(deflection [rad],
         reaction [Nm])`` pairs: the :attr:`ripple_basis`, then three per :attr:`held` window that restart the

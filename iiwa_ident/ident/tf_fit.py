@@ -322,7 +322,7 @@ class _Problem:
             e_t = weights[0] * (r.tau - y[0])
             e_q = weights[1] * (r.q - y[1])
             self._project(r, e_t, e_q, weights)
-            if r.ripple_basis or r.held:
+            if r.fits_inputs:
                 fitted = self._ripple_fit(p, i, e_t, e_q, lf)
                 if fitted is None:
                     return np.full(2 * sum(rec.n for rec in self.records), 1e150)
@@ -397,7 +397,7 @@ class _Problem:
         p, lf = self.x_to_params(x), self.log_filter(x)
         out: list[np.ndarray | None] = []
         for i, (r, weights) in enumerate(zip(self.records, self._weights)):
-            if not (r.ripple_basis or r.held):
+            if not r.fits_inputs:
                 out.append(None)
                 continue
             y = self._outputs(i, p, lf)
