@@ -268,7 +268,7 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_period_rad: floa
                                        log_filter=log_filter)
         if terms is not None and terms.table is None and ripple is not None:
             # The output-error fit refined the searched period: the later fits and the effect start there.
-            terms = replace(terms, period_rad=result.ripple_period_rad)
+            terms = replace(terms, period_rad=result.ripple_period_rad, search=False)
             ripple.values["period_rad"] = result.ripple_period_rad
         if any(idim.known_inputs):
             # The inverse dynamics' effect terms can absorb its own approximation error (the gravity-model

@@ -172,11 +172,16 @@ class RippleTerms:
         Harmonics fitted (2 per harmonic: cosine and sine).
     table : RippleTable, optional
         The identified lookup table, taken as known.
+    search : bool
+        Without a table the period is searched: True refines it on the output-error residual first (see
+        :func:`fit_transfer_function`), False takes it as already refined; either way its uncertainty is in
+        the parameters' std.
     """
 
     period_rad: float
     harmonics: int = RIPPLE_HARMONICS
     table: RippleTable | None = None
+    search: bool = True
 
     def known_inputs(self, q_m: np.ndarray, tau_j: np.ndarray) -> list[tuple[str, np.ndarray]]:
         """The table's deflection and reaction as known inputs (none without a table)."""
@@ -917,9 +922,8 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         if best is None or sol.cost < best.cost:
             best = sol
     x = best.x
-    if refine and ripple is not None and ripple.table is None:
-        ripple = _refined_period(problem, x, ripple, log_filter)
-        x = _solve(problem, x).x
+    if refine and ripple is not None and ripple.table is None and ripple.search:
+        ripple = _refined_period(problem, x, ripple, log_filter)  # the outer iterations solve at it
     if not refine:
         problem.reweight(x, per_block=True)
         sol = _solve(problem, x, max_iterations=0)
