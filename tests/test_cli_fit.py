@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -154,6 +157,22 @@ class TestFitErrors:
         out = tmp_path / "m.toml"
         res = invoke("fit", chirps[0], "--out", out, "--model", bad)
         self.assert_refused(res, f"{bad}: format", out)
+
+    def test_a_chirp_too_weak_to_free_the_motor_is_refused_naming_the_robot_s_1_nm(self, tmp_path):
+        # Below 1 Nm of command and torque the robot does not move a motor from standstill (section II.A): the
+        # motor stays held from the first sample to the last. Was refused naming Jl, after many lines of
+        # LAPACK's "DLASCL parameter 4" on stderr.
+        amplitude = float(np.random.default_rng().uniform(0.3, 0.95))
+        chirp = tmp_path / "weak.h5"
+        assert invoke("chirp", "--target", "sim", "--duration", 4, "--amplitude", amplitude, "--bias", 0,
+                      "--out", chirp).exit_code == 0
+        out = tmp_path / "m.toml"
+        res = subprocess.run([str(Path(sys.executable).with_name("iiwa-ident")), "fit", str(chirp), "--out", str(out)],
+                             capture_output=True, text=True, timeout=120)
+        assert res.returncode == 2, res.stderr
+        assert res.stderr.strip().splitlines() == [res.stderr.strip()], res.stderr
+        assert f"{chirp}: the robot held the motor still for 100 % of the record" in res.stderr
+        assert "below the 1 Nm" in res.stderr and not out.exists()
 
     def test_existing_output_untouched_on_error(self, chirps, tmp_path):
         out = tmp_path / "m.toml"

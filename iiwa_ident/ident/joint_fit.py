@@ -151,6 +151,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
     """
     if method not in METHODS:
         raise IiwaIdentError(f"unknown fit method {method!r} (known: {', '.join(METHODS)})")
+    prepare_records(datasets)  # a record the fit cannot take is refused before any estimate is tried on it
     candidate = _log_filter_candidate(datasets)
     if candidate is None:
         return _fit_joint(datasets, method, ripple_period_rad, ripple_table, None)

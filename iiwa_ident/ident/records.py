@@ -32,7 +32,8 @@ from iiwa_ident.model import sample_means
 
 __all__ = ["MIN_DURATION_S", "MIN_COMMAND_STD_NM", "BLOCK_S", "MAX_LOST_SHARE", "MAX_LOST_RUN", "FitRecord",
            "prepare_record", "prepare_records", "check_joints", "fill_lost_cycles", "record_label", "spline_basis",
-           "STANDSTILL_TORQUE_NM", "HELD_SPEED_RAD_S", "HELD_MARGIN", "held_windows"]
+           "STANDSTILL_TORQUE_NM", "HELD_SPEED_RAD_S", "HELD_MARGIN", "MAX_HELD_SHARE", "held_windows",
+           "held_share"]
 
 #: Shortest record the fit accepts [s].
 MIN_DURATION_S = 2.0
@@ -49,6 +50,8 @@ HELD_SPEED_RAD_S = 2e-4
 HELD_MARGIN = 3
 #: Longest command delay looked back over for the held command [s] (the fit's bound on ``Td``).
 HELD_LOOKBACK_S = 0.05
+#: Largest share of a record the robot may have held the motor and the record still be fitted [-].
+MAX_HELD_SHARE = 0.5
 
 
 @dataclass
@@ -138,15 +141,10 @@ def held_windows(q_m: np.ndarray, tau_c: np.ndarray, tau_j: np.ndarray, T: float
     >>> held_windows(q, np.zeros(105), np.zeros(105), 1e-3)
     [(46, 59)]
     """
-    q_m, tau_c, tau_j = (np.asarray(a, float) for a in (q_m, tau_c, tau_j))
     n = len(q_m)
     if n < 3:
         return []
-    lag = max(1, int(round(HELD_LOOKBACK_S / T)))
-    recent = sliding_window_view(np.concatenate([np.full(lag, np.inf), np.abs(tau_c)]), lag + 1).min(axis=1)
-    still = np.abs(np.diff(q_m)) <= HELD_SPEED_RAD_S * T  # between samples k and k + 1
-    small = (np.abs(tau_j) < STANDSTILL_TORQUE_NM) & (recent < STANDSTILL_TORQUE_NM)
-    held = still & small[:-1] & small[1:]
+    held = _held_steps(q_m, tau_c, tau_j, T)
     out: list[tuple[int, int]] = []
     k = 0
     while k < n - 1:
@@ -163,6 +161,27 @@ def held_windows(q_m: np.ndarray, tau_c: np.ndarray, tau_j: np.ndarray, T: float
             out.append((a, b))
         k = j
     return out
+
+
+def held_share(q_m: np.ndarray, tau_c: np.ndarray, tau_j: np.ndarray, T: float) -> float:
+    """Share of the record's steps between samples during which the robot held the motor [-].
+
+    Counted as in :func:`held_windows`, but from the first sample on: a command too weak to ever free
+    the motor leaves it held from the rest before the command to the end.
+    """
+    if len(q_m) < 2:
+        return 0.0
+    return float(np.mean(_held_steps(q_m, tau_c, tau_j, T)))
+
+
+def _held_steps(q_m: np.ndarray, tau_c: np.ndarray, tau_j: np.ndarray, T: float) -> np.ndarray:
+    """Whether the motor was held between samples k and k + 1 (:func:`held_windows`' criterion)."""
+    q_m, tau_c, tau_j = (np.asarray(a, float) for a in (q_m, tau_c, tau_j))
+    lag = max(1, int(round(HELD_LOOKBACK_S / T)))
+    recent = sliding_window_view(np.concatenate([np.full(lag, np.inf), np.abs(tau_c)]), lag + 1).min(axis=1)
+    still = np.abs(np.diff(q_m)) <= HELD_SPEED_RAD_S * T
+    small = (np.abs(tau_j) < STANDSTILL_TORQUE_NM) & (recent < STANDSTILL_TORQUE_NM)
+    return still & small[:-1] & small[1:]
 
 
 def record_label(ds: Dataset, index: int) -> str:
@@ -222,6 +241,12 @@ def prepare_record(ds: Dataset, index: int) -> FitRecord:
     n = u.shape[0]
     per_block = max(1, int(round(BLOCK_S / T)))
     block = np.minimum(np.arange(n) // per_block, max(n // per_block - 1, 0))
+    share = held_share(q, u, tau_j, T)
+    if share > MAX_HELD_SHARE:
+        raise IiwaIdentError(f"{label}: the robot held the motor still for {100 * share:.0f} % of the record: command "
+                             f"and joint torque stayed below the {STANDSTILL_TORQUE_NM:g} Nm under which it does not "
+                             f"move a motor from standstill (section II.A); record again with a larger amplitude or "
+                             f"a bias of a few Nm")
     held = held_windows(q, u, tau_j, T)
     drift = spline_basis(n, T, knot)
     if held:
