@@ -81,12 +81,17 @@ def without_known(rec: FitRecord, params: dict[str, float], log_filter: TorqueLo
     """``rec`` with the response to its known torques taken out of ``tau_j`` and ``q_m`` (itself without);
     the torque's response through ``log_filter`` where the log
     has one."""
-    if not rec.known:
+    table = rec.table_inputs()
+    if not rec.known and table is None:
         return rec
-    y = sum(discretize(params, rec.T, kind).simulate(signal) for kind, signal in rec.known)
+    y = sum((discretize(params, rec.T, kind).simulate(signal) for kind, signal in rec.known), np.zeros((2, rec.n)))
+    if table is not None:  # the ripple's table, a known deflection with its reaction
+        y = y + discretize(params, rec.T, "deflection").simulate(table.D[:, 0], table.D_means[:, 0],
+                                                                 table.D_slopes[:, 0]) \
+            + discretize(params, rec.T, "reaction").simulate(table.RX[:, 0], table.RX_means[:, 0], table.RX_slopes[:, 0])
     if log_filter is not None:
         y[0] = log_filter.apply(y[0], rec.T)
-    return replace(rec, tau=rec.tau - y[0], q=rec.q - y[1], spectra=None, known=[])
+    return replace(rec, tau=rec.tau - y[0], q=rec.q - y[1], spectra=None, known=[], table_signals=None)
 
 
 def record_frf(rec: FitRecord, delay_s: float = 0.0) -> tuple[_frf.FRFEstimate, _frf.FRFEstimate]:

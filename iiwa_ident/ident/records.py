@@ -12,28 +12,36 @@ II.A: torque control is suppressed when starting from zero velocity below
 1 Nm; a chirp meets it where the motor stands almost still, at the
 antiresonance), no linear model follows the joint: a record keeps those
 windows (:func:`held_windows`) so the fit can leave them out.
+
+The transmission ripple's inputs are functions of the motion between the
+samples (:class:`Motion`): there the motor's speed jumps wherever a new
+command arrives (eq (1): the loop's damping passes the command straight to
+the speed), so the motion is smooth only piecewise and a cubic through the
+samples misplaces it by about a thousandth of a sample's travel; with the
+delay a whole number of samples every jump falls on a sample and the error
+follows the command's steps, which the fit took for ``Td`` (100 ns at 5 ms).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.sparse
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.interpolate import BSpline
+from scipy.interpolate import BSpline, CubicSpline
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
-from iiwa_ident.model import sample_means
+from iiwa_ident.model import discretize, sample_means, sample_slopes
 
 __all__ = ["MIN_DURATION_S", "MIN_COMMAND_STD_NM", "BLOCK_S", "MAX_LOST_SHARE", "MAX_LOST_RUN", "FitRecord",
            "prepare_record", "prepare_records", "check_joints", "fill_lost_cycles", "record_label", "spline_basis",
            "STANDSTILL_TORQUE_NM", "HELD_SPEED_RAD_S", "HELD_MARGIN", "MAX_HELD_SHARE", "held_windows",
-           "held_share"]
+           "held_share", "MOTION_SUBSTEPS", "Motion", "SampledInputs", "MotionSignals", "record_motion"]
 
 #: Shortest record the fit accepts [s].
 MIN_DURATION_S = 2.0
@@ -52,6 +60,129 @@ HELD_MARGIN = 3
 HELD_LOOKBACK_S = 0.05
 #: Largest share of a record the robot may have held the motor and the record still be fitted [-].
 MAX_HELD_SHARE = 0.5
+
+
+#: Points per sample at which :class:`Motion` resolves the motion between samples [-] (even: Simpson's rule).
+MOTION_SUBSTEPS = 8
+
+#: Deflection [rad] and reaction [Nm] columns of the motion ``(q_m [rad], tau_j [Nm])`` at any points:
+#: ``signals(q_m, tau_j) -> (deflection (points, m), reaction (points, m))``.
+MotionSignals = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class Motion:
+    """The motor position and the carried joint torque between a record's samples.
+
+    Attributes
+    ----------
+    q : numpy.ndarray
+        ``q_m`` [rad] (absolute) at ``k T + j T / substeps`` from the first sample to the last.
+    tau : numpy.ndarray
+        The joint torque the transmission carries [Nm], at the same points.
+    substeps : int
+        Points per sample.
+    """
+
+    q: np.ndarray
+    tau: np.ndarray
+    substeps: int
+
+
+@dataclass(frozen=True)
+class SampledInputs:
+    """Deflection [rad] and reaction [Nm] columns as a model sampled ``substeps`` times per sample sees them:
+    values at its points, means and slopes over its intervals (:class:`~iiwa_ident.model.DiscreteModel`),
+    shape ``(n * substeps, columns)`` each (Fortran order: one column through many parameter sets)."""
+
+    D: np.ndarray
+    RX: np.ndarray
+    D_means: np.ndarray
+    RX_means: np.ndarray
+    D_slopes: np.ndarray
+    RX_slopes: np.ndarray
+    substeps: int
+
+
+def record_motion(u: np.ndarray, q: np.ndarray, tau: np.ndarray, T: float, params: Any) -> Motion:
+    """The motion between samples: the command's modelled response at ``params`` (its speed jumps exact,
+    :func:`~iiwa_ident.model.discretize` at ``T / MOTION_SUBSTEPS``) plus a cubic through what it leaves at
+    the samples (smooth: the response to the ripple, the link's torques, the drift).
+
+    Parameters
+    ----------
+    u : numpy.ndarray
+        The torque command [Nm], one per sample.
+    q : numpy.ndarray
+        ``q_m`` [rad] at the samples (absolute).
+    tau : numpy.ndarray
+        The carried joint torque [Nm] at the samples.
+    T : float
+        Sample time [s].
+    params : JointParameters, mapping or sequence
+        ``Jc, bc, K, Jl`` [SI], ``Td`` [s]: an estimate (the jumps are a small correction; their size and
+        place need no more than the estimate's accuracy).
+
+    Examples
+    --------
+    >>> params = (1.0, 50.0, 1e4, 4.0, 0.002)
+    >>> u = np.r_[np.zeros(10), np.ones(40)]
+    >>> from iiwa_ident.model import simulate_outputs
+    >>> tau, q = simulate_outputs(params, u, 1e-3)
+    >>> fine = simulate_outputs(params, np.repeat(u, 8), 1e-3 / 8)
+    >>> m = record_motion(u, q, tau, 1e-3, params)
+    >>> bool(np.allclose(m.q, fine[1][:len(m.q)], atol=1e-15) and np.allclose(m.tau, fine[0][:len(m.q)]))
+    True
+    """
+    M = MOTION_SUBSTEPS
+    n = len(u)
+    points = (n - 1) * M + 1
+    with np.errstate(all="ignore"):
+        y = discretize(params, T / M).simulate(np.repeat(np.asarray(u, float), M))[:, :points]
+    if not np.all(np.isfinite(y)):
+        y = np.zeros((2, points))
+    k = np.arange(n)
+    fine = np.arange(points) / M
+    q_rest = CubicSpline(k, q - q[0] - y[1, ::M])(fine)
+    tau_rest = CubicSpline(k, tau - y[0, ::M])(fine)
+    return Motion(q=q[0] + y[1] + q_rest, tau=y[0] + tau_rest, substeps=M)
+
+
+def _simpson(G: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and slope (``12 int_0^1 (s - 1/2) G ds``) of ``G`` (rows at equal spacing) over each run of
+    ``step`` intervals (``step`` even), by Simpson's rule."""
+    count = (G.shape[0] - 1) // step
+    w = np.ones(step + 1)
+    w[1:-1:2], w[2:-1:2] = 4.0, 2.0
+    w /= 3.0 * step
+    lever = 12.0 * (np.arange(step + 1) / step - 0.5)
+    means = np.zeros((count,) + G.shape[1:])
+    slopes = np.zeros_like(means)
+    for j, wj in enumerate(w):
+        part = wj * G[j:j + count * step:step]
+        means += part
+        slopes += lever[j] * part
+    return means, slopes
+
+
+def _sampled(G: np.ndarray, n: int, M: int, substeps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Values at ``substeps`` points per sample and the means and slopes between them from ``G`` at ``M``
+    points per sample; past the last sample the last value, no slope (it reaches no output in the record)."""
+    step = M // substeps
+    vals = G[::step]
+    means, slopes = _simpson(G, step)
+    rows = n * substeps
+    last = np.repeat(vals[-1:], rows - len(means), axis=0)
+    return (np.concatenate([vals, last[:rows - len(vals)]]), np.concatenate([means, last]),
+            np.concatenate([slopes, np.zeros_like(last)]))
+
+
+def _fine_signal(signal: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A signal known at the samples only, ``substeps`` times finer (cubic), and its
+    :func:`~iiwa_ident.model.sample_means` and :func:`~iiwa_ident.model.sample_slopes` there."""
+    n = signal.shape[0]
+    fine = signal if substeps == 1 else CubicSpline(np.arange(n), signal, axis=0)(np.arange(n * substeps) / substeps)
+    return fine, sample_means(fine), sample_slopes(fine)
 
 
 @dataclass
@@ -79,7 +210,16 @@ class FitRecord:
     #: The ripple's Fourier basis as ``(deflection [rad], reaction [Nm])`` pairs, one per coefficient; their
     #: coefficients are fitted with the parameters (projected out of the residual), see :class:`RippleTerms`.
     ripple_basis: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    _ripple_inputs: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
+    #: The ripple basis' columns as functions of the motion (their first-sample deflection not taken off).
+    ripple_signals: MotionSignals | None = None
+    #: The ripple's lookup table as a known input (one column each), a function of the motion as above.
+    table_signals: MotionSignals | None = None
+    #: The motion between samples (:func:`record_motion`), once the fit has an estimate; before, the
+    #: ripple's inputs are interpolated from their samples.
+    motion: Motion | None = None
+    #: The torque the transmission carries where the log's filter changed it (undone) [Nm]; else ``tau``.
+    tau_carried: np.ndarray | None = None
+    _inputs: dict[tuple[str, int], SampledInputs] = field(default_factory=dict, init=False, repr=False)
     #: Sample ranges ``[start, stop)`` where the robot held the motor (:func:`held_windows`), margins
     #: included: the fit gives them no weight and restarts its model's state after each.
     held: list[tuple[int, int]] = field(default_factory=list)
@@ -117,15 +257,78 @@ class FitRecord:
             out += [(after, zero), ((k - free) * self.T * after, zero), (zero, (k == free).astype(float))]
         return out
 
-    def ripple_inputs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The :attr:`input_basis` as input matrices (n, columns), built once: deflection, reaction and their
-        :func:`~iiwa_ident.model.sample_means` (the inputs the sampled model sees, for every parameter set)."""
-        if self._ripple_inputs is None:
+    def restore_motion(self, motion: Motion | None) -> None:
+        """Put back a motion :meth:`set_motion` replaced."""
+        self.motion = motion
+        self._inputs.clear()
+
+    @property
+    def carried(self) -> np.ndarray:
+        """The torque the transmission carries [Nm] (:attr:`tau_carried`, else ``tau``)."""
+        return self.tau if self.tau_carried is None else self.tau_carried
+
+    def set_ripple(self, signals: MotionSignals | None, table: MotionSignals | None = None) -> None:
+        """The ripple's basis (and table) as functions of the motion; the basis' samples kept in
+        :attr:`ripple_basis`."""
+        self.ripple_signals, self.table_signals = signals, table
+        self.ripple_basis = []
+        if signals is not None:
+            D, RX = signals(self.q + self.q0, self.carried)
+            D = D - D[:1]
+            self.ripple_basis = [(D[:, j], RX[:, j]) for j in range(D.shape[1])]
+        self._inputs.clear()
+
+    def set_motion(self, params: Any, q: np.ndarray | None = None, tau: np.ndarray | None = None) -> None:
+        """Resolve the motion between samples from the command's response at ``params``
+        (:func:`record_motion`), through ``q`` [rad] (absolute) and the carried ``tau`` [Nm] at the samples
+        (default: the measured ones)."""
+        self.motion = record_motion(self.u, self.q + self.q0 if q is None else q,
+                                    self.carried if tau is None else tau, self.T, params)
+        self._inputs.clear()
+
+    def ripple_inputs(self, substeps: int = 1) -> SampledInputs:
+        """The :attr:`input_basis` as a model ``substeps`` times finer than the samples sees it, built once:
+        the ripple's columns from the :attr:`motion` where it is known, the holds' restarts (and the ripple
+        before) interpolated from their samples."""
+        key = ("basis", substeps)
+        if key not in self._inputs:
             basis = self.input_basis
-            D = np.asfortranarray(np.column_stack([d for d, _ in basis]))
-            RX = np.asfortranarray(np.column_stack([rx for _, rx in basis]))
-            self._ripple_inputs = (D, RX, np.asfortranarray(sample_means(D)), np.asfortranarray(sample_means(RX)))
-        return self._ripple_inputs
+            D, D_means, D_slopes = _fine_signal(np.column_stack([d for d, _ in basis]), substeps)
+            RX, RX_means, RX_slopes = _fine_signal(np.column_stack([rx for _, rx in basis]), substeps)
+            if self.motion is not None and self.ripple_signals is not None:
+                m = len(self.ripple_basis)
+                parts = self._from_motion(self.ripple_signals, substeps)
+                for whole, part in zip((D, D_means, D_slopes, RX, RX_means, RX_slopes), parts):
+                    whole[:, :m] = part
+            self._inputs[key] = SampledInputs(*map(np.asfortranarray, (D, RX, D_means, RX_means, D_slopes,
+                                                                       RX_slopes)), substeps)
+        return self._inputs[key]
+
+    def table_inputs(self, substeps: int = 1) -> SampledInputs | None:
+        """The ripple table's deflection and reaction (one column each) as :meth:`ripple_inputs`; None
+        without a table."""
+        if self.table_signals is None:
+            return None
+        key = ("table", substeps)
+        if key not in self._inputs:
+            if self.motion is not None:
+                parts = self._from_motion(self.table_signals, substeps)
+            else:
+                D, RX = self.table_signals(self.q + self.q0, self.carried)
+                parts = (*_fine_signal(D - D[:1], substeps), *_fine_signal(RX, substeps))
+            D, D_means, D_slopes, RX, RX_means, RX_slopes = parts
+            self._inputs[key] = SampledInputs(*map(np.asfortranarray, (D, RX, D_means, RX_means, D_slopes,
+                                                                       RX_slopes)), substeps)
+        return self._inputs[key]
+
+    def _from_motion(self, signals: MotionSignals, substeps: int) -> tuple[np.ndarray, ...]:
+        """``signals`` over the :attr:`motion`: deflection values, means and slopes (less the first sample's
+        deflection: the record starts at rest, the link there), then the reaction's."""
+        motion = self.motion
+        assert motion is not None
+        D, RX = signals(motion.q, motion.tau)
+        return (*_sampled(D - D[:1], self.n, motion.substeps, substeps),
+                *_sampled(RX, self.n, motion.substeps, substeps))
 
 
 def held_windows(q_m: np.ndarray, tau_c: np.ndarray, tau_j: np.ndarray, T: float) -> list[tuple[int, int]]:

@@ -88,7 +88,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 from scipy.linalg import cho_factor, cho_solve
 
@@ -105,7 +104,7 @@ from iiwa_ident.ident.initial import (
     without_known,
 )
 from iiwa_ident.ident.log_filter import LOG_FILTER_MAX_HZ, lowest_cutoff_hz, unfiltered_torque
-from iiwa_ident.ident.records import FitRecord, prepare_record, prepare_records
+from iiwa_ident.ident.records import FitRecord, SampledInputs, prepare_record, prepare_records
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
 from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values
@@ -127,7 +126,8 @@ STD_FISHER = ("inverse Fisher information of the output-error fit, weighted by p
               "estimated from the residuals; describes the noise, not unmodelled effects")
 #: What the transmission ripple's terms add to :data:`STD_FISHER`.
 STD_RIPPLE = ("; with the transmission ripple's coefficients fitted alongside, plus the sampled model's own error "
-              "for the ripple's inputs (estimated by step doubling), and at least the block sandwich std")
+              "for the ripple's inputs (estimated by step doubling) and the estimates' change with the measured "
+              "torque in the ripple's reaction instead of the model's, and at least the block sandwich std")
 _SIGMA_FLOOR = 0.1  # a block's noise level is at least this fraction of its channel's RMS
 _LOW_COHERENCE = 0.8  # warn below this mean coherence in an octave band
 _NONLINEAR_WARN = 0.05  # warn when harmonics 2..5 carry more than this share of the output power
@@ -183,34 +183,39 @@ class RippleTerms:
     table: RippleTable | None = None
     search: bool = True
 
-    def known_inputs(self, q_m: np.ndarray, tau_j: np.ndarray) -> list[tuple[str, np.ndarray]]:
-        """The table's deflection and reaction as known inputs (none without a table)."""
-        if self.table is None:
-            return []
+    def table_signals(self, q_m: np.ndarray, tau_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The table's deflection [rad] and reaction [Nm] at the motion ``(q_m, tau_j)``, one column each."""
+        assert self.table is not None
         f = np.asarray(self.table(q_m), float)
-        # The record starts at rest: its first deflection is in the link's rest position, not a step.
-        return [("deflection", f - f[0]), ("reaction", tau_j * self.table.slope(q_m))]
+        return f[:, None], (tau_j * self.table.slope(q_m))[:, None]
 
-    def basis(self, q_m: np.ndarray, tau_j: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """``(deflection, reaction)`` of each cosine and sine of the fitted harmonics."""
+    def signals(self, q_m: np.ndarray, tau_j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Deflection [rad] and reaction [Nm] of each cosine and sine of the fitted harmonics at the motion
+        ``(q_m, tau_j)``: columns ``(points, 2 * harmonics)``."""
         w = 2.0 * np.pi / self.period_rad
-        out = []
-        for k in range(1, self.harmonics + 1):
-            c, s = np.cos(k * w * q_m), np.sin(k * w * q_m)
-            out.append((c - c[0], -k * w * s * tau_j))
-            out.append((s - s[0], k * w * c * tau_j))
-        return out
+        k = np.arange(1, self.harmonics + 1)
+        phase = w * np.asarray(q_m, float)[:, None] * k[None, :]
+        c, s = np.cos(phase), np.sin(phase)
+        tau = np.asarray(tau_j, float)[:, None]
+        D = np.empty((len(phase), 2 * self.harmonics))
+        RX = np.empty_like(D)
+        D[:, 0::2], D[:, 1::2] = c, s
+        RX[:, 0::2], RX[:, 1::2] = -k * w * s * tau, k * w * c * tau
+        return D, RX
 
 
-def _input_response(params: Any, T: float, kind: str, signal: np.ndarray, substeps: int = 1) -> np.ndarray:
-    """Outputs ``(2, n)`` for one input; ``substeps > 1`` samples a function of the motion ``substeps`` times
-    finer between its samples (cubic interpolation), to estimate the sampled model's own error by step
-    doubling."""
-    if substeps == 1 or kind not in ("deflection", "reaction"):
-        return discretize(params, T, kind).simulate(signal)
-    n = len(signal)
-    fine = CubicSpline(np.arange(n), signal)(np.arange(n * substeps) / substeps)
-    return discretize(params, T / substeps, kind).simulate(fine)[:, ::substeps]
+def _input_response(params: Any, T: float, kind: str, signal: np.ndarray) -> np.ndarray:
+    """Outputs ``(2, n)`` for one known torque (no delay, so ``Td`` does not enter)."""
+    return discretize(params, T, kind).simulate(signal)
+
+
+def _motion_response(params: Any, T: float, inputs: SampledInputs) -> np.ndarray:
+    """Outputs ``(2, n, columns)`` of deflection and reaction columns (:class:`SampledInputs`) through the
+    model sampled as finely as they are."""
+    s = inputs.substeps
+    Y = discretize(params, T / s, "deflection").simulate(inputs.D, inputs.D_means, inputs.D_slopes)
+    Y += discretize(params, T / s, "reaction").simulate(inputs.RX, inputs.RX_means, inputs.RX_slopes)
+    return Y[:, ::s] if s > 1 else Y
 
 
 def _simulate_record(params: Any, rec: "FitRecord", substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
@@ -225,8 +230,12 @@ def _simulate_record(params: Any, rec: "FitRecord", substeps: int = 1, known: np
 def _known_response(params: Any, rec: "FitRecord", substeps: int = 1) -> np.ndarray:
     """The outputs ``(2, n)`` of a record's known torques (zero without; NaN for a non-physical ``params``):
     no delay in them, so ``Td`` does not enter."""
-    return _outputs(rec, lambda: sum((_input_response(params, rec.T, kind, signal, substeps)
-                                      for kind, signal in rec.known), np.zeros((2, rec.n))))
+    def simulate() -> np.ndarray:
+        y = sum((_input_response(params, rec.T, kind, signal) for kind, signal in rec.known), np.zeros((2, rec.n)))
+        table = rec.table_inputs(substeps)
+        return y if table is None else y + _motion_response(params, rec.T, table)[:, :, 0]
+
+    return _outputs(rec, simulate)
 
 
 def _outputs(rec: "FitRecord", simulate: Callable[[], np.ndarray]) -> np.ndarray:
@@ -262,8 +271,8 @@ class _Problem:
         self.sigma = [[np.ones(r.n_blocks), np.ones(r.n_blocks)] for r in records]
         self._weights: list[tuple[np.ndarray, np.ndarray, float, Any]] = []
         self.n_evaluations = 0
-        #: Model steps per sample for the inputs that are sampled functions of the motion (see
-        #: :func:`_input_response`); 2 only to estimate the error of the usual 1.
+        #: Model steps per sample for the inputs that are functions of the motion (see
+        #: :meth:`~iiwa_ident.ident.records.FitRecord.ripple_inputs`); 2 only to estimate the error of the usual 1.
         self.substeps = 1
         self.update_projections()
 
@@ -378,14 +387,7 @@ class _Problem:
         response in signal units ``(2, n, columns)``; ``None`` where the model does not exist."""
         try:
             with np.errstate(all="ignore"):
-                if self.substeps == 1:  # the usual case: all columns through each model at once
-                    D, RX, D_means, RX_means = r.ripple_inputs()
-                    Y = discretize(p, r.T, "deflection").simulate(D, D_means)
-                    Y += discretize(p, r.T, "reaction").simulate(RX, RX_means)
-                else:
-                    Y = np.stack([_input_response(p, r.T, "deflection", d, self.substeps)
-                                  + _input_response(p, r.T, "reaction", rx, self.substeps)
-                                  for d, rx in r.input_basis], axis=2)
+                Y = _motion_response(p, r.T, r.ripple_inputs(self.substeps))  # every column at once
                 if lf is not None:
                     Y[0] = lf.apply(Y[0], r.T)
                 w_t, w_q = weights[0], weights[1]
@@ -754,20 +756,48 @@ def _records(datasets: Sequence[Dataset], known: Sequence[Sequence[tuple[str, np
             rec.known = [(kind, np.asarray(signal, float)) for kind, signal in inputs]
     if ripple is not None:
         for rec in records:
-            rec.known = rec.known + ripple.known_inputs(rec.q + rec.q0, _carried_torque(rec, log_filter))
-        _set_ripple_basis(records, ripple, log_filter)
+            if log_filter is not None:
+                rec.tau_carried = unfiltered_torque(rec.tau, rec.T, log_filter, rec.f_hi)
+        _set_ripple_basis(records, ripple)
     return records
 
 
-def _carried_torque(rec: FitRecord, log_filter: TorqueLogFilter | None) -> np.ndarray:
-    """The torque the transmission carries: the record's, before the log's filter."""
-    return rec.tau if log_filter is None else unfiltered_torque(rec.tau, rec.T, log_filter, rec.f_hi)
-
-
-def _set_ripple_basis(records: list[FitRecord], ripple: RippleTerms, log_filter: TorqueLogFilter | None) -> None:
-    """Each record's ripple basis at ``ripple``'s period."""
+def _set_ripple_basis(records: list[FitRecord], ripple: RippleTerms) -> None:
+    """Each record's ripple basis (and table) at ``ripple``'s period."""
     for rec in records:
-        rec.ripple_basis, rec._ripple_inputs = ripple.basis(rec.q + rec.q0, _carried_torque(rec, log_filter)), None
+        rec.set_ripple(ripple.signals, None if ripple.table is None else ripple.table_signals)
+
+
+def _set_motion(problem: "_Problem", x: np.ndarray, model_torque: bool = False) -> None:
+    """Each record's motion between samples from the command's response at ``x``, where the ripple's inputs
+    need it (:func:`~iiwa_ident.ident.records.record_motion`).
+
+    With ``model_torque`` the torque through it is the model's at ``x`` (the measured one less the residual),
+    not the measured one: the reaction multiplies the torque, and the sensor's noise in it drives the motor's
+    modelled position at low frequencies, where the position's residual weighs most (on the default joint
+    it spread ``Td`` over 30 ns, three times its std). The model's torque needs the period refined first: a
+    period 1e-3 off misses the ripple by 0.1 Nm where the motor travels far.
+    """
+    params = _Problem.x_to_params(x)
+    residuals = problem.unweighted(x) if model_torque else [(None, None)] * len(problem.records)
+    for rec, (e_t, _) in zip(problem.records, residuals):
+        if rec.ripple_signals is not None or rec.table_signals is not None:
+            rec.set_motion(params, tau=None if e_t is None else rec.carried - e_t)
+    problem._responses.clear()
+
+
+def _measured_torque_step(problem: "_Problem", x: np.ndarray, J: np.ndarray, r: np.ndarray,
+                          Finv: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step of the fit at ``x`` (Jacobian ``J``, weighted residual ``r``, inverse Fisher
+    information ``Finv``) when the ripple's reaction takes the measured torque instead of the model's
+    (:func:`_set_motion`); the records' motion is left as it was."""
+    saved = [rec.motion for rec in problem.records]
+    _set_motion(problem, x)
+    step = -Finv @ (J.T @ (problem.residual(x) - r))
+    for rec, motion in zip(problem.records, saved):
+        rec.restore_motion(motion)
+    problem._responses.clear()
+    return step
 
 
 #: Relative half-width of the search for a searched ripple period around its start [-]: well inside the cost's
@@ -775,30 +805,28 @@ def _set_ripple_basis(records: list[FitRecord], ripple: RippleTerms, log_filter:
 PERIOD_SEARCH = 5e-3
 
 
-def _period_column(problem: _Problem, x: np.ndarray, ripple: RippleTerms,
-                   log_filter: TorqueLogFilter | None) -> np.ndarray:
+def _period_column(problem: _Problem, x: np.ndarray, ripple: RippleTerms) -> np.ndarray:
     """The weighted residual's derivative by the ripple's period [1/rad] at ``x`` (central difference); the
     records' basis is left at ``ripple``'s period."""
     h = ripple.period_rad * 1e-6
     cols = []
     for period in (ripple.period_rad + h, ripple.period_rad - h):
-        _set_ripple_basis(problem.records, replace(ripple, period_rad=period), log_filter)
+        _set_ripple_basis(problem.records, replace(ripple, period_rad=period))
         problem._responses.clear()
         cols.append(problem.residual(x))
-    _set_ripple_basis(problem.records, ripple, log_filter)
+    _set_ripple_basis(problem.records, ripple)
     problem._responses.clear()
     return (cols[0] - cols[1]) / (2 * h)
 
 
-def _refined_period(problem: _Problem, x: np.ndarray, ripple: RippleTerms,
-                    log_filter: TorqueLogFilter | None) -> RippleTerms:
+def _refined_period(problem: _Problem, x: np.ndarray, ripple: RippleTerms) -> RippleTerms:
     """``ripple`` at the period that minimises the fit's cost at ``x``, its basis set in the records.
 
     A period searched by the inverse dynamics is off by a few 1e-4 in noise, which biases the stiffness by
     several std; the output-error residual pins it down.
     """
     def cost(period: float) -> float:
-        _set_ripple_basis(problem.records, replace(ripple, period_rad=period), log_filter)
+        _set_ripple_basis(problem.records, replace(ripple, period_rad=period))
         problem._responses.clear()
         return float(np.sum(problem.residual(x) ** 2))
 
@@ -850,6 +878,7 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
     problem = _Problem(_records(datasets, known, ripple, log_filter), log_filter_order=order)
     x = _Problem.params_to_x([params[k] for k in PARAMETER_NAMES],
                              None if log_filter is None else float(log_filter.values["cutoff_hz"]))
+    _set_motion(problem, x)
     return [{"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))}
             for e_t, e_q in problem.unweighted(x)]
 
@@ -922,8 +951,9 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         if best is None or sol.cost < best.cost:
             best = sol
     x = best.x
+    _set_motion(problem, x)  # the ripple's inputs between samples, from the command's response at the estimate
     if refine and ripple is not None and ripple.table is None and ripple.search:
-        ripple = _refined_period(problem, x, ripple, log_filter)  # the outer iterations solve at it
+        ripple = _refined_period(problem, x, ripple)  # the outer iterations solve at it
     if not refine:
         problem.reweight(x, per_block=True)
         sol = _solve(problem, x, max_iterations=0)
@@ -932,7 +962,9 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         sol = _solve(problem, x)
         step = np.max(np.abs(sol.x - x))
         x = sol.x
-        if step < 1e-6 and it > 0:
+        if it == 0:
+            _set_motion(problem, x, model_torque=True)  # the later iterations solve with the model's torque
+        elif step < 1e-6:
             break
     cost = float(sol.cost)
     n_eval = problem.n_evaluations
@@ -944,7 +976,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     searched = refine and ripple is not None and ripple.table is None
     if searched:
         # The period was fitted too: its column, so that the parameters' std carry its uncertainty.
-        J = np.column_stack([J, _period_column(problem, x, ripple, log_filter)])
+        J = np.column_stack([J, _period_column(problem, x, ripple)])
     F = np.einsum("ki,kj->ij", J, J)
     Finv = np.linalg.pinv(F)
     ids = problem.block_ids()
@@ -957,8 +989,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     D = np.diag([*p[:4], 1e-3] + ([] if lf is None else [lf.values["cutoff_hz"]]) + ([1.0] if searched else []))
     cov = D @ Finv @ D
     std_method = STD_FISHER
-    if any(kind in ("deflection", "reaction") for rec in records for kind, _ in rec.known) or \
-            any(rec.ripple_basis for rec in records):
+    if any(rec.table_signals is not None or rec.ripple_basis for rec in records):
         # The ripple's inputs are known at the samples only; between them the model interpolates, with
         # an error that matters at this signal-to-noise ratio. Step doubling estimates it: the fit's
         # step to a model twice as fine is 3/4 of the usual model's error (the error goes as the square).
@@ -967,6 +998,10 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         problem.substeps = 1
         err = D @ (shift * 4.0 / 3.0)
         cov = cov + np.outer(err, err)
+        # The reaction multiplies the torque: the model's carries no sensor noise, the measured one no
+        # model error; the estimates' step from one to the other bounds what the choice leaves in them.
+        other = D @ _measured_torque_step(problem, x, J, r, Finv)
+        cov = cov + np.outer(other, other)
         # What the model still misses (the sandwich sees it in slow residuals) shows first in Td: each
         # std is at least the block sandwich's, the correlations kept.
         widen = np.maximum(np.sqrt(np.diag(D @ cov_s @ D) / np.diag(cov)), 1.0)
