@@ -21,7 +21,7 @@ CLI := $(BIN)/iiwa-ident
 
 # The whole pipeline on the default simulated joint: experiments, fit, ripple, design, deploy, the closed loop
 # through the FRI runtime against the emulator with the live kappa sweeps, diagnosis, and the PDF report
-# (about 110 s after the install).
+# (about 115 s after the install).
 demo: $(STAMP)
 	@mkdir -p reports
 	$(CLI) pipeline --target sim --workdir $(DEMO); status=$$?; cp $(DEMO)/report.pdf reports/demo.pdf; exit $$status
