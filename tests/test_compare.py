@@ -156,6 +156,22 @@ def test_a_prediction_worse_than_the_mean_never_passes(chirp):
     assert not worse.explained and worse.noise_nm == pytest.approx(0.02, rel=0.25)
 
 
+def test_a_live_kappa_row_names_where_a_loop_met_the_torque_rate_limit():
+    # The additive loop on the observer's estimate fell to 8.1 against a linear 18.6 on the demo: its command
+    # sat at the runtime's torque-rate limit from kappa 4.18, which the prediction does not have.
+    from iiwa_ident.report.verdict import verdict_rows
+
+    kl = {"ratio_live": 0.42, "ratio_linear": 0.87,
+          "builtin": {"live_limit": 19.2, "unstable_at": 21.1, "linear_limit": 21.5, "linear_error_pct": 1.9,
+                      "rate_limited_from": None},
+          "additive": {"live_limit": 8.14, "unstable_at": 8.95, "linear_limit": 18.6, "linear_error_pct": 108.0,
+                       "rate_limited_from": 4.18}}
+    doc = {"stages": [{"name": "validation", "status": "ok", "headline": {"kappa_live": {"estimate": kl}}}]}
+    row = next(r for r in verdict_rows(doc) if r.stage == "kappa live, estimate")
+    assert row.verdict == "WARN" and "additive at the torque-rate limit from 4.18" in row.figure
+    assert "built-in at the torque-rate limit" not in row.figure
+
+
 def test_the_held_out_verdict_is_never_pass_beside_a_negative_fit():
     from iiwa_ident.report.verdict import verdict_rows
 

@@ -423,8 +423,9 @@ def _stage_validation(ctx: PipelineContext) -> dict[str, Any]:
     write_atomic(ctx.path("validation_json"), json.dumps(_jsonable(doc), indent=2) + "\n")
     ctx.results["validation"] = doc
     live = {source: {"ratio_live": sw["ratio_live"], "ratio_linear": sw["ratio_linear"],
-                     **{loop: {k: sw[loop][k] for k in ("live_limit", "unstable_at", "linear_limit",
-                                                         "linear_error_pct")} for loop in ("builtin", "additive")}}
+                     **{loop: {k: sw[loop].get(k) for k in ("live_limit", "unstable_at", "linear_limit",
+                                                             "linear_error_pct", "rate_limited_from")}
+                        for loop in ("builtin", "additive")}}
             for source, sw in doc["kappa"]["sweeps"].items()}
     return {"tracking": doc["tracking"], "sine_hz": ctx.settings.validation.sine_hz,
             "kappa_linear_ratio": doc["kappa"]["linear_ratio"], "kappa_live": live or None,

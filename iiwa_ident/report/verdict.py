@@ -71,6 +71,11 @@ def _kappa_live_row(source: str, kl: dict) -> VerdictRow:
     ratio = kl.get("ratio_live")
     figure = (f"stable to {f(b['live_limit'])} built-in, {f(a['live_limit'])} additive = {f(ratio)}x live; "
               f"linear {f(b['linear_limit'])} and {f(a['linear_limit'])} = {f(kl.get('ratio_linear'))}x")
+    # Where a loop's command sat at the runtime's torque-rate limit the prediction (which has none) does not
+    # describe it: say from which kappa, so that a missed prediction carries its cause.
+    for name, r in (("built-in", b), ("additive", a)):
+        if r.get("rate_limited_from") is not None:
+            figure += f"; {name} at the torque-rate limit from {f(r['rate_limited_from'])}"
     name = {"ft": "kappa live, F/T", "estimate": "kappa live, estimate", "fri": "kappa live, KUKA"}.get(source, source)
     ok = ratio is not None and ratio >= 0.8 * _PAPER_KAPPA_RATIO and agree
     return VerdictRow(name, figure, f"paper 15 / 4.6 = 3.3x measured; linear within {KAPPA_PREDICTION_PCT:g} %",
