@@ -274,7 +274,7 @@ def test_a_channel_said_explained_is_not_shown_failing_alone(workdir):
 def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     # Page 1 against the pages that show the same quantity again, read from the PDF as a reader sees it:
     # the fit's worst parameter (error in % and in std) in the parameter table and in the appendix, the
-    # ripple's period on the spectrum and table pages.
+    # ripple's period on the spectrum and table pages; the diagnosis page against diagnose.json.
     import re
 
     import pypdf
@@ -296,6 +296,23 @@ def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     rho = re.search(r"ripple rho = ([\d.]+) rad", first).group(1)
     again = [v for p in later for v in re.findall(r"ρ = ([\d.]+) rad", p)]
     assert again and all(figures_agree(rho, v) for v in again), (rho, again)
+    # The diagnosis page's table against diagnose.json, row by row: residual RMS before and after, gain, fit
+    # before and after, and the tests' verdicts.
+    (named,) = [p for p in later if "Named effects and gains" in p]
+    saved = {d["file"]: d for d in json.loads((workdir / "diagnose.json").read_text())["datasets"]}
+    keys = {"link": "ext_torque_error", "command": "command_error"}
+    rows = re.findall(r"(\S+\.h5) / (link|command) ([\d.]+) ([\d.]+) ([-\d.]+) ([-\d.]+) / ([-\d.]+) "
+                      r"(pass|FAIL|-)(?: \(at noise\))? / (pass|FAIL|-)", named)
+    assert len(rows) == 2 * len(saved), (rows, named[:600])
+    for file, channel, before, after, gain, fit_b, fit_a, tests_b, tests_a in rows:
+        d, key = saved[file], keys[channel]
+        for shown, value in ((before, d[f"{key}_rms_before"]), (after, d[f"{key}_rms_after"]),
+                             (gain, d[f"{key}_gain_pct"]), (fit_b, d[f"{key}_fit_pct_before"]),
+                             (fit_a, d[f"{key}_fit_pct_after"])):
+            assert figures_agree(shown, f"{value:.12g}"), (file, channel, shown, value)
+        for shown, passed in ((tests_b, d.get(f"{key}_tests_passed_before")),
+                              (tests_a, d.get(f"{key}_tests_passed_after"))):
+            assert shown == {True: "pass", False: "FAIL", None: "-"}[passed], (file, channel, shown, passed)
 
 
 def test_the_paper_reproduction_page_is_a_table_of_the_printed_cells():
