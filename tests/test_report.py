@@ -290,6 +290,16 @@ def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     row = re.search(rf"\b{name} \S+(?: \S+)? ([-\d.e+]+) ([\d.e+-]+) ([\d.]+) ([\d.e+-]+) ([-+\d.e]+) ([-+\d.]+)", table)
     assert row, table[:600]
     assert figures_agree(err, row.group(5)) and figures_agree(z, row.group(6).lstrip("+-")), (m.group(0), row.group(0))
+    # The Bode page's title shows the same fit's parameters as the table.
+    (bode,) = [p for p in later if "Bode plot of tau_c -> tau_J" in p]
+    title = re.search(r"tau_c -> tau_j: Jc=(\S+) kg m\^2, bc=(\S+) Nm s/rad, K=(\S+) Nm/rad, Jl=(\S+) kg m\^2, "
+                      r"Td=(\S+) ms", bode)
+    assert title, bode[:400]
+    for shown, (param, unit, scale) in zip(title.groups(), (("Jc", "kg m\\^2", 1.0), ("bc", "Nm s/rad", 1.0),
+                                                              ("K", "Nm/rad", 1.0), ("Jl", "kg m\\^2", 1.0),
+                                                              ("Td", "s", 1e3))):
+        value = re.search(rf"\b{param} {unit} ([-\d.e+]+)", table).group(1)
+        assert figures_agree(shown, f"{float(value) * scale:.12g}"), (param, shown, value)
     (appendix,) = [p for p in later if p.startswith("Appendix")]
     shown = re.search(rf"fit: .*?\b{name} ([-+\d.]+) %", appendix)
     assert shown and figures_agree(shown.group(1), err), (shown and shown.group(0), err)
