@@ -193,14 +193,17 @@ class RippleTerms:
         """Deflection [rad] and reaction [Nm] of each cosine and sine of the fitted harmonics at the motion
         ``(q_m, tau_j)``: columns ``(points, 2 * harmonics)``."""
         w = 2.0 * np.pi / self.period_rad
-        k = np.arange(1, self.harmonics + 1)
-        phase = w * np.asarray(q_m, float)[:, None] * k[None, :]
-        c, s = np.cos(phase), np.sin(phase)
-        tau = np.asarray(tau_j, float)[:, None]
+        phase = w * np.asarray(q_m, float)
+        tau = np.asarray(tau_j, float)
         D = np.empty((len(phase), 2 * self.harmonics))
         RX = np.empty_like(D)
-        D[:, 0::2], D[:, 1::2] = c, s
-        RX[:, 0::2], RX[:, 1::2] = -k * w * s * tau, k * w * c * tau
+        c1, s1 = np.cos(phase), np.sin(phase)
+        c, s = c1, s1
+        for k in range(1, self.harmonics + 1):
+            if k > 1:  # the next harmonic by the angle sum: one cosine and sine for all of them
+                c, s = c * c1 - s * s1, s * c1 + c * s1
+            D[:, 2 * k - 2], D[:, 2 * k - 1] = c, s
+            RX[:, 2 * k - 2], RX[:, 2 * k - 1] = -k * w * s * tau, k * w * c * tau
         return D, RX
 
 

@@ -159,10 +159,10 @@ class DiscreteModel:
         for i in range(2):
             # Mean and slope share the denominators: their numerators are applied first, one recursion each.
             out[i] = lfilter((1.0,), self.den_resonant,
-                             _fir(self.num_resonant[i], means) + _fir(self.num_resonant_slope[i], g), axis=0)
+                             _fir2(self.num_resonant[i], means, self.num_resonant_slope[i], g), axis=0)
             if i == 1:
                 out[i] += lfilter((1.0,), (1.0, -2.0, 1.0),
-                                  _fir(self.num_rigid[i], means) + _fir(self.num_rigid_slope[i], g), axis=0)
+                                  _fir2(self.num_rigid[i], means, self.num_rigid_slope[i], g), axis=0)
             if self.feedthrough[i]:
                 out[i] += self.feedthrough[i] * ud
         return out
@@ -198,13 +198,17 @@ def sample_means(u: np.ndarray) -> np.ndarray:
     return (13.0 * (up[1:-2] + up[2:-1]) - up[:-3] - up[3:]) / 24.0
 
 
-def _fir(b: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``sum_j b[j] x[k - j]`` along axis 0, from rest."""
+def _fir2(b: np.ndarray, x: np.ndarray, c: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``sum_j b[j] x[k - j] + c[j] g[k - j]`` along axis 0, from rest."""
     out = np.zeros_like(x)
     n = x.shape[0]
-    for j, bj in enumerate(b):
-        if bj and j < n:
-            out[j:] += bj * x[:n - j]
+    for j in range(len(b)):
+        if j >= n or not (b[j] or c[j]):
+            continue
+        tap = b[j] * x[:n - j]
+        if c[j]:
+            tap += c[j] * g[:n - j]
+        out[j:] += tap
     return out
 
 
