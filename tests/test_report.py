@@ -303,6 +303,17 @@ def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     (appendix,) = [p for p in later if p.startswith("Appendix")]
     shown = re.search(rf"fit: .*?\b{name} ([-+\d.]+) %", appendix)
     assert shown and figures_agree(shown.group(1), err), (shown and shown.group(0), err)
+    # The design's kappa margins and the observer's gain: page 1 against the appendix's lines.
+    kappa = re.search(r"kappa margin \(linear, section V\.C's model\) ([\d.]+) additive / ([\d.]+) built-in = "
+                      r"([\d.]+)x", first)
+    again = re.search(r"kappa_max \(linear, exact delay\): built-in ([\d.]+), additive ([\d.]+), ratio ([\d.]+)",
+                      appendix)
+    assert kappa and again, (first[:600], appendix[:600])
+    for shown, other in zip(kappa.groups(), (again.group(2), again.group(1), again.group(3))):
+        assert figures_agree(shown, other), (kappa.group(0), again.group(0))
+    gain = re.search(r"observer improved .*?\(([\d.]+)x\)", first)
+    said = re.search(r"observer: built-in over filtered RMS error .*?= ([\d.]+)x", appendix)
+    assert gain and said and figures_agree(gain.group(1), said.group(1)), (gain and gain.group(0), said)
     rho = re.search(r"ripple rho = ([\d.]+) rad", first).group(1)
     again = [v for p in later for v in re.findall(r"ρ = ([\d.]+) rad", p)]
     assert again and all(figures_agree(rho, v) for v in again), (rho, again)
