@@ -19,6 +19,7 @@ from iiwa_ident.ident.tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.sim import SimulatedJoint, default_plant, plant_from_model
+from iiwa_ident.sim.effects import TransmissionRipple
 
 _REL = 0.03
 _TD_S = 0.5e-3
@@ -183,10 +184,8 @@ def test_a_delay_on_the_sample_grid_is_fitted_without_bias_through_the_ripple(se
     truth = {k: plant.dynamics[k] * rng.uniform(0.8, 1.25) for k in ("Jc", "bc", "K", "Jl")}
     truth["Td"] = 1e-3 * int(rng.integers(2, 9))
     plant.dynamics.update(truth)
-    ripple = plant.effect("transmission_ripple")
-    ripple.values["period_rad"] = float(rng.uniform(0.015, 0.025))
-    ripple.cos_coef, ripple.sin_coef = (np.array([rng.uniform(3e-5, 6e-5) * rng.choice([-1, 1]), 1e-5])
-                                        for _ in range(2))
+    plant = plant.with_effects(TransmissionRipple({"period_rad": float(rng.uniform(0.015, 0.025)), "harmonics": [
+        [rng.uniform(3e-5, 6e-5), rng.uniform(-math.pi, math.pi)], [1e-5, rng.uniform(-math.pi, math.pi)]]}))
     ds = record(SimulatedJoint(plant, seed=seed), Chirp(duration_s=30.0))
     res = fit_joint([ds])
     assert res.method == "joint+ripple"
