@@ -124,3 +124,49 @@ def import_then_ripple_and_diagnose(tmp_path, *import_args: str) -> None:
     result = runner.invoke(app, ["diagnose", str(run), "--json", str(tmp_path / "diagnose.json")])
     assert result.exit_code == 0, result.output
 
+
+
+def assert_diagnosis_shown_alike(pages: list[str], workdir) -> None:
+    """The diagnosis's figures agree wherever a report shows them (pages as whitespace-joined text): each named
+    effect's held-out gain on page 1, the gain table, its evidence page and the appendix, its RMS before and
+    after and confidence on the table and the evidence page, all against ``diagnose.json``; each channel's row
+    of the table (RMS, gain, fit, tests before and after) against ``diagnose.json``."""
+    import json
+    import re
+
+    saved = json.loads((Path(workdir) / "diagnose.json").read_text())
+    first, later = pages[0], pages[1:]
+    (named,) = [p for p in later if "Named effects and gains" in p]
+    appendix = next(p for p in later if p.startswith("Appendix"))
+    for e in saved["effects"]:
+        name = re.escape(e["name"])
+        on_first = re.search(rf"\b{name} \((\d+) %\)", first)
+        assert on_first and figures_agree(on_first.group(1), f"{e['gain_pct']:.12g}"), (e["name"], first[:800])
+        row = re.search(rf"\b{name}(?: \([^)]*\))? ([\d.]+) ([\d.]+) ([\d.]+) ([-\d.]+)", named)
+        assert row, (e["name"], named[:800])
+        for shown, value in zip(row.groups(), (e["confidence"], e["rms_before"], e["rms_after"], e["gain_pct"])):
+            assert figures_agree(shown, f"{value:.12g}"), (e["name"], row.group(0), e)
+        (evidence,) = [p for p in later if p.startswith(f"Evidence for {e['name']} (") or
+                       f"Evidence for {e['name']}. " in p]
+        held = re.search(r"\(confidence ([\d.]+)\).*?Held-out residual RMS on these channels: ([\d.]+) Nm without "
+                         r"the effect, ([\d.]+) Nm with it \(([-\d.]+)% lower\)", evidence)
+        assert held, (e["name"], evidence[:800])
+        for shown, value in zip(held.groups(), (e["confidence"], e["rms_before"], e["rms_after"], e["gain_pct"])):
+            assert figures_agree(shown, f"{value:.12g}"), (e["name"], held.group(0), e)
+        again = re.search(rf"diagnosis: {name} named, held-out residual ([-\d.]+) % lower", appendix)
+        assert again and figures_agree(again.group(1), f"{e['gain_pct']:.12g}"), (e["name"], appendix[:800])
+    datasets = {d["file"]: d for d in saved["datasets"]}
+    keys = {"link": "ext_torque_error", "command": "command_error"}
+    rows = re.findall(r"(\S+\.h5) / (link|command) ([\d.]+) ([\d.]+) ([-\d.]+) ([-\d.]+) / ([-\d.]+) "
+                      r"(pass|FAIL|-)(?: \(at noise\))? / (pass|FAIL|-)", named)
+    shown_channels = sum(f"{k}_rms_before" in d for d in datasets.values() for k in keys.values())
+    assert rows and len(rows) == shown_channels, (rows, named[:800])
+    for file, channel, before, after, gain, fit_b, fit_a, tests_b, tests_a in rows:
+        d, key = datasets[file], keys[channel]
+        for shown, value in ((before, d[f"{key}_rms_before"]), (after, d[f"{key}_rms_after"]),
+                             (gain, d[f"{key}_gain_pct"]), (fit_b, d[f"{key}_fit_pct_before"]),
+                             (fit_a, d[f"{key}_fit_pct_after"])):
+            assert figures_agree(shown, f"{value:.12g}"), (file, channel, shown, value)
+        for shown, passed in ((tests_b, d.get(f"{key}_tests_passed_before")),
+                              (tests_a, d.get(f"{key}_tests_passed_after"))):
+            assert shown == {True: "pass", False: "FAIL", None: "-"}[passed], (file, channel, shown, passed)

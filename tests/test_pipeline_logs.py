@@ -17,7 +17,7 @@ from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.pipeline import FILES, LOG_STAGES, find_log_runs, run_log_pipeline
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
-from conftest import figures_agree
+from conftest import assert_diagnosis_shown_alike, figures_agree
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
@@ -123,8 +123,7 @@ def test_real_joint2_through_the_cli(tmp_path):
     folder = REAL / "iiwa14-constant-velocity" / "joint2"
     if not folder.is_dir():
         pytest.skip(f"real iiwa 14 logs not found at {folder} (expected ../shared beside the checkout)")
-    res = CliRunner().invoke(app, ["pipeline", "--logs", str(folder), "--workdir", str(tmp_path / "w"),
-                                   "--no-report"])
+    res = CliRunner().invoke(app, ["pipeline", "--logs", str(folder), "--workdir", str(tmp_path / "w")])
     assert res.exit_code == 0, res.output
     assert "torque sign flipped: the gravity of joint2_vel_p3 reads the other way round" in res.stdout
     assert "low-pass filtered before it was logged" in res.stdout
@@ -136,6 +135,11 @@ def test_real_joint2_through_the_cli(tmp_path):
     ripple = next(s for s in doc["stages"] if s["name"] == "ripple")["headline"]
     said = [w for w in ripple["warnings"] if w.startswith("the deflection about the table is ")]
     assert said and f"warning: {said[0]}" in res.stdout
+    # Every figure of the diagnosis the same wherever the report shows it (it names several effects here).
+    import pypdf
+
+    pages = [" ".join(p.extract_text().split()) for p in pypdf.PdfReader(tmp_path / "w" / "report.pdf").pages]
+    assert_diagnosis_shown_alike(pages, tmp_path / "w")
 
 
 def test_the_report_of_measured_data(logs_run, tmp_path):
@@ -371,3 +375,4 @@ def test_a_figure_shown_twice_in_a_logs_report_is_the_same_figure(logs_run, tmp_
     assert len(shares) == len(rms) == 2, (shares, rms)
     assert min(map(int, shares)) == int(lo) and max(map(int, shares)) == int(hi), (lo, hi, shares)
     assert all(abs(100 * float(b) / float(a) - int(s)) <= 0.5 + 100 * 0.005 / float(a) for (a, b), s in zip(rms, shares))
+    assert_diagnosis_shown_alike(pages, workdir)
