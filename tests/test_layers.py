@@ -5,7 +5,7 @@ the parts of lower layers, never of its own layer or above, so nothing below
 the CLI imports the CLI and there are no import cycles between parts; the packages of
 :data:`PUBLIC_API` are imported only through their ``__init__``.
 Imports inside functions count. The root package's own helper modules
-(``errors``, ``_toml``, ``_schema``, ``_json``, ``_realtime``, ``_blas``, ``_defaults``) are the
+(``errors``, ``_toml``, ``_schema``, ``_json``, ``_realtime``, ``_blas``, ``_defaults``, ``_h5tree``) are the
 foundation every part may use; beyond those, no part imports a private
 module (``_name``) or a private name of another part.
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 import iiwa_ident
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("iiwa_ident", "errors", "_toml", "_schema", "_json", "_realtime", "_blas", "_defaults"),
+    ("iiwa_ident", "errors", "_toml", "_schema", "_json", "_realtime", "_blas", "_defaults", "_h5tree"),
     ("model", "references", "robot"),
     ("description",),
     ("fri", "netft"),
