@@ -376,3 +376,18 @@ def test_a_figure_shown_twice_in_a_logs_report_is_the_same_figure(logs_run, tmp_
     assert min(map(int, shares)) == int(lo) and max(map(int, shares)) == int(hi), (lo, hi, shares)
     assert all(abs(100 * float(b) / float(a) - int(s)) <= 0.5 + 100 * 0.005 / float(a) for (a, b), s in zip(rms, shares))
     assert_diagnosis_shown_alike(pages, workdir)
+
+
+def test_the_report_of_logs_draws_the_ripple_the_pipeline_kept(logs_run, monkeypatch):
+    import iiwa_ident.ident as ident
+    from iiwa_ident.report.pdf import load_results
+
+    def ran_again(*_a, **_k):
+        raise IiwaIdentError("ran again")
+
+    monkeypatch.setattr(ident, "identify_ripple", ran_again)
+    workdir, _, _ = logs_run
+    doc = json.loads((workdir / FILES["pipeline_json"]).read_text())
+    results = load_results(workdir, doc, ("ripple",))
+    assert "ripple" in results and not results["load_errors"], results["load_errors"]
+    assert json.loads((workdir / FILES["ripple_json"]).read_text())["period_rad"] == results["ripple"].period_rad

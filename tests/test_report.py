@@ -321,6 +321,35 @@ def test_a_figure_shown_twice_is_the_same_figure(workdir, tmp_path):
     assert_diagnosis_shown_alike(pages, workdir)
 
 
+def test_the_report_draws_what_the_pipeline_kept(workdir, tmp_path, monkeypatch):
+    # `report --workdir` reads the fit's and the ripple stage's results from the files the pipeline kept them
+    # in; it runs them again only where the data changed since.
+    import iiwa_ident.ident as ident
+
+    def ran_again(*_a, **_k):
+        raise IiwaIdentError("ran again")
+
+    monkeypatch.setattr(ident, "fit_model", ran_again)
+    monkeypatch.setattr(ident, "identify_ripple", ran_again)
+    doc = json.loads((workdir / "pipeline.json").read_text())
+    results = load_results(workdir, doc, ("fit", "ripple"))
+    assert not results["load_errors"], results["load_errors"]
+    saved = json.loads((workdir / "fit.json").read_text())["parameters"]
+    assert {k: v["value"] for k, v in saved.items()} == results["fit"].parameters
+    assert json.loads((workdir / "ripple.json").read_text())["period_rad"] == results["ripple"].period_rad
+    titles = build_report(tmp_path / "r.pdf", workdir, stage="fit") + build_report(tmp_path / "r2.pdf", workdir,
+                                                                                    stage="ripple")
+    assert "Bode plot of tau_c -> tau_J" in titles and "Spatial spectrum" in titles, titles
+    assert not any("not drawn" in t or ": failed" in t or ": missing" in t for t in titles), titles
+    # The chirp changed since the fit (another recording under its name): the kept fit no longer stands for it.
+    changed = tmp_path / "changed"
+    shutil.copytree(workdir, changed)
+    with open(changed / "chirp.h5", "ab") as fh:
+        fh.write(b"\0")
+    again = load_results(changed, doc, ("fit", "ripple"))
+    assert again["load_errors"] == {"fit": "ran again"} and "ripple" in again, again["load_errors"]
+
+
 def test_the_paper_reproduction_page_is_a_table_of_the_printed_cells():
     # It was the text table in a monospace font; now a table whose cells are the ones `design` prints.
     from iiwa_ident.design import REPRODUCTION_COLUMNS, paper_reproduction, reproduction_cells, table1_parameters

@@ -22,7 +22,7 @@ def report_cmd(
     stage: Annotated[Optional[str], typer.Option("--stage", help="Only this stage: fit | ripple | design | "
                                                  "validation | diagnose.")] = None,
 ) -> None:
-    """Build the PDF report from the files of a work folder (the analyses are re-run, no experiment is).
+    """Build the PDF report from the files of a work folder (no experiment is repeated).
 
     Page 1 is the verdict: one row per stage (its key figure, the reference
     it is judged by, PASS / WARN / FAIL or SKIPPED), the warnings and the page index;
@@ -31,7 +31,10 @@ def report_cmd(
     with the inputs and every file's sha256. Every page says whether its data are SIMULATED
     or MEASURED; the report of a 'pipeline --logs' folder adds the runs with
     the warnings of their import and each run's held-out prediction. A
-    folder without pipeline results is refused.
+    folder without pipeline results is refused. The fit's and the ripple
+    stage's results are the ones the pipeline kept (fit_result.h5,
+    ripple_result.h5; computed again where the data changed since); the
+    diagnosis is run again.
 
     Examples:
       iiwa-ident report --workdir run1
@@ -43,7 +46,7 @@ def report_cmd(
         target = out or workdir / ("report.pdf" if stage is None else f"report_{stage}.pdf")
         if target.is_dir():
             raise IiwaIdentError(f"{target}: is a directory, not a file")
-        with progress(f"building the report of {workdir} (the analyses are run again)"):
+        with progress(f"building the report of {workdir} "):
             titles = build_report(target, workdir, stage=stage)
     except IiwaIdentError as err:
         raise fail(str(err))

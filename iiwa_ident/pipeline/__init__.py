@@ -10,6 +10,8 @@ format_summary, read_pipeline_json
     The closing summary; ``pipeline.json`` of a work folder.
 run_log_pipeline, find_log_runs, LOG_STAGES, LOG_FILES
     The pipeline on a robot's own logs (``--logs``): the runs it finds, its stages, the column files it reads.
+save_results, load_saved_results, RESULT_PACKAGES
+    A stage's results kept in the work folder for the report, with the sha256 of the files they came from.
 run_kappa_sweep, HoldingHand
     The outer loop's gain margin measured live through FRI for both controllers, beside its linear
     prediction (:mod:`iiwa_ident.pipeline.kappa`).
@@ -32,6 +34,7 @@ from iiwa_ident.pipeline.core import (
 )
 from iiwa_ident.pipeline.kappa import HoldingHand, run_kappa_sweep
 from iiwa_ident.pipeline.logs import LOG_FILES, LOG_STAGES, find_log_runs, run_log_pipeline
+from iiwa_ident.pipeline.saved import RESULT_PACKAGES, load_saved_results, save_results
 from iiwa_ident.pipeline.validation import (
     ValidationSettings,
     reference_of,
@@ -41,4 +44,4 @@ from iiwa_ident.pipeline.validation import (
 __all__ = ["run_kappa_sweep", "HoldingHand", "FILES", "STAGES", "PipelineContext", "PipelineResult", "PipelineSettings", "Stage", "StageRecord",
            "StageSkipped", "LOG_FILES", "LOG_STAGES", "find_log_runs", "run_log_pipeline",
            "ValidationSettings", "format_summary", "read_pipeline_json", "run_pipeline", "run_validation",
-           "reference_of"]
+           "reference_of", "RESULT_PACKAGES", "load_saved_results", "save_results"]

@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.pipeline.saved import save_results
 from iiwa_ident.pipeline.validation import ValidationSettings
 from iiwa_ident.runtime import SweepSettings
 
@@ -32,7 +33,8 @@ __all__ = ["FILES", "PipelineSettings", "Stage", "StageRecord", "StageSkipped", 
 
 #: File names in the work folder, by role.
 FILES = {
-    "chirp": "chirp.h5", "model": "model.toml", "fit_json": "fit.json",
+    "chirp": "chirp.h5", "model": "model.toml", "fit_json": "fit.json", "fit_result": "fit_result.h5",
+    "ripple_result": "ripple_result.h5",
     "cv": "constant_velocity.h5", "qs": "quasi_static.h5", "hand": "hand_guided.h5",
     "model_ripple": "model_ripple.toml", "model_start": "model_start.toml", "ripple_json": "ripple.json", "fit_ripple_json": "fit_ripple.json",
     "design": "design.toml", "design_json": "design.json", "observers_json": "observers.json",
@@ -244,6 +246,7 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     model.robot_model = ctx.plant.robot_model if ctx.target == "sim" else ctx.robot_model
     write_model(ctx.path("model"), model)
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
+    save_results(ctx.path("fit_result"), ctx.workdir, [ctx.path("chirp")], fit=result)
     ctx.results.update(model=model, fit=result)
     return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings),
             "model_rejected": result.model_rejected, **residual_level(ctx, result)}
@@ -315,6 +318,8 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
         write_atomic(ctx.path("fit_ripple_json"), json.dumps(refit.to_json(), indent=2) + "\n")
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
+    # K and Jl of the search come from the fit's model.
+    save_results(ctx.path("ripple_result"), ctx.workdir, files + [ctx.path("model")], ripple=r)
     ctx.results.update(ripple=r, model_ripple=model)
     for w in r.warnings:
         ctx.progress(f"  warning: {w}")
@@ -476,11 +481,11 @@ def diagnosis_headline(result: Any) -> dict[str, Any]:
 #: The stages in the order they run.
 STAGES: tuple[Stage, ...] = (
     Stage("chirp", "exponential chirp", (), ("chirp",), _stage_chirp),
-    Stage("fit", "transfer-function fit, eq (4)", ("chirp",), ("model", "fit_json"), _stage_fit),
+    Stage("fit", "transfer-function fit, eq (4)", ("chirp",), ("model", "fit_json", "fit_result"), _stage_fit),
     Stage("constant_velocity", "constant-velocity (and quasi-static) runs", (), ("cv", "qs"), _stage_cv),
     Stage("hand_guided", "hand-guided record", (), ("hand",), _stage_hand),
     Stage("ripple", "ripple period and lookup table, and the fit with it", ("fit", "constant_velocity"),
-          ("model_ripple", "ripple_json", "fit_ripple_json"), _stage_ripple),
+          ("model_ripple", "ripple_json", "fit_ripple_json", "ripple_result"), _stage_ripple),
     Stage("design", "additive controller, kappa margins, observers", ("ripple",),
           ("design", "design_json", "observers_json"), _stage_design),
     Stage("deploy", "controller config and safety checks", ("design",), ("controller", "controller_json"),

@@ -38,6 +38,7 @@ from iiwa_ident.pipeline.core import (
     record_diagnosis,
     run_stages,
 )
+from iiwa_ident.pipeline.saved import save_results
 
 __all__ = ["LOG_FILES", "RUNS_DIR", "LogRun", "find_log_runs", "LOG_STAGES", "run_log_pipeline"]
 
@@ -252,6 +253,9 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     write_model(ctx.path("model_start"), model)
     write_model(ctx.path("model_ripple"), model)
     write_atomic(ctx.path("ripple_json"), json.dumps(r.to_json(), indent=2) + "\n")
+    # K and Jl of the search are the starting model's.
+    save_results(ctx.path("ripple_result"), ctx.workdir, [ds.path for ds in runs] + [ctx.path("model_start")],
+                 ripple=r)
     ctx.results.update(ripple=r, model_ripple=model, model_start=model)
     for w in r.warnings:
         ctx.progress(f"  warning: {w}")
@@ -321,6 +325,8 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     model.joint, model.robot_model = ctx.joint, ctx.robot_model
     write_model(ctx.path("model"), model)
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
+    save_results(ctx.path("fit_result"), ctx.workdir, [ds.path for ds in chirps] + [ctx.path("model_start")],
+                 fit=result)
     with_table = model_from_dict(model.to_dict())
     with_table.ripple = ctx.results["model_ripple"].ripple
     write_model(ctx.path("model_ripple"), with_table)
@@ -332,13 +338,13 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
 LOG_STAGES: tuple[Stage, ...] = (
     Stage("import", "the logs, with the provenance checks", (), ("runs_dir",), _stage_import),
     Stage("ripple", "ripple period and lookup table from all runs", ("import",),
-          ("model_start", "model_ripple", "ripple_json"), _stage_ripple),
+          ("model_start", "model_ripple", "ripple_json", "ripple_result"), _stage_ripple),
     Stage("diagnose", "diagnosis from the joint's starting model", ("ripple",), ("diagnose_json", "model_ext"),
           _stage_diagnose),
     Stage("held_out", "each run predicted by the model extended on the others", ("ripple",), ("held_out_json",),
           _stage_held_out),
-    Stage("fit", "transfer-function fit of the torque-commanded records", ("ripple",), ("model", "fit_json"),
-          _stage_fit),
+    Stage("fit", "transfer-function fit of the torque-commanded records", ("ripple",),
+          ("model", "fit_json", "fit_result"), _stage_fit),
     Stage("design", "additive controller, kappa margins", ("fit",), ("design", "design_json"), _stage_design),
     Stage("deploy", "controller config and safety checks", ("design",), ("controller", "controller_json"),
           _stage_deploy),

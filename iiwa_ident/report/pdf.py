@@ -2,8 +2,9 @@
 
 Each page is one figure with a caption block below it that says what to
 look at. The report is built from the pipeline's in-memory results, or
-re-computed from the files of a work folder (the analyses are re-run on the
-stored datasets; no experiment is repeated). A stage that failed or was
+from the files of a work folder: the fit's and the ripple stage's results as
+the pipeline kept them (``fit_result.h5``, ``ripple_result.h5``), the
+diagnosis run again on the stored datasets (no experiment is repeated). A stage that failed or was
 skipped gets a page saying so, with the message from ``pipeline.json``,
 instead of empty axes; a page whose drawing fails says that too; a stage the
 pipeline did not have (``pipeline --logs`` runs no validation) gets no page.
@@ -177,7 +178,11 @@ def banner(doc: dict[str, Any] | None) -> str:
 
 def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, ...] = REPORT_STAGES,
                  ) -> dict[str, Any]:
-    """Re-compute what the report pages need from the files of a work folder.
+    """What the report pages need, from the files of a work folder.
+
+    The fit's and the ripple stage's results are read from the files the pipeline kept them in
+    (:func:`iiwa_ident.pipeline.load_saved_results`) and computed again only where those no longer stand for
+    the folder's data; the diagnosis is computed again.
 
     Parameters
     ----------
@@ -198,7 +203,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
     """
     from iiwa_ident.datasets import read_dataset
     from iiwa_ident.ident import read_model
-    from iiwa_ident.pipeline import FILES
+    from iiwa_ident.pipeline import FILES, load_saved_results
 
     out: dict[str, Any] = {"load_errors": {}}
     p = {k: workdir / v for k, v in FILES.items()}
@@ -214,6 +219,10 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
         except (OSError, KeyError, ValueError) as err:
             out["load_errors"][stage] = f"{type(err).__name__}: {err}"
 
+    def kept(file: str, name: str) -> Any:
+        # What the stage computed, where its file still stands for the work folder's inputs.
+        return (load_saved_results(p[file], workdir) or {}).get(name)
+
     want = set(stages)
     if p["runs_dir"].is_dir() and usable("import"):
         # A folder of `pipeline --logs`: the runs it imported, the starting model the diagnosis began from.
@@ -228,7 +237,8 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
                 from iiwa_ident.ident import identify_ripple
 
                 m = out["model_start"]
-                out["ripple"] = identify_ripple(out["runs"], K=m.value("K"), Jl=m.value("Jl"))
+                out["ripple"] = kept("ripple_result", "ripple") or identify_ripple(
+                    out["runs"], K=m.value("K"), Jl=m.value("Jl"))
             attempt("ripple", ripple_of_runs)
         if want & {"diagnose"} and "model_start" in out and out["runs"] and usable("diagnose"):
             def diag_of_runs() -> None:
@@ -242,7 +252,11 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
 
                 chirps = [ds.path for ds in out["runs"] if ds.has("tau_c")]
                 if chirps:
-                    model, result = fit_model(chirps, base_model=out.get("model_start"))
+                    result = kept("fit_result", "fit")
+                    if result is None:
+                        model, result = fit_model(chirps, base_model=out.get("model_start"))
+                    else:
+                        model = read_model(p["model"])
                     out.update(model=model, fit=result, chirp=read_dataset(chirps[0]))
             attempt("fit", fit_of_runs)
         if want & {"design"} and p["design"].is_file() and usable("design"):
@@ -260,7 +274,11 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
         def fit() -> None:
             from iiwa_ident.ident import fit_model
 
-            model, result = fit_model([p["chirp"]])
+            result = kept("fit_result", "fit")
+            if result is None:
+                model, result = fit_model([p["chirp"]])
+            else:
+                model = read_model(p["model"])
             out.update(model=model, fit=result)
         attempt("fit", fit)
     if p["model_ripple"].is_file() and usable("ripple"):
@@ -271,7 +289,7 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
 
             m = out["model_ripple"]
             data = [out["cv"]] + ([out["qs"]] if "qs" in out else [])
-            out["ripple"] = identify_ripple(data, K=m.value("K"), Jl=m.value("Jl"))
+            out["ripple"] = kept("ripple_result", "ripple") or identify_ripple(data, K=m.value("K"), Jl=m.value("Jl"))
         attempt("ripple", ripple)
     if want & {"design", "validation"} and p["design"].is_file() and usable("design"):
         def design() -> None:
@@ -807,7 +825,7 @@ def build_report(out: str | Path, workdir: str | Path, doc: dict[str, Any] | Non
     doc : dict, optional
         ``pipeline.json`` content (read from ``workdir`` when None).
     results : dict, optional
-        In-memory results; re-computed from the files (:func:`load_results`) when None.
+        In-memory results; read from the work folder's files (:func:`load_results`) when None.
     stage : str, optional
         Only this stage (see :data:`REPORT_STAGES`).
     dpi : int
