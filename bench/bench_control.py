@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+from iiwa_ident.design import FilterSettings
 from iiwa_ident.design.analysis import (
     AdditiveTorqueControl,
     analysis_design,
@@ -18,7 +19,6 @@ from iiwa_ident.design.analysis import (
     sine_tracking,
 )
 from iiwa_ident.report.control_figures import kappa_figure, pole_figure, tracking_figure
-from iiwa_ident.design import FilterSettings
 
 
 def main(outdir: str = "/tmp") -> None:

@@ -45,7 +45,7 @@ def table(doc: dict) -> str:
         r = g.get("ripple") or {}
         det = r.get("detected")
 
-        def num(key: str, fmt: str, scale: float = 1.0) -> str:
+        def num(key: str, fmt: str, scale: float = 1.0, r: dict = r, det: bool | None = det) -> str:
             v = r.get(key)
             return "" if v is None or not det else format(v * scale, fmt)
 

@@ -11,10 +11,24 @@ from __future__ import annotations
 
 import time
 
-from iiwa_ident.fri import (COMMAND_MESSAGE_ID, MONITORING_MESSAGE_ID, ClientCommandMode, CommandMessage,
-                            ConnectionQuality, ControlMode, DriveState, MonitoringMessage, OperationMode,
-                            OverlayType, SafetyState, SessionState, decode_command, decode_monitoring,
-                            encode_command, encode_monitoring)
+from iiwa_ident.fri import (
+    COMMAND_MESSAGE_ID,
+    MONITORING_MESSAGE_ID,
+    ClientCommandMode,
+    CommandMessage,
+    ConnectionQuality,
+    ControlMode,
+    DriveState,
+    MonitoringMessage,
+    OperationMode,
+    OverlayType,
+    SafetyState,
+    SessionState,
+    decode_command,
+    decode_monitoring,
+    encode_command,
+    encode_monitoring,
+)
 
 N = 20000
 JOINTS = 7

@@ -53,7 +53,7 @@ def main() -> None:
     from iiwa_ident.sim import default_plant, load_plant
 
     settings = SweepSettings(start=args.start, factor=args.factor, max=args.max, hold_s=args.hold_s)
-    fmt = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+    fmt = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731  (a one-line helper)
     print(f"{'plant':22} {'source':32} {'loop':9} {'stable to':>9} {'unstable':>9} {'linear':>8} {'outside':>8}")
     with tempfile.TemporaryDirectory() as tmp:
         for scale in (1.0, args.scale):

@@ -17,8 +17,8 @@ import argparse
 import cProfile
 import io
 import json
-import pstats
 import os
+import pstats
 import subprocess
 import sys
 import tempfile

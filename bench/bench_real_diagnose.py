@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from bench_ripple_real import joint_runs, load_run
+
 from iiwa_ident.datasets import Dataset, torque_sign_problem
 from iiwa_ident.diagnose import ACROSS_RUNS_WORSE_PCT, diagnose, residual_rms
 from iiwa_ident.ident import dataset_model

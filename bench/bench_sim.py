@@ -93,11 +93,11 @@ def main() -> None:
           f"1 kHz, {plant.substeps} RK4 substeps/cycle")
     print(f"build + compile (cold cache): {build:.2f} s")
     print(f"{'path':<34}{'wall for 60 s':>14}{'x real time':>13}")
-    print(f"{'compiled batch (median of %d)' % len(fast):<34}{med_fast:>13.3f}s{sim_s / med_fast:>13.0f}")
-    print(f"{'casadi VM batch (median of %d)' % len(vm):<34}{med_vm:>13.3f}s{sim_s / med_vm:>13.0f}")
+    print(f"{f'compiled batch (median of {len(fast)})':<34}{med_fast:>13.3f}s{sim_s / med_fast:>13.0f}")
+    print(f"{f'casadi VM batch (median of {len(vm)})':<34}{med_vm:>13.3f}s{sim_s / med_vm:>13.0f}")
     print(f"{'robot interface, per step':<34}{med_step / n_step * 60000:>13.3f}s{sim_s / (med_step / n_step * 60000):>13.1f}"
           f"   ({med_step / n_step * 1e6:.0f} us/cycle)")
-    print(f"{'solve_ivp baseline (%g s run)' % args.baseline_seconds:<34}{per_s_base * sim_s:>13.1f}s"
+    print(f"{f'solve_ivp baseline ({args.baseline_seconds:g} s run)':<34}{per_s_base * sim_s:>13.1f}s"
           f"{1 / per_s_base:>13.2f}")
     print(f"speed-up of compiled batch over solve_ivp: {per_s_base / per_s_fast:.0f}x")
     print(f"agreement with the baseline over {args.baseline_seconds:g} s: max |tau_j difference| = {agree:.2e} Nm "

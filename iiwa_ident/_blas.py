@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
-from typing import Iterator
+from collections.abc import Iterator
 
 __all__ = ["single_threaded_blas"]
 
@@ -33,7 +33,7 @@ def _openblas_libraries() -> list[str]:
 def _set_threads(n: int) -> list[tuple[object, int]]:
     """Set every loaded OpenBLAS to ``n`` threads; return (setter, previous count) pairs to restore."""
     import numpy  # noqa: F401  (load every BLAS the stages use before looking for them)
-    import scipy.linalg  # noqa: F401
+    import scipy.linalg  # noqa: F401  (as numpy)
 
     changed = []
     for path in _openblas_libraries():

@@ -10,7 +10,7 @@ import gc
 import os
 import signal
 import threading
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
 from iiwa_ident.errors import IiwaIdentError
 

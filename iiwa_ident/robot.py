@@ -153,14 +153,14 @@ class RobotInterface(ABC):
     def step(self, command: Command) -> Measurement:
         """Send one cycle's command and return the next measurement."""
 
-    def stop(self) -> None:
+    def stop(self) -> None:  # noqa: B027  (optional: an interface without a session has nothing to end)
         """End the session (the default does nothing)."""
 
     def describe(self) -> dict:
         """Facts about the robot worth recording with a dataset."""
         return {}
 
-    def set_agent(self, agent) -> None:
+    def set_agent(self, agent) -> None:  # noqa: B027  (optional: a real robot's outside is the operator)
         """Attach what acts on the link from outside (a simulated arm or drive).
 
         On a real robot that is the operator or the test rig, so the default does nothing.
@@ -170,7 +170,7 @@ class RobotInterface(ABC):
         """Ground truth to store with a dataset (simulation only; None for a real robot)."""
         return None
 
-    def __enter__(self) -> "RobotInterface":
+    def __enter__(self) -> RobotInterface:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import h5py
 import numpy as np
@@ -13,13 +13,13 @@ import pytest
 from iiwa_ident.datasets import (
     SIGNAL_UNITS,
     Dataset,
+    _format,
     read_dataset,
     read_truth,
     sha256_file,
     validate_dataset,
     write_dataset,
 )
-from iiwa_ident.datasets import _format
 from iiwa_ident.errors import DatasetError, IiwaIdentError
 
 N = 40

@@ -196,8 +196,9 @@ class TestImportCommand:
 
 
 def test_an_lcm_log_imports_into_a_dataset_that_ripple_and_diagnose_accept(lcm_types, tmp_path):
-    from conftest import import_then_ripple_and_diagnose
     from test_datasets_rosbag import _simulated_run
+
+    from conftest import import_then_ripple_and_diagnose
 
     run = _simulated_run(200.0)
     truth = {"utime": run["ns"] // 1000, "joint_position_measured": run["position"],

@@ -26,11 +26,10 @@ from iiwa_ident.deploy import (
     write_config,
 )
 from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.margins import outer_loop_margins
 from iiwa_ident.design.design_file import make_record
+from iiwa_ident.design.margins import outer_loop_margins
 from iiwa_ident.ident import read_model
-from iiwa_ident.model import RippleTable, Source
-from iiwa_ident.model import JointParameters
+from iiwa_ident.model import JointParameters, RippleTable, Source
 
 TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"
 

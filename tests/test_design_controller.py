@@ -37,8 +37,7 @@ from iiwa_ident.design.paper import (
     paper_reproduction,
     table1_parameters,
 )
-from iiwa_ident.model import table1_model
-from iiwa_ident.model import JointParameters, pade_coefficients, transfer_function
+from iiwa_ident.model import JointParameters, pade_coefficients, table1_model, transfer_function
 
 TABLE1 = JointParameters(1.03, 55.0, 18500.0, 5.6, 0.005)
 T = 1e-3

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 import iiwa_ident.design.cycle as cycle_module
-from iiwa_ident.design import DESIGN_BETA, AdditiveController, ControlCycle, FilterSettings, design_controller, table1_parameters
+from iiwa_ident.design import (
+    DESIGN_BETA,
+    AdditiveController,
+    ControlCycle,
+    FilterSettings,
+    design_controller,
+    table1_parameters,
+)
 from iiwa_ident.model import RippleTable
 from iiwa_ident.robot import Measurement
 

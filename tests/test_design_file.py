@@ -13,7 +13,6 @@ import pytest
 from iiwa_ident._toml import dumps_toml
 from iiwa_ident.design import FilterSettings
 from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.margins import HumanArm, OuterLoopMargins
 from iiwa_ident.design.design_file import (
     DESIGN_FORMAT,
     DesignFileError,
@@ -23,9 +22,9 @@ from iiwa_ident.design.design_file import (
     read_design,
     write_design,
 )
+from iiwa_ident.design.margins import HumanArm, OuterLoopMargins
 from iiwa_ident.ident import write_model
-from iiwa_ident.model import RippleTable, table1_model
-from iiwa_ident.model import JointParameters
+from iiwa_ident.model import JointParameters, RippleTable, table1_model
 
 TABLE1 = JointParameters(1.03, 55.0, 18500.0, 5.6, 0.005)
 # Margins are not recomputed on reading; fixed numbers keep these tests fast.

@@ -139,7 +139,7 @@ class TestSpatialFilter:
     def test_standing_still_holds_the_state_and_passes_the_torque(self):
         f = SpatialFilter(RHO)
         theta = 0.0
-        for k in range(1500):  # move at 1 rad/s through a torque ripple
+        for _ in range(1500):  # move at 1 rad/s through a torque ripple
             theta += 1.0 * DT
             f.step(math.sin(OMEGA * theta), theta)
         for _ in range(200):  # stop: the speed estimate decays, gamma with it

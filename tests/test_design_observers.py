@@ -7,13 +7,21 @@ import pytest
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.design import FilterSettings
-from iiwa_ident.design.observers import (OBSERVERS, BuiltinObserver, FilteredObserver, LinkVelocityObserver,
-                                         compare_observers, link_speed, make_observer, observer_lag,
-                                         run_observers)
+from iiwa_ident.design.observers import (
+    OBSERVERS,
+    BuiltinObserver,
+    FilteredObserver,
+    LinkVelocityObserver,
+    compare_observers,
+    link_speed,
+    make_observer,
+    observer_lag,
+    run_observers,
+)
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
-from iiwa_ident.model import RippleTable, table1_model
 from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.model import RippleTable, table1_model
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 DT = 1e-3

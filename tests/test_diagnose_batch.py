@@ -9,11 +9,11 @@ import math
 
 import numpy as np
 import pytest
+from test_diagnose import _case, _named
 
 from iiwa_ident.diagnose import diagnose
 from iiwa_ident.diagnose.benchmark import TOLERANCES, Case, case_model, draw_case, run_case, simulate_case
 from iiwa_ident.model import table1_model
-from test_diagnose import _case, _named
 
 BATCH_SEEDS = range(101, 109)
 

@@ -8,8 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from iiwa_ident.sim import EFFECTS, EffectSignals, make_effect
-from iiwa_ident.sim import INJECTIONS
+from iiwa_ident.sim import EFFECTS, INJECTIONS, EffectSignals, make_effect
 
 
 def _draw(name: str, rng: np.random.Generator) -> dict:
@@ -39,7 +38,7 @@ def _hooks(effect, t, q_m, theta_l, omega_l, tau) -> tuple[dict[str, np.ndarray]
         v = vector[i:i + size]
         P[name] = float(v[0]) if size == 1 else [float(x) for x in v]
         i += size
-    num = lambda x: np.array(ca.DM(x)).ravel() if x is not None else np.zeros_like(t)  # noqa: E731
+    num = lambda x: np.array(ca.DM(x)).ravel() if x is not None else np.zeros_like(t)  # noqa: E731  (a one-line helper)
     d = effect.deflection(ca.DM(q_m), P)
     out = {"deflection": num(d[0] if d is not None else None),
            "reaction": num(d[1]) * tau if d is not None else np.zeros_like(t),

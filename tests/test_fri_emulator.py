@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import wait_for
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import read_dataset, read_truth
-from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.emulator import (
     DEFAULT_JOINT_POSITIONS,
     EmulatorConfig,
@@ -33,23 +33,22 @@ from iiwa_ident.emulator import (
     connection_quality,
     spawn_emulator,
 )
+from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri.protocol import (
     COMMAND_MESSAGE_ID,
     ClientCommandMode,
     CommandData,
-    JointValues,
     CommandMessage,
     ConnectionQuality,
     ControlMode,
     DriveState,
     FriDecodeError,
+    JointValues,
     SafetyState,
     SessionState,
     decode_monitoring,
 )
 from iiwa_ident.sim import SimulatedJoint, default_plant
-
-from conftest import wait_for
 
 S = SessionState
 COMMANDING = (S.COMMANDING_WAIT, S.COMMANDING_ACTIVE)
@@ -98,7 +97,7 @@ class Client:
         self._settled = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
-    def __enter__(self) -> "Client":
+    def __enter__(self) -> Client:
         self._thread.start()
         return self
 
@@ -126,7 +125,7 @@ class Client:
         while not self._stop.is_set():
             try:
                 data, addr = self.sock.recvfrom(4096)
-            except (socket.timeout, OSError):
+            except (TimeoutError, OSError):
                 continue
             if data == END:
                 self._settled.set()

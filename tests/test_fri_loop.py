@@ -19,24 +19,23 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import wait_for
 
+from conftest import wait_for
 from iiwa_ident.datasets import LOG_SHM_PREFIX as SHM_PREFIX
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import deploy, write_config
-from iiwa_ident.design.analysis import identified_model
 from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.design.analysis import identified_model
 from iiwa_ident.design.design_file import make_record
+from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.emulator import EmulatorConfig, Faults, spawn_emulator
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.emulator import EmulatorConfig, Faults, spawn_emulator
 from iiwa_ident.fri.protocol import ClientCommandMode, SessionState, decode_monitoring
 from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.runtime import run_controller
-from iiwa_ident.runtime import make_task
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command
+from iiwa_ident.runtime import make_task, run_controller
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]

@@ -34,8 +34,8 @@ from iiwa_ident.fri import (
     encode_command,
     encode_monitoring,
     message_problem,
+    messages_pb2,
 )
-from iiwa_ident.fri import messages_pb2
 
 # Derandomized: the same examples on every machine, so a red CI is a real defect, not a new draw.
 FUZZ = settings(derandomize=True, deadline=None, database=None, max_examples=400,

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from iiwa_ident.deploy import deploy
-from iiwa_ident.design.analysis import identified_model
 from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.design.analysis import identified_model
 from iiwa_ident.design.design_file import make_record
+from iiwa_ident.design.margins import outer_loop_margins
 from iiwa_ident.design.spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.connection import FriConnection, parse_host_port
@@ -26,18 +26,17 @@ from iiwa_ident.fri.protocol import (
     ConnectionQuality,
     ControlMode,
     DriveState,
-    SafetyState,
     MonitoringMessage,
+    SafetyState,
     SessionState,
     decode_command,
     encode_monitoring,
 )
 from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.runtime import ControllerRuntime, Watchdog
-from iiwa_ident.runtime import TASKS, KappaTask, TaskInput, make_task
 from iiwa_ident.ident.model_file import read_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command, Measurement
+from iiwa_ident.runtime import TASKS, ControllerRuntime, KappaTask, TaskInput, Watchdog, make_task
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 TABLE1 = Path(__file__).resolve().parents[1] / "datasets" / "paper-table1.toml"
@@ -117,7 +116,7 @@ class TestWatchdog:
 
 class TestTasks:
     def test_references(self):
-        s = lambda t, ext=0.0: TaskInput(t, 0.0, ext)  # noqa: E731
+        s = lambda t, ext=0.0: TaskInput(t, 0.0, ext)  # noqa: E731  (a one-line helper)
         assert make_task("zero").reference(s(1.0)) == 0.0
         assert make_task("constant", 4.0).reference(s(3.0)) == 4.0
         step = make_task("step", 10.0, period_s=2.0)

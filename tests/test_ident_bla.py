@@ -8,8 +8,8 @@ from scipy.signal import freqz, lfilter
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Multisine, record
-from iiwa_ident.references import odd_lines, odd_multisine
 from iiwa_ident.ident.bla import BestLinearApproximation, best_linear_approximation, bla_from_arrays
+from iiwa_ident.references import odd_lines, odd_multisine
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
 N, FS = 256, 1000.0

@@ -13,21 +13,19 @@ import math
 import control as ct
 import numpy as np
 import pytest
-from conftest import quiet, smooth_command
 from scipy.linalg import expm
 from typer.testing import CliRunner
 
+from conftest import quiet, smooth_command
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, write_model
-from iiwa_ident.model import table1_model
-from iiwa_ident.ident.joint_fit import fit_joint, fit_model
 from iiwa_ident.ident.initial import initial_estimate
+from iiwa_ident.ident.joint_fit import fit_joint, fit_model
 from iiwa_ident.ident.tf_fit import cramer_rao_std, fit_transfer_function
-from iiwa_ident.model import discretize, simulate_outputs
-from iiwa_ident.model import PARAMETER_NAMES, frequency_response
+from iiwa_ident.model import PARAMETER_NAMES, discretize, frequency_response, simulate_outputs, table1_model
 from iiwa_ident.sim import SimulatedJoint, TorqueLogFilter, default_plant, make_effect
 
 TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}

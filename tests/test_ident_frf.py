@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from scipy.signal import freqz, lfilter
 
-from iiwa_ident.references import exponential_sweep, sweep_rate
 from iiwa_ident.ident.frf import (
     cross_spectra,
     ess_harmonics,
@@ -25,6 +24,7 @@ from iiwa_ident.ident.frf import (
     sweep_signal,
     welch_segment_length,
 )
+from iiwa_ident.references import exponential_sweep, sweep_rate
 
 FS = 1000.0
 B, A = [0.05, 0.03], [1.0, -1.6, 0.7]  # a resonant discrete filter (poles at 0.84 e^{+-j0.31})
@@ -142,7 +142,7 @@ class TestH1Estimate:
         rng = np.random.default_rng(5)
         u = rng.standard_normal(20000)
         y = 0.5 * np.concatenate([np.zeros(3), u[:-3]])
-        response = lambda f: 0.5 * np.exp(-2j * np.pi * f * 3 / FS)  # noqa: E731
+        response = lambda f: 0.5 * np.exp(-2j * np.pi * f * 3 / FS)  # noqa: E731  (a one-line helper)
         plain = h1_estimate(u, y, FS, 2.0, 300.0)
         # Pooling turns phasors: the band average of the true response is what H1 estimates.
         np.testing.assert_allclose(plain.H, plain.band_average(response), rtol=2e-3, atol=0)

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.excite import Chirp, record
 from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
 from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
 from iiwa_ident.ident.records import held_windows, prepare_record
 from iiwa_ident.ident.tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
-from iiwa_ident.excite import Chirp, record
 from iiwa_ident.sim import SimulatedJoint, default_plant, plant_from_model
 from iiwa_ident.sim.effects import TransmissionRipple
 
@@ -72,7 +72,7 @@ def test_subset_no_silent_nonsense(subset_outcomes):
 
 
 def test_subset_refusals_name_a_parameter(subset_outcomes):
-    for sc, kind, msg in subset_outcomes:
+    for _sc, kind, msg in subset_outcomes:
         if kind == "refused":
             assert msg.split(":")[0] in ("Jc", "bc", "K", "Jl", "Td") or "dataset" in msg, msg
 
@@ -312,5 +312,7 @@ def test_a_compensated_load_is_decided_by_the_output_error_model():
     with_model = fit_transfer_function([ds], initial=idim.parameters, known=idim.known_inputs)
     res = fit_joint([ds], method="joint")
     assert _accurate(_errors(res, sc.truth)), (sc.describe(), _errors(res, sc.truth))
-    worst = lambda r: max(abs(v) for k, v in _errors(r, sc.truth).items() if k != "Td")
+    def worst(r):
+        return max(abs(v) for k, v in _errors(r, sc.truth).items() if k != "Td")
+
     assert worst(res) < worst(with_model)

@@ -7,16 +7,14 @@ import math
 import control as ct
 import numpy as np
 import pytest
-from conftest import quiet, smooth_command
 from scipy.signal import lsim
 
+from conftest import quiet, smooth_command
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident.records import prepare_record
-from iiwa_ident.model import RippleTable
 from iiwa_ident.ident.tf_fit import RippleTerms, fit_transfer_function
-from iiwa_ident.model import discretize
-from iiwa_ident.model import PARAMETER_NAMES, frequency_response
+from iiwa_ident.model import PARAMETER_NAMES, RippleTable, discretize, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.effects import TransmissionRipple
 
@@ -51,8 +49,10 @@ def test_sampled_motion_inputs_match_a_fine_continuous_simulation(kind):
     # A smooth input known only at the samples: a 1 kHz model of it against lsim on a 50 kHz grid.
     T, n, sub = 1e-3, 1500, 50
     t_fine = np.arange(n * sub) * T / sub
-    sig = lambda t: 1e-4 * np.sin(2 * np.pi * 31.0 * t) * np.sin(np.pi * np.minimum(t, 0.5)) ** 2 + \
-        4e-5 * np.sin(2 * np.pi * 67.0 * t + 0.3) * np.minimum(t / 0.5, 1.0) ** 3
+    def sig(t):
+        return (1e-4 * np.sin(2 * np.pi * 31.0 * t) * np.sin(np.pi * np.minimum(t, 0.5)) ** 2
+                + 4e-5 * np.sin(2 * np.pi * 67.0 * t + 0.3) * np.minimum(t / 0.5, 1.0) ** 3)
+
     scale = 1.0 if kind == "deflection" else 2e3  # a reaction [Nm] of the size tau_j f' reaches
     A, B_f, B_r = _continuous(TABLE1)
     B = B_f if kind == "deflection" else B_r

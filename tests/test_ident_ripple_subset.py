@@ -9,7 +9,6 @@ from iiwa_ident.excite.scenarios import draw_ripple_scenario, simulate_ripple_sc
 from iiwa_ident.ident.ripple import identify_ripple
 from iiwa_ident.sim import TransmissionRipple
 
-
 # A seeded subset of ``bench/bench_robustness.py ripple`` (ripple and null draws of the shared scenario
 # generator: 100-800 cycles per revolution, harmonics stronger than the fundamental, 0.05-1.3 rad/s,
 # 200-1000 Hz, friction, load, hum, coloured noise, gaps).

@@ -15,11 +15,9 @@ import h5py
 import numpy as np
 import pytest
 
-from iiwa_ident.datasets import SIGNAL_UNITS, read_dataset
-from iiwa_ident.errors import DatasetError, IiwaIdentError
-from iiwa_ident.datasets import LogStats, LogWriter
-
 from conftest import wait_for
+from iiwa_ident.datasets import SIGNAL_UNITS, LogStats, LogWriter, read_dataset
+from iiwa_ident.errors import DatasetError, IiwaIdentError
 
 RATE = 1000.0
 SIGNALS = [

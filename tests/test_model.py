@@ -13,6 +13,8 @@ from iiwa_ident.model import (
     PARAMETER_NAMES,
     JointParameters,
     ParameterError,
+    _eq4,
+    _parameters,
     coefficients,
     frequency_response,
     pade_coefficients,
@@ -20,7 +22,6 @@ from iiwa_ident.model import (
     resonance_hz,
     transfer_function,
 )
-from iiwa_ident.model import _eq4, _parameters
 
 TABLE1 = JointParameters(1.03, 55.0, 18500.0, 5.6, 0.005)
 

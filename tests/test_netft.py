@@ -89,6 +89,7 @@ class TestProjection:
     def test_agrees_with_the_jacobian(self, robot, joint):
         """axis . (lever x F + M) is the joint's entry of J^T [F; M] (MuJoCo's site Jacobian)."""
         import mujoco
+
         from iiwa_ident.description import check_pose
         rng = np.random.default_rng(joint)
         q = rng.uniform(-1.5, 1.5, 7)
@@ -122,7 +123,7 @@ class TestProjection:
 
 def _description_xml(robot):
     # The description writes its model once; the test reads the same MJCF through MuJoCo's own Jacobian.
-    from iiwa_ident.description import _dynamics  # noqa: the test's independent path needs the model text
+    from iiwa_ident.description import _dynamics  # the test's independent path needs the model text
     return _dynamics._mjcf(robot)
 
 
@@ -187,7 +188,7 @@ class TestSensorOverLoopback:
         sensor = _sensor(server, fault_cycles=3)
         _settle(server)
         cal = Calibration()
-        send = lambda rec: server._sock.sendto(encode_record(rec), server.client)  # noqa: E731
+        send = lambda rec: server._sock.sendto(encode_record(rec), server.client)  # noqa: E731  (a one-line helper)
         counts = cal.counts([0, 2.0, 0, 0, 0, 0])
         send(RdtRecord(10, 1, 0, counts))
         assert _wait_poll(sensor) == pytest.approx(1.0)

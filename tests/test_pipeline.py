@@ -13,14 +13,13 @@ from pathlib import Path
 
 import pytest
 
-from iiwa_ident.errors import IiwaIdentError
+from conftest import assert_not_blank, figures_agree, pdf_pages
 from iiwa_ident.deploy import read_config
 from iiwa_ident.design import read_design
-from iiwa_ident.runtime import SweepSettings
+from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import FILES, STAGES, ValidationSettings, run_pipeline, run_validation
 from iiwa_ident.report.pdf import build_report
-
-from conftest import assert_not_blank, figures_agree, pdf_pages
+from iiwa_ident.runtime import SweepSettings
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 

@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import assert_diagnosis_shown_alike, figures_agree
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.pipeline import FILES, LOG_STAGES, find_log_runs, run_log_pipeline
 from iiwa_ident.sim import SimulatedJoint, default_plant
-
-from conftest import assert_diagnosis_shown_alike, figures_agree
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 

@@ -16,11 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import assert_diagnosis_shown_alike, assert_not_blank, figures_agree, pdf_pages
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import run_pipeline
 from iiwa_ident.report.pdf import REPORT_STAGES, build_report, load_results, report_pages
-
-from conftest import assert_diagnosis_shown_alike, assert_not_blank, figures_agree, pdf_pages
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 

@@ -38,7 +38,7 @@ def _run(rng, travel, speed, cpr, amplitude):
     return Dataset({"t": t, "q_m": np.round(q / tick) * tick, "tau_j": tau}, "constant_velocity", "import", 1, _RATE)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _outcomes(probability, draws=30, travel=2.0, speed=0.1):
     """(detected, period right within 0.5 %) per draw at the amplitude predicted to be detected with probability."""
     rng = np.random.default_rng(int(100 * probability))

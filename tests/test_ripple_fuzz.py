@@ -9,8 +9,6 @@ quantised like the iiwa's encoder, at 200 Hz to 1 kHz.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
+import control as ct
 import numpy as np
 import pytest
-import control as ct
 
+from conftest import smooth_command
 from iiwa_ident.robot import Command
 from iiwa_ident.sim import LinkFriction, SimulatedJoint, default_plant
 from iiwa_ident.sim.reference import simulate_reference
-
-from conftest import smooth_command
 
 
 def eq4(plant, s):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import smooth_command
 from iiwa_ident.sim import (
     InputDelay,
     LinkFriction,
@@ -16,8 +17,6 @@ from iiwa_ident.sim import (
     TransmissionRipple,
 )
 from iiwa_ident.sim.agents import ImpedanceAgent
-
-from conftest import smooth_command
 
 
 def cruise(plant, speed=0.6, seconds=2.0, stiffness=20000.0):

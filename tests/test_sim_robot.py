@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import smooth_command
 from iiwa_ident.robot import Command
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.agents import ImpedanceAgent
-
-from conftest import smooth_command
 
 
 def constant_push(torque: float, seconds: float = 10.0) -> ImpedanceAgent:

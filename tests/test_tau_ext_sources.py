@@ -3,7 +3,6 @@ estimate, KUKA's estimate, and a Net F/T read over RDT; the built-in loop (the r
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
@@ -18,6 +17,7 @@ from iiwa_ident.model import JointParameters
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
 from iiwa_ident.pipeline.session import free_udp_port
 from iiwa_ident.runtime import ControllerRuntime, make_task, run_controller
+
 
 @pytest.fixture(scope="module")
 def config():

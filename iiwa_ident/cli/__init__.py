@@ -3,22 +3,22 @@
 Each ``*_cmds`` module registers its subcommands on :data:`app`.
 """
 
+from iiwa_ident.cli import compare_cmd as _compare_cmd
+from iiwa_ident.cli import data_cmds as _data_cmds
+from iiwa_ident.cli import deploy_cmd as _deploy_cmd
+from iiwa_ident.cli import design_cmd as _design_cmd
+from iiwa_ident.cli import diagnose_cmd as _diagnose_cmd
+from iiwa_ident.cli import emulate_cmd as _emulate_cmd
+from iiwa_ident.cli import fit_cmd as _fit_cmd
+from iiwa_ident.cli import fleet_cmd as _fleet_cmd
+from iiwa_ident.cli import kappa_cmd as _kappa_cmd
+from iiwa_ident.cli import model_cmd as _model_cmd
+from iiwa_ident.cli import pipeline_cmd as _pipeline_cmd
+from iiwa_ident.cli import report_cmd as _report_cmd
+from iiwa_ident.cli import ripple_cmd as _ripple_cmd
+from iiwa_ident.cli import run_cmd as _run_cmd
+from iiwa_ident.cli import sim_cmds as _sim_cmds
 from iiwa_ident.cli._app import app, fail, run_app
-from iiwa_ident.cli import data_cmds as _data_cmds  # noqa: F401  (registers commands)
-from iiwa_ident.cli import sim_cmds as _sim_cmds  # noqa: F401
-from iiwa_ident.cli import fit_cmd as _fit_cmd  # noqa: F401
-from iiwa_ident.cli import ripple_cmd as _ripple_cmd  # noqa: F401
-from iiwa_ident.cli import design_cmd as _design_cmd  # noqa: F401
-from iiwa_ident.cli import deploy_cmd as _deploy_cmd  # noqa: F401
-from iiwa_ident.cli import run_cmd as _run_cmd  # noqa: F401
-from iiwa_ident.cli import kappa_cmd as _kappa_cmd  # noqa: F401
-from iiwa_ident.cli import diagnose_cmd as _diagnose_cmd  # noqa: F401
-from iiwa_ident.cli import compare_cmd as _compare_cmd  # noqa: F401
-from iiwa_ident.cli import model_cmd as _model_cmd  # noqa: F401
-from iiwa_ident.cli import emulate_cmd as _emulate_cmd  # noqa: F401
-from iiwa_ident.cli import pipeline_cmd as _pipeline_cmd  # noqa: F401
-from iiwa_ident.cli import report_cmd as _report_cmd  # noqa: F401
-from iiwa_ident.cli import fleet_cmd as _fleet_cmd  # noqa: F401
 
 __all__ = ["app", "fail", "main"]
 

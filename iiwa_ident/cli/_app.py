@@ -65,7 +65,7 @@ def reflow_help(text: str, width: int = HELP_WIDTH) -> str:
         prose: list[str] = []
         command: list[str] = []  # the example being read: its indent, then its text
 
-        def flush() -> None:
+        def flush(block: list[str] = block, prose: list[str] = prose, command: list[str] = command) -> None:
             if prose:
                 block.append(" ".join(prose))
                 prose.clear()
@@ -229,7 +229,7 @@ def figures_option(what: str = "PNG figures"):
     return typer.Option("--figures", help=f"Folder for {what}.")
 
 
-def fail(message: str, code: int = 2) -> "typer.Exit":
+def fail(message: str, code: int = 2) -> typer.Exit:
     """Print ``error: message`` on stderr and return the exit to raise."""
     typer.echo(f"error: {message}", err=True)
     return typer.Exit(code)

@@ -9,8 +9,8 @@ terminal (a pipe, a log file, the tests) or after ``iiwa-ident --quiet``. The co
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 __all__ = ["Progress", "progress", "set_quiet"]
 

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json, json_option
+from iiwa_ident.cli._app import app, fail, json_option, write_json
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
@@ -56,10 +56,9 @@ def compare_cmd(
       iiwa-ident compare --model model.toml chirp.h5
       iiwa-ident compare --model model_ext.toml run1.h5 run2.h5 --json compare.json --figures cmp
     """
-    from iiwa_ident.ident import dataset_model, read_model
     from iiwa_ident.datasets import dataset_files, read_dataset
-
     from iiwa_ident.diagnose import compare
+    from iiwa_ident.ident import dataset_model, read_model
 
     try:
         data = dataset_files(data)
@@ -83,4 +82,4 @@ def compare_cmd(
                 fig.savefig(path, dpi=100)
             typer.echo(f"figures in {figures}")
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

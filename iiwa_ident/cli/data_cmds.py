@@ -159,8 +159,16 @@ def import_cmd(
           --csv log.csv --map t=time --map q_m=q2 --map tau_j=tau2 \
           --split-runs --out runs/j2.h5
     """
-    from iiwa_ident.datasets import (dataset_pose, import_columns, import_csv, import_lcm, import_rosbag,
-                                     note_warnings, set_robot_name, write_dataset)
+    from iiwa_ident.datasets import (
+        dataset_pose,
+        import_columns,
+        import_csv,
+        import_lcm,
+        import_rosbag,
+        note_warnings,
+        set_robot_name,
+        write_dataset,
+    )
 
     try:
         check_joint(joint)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, check_joint, fail, write_json, json_option
+from iiwa_ident.cli._app import app, check_joint, fail, json_option, write_json
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
@@ -28,9 +28,9 @@ def find_model(record: DesignRecord, design_path: Path) -> tuple[JointModel | No
     DeployError
         If the file is found but differs from the one the design was made from.
     """
+    from iiwa_ident.datasets import sha256_file
     from iiwa_ident.deploy import DeployError
     from iiwa_ident.ident import read_model
-    from iiwa_ident.datasets import sha256_file
 
     if not record.model_file:
         return None, None
@@ -82,9 +82,9 @@ def deploy_cmd(
       iiwa-ident deploy --design design.toml --out controller.toml
       iiwa-ident deploy --design design.toml --out controller.toml --torque-limit 100 --json deploy.json
     """
+    from iiwa_ident.datasets import sha256_file
     from iiwa_ident.deploy import config_json, deploy, deploy_target, write_config
     from iiwa_ident.design import read_design
-    from iiwa_ident.datasets import sha256_file
 
     try:
         check_joint(joint)
@@ -111,4 +111,4 @@ def deploy_cmd(
         if json_out is not None:
             write_json(json_out, config_json(config, out))
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json, json_option
-from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, DESIGN_BETA, FEEDFORWARD_MODES
+from iiwa_ident.cli._app import app, fail, json_option, write_json
+from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
-    from iiwa_ident.design import AdditiveDesign
-    from iiwa_ident.design import OuterLoopMargins
     import numpy as np
+
+    from iiwa_ident.design import AdditiveDesign, OuterLoopMargins
 
 __all__ = ["design_cmd", "parse_poles", "format_design"]
 
@@ -121,23 +121,23 @@ def design_cmd(
       iiwa-ident design --model model.toml --poles=-150+20j,-150-20j,-400,-450 --out d.toml --json d.json
     """
     from iiwa_ident.design import (
-        HumanArm,
         PAPER_OBSERVER_POLES,
         PAPER_POLES,
+        FilterSettings,
+        HumanArm,
         check_poles,
         design_controller,
         design_json,
         exact_delay_spectral_radius,
         format_reproduction,
-        FilterSettings,
         make_record,
         outer_loop_margins,
         paper_reproduction,
         table1_parameters,
         write_design,
     )
-    from iiwa_ident.model import JointParameters
     from iiwa_ident.ident import read_model
+    from iiwa_ident.model import JointParameters
 
     try:
         if not (math.isfinite(beta) and beta > 0 and math.isfinite(v_min) and v_min > 0):
@@ -163,4 +163,4 @@ def design_cmd(
         if json_out is not None:
             write_json(json_out, design_json(design, margins))
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json, json_option, figures_option
+from iiwa_ident.cli._app import app, fail, figures_option, json_option, write_json
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
@@ -45,11 +45,10 @@ def diagnose_cmd(
     Example:
       iiwa-ident diagnose --model model.toml --json diagnose.json --out model_ext.toml chirp.h5 cv.h5 hand.h5
     """
+    from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
+    from iiwa_ident.diagnose import diagnose
     from iiwa_ident.ident import check_model_matches, dataset_model, read_model, write_model
     from iiwa_ident.model import Source
-    from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
-
-    from iiwa_ident.diagnose import diagnose
 
     try:
         data = dataset_files(data)
@@ -83,4 +82,4 @@ def diagnose_cmd(
                 plt.close(fig)
             typer.echo(f"figures in {figures}")
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

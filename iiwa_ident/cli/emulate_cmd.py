@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
 from iiwa_ident._realtime import stop_signals
-from iiwa_ident.cli._app import app, fail, parse_pose, write_json, json_option
+from iiwa_ident.cli._app import app, fail, json_option, parse_pose, write_json
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
@@ -219,7 +219,7 @@ def emulate_cmd(
                          ft_cutoff, ft_lever, (ft_noise_n, ft_noise_nm), idle_timeout)
         emulator = RobotEmulator(config, on_event=lambda t, text: typer.echo(f"{t:8.3f} s  {text}"))
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     host, port = emulator.address
     typer.echo(f"robot side on {host}:{port}, sending to {config.client[0]}:{config.client[1]} every "
                f"{config.send_period_ms} ms ({mode} mode); Ctrl-C to stop")
@@ -236,8 +236,8 @@ def emulate_cmd(
         if json_out is not None:
             write_json(json_out, report.as_dict())
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     except OSError as err:
-        raise fail(f"{json_out}: {err.strerror}")
+        raise fail(f"{json_out}: {err.strerror}") from None
     if report.dataset_error:
         raise fail(report.dataset_error)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
@@ -14,8 +14,7 @@ from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
-    from iiwa_ident.ident import BlaFit
-    from iiwa_ident.ident import FitResult
+    from iiwa_ident.ident import BlaFit, FitResult
 
 __all__ = ["fit_cmd", "format_fit", "format_bla_fit"]
 
@@ -182,7 +181,7 @@ def fit_cmd(
       iiwa-ident fit ms.h5 --out joint1.toml --json joint1.json   (a multisine: the BLA's noise and nonlinear
       variance per band, the std from both)
     """
-    from iiwa_ident.ident import BlaFit, METHODS, fit_model, write_model
+    from iiwa_ident.ident import METHODS, BlaFit, fit_model, write_model
 
     try:
         if method not in METHODS:
@@ -214,9 +213,9 @@ def fit_cmd(
         for name, data in pngs.items():
             written.append(write_atomic(figures / name, data))
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     except OSError as err:
-        raise fail(f"{err.filename or 'output'}: cannot write ({err.strerror or err})")
+        raise fail(f"{err.filename or 'output'}: cannot write ({err.strerror or err})") from None
     typer.echo(text)
     for w in warnings:
         typer.echo(f"warning: {w}", err=True)

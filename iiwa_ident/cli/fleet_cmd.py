@@ -54,7 +54,7 @@ def fleet_cmd(
         if json_out is not None:
             write_atomic(json_out, json.dumps(doc, indent=2, default=str) + "\n")
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     failed = sum(1 for g in doc["groups"] if g["error"])
     typer.echo(table.rstrip("\n"))
     typer.echo(f"{len(doc['groups'])} group(s) on {doc['engine']['workers']} worker(s), {doc['resumed']} taken from "

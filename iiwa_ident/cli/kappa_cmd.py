@@ -15,6 +15,11 @@ from iiwa_ident.errors import IiwaIdentError
 __all__ = ["kappa_cmd", "format_sweep"]
 
 _FT = ft_options()
+# The F/T options as names: typer reads the annotations as strings in this module.
+_FT_HOST = _FT["ft"]
+_FT_LEVER = _FT["ft_lever"]
+_FT_CPF = _FT["ft_cpf"]
+_FT_CPT = _FT["ft_cpt"]
 
 
 def _f(x: Any) -> str:
@@ -61,10 +66,10 @@ def kappa_cmd(
                                          "as a limit cycle [Nm].")] = 5.0,
     holding: Annotated[bool, typer.Option("--i-am-holding-the-arm", help="--target robot: a person holds the "
                                           "arm (the sweep drives the loop until it oscillates).")] = False,
-    ft: _FT["ft"] = None,
-    ft_lever: _FT["ft_lever"] = None,
-    ft_cpf: _FT["ft_cpf"] = 1e6,
-    ft_cpt: _FT["ft_cpt"] = 1e6,
+    ft: _FT_HOST = None,
+    ft_lever: _FT_LEVER = None,
+    ft_cpf: _FT_CPF = 1e6,
+    ft_cpt: _FT_CPT = 1e6,
     ft_rate: Annotated[float, typer.Option("--ft-rate", help="The sensor's output rate [Hz] (emulated on "
                                            "--target sim; the prediction's on the robot).")] = 1000.0,
     ft_cutoff: Annotated[float, typer.Option("--ft-cutoff", help="The sensor's low-pass cut-off [Hz], 0: "
@@ -155,4 +160,4 @@ def kappa_cmd(
         if json_out is not None:
             write_json(json_out, out)
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

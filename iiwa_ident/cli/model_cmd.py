@@ -63,4 +63,4 @@ def model_cmd(
                    + "; Jc, bc, K, Td, KI borrowed from Table I")
         typer.echo(f"wrote {out}")
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

@@ -106,7 +106,7 @@ def pipeline_cmd(
                                   joint=1 if joint is None else joint, report=None if no_report else build_report,
                                   realtime=realtime, skip=skipped)
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     typer.echo(format_summary(result))
     typer.echo(f"wrote {workdir / 'pipeline.json'}")
     if not result.ok:

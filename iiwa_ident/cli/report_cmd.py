@@ -49,7 +49,7 @@ def report_cmd(
         with progress(f"building the report of {workdir} "):
             titles = build_report(target, workdir, stage=stage)
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     for i, title in enumerate(titles, 1):
         typer.echo(f"page {i:2d}: {title}")
     typer.echo(f"wrote {target}")

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json, json_option, figures_option
+from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD
+from iiwa_ident.cli._app import app, fail, figures_option, json_option, write_json
 from iiwa_ident.cli._progress import progress
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD
 
 if TYPE_CHECKING:
     from iiwa_ident.ident import RippleResult
@@ -166,9 +166,9 @@ def ripple_cmd(
       iiwa-ident simulate constant_velocity --velocity 0.3,0.6,1.2 --out cv.h5
       iiwa-ident ripple cv.h5 --model model.toml --out model_ripple.toml --json ripple.json
     """
+    from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
     from iiwa_ident.ident import check_model_matches, dataset_model, read_model, ripple_model, write_model
     from iiwa_ident.model import Source
-    from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
 
     try:
         data = dataset_files(data)
@@ -203,4 +203,4 @@ def ripple_cmd(
                 fig.savefig(figures / f"{name}.png", dpi=110)
             typer.echo(f"figures in {figures}")
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None

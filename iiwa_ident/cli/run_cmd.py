@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
-from iiwa_ident.cli._app import app, fail, write_json, json_option
-from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident._defaults import DEFAULT_PORT, LOOPS, TASKS, TAU_EXT_SOURCES
+from iiwa_ident.cli._app import app, fail, json_option, write_json
+from iiwa_ident.errors import IiwaIdentError
 
 if TYPE_CHECKING:
     from iiwa_ident.runtime import RunReport
@@ -55,6 +55,12 @@ def ft_options():
 
 
 _FT = ft_options()
+# The F/T options as names: typer reads the annotations as strings in this module.
+_FT_HOST = _FT["ft"]
+_FT_LEVER = _FT["ft_lever"]
+_FT_CPF = _FT["ft_cpf"]
+_FT_CPT = _FT["ft_cpt"]
+_FT_FAULT = _FT["ft_fault"]
 
 
 def format_report(report: RunReport) -> str:
@@ -119,11 +125,11 @@ def run_cmd(
     loop: Annotated[str, typer.Option("--loop", help=f"{' | '.join(LOOPS)}: the deployed controller, or "
                                       "the reference sent as the torque command (the robot's own "
                                       "loop).")] = "additive",
-    ft: _FT["ft"] = None,
-    ft_lever: _FT["ft_lever"] = None,
-    ft_cpf: _FT["ft_cpf"] = 1e6,
-    ft_cpt: _FT["ft_cpt"] = 1e6,
-    ft_fault: _FT["ft_fault"] = 20,
+    ft: _FT_HOST = None,
+    ft_lever: _FT_LEVER = None,
+    ft_cpf: _FT_CPF = 1e6,
+    ft_cpt: _FT_CPT = 1e6,
+    ft_fault: _FT_FAULT = 20,
     json_out: Annotated[Optional[Path], json_option("the run report")] = None,
 ) -> None:
     """Execute a deployed controller at 1 kHz: eq (9) correction, spatial filter, improved observer,
@@ -144,11 +150,11 @@ def run_cmd(
       iiwa-ident run --config controller.toml --target sim --task step --amplitude 10 --log step.h5
       iiwa-ident run --config controller.toml --target sim --task multisine --amplitude 5 --frequency 1 --f1 40 --period 2 --log ms.h5
     """
-    from iiwa_ident.fri import FriRobot, parse_host_port
-    from iiwa_ident.runtime import Watchdog, make_task, run_controller
-    from iiwa_ident.robot import RobotInterface
-    from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
     from iiwa_ident.deploy import read_config
+    from iiwa_ident.fri import FriRobot, parse_host_port
+    from iiwa_ident.robot import RobotInterface
+    from iiwa_ident.runtime import Watchdog, make_task, run_controller
+    from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
 
     try:
         cfg = read_config(config)
@@ -189,7 +195,7 @@ def run_cmd(
         if json_out is not None:
             write_json(json_out, report.as_dict())
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
     if report.ended_early:
         # The log and the report are written: a script still learns that the run did not go its course.
         raise fail(f"the run ended after {report.duration_s:.3f} s of {duration:g} s: {report.stop_reason}", code=1)

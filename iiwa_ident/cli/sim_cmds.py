@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional, TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
@@ -51,10 +51,9 @@ def run_on_target(experiment: Experiment, target: str, plant: Optional[Path], se
 
     ``joint``: on the robot the joint under test (default 1); on the simulated joint, the plant's (refused if
     another is asked for)."""
-    from iiwa_ident.robot import RobotInterface
-    from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
     from iiwa_ident.datasets import dataset_info, format_info, set_robot_name, write_dataset
     from iiwa_ident.excite import record
+    from iiwa_ident.sim import SimulatedJoint, default_plant, load_plant
 
     check_joint(joint)
     if target == "sim":
@@ -127,7 +126,7 @@ def chirp_cmd(
         run_on_target(Chirp(f0, f1, duration, amplitude, bias, hold), target, plant, seed, rate, out,
                       robot=robot, port=port, robot_model=robot_model, joint=joint, robot_name=robot_name)
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
 
 
 @app.command("simulate")
@@ -180,7 +179,7 @@ def simulate_cmd(
       iiwa-ident simulate sine --amplitude 15 --frequency 25 --duration 4 --out sine.h5
       iiwa-ident simulate constant_velocity --target robot --robot 192.170.10.2 --out cv.h5
     """
-    from iiwa_ident.excite import Experiment, Multisine
+    from iiwa_ident.excite import Multisine
 
     try:
         if experiment == "multisine":
@@ -196,7 +195,7 @@ def simulate_cmd(
         run_on_target(exp, target, plant, seed, rate, out, q0=q0, robot=robot, port=port,
                       robot_model=robot_model, joint=joint, robot_name=robot_name)
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
 
 
 def _experiment(name, velocity, range_, repeats, mode, torque, duration, kappa, amplitude, frequency, period,
@@ -262,5 +261,5 @@ def plant_cmd(
                    f"K={d['K']:g} Nm/rad, Jl={d['Jl']:g} kg m^2, Td={d['Td'] * 1e3:g} ms")
         typer.echo("effects: " + (", ".join(e.name for e in plant.effects) or "none"))
     except IiwaIdentError as err:
-        raise fail(str(err))
+        raise fail(str(err)) from None
 

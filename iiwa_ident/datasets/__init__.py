@@ -5,6 +5,7 @@ exposes ground truth; :func:`read_truth` is reserved for evaluation code.
 """
 
 from iiwa_ident.datasets._format import (
+    COLUMN_LOG_MARK,
     EXPERIMENTS,
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -12,7 +13,6 @@ from iiwa_ident.datasets._format import (
     ROBOT_NAME_ATTR,
     SIGNAL_UNITS,
     SOURCES,
-    COLUMN_LOG_MARK,
     Dataset,
     dataset_files,
     dataset_pose,
@@ -24,11 +24,18 @@ from iiwa_ident.datasets._format import (
     validate_dataset,
     write_dataset,
 )
-from iiwa_ident.datasets._import import (MAX_RATE_HZ, MIN_MESSAGE_RATE_HZ, MIN_RATE_HZ, import_columns, import_csv,
-                                        moving_joint_problem)
-from iiwa_ident.datasets._lcmlog import IIWA_STATUS_CHANNEL, decode_iiwa_status, import_lcm, lcm_fingerprint
-from iiwa_ident.datasets._rosbag import LBR_STATE_MSG, LBR_STATE_TYPES, import_rosbag, ros_typestore
+from iiwa_ident.datasets._import import (
+    MAX_RATE_HZ,
+    MIN_MESSAGE_RATE_HZ,
+    MIN_RATE_HZ,
+    import_columns,
+    import_csv,
+    moving_joint_problem,
+)
 from iiwa_ident.datasets._info import dataset_info, format_info
+from iiwa_ident.datasets._lcmlog import IIWA_STATUS_CHANNEL, decode_iiwa_status, import_lcm, lcm_fingerprint
+from iiwa_ident.datasets._logwriter import SHM_PREFIX as LOG_SHM_PREFIX
+from iiwa_ident.datasets._logwriter import LogStats, LogWriter
 from iiwa_ident.datasets._provenance import (
     IMPORT_WARNINGS_ATTR,
     SIGN_MIN_GRAVITY_NM,
@@ -41,8 +48,7 @@ from iiwa_ident.datasets._provenance import (
     time_gaps_problem,
     torque_sign_problem,
 )
-from iiwa_ident.datasets._logwriter import SHM_PREFIX as LOG_SHM_PREFIX
-from iiwa_ident.datasets._logwriter import LogStats, LogWriter
+from iiwa_ident.datasets._rosbag import LBR_STATE_MSG, LBR_STATE_TYPES, import_rosbag, ros_typestore
 
 __all__ = [
     "EXPERIMENTS",

@@ -35,10 +35,11 @@ import numbers
 import os
 import re
 import secrets
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import h5py
 import numpy as np
@@ -116,7 +117,7 @@ _ROWS_FLUSHED = "rows_flushed"
 
 def _now_utc() -> str:
     """Current UTC time as an ISO 8601 string with second resolution."""
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+    return datetime.now(UTC).isoformat(timespec="seconds")
 
 
 @dataclass(eq=False)  # eq on numpy arrays would be ambiguous, so compare explicitly

@@ -69,10 +69,11 @@ import signal
 import time
 import warnings
 import weakref
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from multiprocessing.shared_memory import SharedMemory
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import h5py
 import numpy as np
@@ -106,7 +107,7 @@ _MAX_FLUSH_INTERVAL_S = 1.0
 # Writers still open at interpreter exit are closed first, so the file is
 # finished and multiprocessing does not wait forever on a writer that still
 # expects a close message.
-_OPEN_WRITERS: "weakref.WeakSet[LogWriter]" = weakref.WeakSet()
+_OPEN_WRITERS: weakref.WeakSet[LogWriter] = weakref.WeakSet()
 
 
 @atexit.register
@@ -322,7 +323,7 @@ class LogWriter:
     # ------------------------------------------------------------------
     # start and close
 
-    def start(self, wait: bool = True) -> "LogWriter":
+    def start(self, wait: bool = True) -> LogWriter:
         """Create the file and start the writer process.
 
         With ``wait`` it blocks until the writer has the file open (a new
@@ -517,7 +518,7 @@ class LogWriter:
             raise DatasetError(error)
         return self._stats
 
-    def __enter__(self) -> "LogWriter":
+    def __enter__(self) -> LogWriter:
         return self.start()
 
     def __exit__(self, exc_type, exc, tb) -> None:

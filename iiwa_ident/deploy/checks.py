@@ -61,8 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from iiwa_ident.design import SAMPLE_TIME_S, exact_delay_spectral_radius, kappa_max
-from iiwa_ident.design import DesignRecord
+from iiwa_ident.design import SAMPLE_TIME_S, DesignRecord, exact_delay_spectral_radius, kappa_max
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.robot import JointLimits
 

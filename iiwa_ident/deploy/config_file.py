@@ -87,19 +87,26 @@ import math
 import os
 import tomllib
 from dataclasses import dataclass, field, replace
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from iiwa_ident._json import finite_or_none
-from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
-from iiwa_ident.deploy.checks import (Check, ControllerLimits, DeployError, check_design, default_rate_limit,
-                                     default_reference_rate, failed_checks, reference_limit)
-from iiwa_ident.design import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController
-from iiwa_ident.design import DesignRecord, FilterSettings
 from iiwa_ident._schema import TableReader
+from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
+from iiwa_ident.deploy.checks import (
+    Check,
+    ControllerLimits,
+    DeployError,
+    check_design,
+    default_rate_limit,
+    default_reference_rate,
+    failed_checks,
+    reference_limit,
+)
+from iiwa_ident.design import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController, DesignRecord, FilterSettings
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointModel, RippleTable, Source
 from iiwa_ident.robot import ROBOT_MODELS, joint_limits
@@ -230,7 +237,7 @@ class ControllerConfig:
     provenance: Provenance = field(default_factory=Provenance)
     checks: list[Check] = field(default_factory=list)
     tool_version: str = ""
-    created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    created_utc: str = field(default_factory=lambda: datetime.now(UTC).isoformat(timespec="seconds"))
     sha256: str = ""
 
 

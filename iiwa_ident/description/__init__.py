@@ -33,5 +33,5 @@ from iiwa_ident.description._dynamics import (
 from iiwa_ident.description._figures import ARM_LINKS, FLANGE_M, JOINT_TURNS_RPY, RATED_PAYLOAD_KG, SOURCES, Link
 
 __all__ = ["ROBOTS", "GRAVITY_M_S2", "JointDescription", "describe_joint", "mass_matrix", "gravity_torques",
-           "link_inertia", "gravity_torque", "gravity_sinusoid", "check_pose", "Link", "ARM_LINKS",
+           "link_inertia", "gravity_torque", "gravity_sinusoid", "check_pose", "flange_axis", "Link", "ARM_LINKS",
            "JOINT_TURNS_RPY", "FLANGE_M", "RATED_PAYLOAD_KG", "SOURCES"]

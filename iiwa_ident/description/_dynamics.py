@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -42,7 +42,7 @@ def _mjcf(robot: str, payload_kg: float = 0.0) -> str:
     def num(xs) -> str:
         return " ".join(f"{x:.17g}" for x in xs)
 
-    body = '<site name="flange" pos="0 0 %r"/>' % FLANGE_M
+    body = f'<site name="flange" pos="0 0 {FLANGE_M!r}"/>'
     if payload_kg > 0:
         body += (f'<body name="payload" pos="0 0 {FLANGE_M!r}"><inertial pos="0 0 0" mass="{payload_kg!r}" '
                  'diaginertia="1e-9 1e-9 1e-9"/></body>')
@@ -58,7 +58,7 @@ def _mjcf(robot: str, payload_kg: float = 0.0) -> str:
             f'<option gravity="0 0 {-GRAVITY_M_S2!r}"/><worldbody>{body}</worldbody></mujoco>')
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _model(robot: str, payload_kg: float = 0.0):
     if robot not in ARM_LINKS:
         raise IiwaIdentError(f"no rigid-body description of robot {robot!r} (described: {', '.join(ROBOTS)})")

@@ -21,7 +21,6 @@ paper_reproduction, format_reproduction, reproduction_cells, ReproductionRow
     The paper's numbers beside the computed ones (:mod:`iiwa_ident.design.paper`).
 """
 
-from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin
 from iiwa_ident.design.additive import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
@@ -35,7 +34,17 @@ from iiwa_ident.design.additive import (
     design_controller,
     natural_frequency_damping,
 )
+from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin
 from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design.cycle import ControlCycle
+from iiwa_ident.design.design_file import (
+    DesignFileError,
+    DesignRecord,
+    design_json,
+    make_record,
+    read_design,
+    write_design,
+)
 from iiwa_ident.design.margins import (
     DeployedLoop,
     DeployedMargin,
@@ -47,15 +56,6 @@ from iiwa_ident.design.margins import (
     exact_delay_spectral_radius,
     kappa_max,
     outer_loop_margins,
-)
-from iiwa_ident.design.cycle import ControlCycle
-from iiwa_ident.design.design_file import (
-    DesignFileError,
-    DesignRecord,
-    design_json,
-    make_record,
-    read_design,
-    write_design,
 )
 from iiwa_ident.design.observers import (
     OBSERVERS,
@@ -74,17 +74,17 @@ from iiwa_ident.design.paper import (
     REPRODUCTION_POLES,
     ReproductionRow,
     format_reproduction,
-    reproduction_cells,
     paper_reproduction,
+    reproduction_cells,
     table1_parameters,
 )
 from iiwa_ident.design.spatial_filter import (
     DESIGN_BETA,
     PAPER_BETA,
+    PAPER_FILTER,
     RIPPLE_PERIOD_RAD,
     V_MIN_RAD_S,
     FilterSettings,
-    PAPER_FILTER,
     SpatialFilter,
     gamma_weight,
     ripple_bandpass_coefficients,

@@ -92,8 +92,9 @@ transformed back; this keeps the placed poles exact to ~1e-9 relative.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg import matrix_balance
@@ -102,6 +103,9 @@ from scipy.signal import cont2discrete
 from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, FEEDFORWARD_MODES  # one definition, light for the CLI's help
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.errors import IiwaIdentError
+
+if TYPE_CHECKING:
+    import control as ct  # imported where used: python-control is slow to import
 from iiwa_ident.model import JointParameters, coefficients, pade_coefficients, zoh
 
 __all__ = [
@@ -286,7 +290,7 @@ def _realised(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray,
 
 
 def feedforward_transfer_function(params: JointParameters, prefilter_hz: float = DEFAULT_PREFILTER_HZ,
-                                  prefilter_zeta: float = DEFAULT_PREFILTER_ZETA) -> "ct.TransferFunction":
+                                  prefilter_zeta: float = DEFAULT_PREFILTER_ZETA) -> ct.TransferFunction:
     """``F(s) P(s)``: eq (22) behind the reference pre-filter [Nm/Nm].
 
     ``F(s) = (Jc Jl s^2 + Jl bc s + (Jc + Jl) K) / (Jl (bc s + K))`` inverts the
@@ -425,7 +429,7 @@ class AdditiveDesign:
             A, B, C = Si @ A @ S, Si @ B, C @ S
         return A, B, C
 
-    def closed_loop(self, discrete: bool = True, kr: float | None = None) -> "ct.StateSpace":
+    def closed_loop(self, discrete: bool = True, kr: float | None = None) -> ct.StateSpace:
         """The controller on its own design model: ``tau_r`` -> ``[tau_J, tau_c]``.
 
         A python-control system, discrete with ``dt = T`` or continuous.
@@ -441,7 +445,7 @@ class AdditiveDesign:
         """DC gain ``tau_r -> tau_J`` of :meth:`closed_loop` [Nm/Nm] (1 by design)."""
         return _dc(_close_on_model(self.controller_matrices(discrete), self.model_matrices(discrete)), discrete)
 
-    def controller(self) -> "AdditiveController":
+    def controller(self) -> AdditiveController:
         """A fresh per-sample controller running this design."""
         return AdditiveController(self)
 

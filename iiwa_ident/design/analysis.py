@@ -72,26 +72,22 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from iiwa_ident.design.additive import DEFAULT_PREFILTER_HZ, AdditiveDesign, builtin_poles, design_controller
 from iiwa_ident.design.controller import AdditiveController
-from iiwa_ident.design.margins import HumanArm, kappa_max
 from iiwa_ident.design.cycle import ControlCycle
+from iiwa_ident.design.margins import HumanArm, kappa_max
 from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
 from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
-from iiwa_ident.model import joint_position
-from iiwa_ident.model import JointModel, RippleTable, table1_model
-from iiwa_ident.model import JointParameters
+from iiwa_ident.model import JointModel, JointParameters, RippleTable, joint_position, table1_model
 from iiwa_ident.references import square
 from iiwa_ident.robot import Command, Measurement
-from iiwa_ident.sim import ImpedanceAgent
-from iiwa_ident.sim import SimulatedJoint
-from iiwa_ident.sim import Plant, default_plant
+from iiwa_ident.sim import ImpedanceAgent, Plant, SimulatedJoint, default_plant
 
 __all__ = [
     "TorqueControl",
@@ -192,7 +188,7 @@ class AdditiveTorqueControl(TorqueControl):
 
     @classmethod
     def from_model(cls, model: JointModel, design: AdditiveDesign | None = None, filter: FilterSettings | None = None,
-                   **design_kwargs) -> "AdditiveTorqueControl":
+                   **design_kwargs) -> AdditiveTorqueControl:
         """The controller for ``model`` (:func:`analysis_design` unless ``design`` is given)."""
         if design is None:
             design = analysis_design(model, **design_kwargs)

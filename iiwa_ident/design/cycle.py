@@ -23,8 +23,7 @@ from __future__ import annotations
 
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
-from iiwa_ident.model import RippleTable
-from iiwa_ident.model import MomentumObserver
+from iiwa_ident.model import MomentumObserver, RippleTable
 from iiwa_ident.robot import Measurement
 
 __all__ = ["ControlCycle"]

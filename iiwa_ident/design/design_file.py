@@ -78,7 +78,7 @@ import hashlib
 import os
 import tomllib
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -92,9 +92,7 @@ from iiwa_ident.design.additive import FEEDFORWARD_MODES, AdditiveDesign, Design
 from iiwa_ident.design.margins import HumanArm, OuterLoopMargins
 from iiwa_ident.design.spatial_filter import FilterSettings
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointModel, RippleTable
-from iiwa_ident.model import PARAMETER_UNITS
-from iiwa_ident.model import JointParameters, ParameterError
+from iiwa_ident.model import PARAMETER_UNITS, JointModel, JointParameters, ParameterError, RippleTable
 
 __all__ = [
     "DESIGN_FORMAT",
@@ -146,7 +144,7 @@ class DesignRecord:
     model_sha256: str | None = None
     description: str = ""
     tool_version: str = ""
-    created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    created_utc: str = field(default_factory=lambda: datetime.now(UTC).isoformat(timespec="seconds"))
 
 
 def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointModel,

@@ -28,8 +28,9 @@ Examples
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from scipy.signal import tf2ss
@@ -111,7 +112,7 @@ class _Measurement(NamedTuple):
 
 
 def _sampled_loop(A: np.ndarray, B: np.ndarray, C_j: np.ndarray, C_r: np.ndarray, T: float, delay: float,
-                  design: AdditiveDesign | None, meas: "_Measurement | None" = None) -> np.ndarray:
+                  design: AdditiveDesign | None, meas: _Measurement | None = None) -> np.ndarray:
     """State matrix of a ZOH plant with input delay under ``tau_c = controller(r, tau_j)``.
 
     Without ``meas`` the controller sees ``C_j x`` as the joint torque and ``C_r x`` as the reference

@@ -32,18 +32,17 @@ through that lag, which is what the improvements of section IV can reduce.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.model import MomentumObserver
 from iiwa_ident.design.spatial_filter import PAPER_FILTER, FilterSettings, SpatialFilter
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import joint_position, link_position
-from iiwa_ident.model import JointModel
+from iiwa_ident.model import JointModel, MomentumObserver, joint_position, link_position
 
 __all__ = [
     "ExternalTorqueObserver",

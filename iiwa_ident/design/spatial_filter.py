@@ -74,17 +74,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from iiwa_ident._defaults import DESIGN_BETA  # one definition, light for the CLI's help
+from iiwa_ident.ident import find_passes
+from iiwa_ident.model import RIPPLE_PERIOD_RAD
+
+if TYPE_CHECKING:
+    from iiwa_ident.model import JointModel, RippleTable
 
 #: The paper's beta of the spatial filter, eq (14) [-]: the default of the filter and of the paper's
 #: observer comparison (Fig. 7); what a design deploys is :data:`DESIGN_BETA`.
 PAPER_BETA = 5.0
 #: Speed below which the filter fades out, gamma of eq (12) [rad/s].
 V_MIN_RAD_S = 0.2
-from iiwa_ident.ident import find_passes
-from iiwa_ident.model import RIPPLE_PERIOD_RAD
-
-if TYPE_CHECKING:
-    from iiwa_ident.model import JointModel, RippleTable
 
 __all__ = [
     "RIPPLE_PERIOD_RAD",

@@ -18,8 +18,15 @@ build_context, Context
 from iiwa_ident.diagnose.candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
 from iiwa_ident.diagnose.channels import verdict_text
 from iiwa_ident.diagnose.compare import ChannelComparison, compare, fit_percent
-from iiwa_ident.diagnose.diagnosis import (ACROSS_RUNS_WORSE_PCT, ChannelReport, Diagnosis, EffectReport, diagnose,
-                                          residual_rms, undecided_sentence)
+from iiwa_ident.diagnose.diagnosis import (
+                                          ACROSS_RUNS_WORSE_PCT,
+                                          ChannelReport,
+                                          Diagnosis,
+                                          EffectReport,
+                                          diagnose,
+                                          residual_rms,
+                                          undecided_sentence,
+)
 from iiwa_ident.diagnose.predict import Context, build_context
 
 __all__ = ["diagnose", "residual_rms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",

@@ -34,8 +34,14 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite import (ConstantVelocity, HandGuided, HiddenEffectScenario, draw_hidden_effects, record,
-                               simulate_hidden_effects)
+from iiwa_ident.excite import (
+    ConstantVelocity,
+    HandGuided,
+    HiddenEffectScenario,
+    draw_hidden_effects,
+    record,
+    simulate_hidden_effects,
+)
 from iiwa_ident.ident import fit_model
 from iiwa_ident.model import JointModel, table1_model
 from iiwa_ident.sim import SimulatedJoint, make_effect, plant_from_model

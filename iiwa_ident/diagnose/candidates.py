@@ -56,7 +56,8 @@ from __future__ import annotations
 
 import hashlib
 import math
-from typing import Any, Callable, ClassVar, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy import optimize, signal
@@ -66,9 +67,17 @@ from iiwa_ident.diagnose.predict import Context, channel_columns, logged_change,
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import LOG_FILTER_MIN_HZ, LOG_ONLY, PhysicalRanges, line_ratio
 from iiwa_ident.model import JointModel, RippleTable
-from iiwa_ident.sim import (EFFECTS, Column, Effect, EffectSignals, PeriodicDisturbance, TorqueLogFilter,
-                            TransmissionRipple, make_effect)
-from iiwa_ident.sim import own_dataset_columns
+from iiwa_ident.sim import (
+    EFFECTS,
+    Column,
+    Effect,
+    EffectSignals,
+    PeriodicDisturbance,
+    TorqueLogFilter,
+    TransmissionRipple,
+    make_effect,
+    own_dataset_columns,
+)
 
 __all__ = [
     "Block",
@@ -161,7 +170,7 @@ def context_columns(ctx: Context, columns: Callable[[Context], list[Column]], n:
     return per_col
 
 
-def contribution(cand: "CandidateEffect", coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
+def contribution(cand: CandidateEffect, coef: np.ndarray, ctx: Context) -> dict[str, np.ndarray]:
     """What a candidate with coefficients ``coef`` adds to each residual channel of ``ctx`` [Nm], full length."""
     out: dict[str, np.ndarray] = {}
     for c, col in zip(coef, context_columns(ctx, cand.columns, cand.n_columns())):

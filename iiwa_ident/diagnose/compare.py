@@ -7,7 +7,7 @@ The model predicts with everything it holds: its parameters, its ripple table an
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison, fit_percent

@@ -22,23 +22,40 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset, torque_sign_problem
-from iiwa_ident.diagnose.candidates import (CANDIDATES, LOG_FILTER_DAMPINGS, LOG_FILTER_MIN_HZ, LOG_FILTER_OTHER_SHAPE,
-                                           Block, CandidateEffect, block_columns, block_sse, contribution,
-                                           make_candidate)
+from iiwa_ident.diagnose.candidates import (
+    CANDIDATES,
+    LOG_FILTER_DAMPINGS,
+    LOG_FILTER_MIN_HZ,
+    LOG_FILTER_OTHER_SHAPE,
+    Block,
+    CandidateEffect,
+    block_columns,
+    block_sse,
+    contribution,
+    make_candidate,
+)
 from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
-from iiwa_ident.diagnose.predict import Context, build_context, channel_columns
-from iiwa_ident.diagnose.select import (BANDS, MIN_GAIN, NOISE_FACTOR, Selection, Step, cv_residuals, noise_floor,
-                                        select_effects)
+from iiwa_ident.diagnose.predict import Context, build_context
+from iiwa_ident.diagnose.select import (
+    BANDS,
+    MIN_GAIN,
+    NOISE_FACTOR,
+    Selection,
+    Step,
+    cv_residuals,
+    noise_floor,
+    select_effects,
+)
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import (PhysicalRanges, against_description, check_model_matches, payload_of_load,
-                              physical_ranges)
+from iiwa_ident.ident import PhysicalRanges, against_description, check_model_matches, payload_of_load, physical_ranges
 from iiwa_ident.model import JointModel
 from iiwa_ident.sim import make_effect
 

@@ -65,8 +65,7 @@ from scipy.linalg import expm
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointModel
-from iiwa_ident.model import polynomials, sample_means
+from iiwa_ident.model import JointModel, polynomials, sample_means
 from iiwa_ident.sim import INJECTIONS as EFFECT_POINTS
 from iiwa_ident.sim import TorqueLogFilter
 

@@ -83,8 +83,8 @@ nothing is named.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from scipy import signal, stats
@@ -353,7 +353,7 @@ def _passes_but_confidence(record: Step, min_gain: float) -> bool:
     return record.gain >= min_gain and record.delta_bic < 0
 
 
-def _accept(sel: "Selection", cand: CandidateEffect, record: Step, width: int) -> None:
+def _accept(sel: Selection, cand: CandidateEffect, record: Step, width: int) -> None:
     """Name ``cand`` in ``sel`` on ``record``, its columns after the first ``width`` ones."""
     record.accepted = True
     sel.selected.append(cand)

@@ -24,8 +24,14 @@ The injected faults are applied by :mod:`iiwa_ident.emulator.faults`.
 """
 
 from iiwa_ident.emulator.clocks import OVERRUN_S, RESEND_S
-from iiwa_ident.emulator.config import (AGENTS, DEFAULT_JOINT_POSITIONS, EmulatorConfig, Faults,
-                                        QualityThresholds, check_config)
+from iiwa_ident.emulator.config import (
+                                        AGENTS,
+                                        DEFAULT_JOINT_POSITIONS,
+                                        EmulatorConfig,
+                                        Faults,
+                                        QualityThresholds,
+                                        check_config,
+)
 from iiwa_ident.emulator.process import EmulatorProcess, spawn_emulator
 from iiwa_ident.emulator.quality import connection_quality
 from iiwa_ident.emulator.report import EmulatorReport

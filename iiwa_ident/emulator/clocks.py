@@ -72,7 +72,7 @@ class RealTimeClock:
     delayed; a cycle more than a period late skips the lost deadlines.
     """
 
-    def __init__(self, emu: "RobotEmulator") -> None:
+    def __init__(self, emu: RobotEmulator) -> None:
         self.emu = emu
         self.t0 = 0.0
 
@@ -154,7 +154,7 @@ class LockstepClock(RealTimeClock):
     client has answered at all or was taken for gone.
     """
 
-    def __init__(self, emu: "RobotEmulator") -> None:
+    def __init__(self, emu: RobotEmulator) -> None:
         super().__init__(emu)
         self.vt = 0.0  # virtual time of the current cycle [s]
         self.epoch_ns = time.time_ns()  # wall-clock stamp of virtual time 0 for the messages' timestamps

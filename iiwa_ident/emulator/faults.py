@@ -46,7 +46,7 @@ class FaultyLink:
     """
 
     def __init__(self, sock: socket.socket, client: tuple[str, int], faults: Faults, report: EmulatorReport,
-                 clock: "RealTimeClock") -> None:
+                 clock: RealTimeClock) -> None:
         self.sock, self.client, self.faults, self.report, self.clock = sock, client, faults, report, clock
         self._rng = random.Random(faults.seed)
         self._rng_in = random.Random(f"{faults.seed}:answers")

@@ -39,7 +39,7 @@ def _child_main(config: EmulatorConfig, conn, stop_conn) -> None:
     conn.send(("address", emulator.address))
     try:
         report = emulator.run()
-    except Exception as err:  # noqa: BLE001
+    except Exception as err:  # noqa: BLE001  (any failure must reach the parent as a message)
         message = ("error", f"emulator failed: {type(err).__name__}: {err}")
     else:
         message = ("report", report)
@@ -150,7 +150,7 @@ class EmulatorProcess:
         """Whether the emulator process is still running."""
         return self._process.is_alive()
 
-    def __enter__(self) -> "EmulatorProcess":
+    def __enter__(self) -> EmulatorProcess:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -114,7 +114,8 @@ import gc
 import math
 import socket
 from array import array
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -9,8 +9,8 @@ client-side state estimate; :func:`record` drives any
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -9,8 +9,6 @@ what lets the identification separate distortion from the linear part.
 
 from __future__ import annotations
 
-
-
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite._runner import ClientState, Experiment
 from iiwa_ident.references import exponential_sweep, sweep_rate

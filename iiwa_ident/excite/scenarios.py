@@ -48,8 +48,9 @@ and a hand-guided run (:func:`simulate_hidden_effects`).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
@@ -60,9 +61,7 @@ from iiwa_ident.excite.chirp import Chirp
 from iiwa_ident.excite.multisine import Multisine
 from iiwa_ident.excite.programs import ConstantVelocity, HandGuided
 from iiwa_ident.model import resonance_hz
-from iiwa_ident.sim import make_effect
-from iiwa_ident.sim import SimulatedJoint
-from iiwa_ident.sim import Plant, default_plant
+from iiwa_ident.sim import Plant, SimulatedJoint, default_plant, make_effect
 
 __all__ = ["NUISANCES", "RIPPLE_NUISANCES", "Scenario", "RippleScenario", "draw_scenario", "scenario_plant",
            "simulate_scenario", "simulate_scenario_multisine", "draw_ripple_scenario", "simulate_ripple_scenario",

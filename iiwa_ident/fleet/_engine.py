@@ -15,8 +15,9 @@ import io
 import json
 import math
 import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError

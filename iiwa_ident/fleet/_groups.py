@@ -8,9 +8,10 @@ document, or the one-line error that stopped it.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from iiwa_ident.datasets import read_dataset, robot_name, sha256_file
 from iiwa_ident.errors import IiwaIdentError

@@ -119,7 +119,7 @@ def flag_worn(groups: list[dict[str, Any]], false_alarm: float = WEAR_FALSE_ALAR
         sigma_fleet = _healthy_spread(d[keep], own[keep], dof)
     threshold = false_alarm / max(len(judged), 1)
     rows, flagged = [], []
-    for i, (g, e) in enumerate(zip(groups, est)):
+    for g, e in zip(groups, est):
         row: dict[str, Any] = {"fleet_median_rad": None, "ratio": None, "z": None, "p": None, "worn": None}
         j = g.get("joint")
         if g.get("error"):

@@ -172,7 +172,7 @@ class FriConnection:
         """Close the socket (the robot drops the session when answers stop)."""
         self._sock.close()
 
-    def __enter__(self) -> "FriConnection":
+    def __enter__(self) -> FriConnection:
         return self
 
     def __exit__(self, *exc) -> None:

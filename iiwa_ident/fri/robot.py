@@ -24,11 +24,11 @@ import time
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.connection import COMMANDING_STATES, DEFAULT_PORT, FriConnection
 from iiwa_ident.fri.protocol import (
+    N_JOINTS,
     ClientCommandMode,
     ControlMode,
     DriveState,
     MonitoringMessage,
-    N_JOINTS,
     SafetyState,
     SessionState,
 )

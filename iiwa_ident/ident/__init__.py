@@ -10,7 +10,6 @@ from iiwa_ident.ident.lines import line_ratio
 from iiwa_ident.ident.log_filter import LOG_FILTER_MIN_HZ, LOG_ONLY, log_filter_text
 from iiwa_ident.ident.model_file import model_from_dict, read_model, write_model
 from iiwa_ident.ident.resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
-from iiwa_ident.ident.ripple_passes import find_passes
 from iiwa_ident.ident.ripple import (
     PERIOD_MAX_RAD,
     PERIOD_MIN_RAD,
@@ -18,18 +17,19 @@ from iiwa_ident.ident.ripple import (
     identify_ripple,
     ripple_model,
 )
+from iiwa_ident.ident.ripple_passes import find_passes
 from iiwa_ident.ident.starting_model import (
     DESCRIPTION_FACTOR,
     LOAD_NEGLIGIBLE_NM,
-    POSE_TOLERANCE_RAD,
     PAYLOAD_LEVER_MIN_M,
+    POSE_TOLERANCE_RAD,
     Payload,
     PhysicalRanges,
     against_description,
     check_model_matches,
     dataset_model,
-    physical_ranges,
     payload_of_load,
+    physical_ranges,
     starting_model,
 )
 from iiwa_ident.ident.tf_fit import FitResult

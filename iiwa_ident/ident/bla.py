@@ -26,8 +26,8 @@ Variances are of the complex ``G`` (``E|G - E G|^2``), per output and line.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -253,8 +253,7 @@ class BlaFit:
 
     def to_json(self) -> dict:
         """The ``--json`` document (SI units, ``Td`` in s)."""
-        from iiwa_ident.model import PARAMETER_UNITS
-        from iiwa_ident.model import PARAMETER_NAMES
+        from iiwa_ident.model import PARAMETER_NAMES, PARAMETER_UNITS
 
         std = np.sqrt(np.diag(self.covariance))
         corr = self.covariance / np.outer(std, std)

@@ -37,13 +37,13 @@ and the ``/experiment`` attributes of a dataset.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from iiwa_ident.references import exponential_sweep
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.references import exponential_sweep
 
 __all__ = [
     "CrossSpectra",
@@ -295,7 +295,7 @@ class FRFEstimate:
         den = np.bincount(self.bin_band, weights=self.bin_weight, minlength=nb)
         return num / den * np.exp(-2j * np.pi * self.f_mean_hz * self.delay_s)
 
-    def select(self, mask: np.ndarray) -> "FRFEstimate":
+    def select(self, mask: np.ndarray) -> FRFEstimate:
         """The estimate restricted to the bands where ``mask`` is true."""
         mask = np.asarray(mask, bool)
         new_index = -np.ones(len(mask), int)

@@ -96,20 +96,15 @@ variable approach for industrial robot identification", IEEE TCST 22(1), 2014.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.lines import (
-    BACKGROUND_CELLS,
-    block_weights,
-    fit_sinusoid,
-    line_ratio,
-)
 from iiwa_ident.ident.idim_rows import (
     Lines,
     Narrowband,
@@ -124,6 +119,12 @@ from iiwa_ident.ident.idim_rows import (
     ripple_link_columns,
 )
 from iiwa_ident.ident.initial import MAX_DELAY_S
+from iiwa_ident.ident.lines import (
+    BACKGROUND_CELLS,
+    block_weights,
+    fit_sinusoid,
+    line_ratio,
+)
 from iiwa_ident.ident.records import FitRecord, prepare_records
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response, resonance_hz
 
@@ -296,7 +297,7 @@ def _link_rows(p: Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.n
     return p.tau_s[k], Phi, Z, names, k
 
 
-def _moving(omega: np.ndarray, p: "Prepared") -> np.ndarray:
+def _moving(omega: np.ndarray, p: Prepared) -> np.ndarray:
     """Samples far from a sticking link: the friction model says nothing about the torque of a link at rest.
 
     A link slower than :data:`STICK_VELOCITY_RAD_S` may stick, and its friction is then whatever balances
@@ -492,7 +493,7 @@ def _line_search(preps: list[Prepared], load: str) -> tuple[float, ...]:
         # friction's tanh, whose intermodulation pulled it by 0.007 Hz (0.6 rad over a 13 s record).
         step = 1.0 / longest
         bands = [Narrowband(p.sp, X, float(grid[i]), p.keep, p.block) for p, X in zip(preps, readings)]
-        best = minimize_scalar(lambda f: -sum(nb.fit(f)[1] for nb in bands),
+        best = minimize_scalar(lambda f, bands=bands: -sum(nb.fit(f)[1] for nb in bands),
                                bounds=(grid[i] - step, grid[i] + step), method="bounded",
                                options={"xatol": 1e-4 * step})
         f = float(best.x)
@@ -872,8 +873,8 @@ def _effects(cl: dict[str, tuple[float, float]], xm: np.ndarray, cov: np.ndarray
         (la, sa), (lb, sb) = cl["load_a"], cl["load_b"]
         amp = math.hypot(la, lb)
         phase = math.atan2(lb, la)
-        s_amp = math.sqrt(((la * sa) ** 2 + (lb * sb) ** 2)) / amp if amp > 0 else math.hypot(sa, sb)
-        s_ph = math.sqrt(((lb * sa) ** 2 + (la * sb) ** 2)) / amp**2 if amp > 0 else math.pi
+        s_amp = math.sqrt((la * sa) ** 2 + (lb * sb) ** 2) / amp if amp > 0 else math.hypot(sa, sb)
+        s_ph = math.sqrt((lb * sa) ** 2 + (la * sb) ** 2) / amp**2 if amp > 0 else math.pi
         # The robot's model: the motor equation's sin/cos coefficients over the link's.
         ma, mb = float(xm[2]), float(xm[3])
         comp = (ma * la + mb * lb) / amp**2 if amp > 0 else 0.0

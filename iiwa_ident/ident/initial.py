@@ -10,8 +10,8 @@ position's response to the torque's gives the inertia scale.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Sequence
 
 import numpy as np
 

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -38,17 +39,15 @@ from iiwa_ident.ident.initial import initial_estimate
 from iiwa_ident.ident.log_filter import LOG_ONLY, LogFilterEstimate, estimate_log_filter, log_filter_text, unfiltered
 from iiwa_ident.ident.model_file import read_model
 from iiwa_ident.ident.records import prepare_records
-from iiwa_ident.sim import TorqueLogFilter
-from iiwa_ident.model import JointModel, Parameter, RippleTable, Source, table1_model
 from iiwa_ident.ident.starting_model import check_model_matches
-from iiwa_ident.model import PARAMETER_UNITS
 from iiwa_ident.ident.tf_fit import (
     FitResult,
     RippleTerms,
     fit_transfer_function,
     output_residual_rms,
 )
-from iiwa_ident.model import PARAMETER_NAMES
+from iiwa_ident.model import PARAMETER_NAMES, PARAMETER_UNITS, JointModel, Parameter, RippleTable, Source, table1_model
+from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["METHODS", "fit_joint", "fit_model", "model_effects"]
 

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -194,7 +194,7 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
         costs = [cost(x, order) for x in grid]
         k = int(np.argmin(costs))
         a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-        res = minimize_scalar(lambda x: cost(x, order), bounds=(a, b), method="bounded",
+        res = minimize_scalar(lambda x, order=order: cost(x, order), bounds=(a, b), method="bounded",
                               options={"xatol": 1e-4})
         if best is None or res.fun < best[0]:
             best = (float(res.fun), float(res.x), order)

@@ -25,8 +25,9 @@ took for ``Td`` (-100 ns at 5 ms on the default joint without noise).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.sparse

@@ -38,8 +38,9 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import optimize, stats
@@ -47,20 +48,20 @@ from scipy import optimize, stats
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definition, light for the CLI's help
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointModel, RippleTable, Source
 from iiwa_ident.ident.ripple_detect import sensitivity
 from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines, pass_speed
 from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
 from iiwa_ident.ident.ripple_spectrum import (
     FAMILY_HARMONICS,
-    LineSpectrum,
     SEARCH_TRIES_PER_POINT,
+    LineSpectrum,
     cut_chunks,
     false_alarm_probability,
     hotelling,
     line_search,
     taper,
 )
+from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointModel, RippleTable, Source
 
 __all__ = [
     "ENCODER_TICK_RAD",
@@ -790,7 +791,6 @@ def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datase
                 lines.k_ref = None
         result.warnings += _line_warnings(lines)
         return result
-    k0 = lines.k0
 
     def said(k: float) -> str:
         family = ", ".join(f"{2 * math.pi * h * k:.1f} (harmonic {h})" for _, h in sorted(lines.harmonics,
@@ -1044,7 +1044,7 @@ TABLE_RESIDUAL_RATIO = 2.0
 _CONSISTENCY = ("eq (6): ", "the deflection about the table ")
 
 
-def _consistency_warnings(velocity_table: list[dict], combined: "MethodResult") -> list[str]:
+def _consistency_warnings(velocity_table: list[dict], combined: MethodResult) -> list[str]:
     """What the found period and table fail to explain: a torque peak away from eq (6)'s frequency, a
     deflection the table leaves mostly unexplained."""
     out = []

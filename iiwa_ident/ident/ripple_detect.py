@@ -207,7 +207,7 @@ class RunSensitivity:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
 
     @classmethod
-    def from_json(cls, doc: dict) -> "RunSensitivity":
+    def from_json(cls, doc: dict) -> RunSensitivity:
         """The run's sensitivity from :meth:`to_json`'s dictionary (null numbers read as nan, inf where a
         detectable amplitude is none)."""
         out = dict(doc)

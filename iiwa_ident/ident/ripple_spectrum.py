@@ -136,7 +136,7 @@ class LineSpectrum:
     i_best: int
     warnings: list[str]
     #: The most significant harmonic family (see :func:`harmonic_family`).
-    family: "Family | None" = None
+    family: Family | None = None
     #: Grid steps to one and a half over the chunk length (:func:`lobe_reach`).
     lobe_reach: int = 0
 
@@ -231,7 +231,7 @@ def window_logp(log_p: np.ndarray, half: int) -> np.ndarray:
     return np.maximum(corrected, best)
 
 
-def lines_logp(spec: "LineSpectrum", log_p: np.ndarray, ks: list[float], hs: list[int]) -> float:
+def lines_logp(spec: LineSpectrum, log_p: np.ndarray, ks: list[float], hs: list[int]) -> float:
     """Fisher log p-value of the lines at spatial frequencies ``ks`` (harmonic numbers ``hs`` set their
     windows); 0 when none lies in the band."""
     total, dof = 0.0, 0
@@ -243,14 +243,14 @@ def lines_logp(spec: "LineSpectrum", log_p: np.ndarray, ks: list[float], hs: lis
     return float(stats.chi2.logsf(total, dof)) if dof else 0.0
 
 
-def peak_power(spec: "LineSpectrum", kk: float, half: int) -> float:
+def peak_power(spec: LineSpectrum, kk: float, half: int) -> float:
     """Largest power of the mean coefficient within +-half grid points of ``kk``."""
     i = int(round((kk - spec.k[0]) / spec.dk))
     lo, hi = max(0, i - half), min(len(spec.k), i + half + 1)
     return float(spec.power[lo:hi].max()) if lo < hi else 0.0
 
 
-def harmonic_family(spec: "LineSpectrum") -> "Family":
+def harmonic_family(spec: LineSpectrum) -> Family:
     """The most significant harmonic family of the spectrum.
 
     Harmonic summation: for each candidate fundamental k0 the lines at h k0 (h = 1 ..

@@ -9,8 +9,8 @@ Table I (joint 1 of an iiwa 14) until a chirp fit measures them, and the file sa
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -242,7 +242,9 @@ def payload_of_load(ranges: PhysicalRanges, amplitude_nm: float, phase_rad: floa
     pose = list(ranges.pose_rad)
     a0, p0 = gravity_sinusoid(ranges.robot, ranges.joint, pose)
     a1, p1 = gravity_sinusoid(ranges.robot, ranges.joint, pose, 1.0)
-    vec = lambda a, p: np.array([a * math.cos(p), a * math.sin(p)])  # noqa: E731
+    def vec(a: float, p: float) -> np.ndarray:
+        return np.array([a * math.cos(p), a * math.sin(p)])
+
     # The load acts on the link: the negative of the torque that holds the arm (as the starting model has it).
     d, u = -vec(a0, p0), vec(a0, p0) - vec(a1, p1)
     e = vec(amplitude_nm, phase_rad) - d

@@ -84,17 +84,17 @@ the H1 estimate and its uncertainty (:mod:`iiwa_ident.ident.frf`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import frf as _frf
-from iiwa_ident.model import RippleTable
 from iiwa_ident.ident.initial import (
     MAX_DELAY_S,
     MIN_COHERENCE,
@@ -106,7 +106,7 @@ from iiwa_ident.ident.initial import (
 from iiwa_ident.ident.log_filter import LOG_FILTER_MAX_HZ, lowest_cutoff_hz, unfiltered_torque
 from iiwa_ident.ident.records import FitRecord, SampledInputs, prepare_record, prepare_records
 from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
-from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, discretize, simulate_outputs
+from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, RippleTable, discretize, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values
 from iiwa_ident.sim import TorqueLogFilter
 
@@ -221,7 +221,7 @@ def _motion_response(params: Any, T: float, inputs: SampledInputs) -> np.ndarray
     return Y[:, ::s] if s > 1 else Y
 
 
-def _simulate_record(params: Any, rec: "FitRecord", substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
+def _simulate_record(params: Any, rec: FitRecord, substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
     """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN.
 
     ``known``: the known torques' response at ``params`` when the caller has it (:func:`_known_response`).
@@ -230,7 +230,7 @@ def _simulate_record(params: Any, rec: "FitRecord", substeps: int = 1, known: np
         + (_known_response(params, rec, substeps) if known is None else known)
 
 
-def _known_response(params: Any, rec: "FitRecord", substeps: int = 1) -> np.ndarray:
+def _known_response(params: Any, rec: FitRecord, substeps: int = 1) -> np.ndarray:
     """The outputs ``(2, n)`` of a record's known torques (zero without; NaN for a non-physical ``params``):
     no delay in them, so ``Td`` does not enter."""
     def simulate() -> np.ndarray:
@@ -241,7 +241,7 @@ def _known_response(params: Any, rec: "FitRecord", substeps: int = 1) -> np.ndar
     return _outputs(rec, simulate)
 
 
-def _outputs(rec: "FitRecord", simulate: Callable[[], np.ndarray]) -> np.ndarray:
+def _outputs(rec: FitRecord, simulate: Callable[[], np.ndarray]) -> np.ndarray:
     """``simulate()``, or NaN outputs ``(2, n)`` where the parameters describe no model."""
     try:
         with np.errstate(all="ignore"):
@@ -771,7 +771,7 @@ def _set_ripple_basis(records: list[FitRecord], ripple: RippleTerms) -> None:
         rec.set_ripple(ripple.signals, None if ripple.table is None else ripple.table_signals)
 
 
-def _set_motion(problem: "_Problem", x: np.ndarray, model_torque: bool = False) -> None:
+def _set_motion(problem: _Problem, x: np.ndarray, model_torque: bool = False) -> None:
     """Each record's motion between samples from the command's response at ``x``, where the ripple's inputs
     need it (:func:`~iiwa_ident.ident.records.record_motion`).
 
@@ -789,7 +789,7 @@ def _set_motion(problem: "_Problem", x: np.ndarray, model_torque: bool = False) 
     problem._responses.clear()
 
 
-def _measured_torque_step(problem: "_Problem", x: np.ndarray, J: np.ndarray, r: np.ndarray,
+def _measured_torque_step(problem: _Problem, x: np.ndarray, J: np.ndarray, r: np.ndarray,
                           Finv: np.ndarray) -> np.ndarray:
     """The Gauss-Newton step of the fit at ``x`` (Jacobian ``J``, weighted residual ``r``, inverse Fisher
     information ``Finv``) when the ripple's reaction takes the measured torque instead of the model's
@@ -1038,8 +1038,8 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
             plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
         est_t, _ = record_frf(plain, delay_s=values["Td"])
         dm = discretize(values, rec.T)
-        model = est_t.band_average(lambda f: dm.frequency_response(f)[0] * (
-            1.0 if lf is None else lf.frequency_response(f, rec.T)))
+        model = est_t.band_average(lambda f, dm=dm, T=rec.T: dm.frequency_response(f)[0] * (
+            1.0 if lf is None else lf.frequency_response(f, T)))
         frfs.append(est_t)
         model_frfs.append(model)
         bands.extend(_band_quality(rec.label, est_t, model, rec.f_lo, rec.f_hi))

@@ -25,6 +25,7 @@ joint_position, link_position
     The position correction of eqs (8)-(9) with the ripple table (:mod:`iiwa_ident.model._correction`).
 """
 
+from iiwa_ident.model._correction import joint_position, link_position
 from iiwa_ident.model._eq4 import (
     INPUTS,
     coefficients,
@@ -34,7 +35,6 @@ from iiwa_ident.model._eq4 import (
     resonance_hz,
     transfer_function,
 )
-from iiwa_ident.model._correction import joint_position, link_position
 from iiwa_ident.model._joint_model import (
     MODEL_FORMAT,
     MODEL_FORMAT_VERSION,
@@ -48,6 +48,17 @@ from iiwa_ident.model._joint_model import (
     table1_model,
 )
 from iiwa_ident.model._observer import MomentumObserver
+from iiwa_ident.model._parameters import (
+    JOINT_PARAMETERS,
+    OBSERVER_GAIN,
+    PARAMETER_NAMES,
+    PARAMETER_UNITS,
+    RIPPLE_PERIOD_RAD,
+    JointParameters,
+    Param,
+    ParameterError,
+    parameter_values,
+)
 from iiwa_ident.model._sampled import (
     DiscreteModel,
     delayed_hold,
@@ -57,17 +68,6 @@ from iiwa_ident.model._sampled import (
     simulate_outputs,
     state_matrices,
     zoh,
-)
-from iiwa_ident.model._parameters import (
-    JOINT_PARAMETERS,
-    PARAMETER_NAMES,
-    OBSERVER_GAIN,
-    PARAMETER_UNITS,
-    RIPPLE_PERIOD_RAD,
-    JointParameters,
-    Param,
-    ParameterError,
-    parameter_values,
 )
 
 __all__ = [

@@ -18,10 +18,14 @@ References
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from iiwa_ident.model._parameters import JointParameters, parameter_values
+
+if TYPE_CHECKING:
+    import control as ct  # imported where used: python-control is slow to import
 
 __all__ = ["INPUTS", "pade_coefficients", "resonance_hz", "coefficients", "transfer_function",
            "polynomials", "frequency_response"]
@@ -77,7 +81,7 @@ def coefficients(p: JointParameters, delay: str = "none") -> tuple[np.ndarray, n
     return num, den
 
 
-def transfer_function(p: JointParameters, delay: str = "pade") -> "ct.TransferFunction":
+def transfer_function(p: JointParameters, delay: str = "pade") -> ct.TransferFunction:
     """Eq (4) from ``tau_c`` to ``tau_J`` [Nm/Nm] as a python-control transfer function.
 
     Parameters

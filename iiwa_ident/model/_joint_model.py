@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -222,7 +222,7 @@ class JointModel:
     #: The 7 joint positions the model holds at [rad] (a starting model from the rigid-body description).
     pose_rad: list[float] | None = None
     tool_version: str = field(default_factory=tool_version)
-    created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    created_utc: str = field(default_factory=lambda: datetime.now(UTC).isoformat(timespec="seconds"))
 
     def value(self, name: str) -> float:
         """The value of parameter ``name`` in SI units."""

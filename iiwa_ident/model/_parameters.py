@@ -99,12 +99,12 @@ class JointParameters:
             raise ParameterError(f"bc must be non-negative and finite, got {self.bc!r}")
 
     @classmethod
-    def from_model(cls, model) -> "JointParameters":
+    def from_model(cls, model) -> JointParameters:
         """The parameters of anything with ``value(name)`` (a model file's joint model)."""
         return cls(*parameter_values(model))
 
     @classmethod
-    def from_mapping(cls, values) -> "JointParameters":
+    def from_mapping(cls, values) -> JointParameters:
         """The parameters of a mapping ``{"Jc": .., ...}`` [SI]."""
         return cls(*parameter_values(values))
 

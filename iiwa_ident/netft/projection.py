@@ -10,8 +10,8 @@ taken as the flange's), or from a lever arm measured by hand.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -55,14 +55,14 @@ class JointAxisProjection:
             raise IiwaIdentError(f"F/T projection: the axis must be a unit vector, got {a.tolist()}")
 
     @classmethod
-    def from_description(cls, robot: str, joint: int, pose: Sequence[float]) -> "JointAxisProjection":
+    def from_description(cls, robot: str, joint: int, pose: Sequence[float]) -> JointAxisProjection:
         """The geometry of ``joint`` from the description of ``robot`` at ``pose`` [rad], sensor on the flange."""
         axis, lever = flange_axis(robot, joint, pose)
         return cls(tuple(float(x) for x in axis), tuple(float(x) for x in lever),  # type: ignore[arg-type]
                    f"{robot} description, joint {joint}, pose [" + ", ".join(f"{q:.4f}" for q in pose) + "] rad")
 
     @classmethod
-    def from_lever_arm(cls, lever_m: float) -> "JointAxisProjection":
+    def from_lever_arm(cls, lever_m: float) -> JointAxisProjection:
         """A sensor ``lever_m`` [m] from the axis along its x, its z parallel to the axis."""
         if not (math.isfinite(lever_m) and lever_m >= 0):
             raise IiwaIdentError(f"F/T lever arm must be a distance >= 0 m, got {lever_m!r}")

@@ -16,10 +16,11 @@ import json
 import math
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
@@ -79,12 +80,12 @@ class PipelineSettings:
     seed: int = 1
 
     @classmethod
-    def full(cls) -> "PipelineSettings":
+    def full(cls) -> PipelineSettings:
         """The default: the paper's experiments at the lengths the documented figures were measured with."""
         return cls()
 
     @classmethod
-    def short(cls) -> "PipelineSettings":
+    def short(cls) -> PipelineSettings:
         """A quick run for tests: shorter experiments, dynamic lookup table only, short closed-loop runs."""
         return cls(chirp_s=8.0, chirp_f1_hz=150.0, cv_speeds=(0.6, 1.2), cv_range_rad=0.6, qs_torques=(),
                    hand_s=8.0, validation=ValidationSettings(
@@ -119,7 +120,7 @@ class Stage:
     title: str
     needs: tuple[str, ...]
     outputs: tuple[str, ...]
-    run: Callable[["PipelineContext"], dict[str, Any]]
+    run: Callable[[PipelineContext], dict[str, Any]]
 
 
 @dataclass
@@ -198,7 +199,7 @@ class PipelineResult:
 
     def as_json(self) -> dict[str, Any]:
         return {"format": "iiwa-ident-pipeline", "format_version": 1, "workdir": str(self.workdir),
-                "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
                 "wall_s": self.wall_s, "ok": self.ok, "inputs": self.inputs,
                 "stages": [s.as_dict() for s in self.stages], "headline": self.headline,
                 "report": None if self.report is None else str(self.report.name)}
@@ -787,7 +788,7 @@ def run_stages(ctx: PipelineContext, stages: tuple[Stage, ...], inputs: dict[str
             result.report = ctx.path("report")
         except IiwaIdentError as err:
             rec.status, rec.error = "failed", str(err)
-        except Exception as err:  # noqa: BLE001
+        except Exception as err:  # noqa: BLE001  (a bug in the report must not cost the stages' files)
             rec.status, rec.error = "failed", f"{type(err).__name__}: {err}"
         rec.duration_s = time.perf_counter() - t0
         rec.outputs = [FILES["report"]] if ctx.path("report").exists() else []

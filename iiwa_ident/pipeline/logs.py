@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -87,7 +88,7 @@ def find_log_runs(paths: Sequence[str | Path]) -> list[LogRun]:
             raise IiwaIdentError(f"{given}: no such file or folder")
         found: list[LogRun] = []
 
-        def visit(p: Path, depth: int) -> None:
+        def visit(p: Path, depth: int, found: list[LogRun] = found, given: Path = given) -> None:
             if p.is_file():
                 if p.suffix == ".h5":
                     found.append(LogRun(_run_name(p.with_suffix(""), given), p, "dataset"))

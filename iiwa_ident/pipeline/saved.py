@@ -8,8 +8,9 @@ longer stands for them and the report computes the result again.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from iiwa_ident._h5tree import read_tree, write_tree
 from iiwa_ident.errors import IiwaIdentError

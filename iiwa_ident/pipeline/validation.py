@@ -15,26 +15,25 @@ from __future__ import annotations
 import functools
 import math
 import os
-import socket
 import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.deploy import ControllerConfig
+from iiwa_ident.design import DesignRecord
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import SineTorque, StepTorque, record
-from iiwa_ident.design import DesignRecord
 from iiwa_ident.pipeline.kappa import run_kappa_sweep
 from iiwa_ident.pipeline.session import LOCKSTEP_GUARD_S, LateFriRobot, free_udp_port, fri_robot
-from iiwa_ident.runtime import SweepSettings
 from iiwa_ident.references import sine, square
-from iiwa_ident.runtime import Watchdog, make_task, run_controller
+from iiwa_ident.runtime import SweepSettings, Watchdog, make_task, run_controller
 from iiwa_ident.sim import Plant
 
 __all__ = ["ValidationSettings", "run_validation", "tracking_metrics", "reference_of", "free_udp_port"]

@@ -12,10 +12,10 @@ import math
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from iiwa_ident.design import ClosedLoopRun, KappaMargin  # noqa: E402
+from iiwa_ident.design import ClosedLoopRun, KappaMargin
 
 __all__ = ["tracking_figure", "pole_figure", "kappa_figure"]
 

@@ -8,28 +8,26 @@ import textwrap
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from iiwa_ident.datasets import Dataset  # noqa: E402
-from iiwa_ident.design import (  # noqa: E402
+from iiwa_ident.datasets import Dataset
+from iiwa_ident.design import (
     PAPER_FILTER,
     REPRODUCTION_COLUMNS,
     REPRODUCTION_POLES,
     FilterSettings,
+    ReproductionRow,
+    SpatialFilter,
     compare_observers,
     link_speed,
     observer_lag,
     reproduction_cells,
-    run_observers,
-)
-from iiwa_ident.design import (  # noqa: E402
-    ReproductionRow,
-    SpatialFilter,
     ripple_line_cut,
+    run_observers,
     spatial_filter_response,
 )
-from iiwa_ident.model import JointModel  # noqa: E402
+from iiwa_ident.model import JointModel
 
 __all__ = ["spatial_filter_figure", "observer_figure", "reproduction_figure"]
 
@@ -198,8 +196,7 @@ def observer_figure(dataset: Dataset, model: JointModel, filter: FilterSettings 
     ax_v.legend(loc="upper right", fontsize=8)
 
     rows = table["observers"]
-    lines = ["RMS error [Nm]           all    |v|>{:.1f}   vs lagged ref: all   |v|>{:.1f}".format(
-        speed_threshold, speed_threshold)]
+    lines = [f"RMS error [Nm]           all    |v|>{speed_threshold:.1f}   vs lagged ref: all   |v|>{speed_threshold:.1f}"]
     for name in ("builtin", "improved", "filtered", "fri"):
         if name in rows:
             r = rows[name]

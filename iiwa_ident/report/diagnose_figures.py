@@ -5,10 +5,10 @@ from __future__ import annotations
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from iiwa_ident.diagnose import Diagnosis  # noqa: E402
+from iiwa_ident.diagnose import Diagnosis
 
 __all__ = ["residuals_figure", "evidence_figure", "gain_table_figure", "figure_set", "comparison_figure"]
 

@@ -16,13 +16,12 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-import matplotlib.pyplot as plt  # noqa: E402  (after selecting the backend)
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.figure import Figure
 
 from iiwa_ident.ident import FitResult
-from iiwa_ident.model import discretize
-from iiwa_ident.model import frequency_response
+from iiwa_ident.model import discretize, frequency_response
 
 __all__ = ["bode_figure", "harmonics_figure", "fit_figure_pngs"]
 

@@ -19,17 +19,18 @@ from __future__ import annotations
 import hashlib
 import json
 import textwrap
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.backends.backend_pdf import PdfPages  # noqa: E402
+import matplotlib.pyplot as plt
+from matplotlib.backends.backend_pdf import PdfPages
 
-from iiwa_ident.errors import IiwaIdentError  # noqa: E402
+from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["REPORT_STAGES", "Page", "banner", "build_report", "load_results", "report_pages"]
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from iiwa_ident.ident import RippleResult  # noqa: E402
+from iiwa_ident.ident import RippleResult
 
 __all__ = ["spatial_spectrum_figure", "lookup_table_figure", "velocity_frequency_figure"]
 

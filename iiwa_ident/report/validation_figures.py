@@ -14,11 +14,11 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from iiwa_ident.datasets import read_dataset  # noqa: E402
-from iiwa_ident.pipeline import reference_of  # noqa: E402
+from iiwa_ident.datasets import read_dataset
+from iiwa_ident.pipeline import reference_of
 
 __all__ = ["tracking_run_figure", "kappa_margin_figure", "parameter_table_figure"]
 

@@ -137,7 +137,7 @@ class InstabilityDetector:
 
     def update(self, x: float) -> str:
         """One sample [Nm]; a finished window may be judged: the reason it is unstable, or ""."""
-        for (b0, b1, b2, a0, a1, a2), z in zip(self._sos, self._z):
+        for (b0, b1, b2, _a0, a1, a2), z in zip(self._sos, self._z):  # a0 is 1 in scipy's sos
             y = b0 * x + z[0]
             z[0] = b1 * x - a1 * y + z[1]
             z[1] = b2 * x - a2 * y

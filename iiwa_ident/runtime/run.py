@@ -41,22 +41,22 @@ import contextlib
 import math
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
+from iiwa_ident._defaults import LOOPS, TAU_EXT_SOURCES
 from iiwa_ident._realtime import no_gc_pauses, realtime_process, stop_signals
 from iiwa_ident.datasets import LogWriter
 from iiwa_ident.deploy import ControllerConfig, controller_from_config
+from iiwa_ident.description import flange_axis
 from iiwa_ident.design import ControlCycle
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
-from iiwa_ident._defaults import LOOPS, TAU_EXT_SOURCES
-from iiwa_ident.description import flange_axis
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor
-from iiwa_ident.runtime.tasks import Task, TaskInput
 from iiwa_ident.robot import Command, Measurement, RobotInterface
+from iiwa_ident.runtime.tasks import Task, TaskInput
 
 __all__ = ["LOG_SIGNALS", "Watchdog", "ControllerRuntime", "RunReport", "run_controller"]
 

@@ -210,7 +210,7 @@ class Effect:
     def extra_delay_s(self) -> float:
         return 0.0
 
-    def log_filter(self) -> "TorqueLogFilter | None":
+    def log_filter(self) -> TorqueLogFilter | None:
         return None
 
     # -- regressors (module docstring) -----------------------------------
@@ -331,7 +331,7 @@ class TransmissionRipple(Effect):
         return np.cos(k * x) @ self.cos_coef + np.sin(k * x) @ self.sin_coef
 
     @classmethod
-    def shape(cls, period_rad: float, n_harmonics: int = 3) -> "TransmissionRipple":
+    def shape(cls, period_rad: float, n_harmonics: int = 3) -> TransmissionRipple:
         """A zero deflection of ``n_harmonics`` harmonics at ``period_rad`` [rad]: the shape an estimate fits.
 
         The period is not range checked (an estimate's search may leave the plant file's range).
@@ -665,7 +665,7 @@ class TorqueLogFilter(Effect):
             raise PlantError(f"{where}.delay_s: " + ("a pure delay (order 0) needs a delay above 0" if order == 0.0
                                                       else f"only a pure delay (order 0) has one, got order {order:g}"))
 
-    def log_filter(self) -> "TorqueLogFilter":
+    def log_filter(self) -> TorqueLogFilter:
         return self
 
     def reported(self, coef):

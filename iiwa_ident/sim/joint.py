@@ -17,8 +17,8 @@ An external agent (a human arm, an external drive) acts on the link as
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -123,14 +123,14 @@ class Plant:
         """The switched-on effect ``name``, or None."""
         return next((e for e in self.effects if e.name == name), None)
 
-    def with_effects(self, *effects: Effect) -> "Plant":
+    def with_effects(self, *effects: Effect) -> Plant:
         """A copy with ``effects`` switched on (replacing ones of the same name)."""
         new = copy.deepcopy(self)
         names = {e.name for e in effects}
         new.effects = [e for e in new.effects if e.name not in names] + list(effects)
         return new
 
-    def without_effects(self, *names: str) -> "Plant":
+    def without_effects(self, *names: str) -> Plant:
         """A copy with the named effects (all if none named) switched off."""
         new = copy.deepcopy(self)
         new.effects = [e for e in new.effects if names and e.name not in names]
