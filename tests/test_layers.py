@@ -7,7 +7,8 @@ the CLI imports the CLI and there are no import cycles between parts; the packag
 Imports inside functions count. The root package's own helper modules
 (``errors``, ``_toml``, ``_schema``, ``_json``, ``_realtime``, ``_blas``, ``_defaults``, ``_h5tree``) are the
 foundation every part may use; beyond those, no part imports a private
-module (``_name``) or a private name of another part.
+module (``_name``) or a private name of another part. Between modules there is no import circle,
+not even through imports made only for the type checker.
 """
 
 from __future__ import annotations
@@ -107,3 +108,50 @@ def test_packages_are_imported_through_their_public_api():
         if len(parts) >= 3 and parts[1] != own and parts[1] in PUBLIC_API:
             bad.append(f"{path.relative_to(ROOT.parent)}:{line}: {own} imports {module} (use iiwa_ident.{parts[1]})")
     assert not bad, "\n".join(bad)
+
+
+def _module_imports() -> dict[str, set[str]]:
+    """Module -> the package's modules it imports at module level, those under ``if TYPE_CHECKING`` included
+    (imports inside functions are left out: they run when called, after every module is loaded)."""
+    paths = {".".join(p for p in path.relative_to(ROOT.parent).with_suffix("").parts if p != "__init__"): path
+             for path in ROOT.rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for module, path in paths.items():
+        deps: set[str] = set()
+
+        def visit(body: list[ast.stmt], deps: set[str] = deps) -> None:
+            for node in body:
+                if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("iiwa_ident"):
+                    for a in node.names:
+                        full = f"{node.module}.{a.name}"
+                        deps.add(full if full in paths else node.module)
+                elif isinstance(node, ast.Import):
+                    deps.update(a.name for a in node.names if a.name.startswith("iiwa_ident"))
+                elif isinstance(node, ast.If | ast.Try):
+                    visit(node.body)
+                    visit(node.orelse)
+
+        visit(ast.parse(path.read_text(), str(path)).body)
+        graph[module] = {d for d in deps if d in paths and d != module}
+    return graph
+
+
+def test_no_import_circle_between_modules():
+    # Not even one that exists only for the type checker: a circle says two modules are one concept.
+    graph = _module_imports()
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def walk(module: str, path: list[str]) -> list[str] | None:
+        state[module] = 1
+        for dep in sorted(graph[module]):
+            if state.get(dep) == 1:
+                return path[path.index(dep):] + [dep] if dep in path else [module, dep]
+            if dep not in state and (circle := walk(dep, path + [dep])):
+                return circle
+        state[module] = 2
+        return None
+
+    for module in sorted(graph):
+        if module not in state:
+            circle = walk(module, [module])
+            assert circle is None, " -> ".join(circle)

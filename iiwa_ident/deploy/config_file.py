@@ -265,7 +265,7 @@ def controller_from_config(config: ControllerConfig) -> AdditiveController:
     design the config was deployed from. Limits are not applied here; the
     runtime clamps reference and command with ``config.limits``.
     """
-    return AdditiveController(_DiscreteDesign(  # type: ignore[arg-type]  # duck-typed: only these are read
+    return AdditiveController(_DiscreteDesign(
         config.Ad, config.Bd, config.Kd, config.Ld, config.Kr_d, config.feedforward, config.prefilter,
         config.sample_time_s))
 

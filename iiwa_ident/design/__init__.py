@@ -7,7 +7,7 @@ SpatialFilter, FilterSettings, spatial_filter_response, ripple_bandpass_coeffici
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
 run_observers, compare_observers, observer_lag
     The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
-HumanArm, AdditiveDesign, AdditiveController, OuterLoopMargins, DesignError, PAPER_POLES,
+HumanArm, AdditiveDesign, AdditiveController (runs a DiscreteDesign), OuterLoopMargins, DesignError, PAPER_POLES,
 PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius,
 DeployedLoop, DeployedMargin, deployed_loop_matrix, deployed_kappa_max, deployed_margin
     The additive torque controller of section V.B: its design (:mod:`iiwa_ident.design.additive`), the
@@ -35,7 +35,7 @@ from iiwa_ident.design.additive import (
     natural_frequency_damping,
 )
 from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin
-from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design.controller import AdditiveController, DiscreteDesign
 from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.design_file import (
     DesignFileError,
@@ -96,7 +96,7 @@ __all__ = [
     "SpatialFilter", "spatial_filter_response", "ripple_bandpass_coefficients", "gamma_weight",
     "ripple_line_cut", "ExternalTorqueObserver", "BuiltinObserver", "LinkVelocityObserver", "FilteredObserver",
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",
-    "HumanArm", "AdditiveDesign", "AdditiveController", "OuterLoopMargins", "DesignError",
+    "HumanArm", "AdditiveDesign", "AdditiveController", "DiscreteDesign", "OuterLoopMargins", "DesignError",
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
     "DeployedLoop", "DeployedMargin", "deployed_kappa_max", "deployed_loop_matrix", "deployed_margin",
     "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "PAPER_FILTER", "DesignFileError", "make_record", "read_design",

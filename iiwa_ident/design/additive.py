@@ -103,10 +103,10 @@ from scipy.signal import cont2discrete
 from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, FEEDFORWARD_MODES  # one definition, light for the CLI's help
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.model import JointParameters, coefficients, pade_coefficients, zoh
 
 if TYPE_CHECKING:
     import control as ct  # imported where used: python-control is slow to import
-from iiwa_ident.model import JointParameters, coefficients, pade_coefficients, zoh
 
 __all__ = [
     "DesignError",

@@ -8,14 +8,24 @@ the FRI runtime alike.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from iiwa_ident.design.additive import AdditiveDesign
+__all__ = ["AdditiveController", "DiscreteDesign"]
 
-__all__ = ["AdditiveController"]
+
+class DiscreteDesign(Protocol):
+    """What :class:`AdditiveController` runs on: the discrete model and gains of a design
+    (:class:`~iiwa_ident.design.AdditiveDesign`, or a controller config, which holds no continuous data)."""
+
+    Ad: Any  # [4x4] discrete model of eqs (19)-(21)
+    Bd: Any  # [4]
+    Kd: Any  # [4] state feedback
+    Ld: Any  # [4] observer gain
+    Kr_d: float  # reference gain
+    feedforward: str  # the feed-forward mode
+    ffd: Any  # discrete pre-filter (A, B, C, D), or None
 
 
 class AdditiveController:
@@ -33,11 +43,11 @@ class AdditiveController:
 
     Parameters
     ----------
-    design : AdditiveDesign
-        The design (from :func:`design_controller` or a design file).
+    design : DiscreteDesign
+        The design (from :func:`design_controller` or a design file) or a controller config's part of it.
     """
 
-    def __init__(self, design: AdditiveDesign) -> None:
+    def __init__(self, design: DiscreteDesign) -> None:
         self.design = design
         Ad, Bd = np.array(design.Ad, float), np.array(design.Bd, float).ravel()
         Kd, Ld = np.array(design.Kd, float).ravel(), np.array(design.Ld, float).ravel()

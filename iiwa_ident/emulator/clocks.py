@@ -46,15 +46,18 @@ from __future__ import annotations
 
 import heapq
 import select
+import socket
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
+from iiwa_ident.emulator.config import EmulatorConfig
+from iiwa_ident.emulator.report import EmulatorReport, Histogram
 from iiwa_ident.fri import FriDecodeError, SessionState, decode_command
 
-if TYPE_CHECKING:  # the clocks drive the emulator that owns them
-    from iiwa_ident.emulator.robot_side import RobotEmulator
-
-__all__ = ["OVERRUN_S", "RESEND_S", "RING", "RealTimeClock", "LockstepClock"]
+__all__ = ["OVERRUN_S", "RESEND_S", "RING", "SentRing", "SessionView", "ClockPort", "RealTimeClock",
+           "LockstepClock"]
 
 #: A cycle that starts later than this after its deadline is an overrun [s].
 OVERRUN_S = 0.5e-3
@@ -65,6 +68,51 @@ RING = 4096
 _COMMANDING = (SessionState.COMMANDING_WAIT, SessionState.COMMANDING_ACTIVE)
 
 
+@dataclass
+class SentRing:
+    """The newest :data:`RING` monitoring messages sent, by slot (sequence counter modulo :data:`RING`): their
+    sequence counter, send time in the clock's time [s] and session state."""
+
+    seq: list[int] = field(default_factory=lambda: [-1] * RING)
+    t: list[float] = field(default_factory=lambda: [0.0] * RING)
+    state: list[int] = field(default_factory=lambda: [0] * RING)
+
+
+@dataclass(frozen=True)
+class SessionView:
+    """What a clock needs to know of the session: a stop was asked for, the session is closing, a client
+    commands (``COMMANDING_WAIT`` or ``COMMANDING_ACTIVE``)."""
+
+    stop_requested: bool
+    ending: bool
+    commanding: bool
+
+
+class _Link(Protocol):
+    """The faulty link as a clock uses it: datagrams the faults delay, delivering one, sending again."""
+
+    pending: list[tuple[float, int, Any]]
+
+    def deliver(self, item: Any, due: float | None = None) -> None: ...
+
+    def sendto(self, data: bytes) -> None: ...
+
+
+@dataclass
+class ClockPort:
+    """The robot side as its clock sees it: its socket, link, report, sent messages and client, and the two
+    calls the clock needs: ``drain()`` collects the answers that arrived, ``session()`` looks at the session."""
+
+    sock: socket.socket
+    link: _Link
+    report: EmulatorReport
+    ring: SentRing
+    client: tuple[str, int]
+    drain: Callable[[], None]
+    session: Callable[[], SessionView]
+    on_event: Callable[[float, str], None] | None = None
+
+
 class RealTimeClock:
     """The robot side on the wall clock: cycle ``k`` at ``t0 + k * period``.
 
@@ -72,24 +120,31 @@ class RealTimeClock:
     delayed; a cycle more than a period late skips the lost deadlines.
     """
 
-    def __init__(self, emu: RobotEmulator) -> None:
-        self.emu = emu
+    def __init__(self, config: EmulatorConfig) -> None:
+        self.config = config
+        self.period = config.send_period_ms * 1e-3
         self.t0 = 0.0
+        #: How late each cycle started after its deadline [s].
+        self.delay = Histogram()
+        self.port: ClockPort | None = None
+
+    def connect(self, port: ClockPort) -> None:
+        """Give the clock the robot side it drives (the link it uses is built with the clock)."""
+        self.port = port
 
     def start(self) -> None:
         self.t0 = time.perf_counter() + 1e-3
 
     def wait(self, k: int) -> int:
         """Wait for cycle ``k``'s deadline; the cycle to run (later than ``k`` after a stall)."""
-        emu = self.emu
-        period = emu._period
+        period = self.period
         deadline = self.t0 + k * period
         self._wait_until(deadline)
         late = time.perf_counter() - deadline
-        rep = emu._report
+        rep = self.port.report
         if late > OVERRUN_S:
             rep.overruns += 1
-        emu._delay.add(late)
+        self.delay.add(late)
         if late >= period:
             # Fell a whole period behind: skip the lost deadlines rather than burst.
             skip = int(late / period)
@@ -98,18 +153,21 @@ class RealTimeClock:
         return k
 
     def _wait_until(self, deadline: float) -> None:
-        emu = self.emu
+        port = self.port
         perf = time.perf_counter
-        spin = emu.config.spin_s
-        sock = emu._sock
-        pending = emu._link.pending
+        spin = self.config.spin_s
+        sock = port.sock
+        pending = port.link.pending
         while True:
-            emu._drain()
+            port.drain()
             now = perf()
             while pending and pending[0][0] <= now:
-                emu._link.deliver(heapq.heappop(pending)[2])
+                port.link.deliver(heapq.heappop(pending)[2])
             remaining = deadline - now
-            if remaining <= 0.0 or (emu._stop_requested and not emu._ending):
+            if remaining <= 0.0:
+                return
+            session = port.session()
+            if session.stop_requested and not session.ending:
                 return
             wake = deadline - spin
             if pending and pending[0][0] < wake:
@@ -123,7 +181,7 @@ class RealTimeClock:
 
     def silence_s(self, k: int, heard_k: int) -> float:
         """How long the client has been silent at cycle ``k``, last heard at cycle ``heard_k`` [s]."""
-        return (k - heard_k) * self.emu._period
+        return (k - heard_k) * self.period
 
     def wall(self) -> float:
         """Wall time since the start [s]."""
@@ -154,8 +212,8 @@ class LockstepClock(RealTimeClock):
     client has answered at all or was taken for gone.
     """
 
-    def __init__(self, emu: RobotEmulator) -> None:
-        super().__init__(emu)
+    def __init__(self, config: EmulatorConfig) -> None:
+        super().__init__(config)
         self.vt = 0.0  # virtual time of the current cycle [s]
         self.epoch_ns = time.time_ns()  # wall-clock stamp of virtual time 0 for the messages' timestamps
         self.await_seq = -1  # newest delivered message that expects an answer
@@ -173,18 +231,19 @@ class LockstepClock(RealTimeClock):
 
     def wait(self, k: int) -> int:
         """Deliver what the faults delayed until cycle ``k``, then wait for the outstanding answers."""
-        emu = self.emu
-        cfg = emu.config
-        self.vt = k * emu._period
-        pending = emu._link.pending
+        port = self.port
+        cfg = self.config
+        self.vt = k * self.period
+        pending = port.link.pending
         limit = self.vt - cfg.lockstep_latency_s + 1e-12  # answers to these can still arrive by this cycle
         while pending and pending[0][0] <= limit:
             due, _, item = heapq.heappop(pending)
-            emu._link.deliver(item, due)
-        emu._drain()
+            port.link.deliver(item, due)
+        port.drain()
         if self.await_seq <= self.heard_seq:
             return k
-        if self.gone and (emu._state in _COMMANDING or emu._ending):
+        session = port.session()
+        if self.gone and (session.commanding or session.ending):
             return k  # silence runs its course: the session drops after timeout_s, or the run closes
         resend = self.gone or not self.heard_any  # no client (yet): stop the clock until one answers
         perf = time.perf_counter
@@ -194,7 +253,7 @@ class LockstepClock(RealTimeClock):
         deadline = now + cfg.lockstep_guard_s
         next_resend = now + RESEND_S
         while True:
-            if emu._stop_requested:  # the session closes without waiting for a client that has finished
+            if port.session().stop_requested:  # the session closes without waiting for a client that has finished
                 return k
             if max_wall is not None and now - self.t0 >= max_wall:
                 return k
@@ -207,25 +266,25 @@ class LockstepClock(RealTimeClock):
                 wake = next_resend
             elif now >= deadline:
                 self.gone = True
-                emu._report.client_gone += 1
-                if emu._on_event is not None:
-                    emu._on_event(self.vt, f"no answer within {cfg.lockstep_guard_s:g} s: client taken for gone")
+                port.report.client_gone += 1
+                if port.on_event is not None:
+                    port.on_event(self.vt, f"no answer within {cfg.lockstep_guard_s:g} s: client taken for gone")
                 return k
             else:
                 wake = deadline
             # Short sleeps keep stop requests from other threads and signal handlers prompt.
-            select.select((emu._sock,), (), (), min(max(wake - now, 0.0), 0.05))
-            emu._drain()
+            select.select((port.sock,), (), (), min(max(wake - now, 0.0), 0.05))
+            port.drain()
             if self.await_seq <= self.heard_seq:
                 return k
             now = perf()
 
     def _resend(self) -> None:
         """Send the newest awaited message again (a client that starts late, or came back)."""
-        self.emu._report.resent += 1
+        self.port.report.resent += 1
         if self.resent_seq != self.await_seq:
             self.resent_seq, self.resent_heard = self.await_seq, False
-        self.emu._link.sendto(self.await_data)
+        self.port.link.sendto(self.await_data)
 
     def now(self) -> float:
         return self.vt
@@ -240,8 +299,8 @@ class LockstepClock(RealTimeClock):
 
     def arrival(self, data: bytes, addr: Any) -> float | None:
         """Virtual arrival time of an answer; None for a second answer to a message sent again."""
-        emu = self.emu
-        if addr[:2] != emu._client:
+        port = self.port
+        if addr[:2] != port.client:
             return self.vt
         try:
             reflected = decode_command(data, check=False).header.reflected_sequence_counter
@@ -249,19 +308,19 @@ class LockstepClock(RealTimeClock):
             return self.vt  # the cycle logic counts it as invalid
         if reflected == self.resent_seq:
             if self.resent_heard:
-                emu._report.resent_answers += 1
+                port.report.resent_answers += 1
                 return None
             self.resent_heard = True
         self.heard_any = True
         self.heard_wall = time.perf_counter()
         self.gone = False
         slot = reflected & (RING - 1)
-        if emu._ring_seq[slot] != reflected:
+        if port.ring.seq[slot] != reflected:
             # Not a recent message of ours (a corrupted counter the client reflected): it answers nothing awaited.
             return self.vt
         if reflected > self.heard_seq:
             self.heard_seq = reflected
-        return emu._ring_t[slot] + self.ring_delay[slot] + emu.config.lockstep_latency_s
+        return port.ring.t[slot] + self.ring_delay[slot] + self.config.lockstep_latency_s
 
     def sends(self, slot: int, state: SessionState) -> bool:
         self.ring_delay[slot] = 0.0
@@ -271,9 +330,9 @@ class LockstepClock(RealTimeClock):
         return not (self.gone and state in _COMMANDING)
 
     def delivered(self, data: bytes, seq: int, due: float | None) -> None:
-        emu = self.emu
+        ring = self.port.ring
         slot = seq & (RING - 1)
-        if emu._ring_seq[slot] == seq:
-            self.ring_delay[slot] = (self.vt if due is None else due) - emu._ring_t[slot]
+        if ring.seq[slot] == seq:
+            self.ring_delay[slot] = (self.vt if due is None else due) - ring.t[slot]
         if seq > self.await_seq:
             self.await_seq, self.await_data = seq, data

@@ -120,7 +120,7 @@ from typing import Any
 import numpy as np
 
 from iiwa_ident.datasets import Dataset, write_dataset
-from iiwa_ident.emulator.clocks import RING, LockstepClock, RealTimeClock
+from iiwa_ident.emulator.clocks import RING, ClockPort, LockstepClock, RealTimeClock, SentRing, SessionView
 from iiwa_ident.emulator.config import EmulatorConfig, check_config, resolve_address
 from iiwa_ident.emulator.faults import FaultyLink
 from iiwa_ident.emulator.quality import QualityWindow
@@ -301,16 +301,16 @@ class RobotEmulator:
         T = self._period
         self._report = EmulatorReport(lockstep=cfg.lockstep)
         self._inbox: list[tuple[float, bytes, Any, int]] = []
-        self._clock: RealTimeClock | LockstepClock = (LockstepClock if cfg.lockstep else RealTimeClock)(self)
+        self._clock: RealTimeClock | LockstepClock = (LockstepClock if cfg.lockstep else RealTimeClock)(cfg)
         self._link = FaultyLink(self._sock, self._client, cfg.faults, self._report, self._clock)
+        self._ring = SentRing()
+        self._clock.connect(ClockPort(sock=self._sock, link=self._link, report=self._report, ring=self._ring,
+                                      client=self._client, drain=self._drain, session=self._session_view,
+                                      on_event=self._on_event))
         self._seq = 0  # next own sequence counter
         self._client_seq: int | None = None  # newest accepted client sequence counter
-        self._ring_seq = [-1] * RING
-        self._ring_t = [0.0] * RING
-        self._ring_state = [0] * RING
         self._window = QualityWindow(cfg.quality, T)
         self._latency = Histogram()
-        self._delay = Histogram()
         self._due = False  # an answer is due this cycle
         self._silent = 0  # consecutive cycles without a new answer while one was due
         self._heard_k: int | None = None  # cycle of the newest answer
@@ -391,6 +391,10 @@ class RobotEmulator:
         idle = self.config.idle_timeout_s
         return (idle is not None and self._heard_k is not None and self._state not in _COMMANDING
                 and self._clock.silence_s(k, self._heard_k) >= idle)
+
+    def _session_view(self) -> SessionView:
+        """The session as the clock sees it."""
+        return SessionView(self._stop_requested, self._ending, self._state in _COMMANDING)
 
     def _drain(self) -> None:
         sock = self._sock
@@ -505,9 +509,9 @@ class RobotEmulator:
             self._client_seq = seq
             reflected = msg.header.reflected_sequence_counter
             slot = reflected & (RING - 1)
-            if self._ring_seq[slot] == reflected:
-                latency = t_arrival - self._ring_t[slot]
-                answered_state = self._ring_state[slot]
+            if self._ring.seq[slot] == reflected:
+                latency = t_arrival - self._ring.t[slot]
+                answered_state = self._ring.state[slot]
                 self._latency.add(latency)
                 if reflected < latest:
                     rep.late_answers += 1
@@ -747,9 +751,9 @@ class RobotEmulator:
         )
         data = encode_monitoring(msg)
         slot = seq & (RING - 1)
-        self._ring_seq[slot] = seq
-        self._ring_t[slot] = self._clock.now()
-        self._ring_state[slot] = state
+        self._ring.seq[slot] = seq
+        self._ring.t[slot] = self._clock.now()
+        self._ring.state[slot] = state
         self._seq = seq + 1
         if not self._clock.sends(slot, state):
             self._report.unsent += 1
@@ -767,9 +771,9 @@ class RobotEmulator:
         rep.latency_median_s = self._latency.quantile(0.5)
         rep.latency_p99_s = self._latency.quantile(0.99)
         rep.latency_max_s = self._latency.max if self._latency.n else None
-        rep.cycle_delay_median_s = self._delay.quantile(0.5)
-        rep.cycle_delay_p99_s = self._delay.quantile(0.99)
-        rep.cycle_delay_max_s = self._delay.max if self._delay.n else None
+        rep.cycle_delay_median_s = self._clock.delay.quantile(0.5)
+        rep.cycle_delay_p99_s = self._clock.delay.quantile(0.99)
+        rep.cycle_delay_max_s = self._clock.delay.max if self._clock.delay.n else None
         if self._rows is not None:
             try:
                 rep.dataset = write_dataset(self.config.record, self._dataset())
