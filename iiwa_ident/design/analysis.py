@@ -179,7 +179,7 @@ class AdditiveTorqueControl(TorqueControl):
     def __init__(self, design: AdditiveDesign, filter: FilterSettings | None = None, ripple: RippleTable | None = None,
                  dt: float = 1e-3) -> None:
         self.design = design
-        self.cycle = ControlCycle(AdditiveController(design), filter, dt, ripple)
+        self.cycle = ControlCycle(AdditiveController(design), filter=filter, dt=dt, ripple=ripple)
 
     @property
     def ripple(self) -> RippleTable | None:

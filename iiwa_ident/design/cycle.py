@@ -64,7 +64,7 @@ class ControlCycle:
     0.0
     """
 
-    def __init__(self, controller: AdditiveController, filter: FilterSettings | None = None, dt: float = 1e-3,
+    def __init__(self, controller: AdditiveController, *, filter: FilterSettings | None = None, dt: float = 1e-3,
                  ripple: RippleTable | None = None, K: float | None = None, KI: float | None = None,
                  Jl: float | None = None) -> None:
         self.controller = controller

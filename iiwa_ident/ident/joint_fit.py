@@ -115,7 +115,7 @@ def _nll(rms: Sequence[dict[str, float]], datasets: Sequence[Dataset]) -> float:
                      for ds, n in zip(datasets, rms)))
 
 
-def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_period_rad: float | None = None,
+def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto",
               ripple_table: RippleTable | None = None) -> FitResult:
     """Fit a joint's chirps: eqs (1)-(4) with delay, link friction, load and sensor offset.
 
@@ -125,12 +125,10 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         Torque-commanded chirps of one joint.
     method : {"auto", "joint", "idim", "eq4"}
         See :data:`METHODS`.
-    ripple_period_rad : float, optional
-        The transmission ripple's period [rad] if known; by default IDIM-IV
-        searches it (see :func:`~iiwa_ident.ident.idim.fit_idim`).
     ripple_table : RippleTable, optional
         The ripple's lookup table (from the ripple command), which also gives
-        its period: the output-error fit takes its deflection as known and
+        its period (without one IDIM-IV searches the period, see
+        :func:`~iiwa_ident.ident.idim.fit_idim`): the output-error fit takes its deflection as known and
         fits the first harmonics' coefficients on top
         (:class:`~iiwa_ident.ident.tf_fit.RippleTerms`). Without a table, a
         ripple IDIM-IV finds is fitted by those coefficients alone.
@@ -153,16 +151,16 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
     prepare_records(datasets)  # a record the fit cannot take is refused before any estimate is tried on it
     candidate = _log_filter_candidate(datasets)
     if candidate is None:
-        return _fit_joint(datasets, method, ripple_period_rad, ripple_table, None)
+        return _fit_joint(datasets, method, ripple_table, None)
     # The data ask for a filter before the log: fitted through it, and without it where that fits at all;
     # the likelihood (BIC: the cut-off is one more parameter) decides.
     try:
-        plain: FitResult | None = _fit_joint(datasets, method, ripple_period_rad, ripple_table, None)
+        plain: FitResult | None = _fit_joint(datasets, method, ripple_table, None)
         refusal = None
     except IiwaIdentError as err:
         plain, refusal = None, err
     try:
-        filtered = _fit_joint(datasets, method, ripple_period_rad, ripple_table, candidate.effect())
+        filtered = _fit_joint(datasets, method, ripple_table, candidate.effect())
     except IiwaIdentError:
         if plain is None:
             raise refusal from None
@@ -173,7 +171,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto", ripple_perio
         # The starts came from the torque undone with the phase's cut-off: once more with the fitted one.
         again = TorqueLogFilter({"cutoff_hz": filtered.log_filter["cutoff_hz"], "order": float(candidate.order)})
         try:
-            filtered = _fit_joint(datasets, method, ripple_period_rad, ripple_table, again)
+            filtered = _fit_joint(datasets, method, ripple_table, again)
         except IiwaIdentError:
             pass
     penalty = 0.5 * math.log(sum(2 * ds.n_samples for ds in datasets))
@@ -210,8 +208,8 @@ def _log_filter_candidate(datasets: Sequence[Dataset]) -> LogFilterEstimate | No
     return None
 
 
-def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_period_rad: float | None,
-               ripple_table: RippleTable | None, log_filter: TorqueLogFilter | None) -> FitResult:
+def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTable | None,
+               log_filter: TorqueLogFilter | None) -> FitResult:
     """:func:`fit_joint` with or without a filter before the log: the starts (inverse dynamics, eq (4)'s
     start values) from the torque with the filter undone (:func:`~iiwa_ident.ident.log_filter.unfiltered`), every
     output-error fit through it."""
@@ -232,9 +230,7 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_period_rad: floa
         _model_error_std(result, other and other.parameters, other and other.std,
                          "the inverse-dynamics (IDIM-IV) estimate")
         return result
-    if ripple_table is not None:
-        ripple_period_rad = ripple_table.period_rad
-    idim = fit_idim(starts, ripple_period_rad)
+    idim = fit_idim(starts, None if ripple_table is None else ripple_table.period_rad)
     ripple = idim.effect("transmission_ripple")
     terms = None
     if ripple_table is not None:

@@ -156,8 +156,8 @@ class ControllerRuntime:
         self._tau_max, self._ref_max = lim.torque_nm, lim.reference_nm
         self._dtau_max, self._dref_max = lim.torque_rate_nm_s * self.dt, lim.reference_rate_nm_s * self.dt
         self._v_max = lim.velocity_rad_s
-        self.control = ControlCycle(controller_from_config(config), config.filter, self.dt, config.ripple, config.K,
-                                    config.KI, config.Jl)
+        self.control = ControlCycle(controller_from_config(config), filter=config.filter, dt=self.dt,
+                                    ripple=config.ripple, K=config.K, KI=config.KI, Jl=config.Jl)
         self.stop_reason = ""  #: why the output is ramping out ("" while running)
         self._shutdown = 1.0  # scale of the shutdown ramp
         self._ref_prev = 0.0
