@@ -130,6 +130,25 @@ class ChannelReport:
 
 
 @dataclass
+class _Naming:
+    """One naming of the effects: the selection, its effect reports, the model extended by them and the
+    held-out residuals with them; from :func:`_named` also the ambiguous and undecided effects (the keys of
+    :attr:`Diagnosis.ambiguous` and :attr:`Diagnosis.undecided`)."""
+
+    selection: Selection
+    effects: list[EffectReport]
+    extended: JointModel
+    after: list[np.ndarray]
+    ambiguous: list[dict[str, Any]] = field(default_factory=list)
+    undecided: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def heldout_sse(self) -> float:
+        """The held-out residual's sum of squares over every block."""
+        return _sse(self.after, range(len(self.after)))
+
+
+@dataclass
 class Diagnosis:
     """Outcome of :func:`diagnose` (see the module docstring)."""
 
@@ -489,8 +508,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     for cand, _ in known.values():
         cand.ranges = ranges
     entry_filters = [ctx.log_filter for ctx in contexts]
-    sel, effects, extended, after, ambiguous, undecided = _named(names, work, model, known, blocks, ys,
-                                                                 selection_options, ranges)
+    named = _named(names, work, model, known, blocks, ys, selection_options, ranges)
     # The filters before the log the contexts carry for the outcome kept (a named one passes the others).
     named_filters = [ctx.log_filter for ctx in contexts]
     replaced: list[dict[str, Any]] = []
@@ -516,28 +534,28 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         _carry(contexts, entry_filters)
         trial = _named(names, work, without, others, blocks, ys_b, selection_options, ranges)
         trial_filters = [ctx.log_filter for ctx in contexts]
-        renamed = {c.name for c in trial[0].selected} & set(drop)
-        sse_b, sse = _sse(trial[3], range(len(trial[3]))), _sse(after, range(len(after)))
-        if not renamed >= set(drop) and trial[0].selected:
+        renamed = {c.name for c in trial.selection.selected} & set(drop)
+        sse_b, sse = trial.heldout_sse, named.heldout_sse
+        if not renamed >= set(drop) and trial.selection.selected:
             # An effect left out: the gain must come from leaving it out, not from what the trial names besides
             # (those effects fitted with it kept are the reference too, where they are physically possible).
-            cols = trial[0].columns(blocks)
+            cols = trial.selection.columns(blocks)
             coef = np.linalg.lstsq(np.vstack(cols), np.concatenate(ys), rcond=None)[0]
-            if all(c.plausible(c.total(coef[sl])) for c, sl in zip(trial[0].selected, trial[0].slices)):
+            if all(c.plausible(c.total(coef[sl])) for c, sl in zip(trial.selection.selected, trial.selection.slices)):
                 keep = cv_residuals(cols, ys)
                 sse = min(sse, _sse(keep, range(len(keep))))
         _carry(contexts, named_filters)
         # Better held out; or not worse with no effect the model's selection did not name anyway (the dropped
         # effect is not needed beside them).
         better = sse_b <= (1.0 - MIN_GAIN) * sse or \
-            (sse_b <= sse and {c.name for c in trial[0].selected} <= {c.name for c in sel.selected})
+            (sse_b <= sse and {c.name for c in trial.selection.selected} <= {c.name for c in named.selection.selected})
         shape_of = None if better or renamed or len(drop) > 1 else \
-            _redundant_beside(known[drop[0]][0], sel, effects, blocks, ys_b)
-        if not trial[1] or not (better or shape_of):
+            _redundant_beside(known[drop[0]][0], named.selection, named.effects, blocks, ys_b)
+        if not trial.effects or not (better or shape_of):
             continue
-        named_before = {e.name for e in effects}
+        named_before = {e.name for e in named.effects}
         new = [shape_of] if shape_of is not None else \
-            [e.name for e in trial[1] if e.name not in named_before] or [e.name for e in trial[1]]
+            [e.name for e in trial.effects if e.name not in named_before] or [e.name for e in trial.effects]
         for n in drop:
             if n not in renamed:
                 replaced.append({"old": n, "new": [x for x in new if x != n],
@@ -546,16 +564,17 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
                                  "or_shape_of": shape_of})
         # What the data do not decide about an effect of the model refitted whole stays undecided (a load beyond
         # the described gravity that a spring predicts alike is still so when the whole load is refitted).
-        kept = [u for u in undecided if u.get("alike") and u["name"] in renamed
-                and not any(x["name"] == u["name"] and x["or_shape_of"] == u["or_shape_of"] for x in trial[5])]
-        sel, effects, extended, after, ambiguous, undecided = trial
+        kept = [u for u in named.undecided if u.get("alike") and u["name"] in renamed
+                and not any(x["name"] == u["name"] and x["or_shape_of"] == u["or_shape_of"] for x in trial.undecided)]
+        named = trial
         named_filters = trial_filters
         _carry(contexts, named_filters)
-        undecided = undecided + kept
+        named.undecided = named.undecided + kept
         known, model, ys = others, without, ys_b
         for ctx in contexts:
             for ch, v in back[ctx.index].items():
                 ctx.residual[ch] = ctx.residual[ch] + v
+    sel, effects, extended, after = named.selection, named.effects, named.extended, named.after
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys0], ys0)
     by_run = _across_runs(sel, blocks, ys)
     for e in effects:
@@ -569,8 +588,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     diag = Diagnosis(explained=False, effects=effects,
                      channels=[], model=original, extended=extended, replaced=replaced, contexts=contexts,
                      blocks=blocks, selection=sel,
-                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=ambiguous,
-                     undecided=undecided, sign_reversed=sign_reversed)
+                     heldout_before=before, heldout_after=after, suspects=suspects, ambiguous=named.ambiguous,
+                     undecided=named.undecided, sign_reversed=sign_reversed)
     for b, rb, ra in zip(blocks, before, after):
         key = (b.ctx.index, b.channel)
         changed = bool(effects) or bool(replaced)
@@ -579,7 +598,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
             channel_comparison(b.ctx, b.channel, diag.residual_after(b.ctx, b.channel)) if changed else tested[key]))
     # One meaning of "explained" everywhere: nothing left for the library to name, and every channel's
     # residual passes the tests that judge the model (or is not judged).
-    diag.explained = not effects and not suspects and not ambiguous and not replaced and not sign_reversed \
+    diag.explained = not effects and not suspects and not named.ambiguous and not replaced and not sign_reversed \
         and not diag.unexplained_channels
     carried = _not_carried(diag, datasets)
     if carried:
@@ -650,8 +669,7 @@ def _carry(contexts: list[Context], filters: list[Any]) -> None:
 
 def _named(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
            ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None
-           ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray], list[dict[str, Any]],
-                      list[dict[str, Any]]]:
+           ) -> _Naming:
     """:func:`_selected`, named again without the effects another one's shape makes ambiguous; those, and the
     undecided ones (:func:`_ambiguous`)."""
     ambiguous: list[dict[str, Any]] = []
@@ -661,16 +679,17 @@ def _named(names: list[str], work: JointModel, model: JointModel, known: dict, b
     while True:
         # Each naming starts from the model's own filter (a filter named in the last one is named again or not).
         _carry(contexts, carried)
-        sel, effects, extended, after = _selected(left, work, model, known, blocks, ys, selection_options, ranges)
-        more, undecided = _ambiguous(sel, effects, blocks, ys)
+        named = _selected(left, work, model, known, blocks, ys, selection_options, ranges)
+        more, undecided = _ambiguous(named.selection, named.effects, blocks, ys)
         if not more:
             break
         # Named again without them: the others' coefficients and gains must not lean on them (and what takes
         # their place is judged alike: a spring for an offset a load's other shape explains).
         ambiguous += more
         left = [n for n in left if n not in {a["name"] for a in more}]
-    undecided += _alike(sel, effects, left, known, blocks, ys, after, ranges)
-    return sel, effects, extended, after, ambiguous, undecided
+    named.ambiguous = ambiguous
+    named.undecided = undecided + _alike(named.selection, named.effects, left, known, blocks, ys, named.after, ranges)
+    return named
 
 
 def _alike(sel: Selection, effects: list[EffectReport], names: list[str], known: dict, blocks: list[Block],
@@ -728,7 +747,7 @@ def _alike(sel: Selection, effects: list[EffectReport], names: list[str], known:
 def _selected(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
               ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None = None,
               first: Sequence[tuple[CandidateEffect, Step]] = (), refine: bool = True
-              ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]]:
+              ) -> _Naming:
     """The selection among the candidates ``names``, its effect reports, the extended model and the held-out
     residuals with the named effects; ``ranges``: what the robot's description makes physically possible;
     ``first``: effects named before the search (:func:`~iiwa_ident.diagnose.select.select_effects`)."""
@@ -795,13 +814,13 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
     if effects:
         extended.description = (extended.description + " | " if extended.description else "") + \
             "extended by diagnose: " + ", ".join(e.name for e in effects)
-    return sel, effects, extended, after
+    return _Naming(sel, effects, extended, after)
 
 
 def _named_through_filter(sel: Selection, names: list[str], work: JointModel, model: JointModel, known: dict,
                           blocks: list[Block], ys: list[np.ndarray], selection_options: dict[str, Any],
                           ranges: PhysicalRanges | None
-                          ) -> tuple[Selection, list[EffectReport], JointModel, list[np.ndarray]] | None:
+                          ) -> _Naming | None:
     """:func:`_selected` again where ``sel`` named a filter before the log (or a delay) and the contexts carry
     none: the filter held whole, every other effect named again with its columns through it; None where that
     does not hold (the contexts and the filter then as they were).
@@ -846,18 +865,18 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
                           first=[(trial_filter, record)], refine=len(shape) < 4)
         # Kept where the filter, whole, still explains the data beside the others: they fit better through it
         # than without it.
-        sse_filtered = block_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter))[0]
+        sse_filtered = block_sse(again.selection.columns(blocks, held=1), _without_filter(ys, blocks, trial_filter))[0]
         kept = [ctx.log_filter for ctx in contexts]
         for ctx in contexts:
             ctx.log_filter = None
-        trial = again[0]
+        trial = again.selection
         tried.append((trial.selected[0].shape, trial.selected[0].cutoff_hz,
                       float(trial.selected[0].effect.values["damping"])))
         possible = all(c.plausible(c.total(trial.coef[sl]))
                        for c, sl in zip(trial.selected[1:], trial.slices[1:]) if c.name not in trial.other_shape)
-        if possible and sse_filtered < block_sse(again[0].columns(blocks, held=1), ys)[0]:
-            heldout = _sse(again[3], range(len(again[3]))) if len(contexts) < 3 else \
-                sum(_run_sse(again[0].columns(blocks, held=1), _without_filter(ys, blocks, trial_filter),
+        if possible and sse_filtered < block_sse(again.selection.columns(blocks, held=1), ys)[0]:
+            heldout = again.heldout_sse if len(contexts) < 3 else \
+                sum(_run_sse(again.selection.columns(blocks, held=1), _without_filter(ys, blocks, trial_filter),
                              blocks).values())
             if best is None or heldout < best[0]:
                 best = (heldout, again, kept)
@@ -934,7 +953,7 @@ def _own_filters(names: list[str], work: JointModel, model: JointModel, known: d
         # effects, named again, starts from the filter the run named with it).
         key = ("own_filter", tuple(names))
         if key not in own[0].ctx.memo:
-            sel = _selected(names, work, model, known, own, [ys[i] for i in idx], selection_options, ranges)[0]
+            sel = _selected(names, work, model, known, own, [ys[i] for i in idx], selection_options, ranges).selection
             own[0].ctx.log_filter = None
             f = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
             compared = {} if f is None else {k: v for k, v in f.detail.items() if k.endswith("_vs_best")}
