@@ -202,112 +202,118 @@ def load_results(workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, .
         ``design``, ``validation``, ``diagnosis``) for what could be loaded,
         and ``load_errors`` by stage for what could not.
     """
-    from iiwa_ident.datasets import read_dataset
-    from iiwa_ident.ident import read_model
-    from iiwa_ident.pipeline import FILES, load_saved_results
+    ld = _Loader(workdir, doc, stages)
+    if ld.p["runs_dir"].is_dir() and ld.usable("import"):
+        from iiwa_ident.datasets import read_dataset
 
-    out: dict[str, Any] = {"load_errors": {}}
-    p = {k: workdir / v for k, v in FILES.items()}
+        # A folder of `pipeline --logs`: the runs it imported.
+        ld.attempt("import", lambda: [read_dataset(f) for f in sorted(ld.p["runs_dir"].glob("*.h5"))], "runs")
+    (_load_logs if "runs" in ld.out else _load_experiments)(ld)
+    return ld.out
 
-    def usable(stage: str) -> bool:
-        return _stage_status(doc, stage)[0] in ("ok", "unknown")
 
-    def attempt(stage: str, fn: Callable[[], None]) -> None:
+class _Loader:
+    """What the report pages draw, loaded stage by stage from a work folder; a stage that cannot be loaded
+    leaves its one-line reason in ``out["load_errors"]`` and the others go on."""
+
+    def __init__(self, workdir: Path, doc: dict[str, Any] | None, stages: tuple[str, ...]) -> None:
+        from iiwa_ident.pipeline import FILES
+
+        self.workdir, self.doc, self.want = workdir, doc, set(stages)
+        self.p = {k: workdir / v for k, v in FILES.items()}
+        self.out: dict[str, Any] = {"load_errors": {}}
+
+    def usable(self, stage: str) -> bool:
+        return _stage_status(self.doc, stage)[0] in ("ok", "unknown")
+
+    def attempt(self, stage: str, fn: Callable[[], Any], key: str | None = None) -> None:
+        """Run ``fn`` for ``stage`` (its value stored under ``key``, if given), its failure kept by stage."""
         try:
-            fn()
+            value = fn()
         except IiwaIdentError as err:
-            out["load_errors"][stage] = str(err)
+            self.out["load_errors"][stage] = str(err)
         except (OSError, KeyError, ValueError) as err:
-            out["load_errors"][stage] = f"{type(err).__name__}: {err}"
+            self.out["load_errors"][stage] = f"{type(err).__name__}: {err}"
+        else:
+            if key is not None:
+                self.out[key] = value
 
-    def kept(file: str, name: str) -> Any:
-        # What the stage computed, where its file still stands for the work folder's inputs.
-        return (load_saved_results(p[file], workdir) or {}).get(name)
+    def kept(self, file: str, name: str) -> Any:
+        """What the stage computed, where its file still stands for the work folder's inputs (else None)."""
+        from iiwa_ident.pipeline import load_saved_results
 
-    want = set(stages)
-    if p["runs_dir"].is_dir() and usable("import"):
-        # A folder of `pipeline --logs`: the runs it imported, the starting model the diagnosis began from.
-        def runs() -> None:
-            out["runs"] = [read_dataset(f) for f in sorted(p["runs_dir"].glob("*.h5"))]
-        attempt("import", runs)
-    if "runs" in out:
-        if p["model_start"].is_file() and usable("ripple"):
-            attempt("ripple", lambda: out.__setitem__("model_start", read_model(p["model_start"])))
-        if want & {"ripple"} and "model_start" in out and out["runs"]:
-            def ripple_of_runs() -> None:
-                from iiwa_ident.ident import identify_ripple
+        return (load_saved_results(self.p[file], self.workdir) or {}).get(name)
 
-                m = out["model_start"]
-                out["ripple"] = kept("ripple_result", "ripple") or identify_ripple(
-                    out["runs"], K=m.value("K"), Jl=m.value("Jl"))
-            attempt("ripple", ripple_of_runs)
-        if want & {"diagnose"} and "model_start" in out and out["runs"] and usable("diagnose"):
-            def diag_of_runs() -> None:
-                from iiwa_ident.diagnose import diagnose
+    def fit(self, chirps: list[Path], base_model: Any = None) -> None:
+        """The fit as the pipeline kept it, or fitted again; its model file; the first chirp."""
+        from iiwa_ident.datasets import read_dataset
+        from iiwa_ident.ident import fit_model, read_model
 
-                out["diagnosis"] = diagnose(out["runs"], out["model_start"])
-            attempt("diagnose", diag_of_runs)
-        if want & {"fit"} and usable("fit") and p["model"].is_file():
-            def fit_of_runs() -> None:
-                from iiwa_ident.ident import fit_model
+        result = self.kept("fit_result", "fit")
+        if result is None:
+            model, result = fit_model(chirps, base_model=base_model)
+        else:
+            model = read_model(self.p["model"])
+        self.out.update(model=model, fit=result)
+        if "chirp" not in self.out:
+            self.out["chirp"] = read_dataset(chirps[0])
 
-                chirps = [ds.path for ds in out["runs"] if ds.has("tau_c")]
-                if chirps:
-                    result = kept("fit_result", "fit")
-                    if result is None:
-                        model, result = fit_model(chirps, base_model=out.get("model_start"))
-                    else:
-                        model = read_model(p["model"])
-                    out.update(model=model, fit=result, chirp=read_dataset(chirps[0]))
-            attempt("fit", fit_of_runs)
-        if want & {"design"} and p["design"].is_file() and usable("design"):
-            def design_of_runs() -> None:
-                from iiwa_ident.design import read_design
+    def ripple(self, data: list[Any], model: Any) -> Any:
+        """The ripple stage's result as the pipeline kept it, or identified again with the model's K and Jl."""
+        from iiwa_ident.ident import identify_ripple
 
-                out["design"] = read_design(p["design"])
-            attempt("design", design_of_runs)
-        return out
+        return self.kept("ripple_result", "ripple") or identify_ripple(data, K=model.value("K"), Jl=model.value("Jl"))
+
+    def design(self) -> Any:
+        from iiwa_ident.design import read_design
+
+        return read_design(self.p["design"])
+
+
+def _load_logs(ld: _Loader) -> None:
+    """A folder of ``pipeline --logs``: the starting model the diagnosis began from, then the stages."""
+    from iiwa_ident.diagnose import diagnose
+    from iiwa_ident.ident import read_model
+
+    out, p, want = ld.out, ld.p, ld.want
+    if p["model_start"].is_file() and ld.usable("ripple"):
+        ld.attempt("ripple", lambda: read_model(p["model_start"]), "model_start")
+    if want & {"ripple"} and "model_start" in out and out["runs"]:
+        ld.attempt("ripple", lambda: ld.ripple(out["runs"], out["model_start"]), "ripple")
+    if want & {"diagnose"} and "model_start" in out and out["runs"] and ld.usable("diagnose"):
+        ld.attempt("diagnose", lambda: diagnose(out["runs"], out["model_start"]), "diagnosis")
+    chirps = [ds.path for ds in out["runs"] if ds.has("tau_c")]
+    if want & {"fit"} and ld.usable("fit") and p["model"].is_file() and chirps:
+        ld.attempt("fit", lambda: ld.fit(chirps, base_model=out.get("model_start")))
+    if want & {"design"} and p["design"].is_file() and ld.usable("design"):
+        ld.attempt("design", ld.design, "design")
+
+
+def _load_experiments(ld: _Loader) -> None:
+    """A folder of ``pipeline --target``: its recorded experiments, then the stages."""
+    from iiwa_ident.datasets import read_dataset
+    from iiwa_ident.diagnose import diagnose
+    from iiwa_ident.ident import read_model
+
+    out, p, want = ld.out, ld.p, ld.want
     for key, stage in (("chirp", "chirp"), ("cv", "constant_velocity"), ("qs", "constant_velocity"),
                        ("hand", "hand_guided")):
-        if p[key].is_file() and usable(stage):
-            attempt(stage, lambda key=key: out.__setitem__(key, read_dataset(p[key])))
-    if want & {"fit"} and "chirp" in out and usable("fit"):
-        def fit() -> None:
-            from iiwa_ident.ident import fit_model
-
-            result = kept("fit_result", "fit")
-            if result is None:
-                model, result = fit_model([p["chirp"]])
-            else:
-                model = read_model(p["model"])
-            out.update(model=model, fit=result)
-        attempt("fit", fit)
-    if p["model_ripple"].is_file() and usable("ripple"):
-        attempt("ripple", lambda: out.__setitem__("model_ripple", read_model(p["model_ripple"])))
+        if p[key].is_file() and ld.usable(stage):
+            ld.attempt(stage, lambda key=key: read_dataset(p[key]), key)
+    if want & {"fit"} and "chirp" in out and ld.usable("fit"):
+        ld.attempt("fit", lambda: ld.fit([p["chirp"]]))
+    if p["model_ripple"].is_file() and ld.usable("ripple"):
+        ld.attempt("ripple", lambda: read_model(p["model_ripple"]), "model_ripple")
     if want & {"ripple"} and "cv" in out and "model_ripple" in out:
-        def ripple() -> None:
-            from iiwa_ident.ident import identify_ripple
-
-            m = out["model_ripple"]
-            data = [out["cv"]] + ([out["qs"]] if "qs" in out else [])
-            out["ripple"] = kept("ripple_result", "ripple") or identify_ripple(data, K=m.value("K"), Jl=m.value("Jl"))
-        attempt("ripple", ripple)
-    if want & {"design", "validation"} and p["design"].is_file() and usable("design"):
-        def design() -> None:
-            from iiwa_ident.design import read_design
-
-            out["design"] = read_design(p["design"])
-        attempt("design", design)
-    if want & {"validation"} and p["validation_json"].is_file() and usable("validation"):
-        attempt("validation", lambda: out.__setitem__("validation", json.loads(p["validation_json"].read_text())))
-    if want & {"diagnose"} and "model_ripple" in out and usable("diagnose"):
-        def diag() -> None:
-            from iiwa_ident.diagnose import diagnose
-
-            keys = [k for k in ("chirp", "cv", "hand") if k in out]
-            out["diagnosis"] = diagnose([out[k] for k in keys], out["model_ripple"])
-        attempt("diagnose", diag)
-    return out
+        data = [out["cv"]] + ([out["qs"]] if "qs" in out else [])
+        ld.attempt("ripple", lambda: ld.ripple(data, out["model_ripple"]), "ripple")
+    if want & {"design", "validation"} and p["design"].is_file() and ld.usable("design"):
+        ld.attempt("design", ld.design, "design")
+    if want & {"validation"} and p["validation_json"].is_file() and ld.usable("validation"):
+        ld.attempt("validation", lambda: json.loads(p["validation_json"].read_text()), "validation")
+    if want & {"diagnose"} and "model_ripple" in out and ld.usable("diagnose"):
+        keys = [k for k in ("chirp", "cv", "hand") if k in out]
+        ld.attempt("diagnose", lambda: diagnose([out[k] for k in keys], out["model_ripple"]), "diagnosis")
 
 
 # --------------------------------------------------------------------------- pages
