@@ -510,70 +510,11 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     entry_filters = [ctx.log_filter for ctx in contexts]
     named = _named(names, work, model, known, blocks, ys, selection_options, ranges)
     # The filters before the log the contexts carry for the outcome kept (a named one passes the others).
-    named_filters = [ctx.log_filter for ctx in contexts]
-    replaced: list[dict[str, Any]] = []
-    # The model without one of its effects (then without all of them: a fit can take one effect for two
-    # others), judged like the model: when the data then predict the held-out runs better, or a named
-    # effect's other shape makes the effect redundant, that outcome is kept; each effect left out is
-    # replaced by what the data name in its place, or refitted where they name it again.
-    for drop in [[n] for n in known] + [None]:
-        if drop is None:  # all the effects the model still has, when more than one is left
-            drop = list(known) if len(known) > 1 else []
-        if not drop:
-            continue
-        back: dict[int, dict[str, np.ndarray]] = {ctx.index: {} for ctx in contexts}
-        for n in drop:
-            for ctx in contexts:
-                for ch, v in contribution(*known[n], ctx).items():
-                    back[ctx.index][ch] = back[ctx.index].get(ch, 0.0) + v
-        ys_b = [y + back[b.ctx.index].get(b.channel, np.zeros_like(b.ctx.t))[b.mask] * b.weight
-                for y, b in zip(ys, blocks)]
-        others = {k: v for k, v in known.items() if k not in drop}
-        without = copy.deepcopy(model)
-        without.effects = [e for e in without.effects if e.get("name") not in drop]
-        _carry(contexts, entry_filters)
-        trial = _named(names, work, without, others, blocks, ys_b, selection_options, ranges)
-        trial_filters = [ctx.log_filter for ctx in contexts]
-        renamed = {c.name for c in trial.selection.selected} & set(drop)
-        sse_b, sse = trial.heldout_sse, named.heldout_sse
-        if not renamed >= set(drop) and trial.selection.selected:
-            # An effect left out: the gain must come from leaving it out, not from what the trial names besides
-            # (those effects fitted with it kept are the reference too, where they are physically possible).
-            cols = trial.selection.columns(blocks)
-            coef = np.linalg.lstsq(np.vstack(cols), np.concatenate(ys), rcond=None)[0]
-            if all(c.plausible(c.total(coef[sl])) for c, sl in zip(trial.selection.selected, trial.selection.slices)):
-                keep = cv_residuals(cols, ys)
-                sse = min(sse, _sse(keep, range(len(keep))))
-        _carry(contexts, named_filters)
-        # Better held out; or not worse with no effect the model's selection did not name anyway (the dropped
-        # effect is not needed beside them).
-        better = sse_b <= (1.0 - MIN_GAIN) * sse or \
-            (sse_b <= sse and {c.name for c in trial.selection.selected} <= {c.name for c in named.selection.selected})
-        shape_of = None if better or renamed or len(drop) > 1 else \
-            _redundant_beside(known[drop[0]][0], named.selection, named.effects, blocks, ys_b)
-        if not trial.effects or not (better or shape_of):
-            continue
-        named_before = {e.name for e in named.effects}
-        new = [shape_of] if shape_of is not None else \
-            [e.name for e in trial.effects if e.name not in named_before] or [e.name for e in trial.effects]
-        for n in drop:
-            if n not in renamed:
-                replaced.append({"old": n, "new": [x for x in new if x != n],
-                                 "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
-                                 "old_parameters": known[n][0].parameters(known[n][1]),
-                                 "or_shape_of": shape_of})
-        # What the data do not decide about an effect of the model refitted whole stays undecided (a load beyond
-        # the described gravity that a spring predicts alike is still so when the whole load is refitted).
-        kept = [u for u in named.undecided if u.get("alike") and u["name"] in renamed
-                and not any(x["name"] == u["name"] and x["or_shape_of"] == u["or_shape_of"] for x in trial.undecided)]
-        named = trial
-        named_filters = trial_filters
-        _carry(contexts, named_filters)
-        named.undecided = named.undecided + kept
-        known, model, ys = others, without, ys_b
-        for ctx in contexts:
-            for ch, v in back[ctx.index].items():
-                ctx.residual[ch] = ctx.residual[ch] + v
+    st = _Search(names=names, work=work, blocks=blocks, contexts=contexts, options=selection_options, ranges=ranges,
+                 entry_filters=entry_filters, model=model, known=known, ys=ys, named=named,
+                 named_filters=[ctx.log_filter for ctx in contexts])
+    replaced = _replace_own_effects(st)
+    named, ys = st.named, st.ys
     sel, effects, extended, after = named.selection, named.effects, named.extended, named.after
     before = cv_residuals([np.zeros((len(y), 0)) for y in ys0], ys0)
     by_run = _across_runs(sel, blocks, ys)
@@ -608,6 +549,96 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         again.explained = False
         return again
     return diag
+
+
+@dataclass(kw_only=True)
+class _Search:
+    """The diagnosis while the model's own effects are judged (:func:`_replace_own_effects`): what stays, and
+    the outcome kept so far (the model, its known effects, the residuals, the naming and its filters)."""
+
+    names: list[str]
+    work: JointModel
+    blocks: list[Block]
+    contexts: list[Context]
+    options: dict[str, Any]
+    ranges: PhysicalRanges | None
+    entry_filters: list[Any]
+    model: JointModel
+    known: dict
+    ys: list[np.ndarray]
+    named: _Naming
+    named_filters: list[Any]
+
+
+def _replace_own_effects(st: _Search) -> list[dict[str, Any]]:
+    """The model without one of its effects (then without all of them: a fit can take one effect for two
+    others), judged like the model: when the data then predict the held-out runs better, or a named
+    effect's other shape makes the effect redundant, that outcome is kept (in ``st``); each effect left out is
+    replaced by what the data name in its place (the entries of :attr:`Diagnosis.replaced`), or refitted where
+    they name it again."""
+    replaced: list[dict[str, Any]] = []
+    for drop in [[n] for n in st.known] + [None]:
+        if drop is None:  # all the effects the model still has, when more than one is left
+            drop = list(st.known) if len(st.known) > 1 else []
+        if drop:
+            replaced += _without(st, drop)
+    return replaced
+
+
+def _without(st: _Search, drop: list[str]) -> list[dict[str, Any]]:
+    """The naming without the model's effects ``drop``; kept in ``st`` where it is better, with the entries
+    of :attr:`Diagnosis.replaced` it makes (none where it is not kept)."""
+    blocks, contexts, known, named = st.blocks, st.contexts, st.known, st.named
+    back: dict[int, dict[str, np.ndarray]] = {ctx.index: {} for ctx in contexts}
+    for n in drop:
+        for ctx in contexts:
+            for ch, v in contribution(*known[n], ctx).items():
+                back[ctx.index][ch] = back[ctx.index].get(ch, 0.0) + v
+    ys_b = [y + back[b.ctx.index].get(b.channel, np.zeros_like(b.ctx.t))[b.mask] * b.weight
+            for y, b in zip(st.ys, blocks)]
+    others = {k: v for k, v in known.items() if k not in drop}
+    without = copy.deepcopy(st.model)
+    without.effects = [e for e in without.effects if e.get("name") not in drop]
+    _carry(contexts, st.entry_filters)
+    trial = _named(st.names, st.work, without, others, blocks, ys_b, st.options, st.ranges)
+    trial_filters = [ctx.log_filter for ctx in contexts]
+    renamed = {c.name for c in trial.selection.selected} & set(drop)
+    sse_b, sse = trial.heldout_sse, named.heldout_sse
+    if not renamed >= set(drop) and trial.selection.selected:
+        # An effect left out: the gain must come from leaving it out, not from what the trial names besides
+        # (those effects fitted with it kept are the reference too, where they are physically possible).
+        cols = trial.selection.columns(blocks)
+        coef = np.linalg.lstsq(np.vstack(cols), np.concatenate(st.ys), rcond=None)[0]
+        if all(c.plausible(c.total(coef[sl])) for c, sl in zip(trial.selection.selected, trial.selection.slices)):
+            keep = cv_residuals(cols, st.ys)
+            sse = min(sse, _sse(keep, range(len(keep))))
+    _carry(contexts, st.named_filters)
+    # Better held out; or not worse with no effect the model's selection did not name anyway (the dropped
+    # effect is not needed beside them).
+    better = sse_b <= (1.0 - MIN_GAIN) * sse or \
+        (sse_b <= sse and {c.name for c in trial.selection.selected} <= {c.name for c in named.selection.selected})
+    shape_of = None if better or renamed or len(drop) > 1 else \
+        _redundant_beside(known[drop[0]][0], named.selection, named.effects, blocks, ys_b)
+    if not trial.effects or not (better or shape_of):
+        return []
+    named_before = {e.name for e in named.effects}
+    new = [shape_of] if shape_of is not None else \
+        [e.name for e in trial.effects if e.name not in named_before] or [e.name for e in trial.effects]
+    replaced = [{"old": n, "new": [x for x in new if x != n], "gain_pct": 100.0 * (1.0 - math.sqrt(sse_b / sse)),
+                 "old_parameters": known[n][0].parameters(known[n][1]), "or_shape_of": shape_of}
+                for n in drop if n not in renamed]
+    # What the data do not decide about an effect of the model refitted whole stays undecided (a load beyond
+    # the described gravity that a spring predicts alike is still so when the whole load is refitted).
+    kept = [u for u in named.undecided if u.get("alike") and u["name"] in renamed
+            and not any(x["name"] == u["name"] and x["or_shape_of"] == u["or_shape_of"] for x in trial.undecided)]
+    trial.undecided = trial.undecided + kept
+    st.named, st.named_filters = trial, trial_filters
+    _carry(contexts, st.named_filters)
+    st.known, st.model, st.ys = others, without, ys_b
+    for ctx in contexts:
+        for ch, v in back[ctx.index].items():
+            ctx.residual[ch] = ctx.residual[ch] + v
+    return replaced
 
 
 #: Most a model's simulated prediction of the diagnosed runs may exceed the diagnosis's own fit of them
