@@ -19,6 +19,7 @@ observer, step and sine tracking better than the robot's own loop.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -108,6 +109,146 @@ def _fit_row(stage: str, h: dict[str, Any]) -> VerdictRow:
                       WARN if rejected else PASS)
 
 
+def _import_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """The runs a logs pipeline imported, and how many of them came with warnings."""
+    rows: list[VerdictRow] = []
+    runs = h.get("runs", [])
+    warned = sum(bool(r.get("warnings")) for r in runs)
+    rows.append(VerdictRow("import", f"{len(runs)} run(s), {warned} with warnings (see the runs page)",
+                           "logs that say what they can give", WARN if warned else PASS))
+    return rows
+
+
+def _fit_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """The fit's parameters against the simulated plant or their std."""
+    return [_fit_row("fit", h)]
+
+
+def _ripple_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """The ripple's period against the paper's, and the fit with its table."""
+    rows: list[VerdictRow] = []
+    if h.get("detected"):
+        rho, sd = h["period_rad"], h.get("period_std_rad")
+        dev = rho / RIPPLE_PERIOD_RAD - 1.0
+        fig = f"rho = {rho:.6f} rad" + (f" +- {sd:.2g}" if sd else "") + f" ({100 * dev:+.3f} % from the paper)"
+        m = int(round(rho / RIPPLE_PERIOD_RAD))
+        if 2 <= m <= 4 and abs(rho / (m * RIPPLE_PERIOD_RAD) - 1.0) <= 5e-3:
+            # A longer period whose family holds the paper's line (once per motor revolution, for m = 2).
+            fig = (f"rho = {rho:.6f} rad" + (f" +- {sd:.2g}" if sd else "") + f", {m} x the paper's "
+                   f"({100 * (rho / (m * RIPPLE_PERIOD_RAD) - 1):+.2f} %): its harmonic {m} is the paper's line")
+        rows.append(VerdictRow("ripple", fig, f"paper {RIPPLE_PERIOD_RAD} rad (+-{100 * _PERIOD_DIGITS:.2f} %, "
+                               "its digits)", PASS if abs(dev) <= _PERIOD_DIGITS else WARN))
+    else:
+        rows.append(VerdictRow("ripple", "no period found", f"paper {RIPPLE_PERIOD_RAD} rad", WARN))
+    refit = h.get("refit")
+    if refit:
+        rows.append(_fit_row("fit with table", refit))
+    return rows
+
+
+def _design_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """The linear kappa margins' ratio and the observers' errors."""
+    rows: list[VerdictRow] = []
+    ratio = h.get("kappa_ratio")
+    if ratio is not None:
+        rows.append(VerdictRow("design", f"kappa margin (linear, section V.C's model) "
+                               f"{h['kappa_max_additive']:.3g} additive / "
+                               f"{h['kappa_max_builtin']:.3g} built-in = {ratio:.2f}x",
+                               f"paper about {_PAPER_KAPPA_RATIO:g}x",
+                               PASS if ratio >= 0.8 * _PAPER_KAPPA_RATIO else (WARN if ratio > 1 else FAIL)))
+    obs = h.get("observer")
+    if obs:
+        better = obs["improved_rms_nm"] < obs["builtin_rms_nm"]
+        raw = ""
+        if obs.get("improved_rms_raw_nm") is not None:
+            raw = (f"; against the F/T itself {obs['improved_rms_raw_nm']:.3g} and {obs['builtin_rms_raw_nm']:.3g}"
+                   " Nm (their common lag dominates)")
+        rows.append(VerdictRow("observer", f"improved {obs['improved_rms_nm']:.3g} Nm against built-in "
+                               f"{obs['builtin_rms_nm']:.3g} Nm RMS ({obs['improvement']:.2f}x), |v| > "
+                               f"{obs.get('speed_threshold_rad_s', 0.5):g} rad/s{raw}",
+                               "F/T reference through the observers' own lag (K_I)", PASS if better else FAIL))
+    return rows
+
+
+def _deploy_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """The deployed config's safety checks."""
+    rows: list[VerdictRow] = []
+    ok = h.get("checks_passed") == h.get("checks")
+    rows.append(VerdictRow("deploy", f"{h.get('checks_passed')}/{h.get('checks')} checks, torque limit "
+                           f"{h.get('torque_limit_nm')} Nm", "every check passes", PASS if ok else FAIL))
+    return rows
+
+
+def _validation_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """Step and sine through FRI, and the live kappa margins."""
+    rows: list[VerdictRow] = []
+    step = h.get("tracking", {}).get("step")
+    if step:
+        rows.append(VerdictRow("step", f"overshoot {step['additive_overshoot_pct']:.0f} % additive, "
+                               f"{step['builtin_overshoot_pct']:.0f} % built-in", "below the built-in loop's",
+                               PASS if step["additive_overshoot_pct"] < step["builtin_overshoot_pct"] else FAIL))
+    sine = h.get("tracking", {}).get("sine")
+    if sine:
+        hz = h.get("sine_hz")
+        rows.append(VerdictRow("sine", f"{'' if hz is None else f'{hz:g} Hz '}peak error "
+                               f"{sine['additive_peak_error_nm']:.3g} Nm additive, "
+                               f"{sine['builtin_peak_error_nm']:.3g} Nm built-in", "below the built-in loop's",
+                               PASS if sine["additive_peak_error_nm"] < sine["builtin_peak_error_nm"] else FAIL))
+    for source, kl in (h.get("kappa_live") or {}).items():
+        rows.append(_kappa_live_row(source, kl))
+    if h.get("kappa_live_skipped"):
+        rows.append(VerdictRow("kappa live", "not measured", h["kappa_live_skipped"], WARN))
+    return rows
+
+
+def _diagnose_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """What the diagnosis named, or that the model explains the data."""
+    rows: list[VerdictRow] = []
+    if h.get("explained"):
+        rows.append(VerdictRow("diagnose", "the model explains the data: nothing named",
+                               "no effect lowers the held-out residual; residual tests pass", PASS))
+    else:
+        named = ", ".join(f"{e['name']} ({e['gain_pct']:.0f} %)" for e in h.get("effects", [])) or "none"
+        left = h.get("unexplained_channels", [])
+        turned = h.get("sign_reversed", [])
+        rows.append(VerdictRow("diagnose", (f"torque sign reversed in {len(turned)} run(s) (--scale tau_j=-1); "
+                                            if turned else "") + f"named: {named}"
+                               + (f"; residual tests fail on {len(left)} channel(s)" if left else ""),
+                               "the model explains the data", WARN))
+    return rows
+
+
+def _held_out_rows(h: dict[str, Any]) -> list[VerdictRow]:
+    """Each run predicted from the others."""
+    rows: list[VerdictRow] = []
+    runs = h.get("runs", [])
+    ratios = [r["ratio"] for r in runs if r.get("ratio") is not None]
+    if ratios:
+        # Lower is not enough: a prediction worse than a run's mean (negative fit) does not model that run.
+        fits = [f for r in runs for f in r.get("fit_pct", {}).values() if f is not None]
+        worse = [f for f in fits if f < 0]
+        rows.append(VerdictRow("held out", f"each run predicted from the others at {100 * min(ratios):.0f}-"
+                               f"{100 * max(ratios):.0f} % of the starting model's RMS"
+                               + (f"; {len(worse)} channel(s) with a fit below 0 % (worst {min(worse):.0f} %)"
+                                  if worse else ""),
+                               "every run lower, every fit above 0 %",
+                               PASS if max(ratios) < 1 and not worse else WARN))
+    return rows
+
+
+#: Each stage's rows from its headline in ``pipeline.json``, in the order they are made.
+_STAGE_ROWS: dict[str, Callable[[dict[str, Any]], list[VerdictRow]]] = {
+    "import": _import_rows,
+    "fit": _fit_rows,
+    "ripple": _ripple_rows,
+    "design": _design_rows,
+    "deploy": _deploy_rows,
+    "validation": _validation_rows,
+    "diagnose": _diagnose_rows,
+    "held_out": _held_out_rows,
+}
+
+
 def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
     """The verdict table of a pipeline run (module docstring), one row per stage that has results.
 
@@ -130,102 +271,9 @@ def verdict_rows(doc: dict[str, Any]) -> list[VerdictRow]:
             why = s.get("error", "").removeprefix("skipped: ")
             rows.append(VerdictRow(s["name"], why, "the stage runs", SKIPPED))
     by = {s["name"]: s.get("headline", {}) for s in doc.get("stages", []) if s["status"] == "ok"}
-
-    if "import" in by:
-        runs = by["import"].get("runs", [])
-        warned = sum(bool(r.get("warnings")) for r in runs)
-        rows.append(VerdictRow("import", f"{len(runs)} run(s), {warned} with warnings (see the runs page)",
-                               "logs that say what they can give", WARN if warned else PASS))
-    if "fit" in by:
-        h = by["fit"]
-        rows.append(_fit_row("fit", h))
-    if "ripple" in by:
-        h = by["ripple"]
-        if h.get("detected"):
-            rho, sd = h["period_rad"], h.get("period_std_rad")
-            dev = rho / RIPPLE_PERIOD_RAD - 1.0
-            fig = f"rho = {rho:.6f} rad" + (f" +- {sd:.2g}" if sd else "") + f" ({100 * dev:+.3f} % from the paper)"
-            m = int(round(rho / RIPPLE_PERIOD_RAD))
-            if 2 <= m <= 4 and abs(rho / (m * RIPPLE_PERIOD_RAD) - 1.0) <= 5e-3:
-                # A longer period whose family holds the paper's line (once per motor revolution, for m = 2).
-                fig = (f"rho = {rho:.6f} rad" + (f" +- {sd:.2g}" if sd else "") + f", {m} x the paper's "
-                       f"({100 * (rho / (m * RIPPLE_PERIOD_RAD) - 1):+.2f} %): its harmonic {m} is the paper's line")
-            rows.append(VerdictRow("ripple", fig, f"paper {RIPPLE_PERIOD_RAD} rad (+-{100 * _PERIOD_DIGITS:.2f} %, "
-                                   "its digits)", PASS if abs(dev) <= _PERIOD_DIGITS else WARN))
-        else:
-            rows.append(VerdictRow("ripple", "no period found", f"paper {RIPPLE_PERIOD_RAD} rad", WARN))
-        refit = h.get("refit")
-        if refit:
-            rows.append(_fit_row("fit with table", refit))
-    if "design" in by:
-        h = by["design"]
-        ratio = h.get("kappa_ratio")
-        if ratio is not None:
-            rows.append(VerdictRow("design", f"kappa margin (linear, section V.C's model) "
-                                   f"{h['kappa_max_additive']:.3g} additive / "
-                                   f"{h['kappa_max_builtin']:.3g} built-in = {ratio:.2f}x",
-                                   f"paper about {_PAPER_KAPPA_RATIO:g}x",
-                                   PASS if ratio >= 0.8 * _PAPER_KAPPA_RATIO else (WARN if ratio > 1 else FAIL)))
-        obs = h.get("observer")
-        if obs:
-            better = obs["improved_rms_nm"] < obs["builtin_rms_nm"]
-            raw = ""
-            if obs.get("improved_rms_raw_nm") is not None:
-                raw = (f"; against the F/T itself {obs['improved_rms_raw_nm']:.3g} and {obs['builtin_rms_raw_nm']:.3g}"
-                       " Nm (their common lag dominates)")
-            rows.append(VerdictRow("observer", f"improved {obs['improved_rms_nm']:.3g} Nm against built-in "
-                                   f"{obs['builtin_rms_nm']:.3g} Nm RMS ({obs['improvement']:.2f}x), |v| > "
-                                   f"{obs.get('speed_threshold_rad_s', 0.5):g} rad/s{raw}",
-                                   "F/T reference through the observers' own lag (K_I)", PASS if better else FAIL))
-    if "deploy" in by:
-        h = by["deploy"]
-        ok = h.get("checks_passed") == h.get("checks")
-        rows.append(VerdictRow("deploy", f"{h.get('checks_passed')}/{h.get('checks')} checks, torque limit "
-                               f"{h.get('torque_limit_nm')} Nm", "every check passes", PASS if ok else FAIL))
-    if "validation" in by:
-        h = by["validation"]
-        step = h.get("tracking", {}).get("step")
-        if step:
-            rows.append(VerdictRow("step", f"overshoot {step['additive_overshoot_pct']:.0f} % additive, "
-                                   f"{step['builtin_overshoot_pct']:.0f} % built-in", "below the built-in loop's",
-                                   PASS if step["additive_overshoot_pct"] < step["builtin_overshoot_pct"] else FAIL))
-        sine = h.get("tracking", {}).get("sine")
-        if sine:
-            hz = h.get("sine_hz")
-            rows.append(VerdictRow("sine", f"{'' if hz is None else f'{hz:g} Hz '}peak error "
-                                   f"{sine['additive_peak_error_nm']:.3g} Nm additive, "
-                                   f"{sine['builtin_peak_error_nm']:.3g} Nm built-in", "below the built-in loop's",
-                                   PASS if sine["additive_peak_error_nm"] < sine["builtin_peak_error_nm"] else FAIL))
-        for source, kl in (h.get("kappa_live") or {}).items():
-            rows.append(_kappa_live_row(source, kl))
-        if h.get("kappa_live_skipped"):
-            rows.append(VerdictRow("kappa live", "not measured", h["kappa_live_skipped"], WARN))
-    if "diagnose" in by:
-        h = by["diagnose"]
-        if h.get("explained"):
-            rows.append(VerdictRow("diagnose", "the model explains the data: nothing named",
-                                   "no effect lowers the held-out residual; residual tests pass", PASS))
-        else:
-            named = ", ".join(f"{e['name']} ({e['gain_pct']:.0f} %)" for e in h.get("effects", [])) or "none"
-            left = h.get("unexplained_channels", [])
-            turned = h.get("sign_reversed", [])
-            rows.append(VerdictRow("diagnose", (f"torque sign reversed in {len(turned)} run(s) (--scale tau_j=-1); "
-                                                if turned else "") + f"named: {named}"
-                                   + (f"; residual tests fail on {len(left)} channel(s)" if left else ""),
-                                   "the model explains the data", WARN))
-    if "held_out" in by:
-        runs = by["held_out"].get("runs", [])
-        ratios = [r["ratio"] for r in runs if r.get("ratio") is not None]
-        if ratios:
-            # Lower is not enough: a prediction worse than a run's mean (negative fit) does not model that run.
-            fits = [f for r in runs for f in r.get("fit_pct", {}).values() if f is not None]
-            worse = [f for f in fits if f < 0]
-            rows.append(VerdictRow("held out", f"each run predicted from the others at {100 * min(ratios):.0f}-"
-                                   f"{100 * max(ratios):.0f} % of the starting model's RMS"
-                                   + (f"; {len(worse)} channel(s) with a fit below 0 % (worst {min(worse):.0f} %)"
-                                      if worse else ""),
-                                   "every run lower, every fit above 0 %",
-                                   PASS if max(ratios) < 1 and not worse else WARN))
+    for name, rows_of in _STAGE_ROWS.items():
+        if name in by:
+            rows += rows_of(by[name])
     order = [s["name"] for s in doc.get("stages", [])]
     where = {r: order.index(_ROW_STAGE.get(r.stage, r.stage)) if _ROW_STAGE.get(r.stage, r.stage) in order
              else len(order) for r in rows}
