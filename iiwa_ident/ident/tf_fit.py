@@ -886,6 +886,149 @@ def output_residual_rms(datasets: Sequence[Dataset], params: dict[str, float],
             for e_t, e_q in problem.unweighted(x)]
 
 
+@dataclass
+class _Covariance:
+    """The estimates' covariance [SI units squared, the log filter's cut-off after the parameters where it was
+    fitted], the block sandwich's in log space, the scaling ``D`` from log space, how the std was computed
+    (:attr:`FitResult.std_method`) and the log filter's fit (:attr:`FitResult.log_filter`)."""
+
+    cov: np.ndarray
+    cov_s: np.ndarray
+    D: np.ndarray
+    method: str
+    log_filter_fit: dict[str, float] | None
+
+
+def _covariance(problem: _Problem, x: np.ndarray, ripple: RippleTerms | None, order: int) -> _Covariance:
+    """The covariance at the estimate ``x``; ``ripple``: the ripple's terms whose period was searched with the
+    parameters (None where it was not), so that their std carry its uncertainty."""
+    # Covariance: Fisher information of the weighted, projected residual; a block sandwich
+    # estimate tells whether the residuals are white enough for it to hold.
+    J = problem.jacobian(x)
+    r = problem.residual(x)
+    searched = ripple is not None and ripple.table is None
+    if searched:
+        # The period was fitted too: its column, so that the parameters' std carry its uncertainty.
+        J = np.column_stack([J, _period_column(problem, x, ripple)])
+    F = np.einsum("ki,kj->ij", J, J)
+    Finv = np.linalg.pinv(F)
+    ids = problem.block_ids()
+    scores = np.zeros((int(ids.max()) + 1, J.shape[1]))
+    np.add.at(scores, ids, J * r[:, None])
+    S = scores.T @ scores
+    cov_s = Finv @ S @ Finv
+    p = np.array(_Problem.x_to_params(x))
+    lf = problem.log_filter(x)
+    D = np.diag([*p[:4], 1e-3] + ([] if lf is None else [lf.values["cutoff_hz"]]) + ([1.0] if searched else []))
+    cov = D @ Finv @ D
+    std_method = STD_FISHER
+    if any(rec.table_signals is not None or rec.ripple_basis for rec in problem.records):
+        # The ripple's inputs are known at the samples only; between them the model interpolates, with
+        # an error that matters at this signal-to-noise ratio. Step doubling estimates it: the fit's
+        # step to a model twice as fine is 3/4 of the usual model's error (the error goes as the square).
+        problem.substeps = 2
+        shift = -Finv @ (J.T @ (problem.residual(x) - r))
+        problem.substeps = 1
+        err = D @ (shift * 4.0 / 3.0)
+        cov = cov + np.outer(err, err)
+        # The reaction multiplies the torque: the model's carries no sensor noise, the measured one no
+        # model error; the estimates' step from one to the other bounds what the choice leaves in them.
+        other = D @ _measured_torque_step(problem, x, J, r, Finv)
+        cov = cov + np.outer(other, other)
+        # What the model still misses (the sandwich sees it in slow residuals) shows first in Td: each
+        # std is at least the block sandwich's, the correlations kept.
+        widen = np.maximum(np.sqrt(np.diag(D @ cov_s @ D) / np.diag(cov)), 1.0)
+        cov = cov * np.outer(widen, widen)
+        std_method = STD_FISHER + STD_RIPPLE
+    if searched:  # the period's own std is not reported; the others are marginal over it
+        cov, cov_s, D = cov[:-1, :-1], cov_s[:-1, :-1], D[:-1, :-1]
+    log_filter_fit = None
+    if lf is not None:
+        # The cut-off's std from the full covariance; the parameters' (5 x 5) block is their marginal one.
+        log_filter_fit = {"cutoff_hz": float(lf.values["cutoff_hz"]), "std": float(math.sqrt(cov[5, 5])),
+                          "order": order}
+        cov, cov_s, D = cov[:5, :5], cov_s[:5, :5], D[:5, :5]
+    return _Covariance(cov, cov_s, D, std_method, log_filter_fit)
+
+
+@dataclass
+class _RecordChecks:
+    """Per record at the estimate: the residuals' RMS, H1 and the model over its bands, the band quality, the
+    sweep's harmonics and nonlinear share, the residual tests (None where the lengths differ)."""
+
+    noise: list[dict[str, float]]
+    frf: list[_frf.FRFEstimate]
+    model_frf: list[np.ndarray]
+    bands: list[BandQuality]
+    harmonics: list[_frf.HarmonicResponses | None]
+    nonlinear: list[list[_frf.NonlinearBand]]
+    tests: list[Any]
+
+
+def _record_checks(problem: _Problem, x: np.ndarray, records: list[FitRecord], values: dict[str, float],
+                   lf: TorqueLogFilter | None) -> _RecordChecks:
+    """What each record says of the fit at ``x`` (:class:`_RecordChecks`)."""
+    noise, frfs, model_frfs, bands, harmonics, nonlinear, tests = [], [], [], [], [], [], []
+    for rec, (e_t, e_q), y_ripple in zip(records, problem.unweighted(x), problem.ripple_response(x)):
+        noise.append({"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))})
+        tests.append(residual_tests(e_t, rec.u) if len(e_t) == len(rec.u) else None)
+        # With known torques (the fitted link-side effects) the model's linear part is compared with the
+        # data less those torques' response: eq (4) alone is not the model then.
+        plain = without_known(rec, values, lf)
+        if y_ripple is not None:
+            plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
+        est_t, _ = record_frf(plain, delay_s=values["Td"])
+        dm = discretize(values, rec.T)
+        model = est_t.band_average(lambda f, dm=dm, T=rec.T: dm.frequency_response(f)[0] * (
+            1.0 if lf is None else lf.frequency_response(f, T)))
+        frfs.append(est_t)
+        model_frfs.append(model)
+        bands.extend(_band_quality(rec.label, est_t, model, rec.f_lo, rec.f_hi))
+        if rec.sweep is not None:
+            sw = rec.sweep
+            h = _frf.ess_harmonics(rec.tau, 1.0 / rec.T, sw["f0_hz"], sw["f1_hz"], sw["duration_s"],
+                                   sw["amplitude_nm"])
+            harmonics.append(h)
+            nonlinear.append(_frf.nonlinear_share(h, _frf.octave_bands(rec.f_lo, rec.f_hi)))
+        else:
+            harmonics.append(None)
+            nonlinear.append([])
+    return _RecordChecks(noise, frfs, model_frfs, bands, harmonics, nonlinear, tests)
+
+
+def _fit_warnings(records: list[FitRecord], checks: _RecordChecks, std_d: dict[str, float],
+                  std_s: dict[str, float], values: dict[str, float]) -> list[str]:
+    """What a user should know before trusting the fit (:attr:`FitResult.warnings`)."""
+    labels = [r.label for r in records]
+    bands, nonlinear, tests = checks.bands, checks.nonlinear, checks.tests
+    warnings = _warnings(std_d, values, bands, nonlinear, labels)
+    widening = float(np.median([std_s[k] / std_d[k] for k in PARAMETER_NAMES]))
+    if widening > _COLOURED_WARN:
+        warnings.append(f"the residuals are far from white noise (a block sandwich estimate gives {widening:.0f} "
+                        "times the std): unmodelled effects such as the transmission ripple or the feasibility "
+                        "filter; the std does not cover their systematic errors")
+    for rec, t in zip(records, tests):
+        ind = next((x for x in t.tests if x.name == INDEPENDENCE), None) if t is not None else None
+        if ind is not None and not ind.passed:
+            warnings.append(f"{rec.label}: the residual follows the torque command ({t.summary()}): the model "
+                            "misses part of the response, and the std, which assumes a complete model, is not to "
+                            "be trusted; 'iiwa-ident diagnose' names what is missing")
+        elif t is not None and not t.passed:
+            # In closed loop the residual is coloured by the loop even where the model is complete (the
+            # benchmark's draws without any nuisance: whiteness failed on 3 of 4): said, not judged.
+            warnings.append(f"{rec.label}: the residual is not white ({t.summary()}): the torque loop colours "
+                            "the noise, and so does an effect the model lacks that does not follow the command "
+                            "(the ripple); the std covers the loop's colouring, not such an effect")
+    for r in records:
+        if r.filled_cycles:
+            warnings.append(f"{r.label}: {r.filled_cycles} lost robot cycles filled (command held, measurements "
+                            "interpolated)")
+    if any(r.sweep is None for r in records):
+        warnings.append("no exponential sweep in " + ", ".join(r.label for r in records if r.sweep is None)
+                        + ": harmonic distortion not analysed")
+    return warnings
+
+
 def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, float] | None = None,
                           max_starts: int = 3, outer_iterations: int = 4,
                           known: Sequence[Sequence[tuple[str, np.ndarray]]] | None = None,
@@ -972,118 +1115,27 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     cost = float(sol.cost)
     n_eval = problem.n_evaluations
 
-    # Covariance: Fisher information of the weighted, projected residual; a block sandwich
-    # estimate tells whether the residuals are white enough for it to hold.
-    J = problem.jacobian(x)
-    r = problem.residual(x)
-    searched = refine and ripple is not None and ripple.table is None
-    if searched:
-        # The period was fitted too: its column, so that the parameters' std carry its uncertainty.
-        J = np.column_stack([J, _period_column(problem, x, ripple)])
-    F = np.einsum("ki,kj->ij", J, J)
-    Finv = np.linalg.pinv(F)
-    ids = problem.block_ids()
-    scores = np.zeros((int(ids.max()) + 1, J.shape[1]))
-    np.add.at(scores, ids, J * r[:, None])
-    S = scores.T @ scores
-    cov_s = Finv @ S @ Finv
-    p = np.array(_Problem.x_to_params(x))
+    c = _covariance(problem, x, ripple if refine else None, order)
     lf = problem.log_filter(x)
-    D = np.diag([*p[:4], 1e-3] + ([] if lf is None else [lf.values["cutoff_hz"]]) + ([1.0] if searched else []))
-    cov = D @ Finv @ D
-    std_method = STD_FISHER
-    if any(rec.table_signals is not None or rec.ripple_basis for rec in records):
-        # The ripple's inputs are known at the samples only; between them the model interpolates, with
-        # an error that matters at this signal-to-noise ratio. Step doubling estimates it: the fit's
-        # step to a model twice as fine is 3/4 of the usual model's error (the error goes as the square).
-        problem.substeps = 2
-        shift = -Finv @ (J.T @ (problem.residual(x) - r))
-        problem.substeps = 1
-        err = D @ (shift * 4.0 / 3.0)
-        cov = cov + np.outer(err, err)
-        # The reaction multiplies the torque: the model's carries no sensor noise, the measured one no
-        # model error; the estimates' step from one to the other bounds what the choice leaves in them.
-        other = D @ _measured_torque_step(problem, x, J, r, Finv)
-        cov = cov + np.outer(other, other)
-        # What the model still misses (the sandwich sees it in slow residuals) shows first in Td: each
-        # std is at least the block sandwich's, the correlations kept.
-        widen = np.maximum(np.sqrt(np.diag(D @ cov_s @ D) / np.diag(cov)), 1.0)
-        cov = cov * np.outer(widen, widen)
-        std_method = STD_FISHER + STD_RIPPLE
-    if searched:  # the period's own std is not reported; the others are marginal over it
-        cov, cov_s, D = cov[:-1, :-1], cov_s[:-1, :-1], D[:-1, :-1]
-    log_filter_fit = None
-    if lf is not None:
-        # The cut-off's std from the full covariance; the parameters' (5 x 5) block is their marginal one.
-        log_filter_fit = {"cutoff_hz": float(lf.values["cutoff_hz"]), "std": float(math.sqrt(cov[5, 5])),
-                          "order": order}
-        cov, cov_s, D = cov[:5, :5], cov_s[:5, :5], D[:5, :5]
-    std = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(std, std)
+    p = np.array(_Problem.x_to_params(x))
+    std = np.sqrt(np.diag(c.cov))
+    corr = c.cov / np.outer(std, std)
     np.fill_diagonal(corr, 1.0)
     corr = np.clip(0.5 * (corr + corr.T), -1.0, 1.0)
 
     values = dict(zip(PARAMETER_NAMES, map(float, p)))
     std_d = dict(zip(PARAMETER_NAMES, map(float, std)))
-    std_s = dict(zip(PARAMETER_NAMES, map(float, np.sqrt(np.diag(D @ cov_s @ D)))))
+    std_s = dict(zip(PARAMETER_NAMES, map(float, np.sqrt(np.diag(c.D @ c.cov_s @ c.D)))))
 
-    noise, frfs, model_frfs, bands, harmonics, nonlinear, tests = [], [], [], [], [], [], []
-    for rec, (e_t, e_q), y_ripple in zip(records, problem.unweighted(x), problem.ripple_response(x)):
-        noise.append({"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))})
-        tests.append(residual_tests(e_t, rec.u) if len(e_t) == len(rec.u) else None)
-        # With known torques (the fitted link-side effects) the model's linear part is compared with the
-        # data less those torques' response: eq (4) alone is not the model then.
-        plain = without_known(rec, values, lf)
-        if y_ripple is not None:
-            plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
-        est_t, _ = record_frf(plain, delay_s=values["Td"])
-        dm = discretize(values, rec.T)
-        model = est_t.band_average(lambda f, dm=dm, T=rec.T: dm.frequency_response(f)[0] * (
-            1.0 if lf is None else lf.frequency_response(f, T)))
-        frfs.append(est_t)
-        model_frfs.append(model)
-        bands.extend(_band_quality(rec.label, est_t, model, rec.f_lo, rec.f_hi))
-        if rec.sweep is not None:
-            sw = rec.sweep
-            h = _frf.ess_harmonics(rec.tau, 1.0 / rec.T, sw["f0_hz"], sw["f1_hz"], sw["duration_s"],
-                                   sw["amplitude_nm"])
-            harmonics.append(h)
-            nonlinear.append(_frf.nonlinear_share(h, _frf.octave_bands(rec.f_lo, rec.f_hi)))
-        else:
-            harmonics.append(None)
-            nonlinear.append([])
+    checks = _record_checks(problem, x, records, values, lf)
     labels = [r.label for r in records]
-    warnings = _warnings(std_d, values, bands, nonlinear, labels)
-    widening = float(np.median([std_s[k] / std_d[k] for k in PARAMETER_NAMES]))
-    if widening > _COLOURED_WARN:
-        warnings.append(f"the residuals are far from white noise (a block sandwich estimate gives {widening:.0f} "
-                        "times the std): unmodelled effects such as the transmission ripple or the feasibility "
-                        "filter; the std does not cover their systematic errors")
-    for rec, t in zip(records, tests):
-        ind = next((x for x in t.tests if x.name == INDEPENDENCE), None) if t is not None else None
-        if ind is not None and not ind.passed:
-            warnings.append(f"{rec.label}: the residual follows the torque command ({t.summary()}): the model "
-                            "misses part of the response, and the std, which assumes a complete model, is not to "
-                            "be trusted; 'iiwa-ident diagnose' names what is missing")
-        elif t is not None and not t.passed:
-            # In closed loop the residual is coloured by the loop even where the model is complete (the
-            # benchmark's draws without any nuisance: whiteness failed on 3 of 4): said, not judged.
-            warnings.append(f"{rec.label}: the residual is not white ({t.summary()}): the torque loop colours "
-                            "the noise, and so does an effect the model lacks that does not follow the command "
-                            "(the ripple); the std covers the loop's colouring, not such an effect")
-    tests = [t for t in tests if t is not None]
-    for r in records:
-        if r.filled_cycles:
-            warnings.append(f"{r.label}: {r.filled_cycles} lost robot cycles filled (command held, measurements "
-                            "interpolated)")
-    if any(r.sweep is None for r in records):
-        warnings.append("no exponential sweep in " + ", ".join(r.label for r in records if r.sweep is None)
-                        + ": harmonic distortion not analysed")
-    return FitResult(parameters=values, std=std_d, std_sandwich=std_s, std_method=std_method, correlation=corr,
-                     covariance=cov, noise=noise,
-                     frf=frfs, model_frf=model_frfs, bands=bands, harmonics=harmonics, nonlinear=nonlinear,
+    warnings = _fit_warnings(records, checks, std_d, std_s, values)
+    tests = [t for t in checks.tests if t is not None]
+    return FitResult(parameters=values, std=std_d, std_sandwich=std_s, std_method=c.method, correlation=corr,
+                     covariance=c.cov, noise=checks.noise, frf=checks.frf, model_frf=checks.model_frf,
+                     bands=checks.bands, harmonics=checks.harmonics, nonlinear=checks.nonlinear,
                      warnings=warnings, initial=starts, labels=labels, cost=cost, n_evaluations=n_eval,
-                     sample_times_s=[r.T for r in records], residual_tests=tests, log_filter=log_filter_fit,
+                     sample_times_s=[r.T for r in records], residual_tests=tests, log_filter=c.log_filter_fit,
                      ripple_period_rad=None if ripple is None else ripple.period_rad)
 
 
