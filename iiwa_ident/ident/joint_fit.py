@@ -218,18 +218,7 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTab
         tops = [r.f_hi for r in prepare_records(datasets)]
         starts = [unfiltered(ds, log_filter, top) for ds, top in zip(datasets, tops)]
     if method == "eq4":
-        result = fit_transfer_function(datasets, log_filter=log_filter,
-                                       initial=None if log_filter is None else initial_estimate(starts)[0])
-        result.method = "eq4"
-        other = None
-        if result.model_rejected:  # a second estimate only where the std needs it
-            try:
-                other = fit_idim(starts)
-            except IiwaIdentError:
-                pass
-        _model_error_std(result, other and other.parameters, other and other.std,
-                         "the inverse-dynamics (IDIM-IV) estimate")
-        return result
+        return _eq4_only(datasets, starts, log_filter)
     idim = fit_idim(starts, None if ripple_table is None else ripple_table.period_rad)
     ripple = idim.effect("transmission_ripple")
     terms = None
@@ -267,46 +256,13 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTab
             terms = replace(terms, period_rad=result.ripple_period_rad, search=False)
             ripple.values["period_rad"] = result.ripple_period_rad
         if any(idim.known_inputs):
-            # The inverse dynamics' effect terms can absorb its own approximation error (the gravity-model
-            # terms did so at 20-40 std on joints without any) or a disturbance it has no term for (a hum
-            # became a load gradient and moved Jl by 7 %); the exact output-error model decides: the
-            # effects' torques, those without the gravity model, or none. Compared at the fitted values
-            # first, so that a second fit runs only when it may win.
-            link_only = [[(kind, s) for kind, s in inputs if kind != "motor"] for inputs in idim.known_inputs]
-            options = [idim.known_inputs] + ([link_only] if link_only != idim.known_inputs else []) + \
-                [[[] for _ in datasets]]
-            here = result.parameters
-            fitted_filter = None if result.log_filter is None else TorqueLogFilter(
-                {"cutoff_hz": result.log_filter["cutoff_hz"], "order": float(result.log_filter["order"])})
-            nll = [_nll(output_residual_rms(datasets, here, known, terms, fitted_filter), datasets)
-                   for known in options]
-            best = int(np.argmin(nll))
-            if best:
-                result = fit_transfer_function(datasets, initial=here, known=options[best], ripple=terms,
-                                               log_filter=fitted_filter)
+            result = _best_known_inputs(datasets, idim, result, terms)
         if terms is not None:
             method = "joint+ripple"
         oe = result
-        moved = _departure(result.parameters, idim.parameters)
-        if moved:
-            # Both estimate the same parameters; a large disagreement usually means the output-error search
-            # went astray (it is local and simulates through the effects). But a disturbance in the
-            # torque signal (a hum) can throw the inverse dynamics off instead: eq (4) alone, searched
-            # from the data, decides which of the two it agrees with.
-            try:
-                alone = fit_transfer_function(datasets, ripple=terms, log_filter=log_filter,
-                                              initial=None if log_filter is None else initial_estimate(starts)[0])
-            except IiwaIdentError:
-                alone = None
-            if alone is not None and not _departure(result.parameters, alone.parameters) \
-                    and _departure(idim.parameters, alone.parameters):
-                result.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
-                                       "kept, as the fit of eq (4) alone agrees with it")
-            else:
-                fallback = _from_idim(idim, datasets, log_filter)
-                fallback.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
-                                         "the inverse-dynamics values are kept")
-                result, method = fallback, "idim"
+        if _departure(result.parameters, idim.parameters):
+            result = _against_idim(datasets, starts, idim, result, terms, log_filter)
+            method = "idim" if result.method == "idim" else method
     if method != "idim":
         _model_error_std(result, idim.parameters, idim.std, "the inverse-dynamics (IDIM-IV) estimate")
     else:
@@ -321,6 +277,72 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTab
     result.effects = idim.effects
     result.lines_hz = idim.lines_hz
     return result
+
+
+def _eq4_only(datasets: Sequence[Dataset], starts: Sequence[Dataset],
+              log_filter: TorqueLogFilter | None) -> FitResult:
+    """Eq (4) alone (``method="eq4"``); the inverse dynamics only where the std needs a second estimate."""
+    result = fit_transfer_function(datasets, log_filter=log_filter,
+                                   initial=None if log_filter is None else initial_estimate(starts)[0])
+    result.method = "eq4"
+    other = None
+    if result.model_rejected:  # a second estimate only where the std needs it
+        try:
+            other = fit_idim(starts)
+        except IiwaIdentError:
+            pass
+    _model_error_std(result, other and other.parameters, other and other.std,
+                     "the inverse-dynamics (IDIM-IV) estimate")
+    return result
+
+
+def _best_known_inputs(datasets: Sequence[Dataset], idim: IdimResult, result: FitResult,
+                       terms: RippleTerms | None) -> FitResult:
+    """The output-error fit with the inverse dynamics' effect torques, those without the gravity model, or none.
+
+    The inverse dynamics' effect terms can absorb its own approximation error (the gravity-model terms did so
+    at 20-40 std on joints without any) or a disturbance it has no term for (a hum became a load gradient and
+    moved Jl by 7 %); the exact output-error model decides. Compared at the fitted values first, so that a
+    second fit runs only when it may win.
+    """
+    link_only = [[(kind, s) for kind, s in inputs if kind != "motor"] for inputs in idim.known_inputs]
+    options = [idim.known_inputs] + ([link_only] if link_only != idim.known_inputs else []) + \
+        [[[] for _ in datasets]]
+    here = result.parameters
+    fitted_filter = None if result.log_filter is None else TorqueLogFilter(
+        {"cutoff_hz": result.log_filter["cutoff_hz"], "order": float(result.log_filter["order"])})
+    nll = [_nll(output_residual_rms(datasets, here, known, terms, fitted_filter), datasets) for known in options]
+    best = int(np.argmin(nll))
+    if not best:
+        return result
+    return fit_transfer_function(datasets, initial=here, known=options[best], ripple=terms, log_filter=fitted_filter)
+
+
+def _against_idim(datasets: Sequence[Dataset], starts: Sequence[Dataset], idim: IdimResult, result: FitResult,
+                  terms: RippleTerms | None, log_filter: TorqueLogFilter | None) -> FitResult:
+    """The output-error fit that moved far from the inverse dynamics, or the inverse dynamics' (``method``
+    ``"idim"``): whichever eq (4) alone, searched from the data, agrees with.
+
+    Both estimate the same parameters; a large disagreement usually means the output-error search went astray
+    (it is local and simulates through the effects). But a disturbance in the torque signal (a hum) can throw
+    the inverse dynamics off instead.
+    """
+    moved = _departure(result.parameters, idim.parameters)
+    try:
+        alone = fit_transfer_function(datasets, ripple=terms, log_filter=log_filter,
+                                      initial=None if log_filter is None else initial_estimate(starts)[0])
+    except IiwaIdentError:
+        alone = None
+    if alone is not None and not _departure(result.parameters, alone.parameters) \
+            and _departure(idim.parameters, alone.parameters):
+        result.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
+                               "kept, as the fit of eq (4) alone agrees with it")
+        return result
+    fallback = _from_idim(idim, datasets, log_filter)
+    fallback.warnings.append(f"the output-error fit moved {moved} from the inverse-dynamics estimate; "
+                             "the inverse-dynamics values are kept")
+    fallback.method = "idim"
+    return fallback
 
 
 def _model_error_std(result: FitResult, other: dict[str, float] | None, other_std: dict[str, float] | None,
