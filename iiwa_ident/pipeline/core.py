@@ -536,6 +536,35 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
     return out
 
 
+def _diagnosis_lines(h: dict[str, Any]) -> list[str]:
+    """The summary's lines of the diagnosis (from the headline)."""
+    lines: list[str] = []
+    for r in h.get("sign_reversed", []):
+        lines.append(f"diagnosis: the torque's sign is reversed in {r['dataset']} (re-import it with --scale "
+                     f"tau_j=-1)")
+    for r in h.get("replaced_effects", []):
+        lines.append(f"diagnosis: the model's {r['old']} contradicted by the data, replaced by "
+                     f"{' + '.join(r['new'])}")
+    left = h.get("unexplained_channels", [])
+    if not h["named_effects"] and not h.get("replaced_effects"):
+        lines.append("diagnosis: the model explains the data, no effect named" if h["model_explained"] else
+                     "diagnosis: the model does not explain the data, but no effect passed every test "
+                     "(diagnose.json: suspects, unexplained_channels)")
+    for e in h["named_effects"]:
+        lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
+    for u in h.get("undecided_effects", []):
+        lines.append(f"diagnosis: undecided: {u['said']}" if "said" in u else
+                     f"diagnosis: {u['name']} kept, but another shape of {u['or_shape_of']} predicts the data as "
+                     f"well (a longer travel of the link decides)")
+    if left:
+        lines.append(f"diagnosis: the residual fails its tests on {len(left)} channel(s) (" + ", ".join(left[:3])
+                     + (", ..." if len(left) > 3 else "") + ")")
+    for a in h.get("ambiguous_effects", []):
+        lines.append(f"diagnosis: {a['name']} not named: the data do not tell it from another shape of "
+                     f"{a['or_shape_of']} ({a['gain_pct']:.1f} % lower with it)")
+    return lines
+
+
 def format_summary(result: PipelineResult) -> str:
     """The summary printed at the end of ``iiwa-ident pipeline``: stages and headline figures."""
     lines = ["", "stage               status    time [s]  note"]
@@ -585,29 +614,7 @@ def format_summary(result: PipelineResult) -> str:
                          f"{row['additive_peak_error_nm']:.1f} Nm (RMS {row['builtin_rms_error_nm']:.1f} against "
                          f"{row['additive_rms_error_nm']:.1f} Nm)")
     if "named_effects" in h:
-        for r in h.get("sign_reversed", []):
-            lines.append(f"diagnosis: the torque's sign is reversed in {r['dataset']} (re-import it with --scale "
-                         f"tau_j=-1)")
-        for r in h.get("replaced_effects", []):
-            lines.append(f"diagnosis: the model's {r['old']} contradicted by the data, replaced by "
-                         f"{' + '.join(r['new'])}")
-        left = h.get("unexplained_channels", [])
-        if not h["named_effects"] and not h.get("replaced_effects"):
-            lines.append("diagnosis: the model explains the data, no effect named" if h["model_explained"] else
-                         "diagnosis: the model does not explain the data, but no effect passed every test "
-                         "(diagnose.json: suspects, unexplained_channels)")
-        for e in h["named_effects"]:
-            lines.append(f"diagnosis: {e['name']} named, held-out residual {e['gain_pct']:.1f} % lower")
-        for u in h.get("undecided_effects", []):
-            lines.append(f"diagnosis: undecided: {u['said']}" if "said" in u else
-                         f"diagnosis: {u['name']} kept, but another shape of {u['or_shape_of']} predicts the data as "
-                         f"well (a longer travel of the link decides)")
-        if left:
-            lines.append(f"diagnosis: the residual fails its tests on {len(left)} channel(s) (" + ", ".join(left[:3])
-                         + (", ..." if len(left) > 3 else "") + ")")
-        for a in h.get("ambiguous_effects", []):
-            lines.append(f"diagnosis: {a['name']} not named: the data do not tell it from another shape of "
-                         f"{a['or_shape_of']} ({a['gain_pct']:.1f} % lower with it)")
+        lines += _diagnosis_lines(h)
     if h.get("data") == "measured":
         lines.append(f"measured data: {len(h.get('runs', []))} run(s): {', '.join(h.get('runs', []))}")
         if "ripple_decided" in h:
