@@ -267,38 +267,7 @@ class Diagnosis:
         elif self.effects:
             lines.append(f"named {len(self.effects)} effect(s):")
             for e in self.effects:
-                pars = ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
-                lines.append(f"  {e.name:<24} confidence {e.confidence:.4f}  {pars}")
-                lines.append(f"  {'':<24} held-out RMS {e.rms_before:.4f} -> {e.rms_after:.4f} Nm "
-                             f"({e.gain_pct:.1f}% lower)")
-                if "shape_fit" in e.detail:
-                    lines.append(f"  {'':<24} its shape reaches {100 * e.detail['shape_fit']:.1f} % of the reduction "
-                                 f"of {e.detail['free_shape']}; those remove {e.detail['shape_left_pct']:.0f} % "
-                                 f"of what it leaves ({e.detail['shape_left_in']})")
-                if "other_shape" in e.detail:
-                    lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
-                if "one_speed_rad_s" in e.detail:
-                    lines.append(f"  {'':<24} the data move at one speed ({e.detail['one_speed_rad_s']:.2g} rad/s): the "
-                                 f"friction at that speed, as Coulomb; runs at other speeds separate the viscous part")
-                if "log_only" in e.detail:
-                    others = ", ".join(f"{k[4:-8].replace('_', ' ')} x{v:.3g}" for k, v in e.detail.items()
-                                       if k.startswith("sse_") and k.endswith("_vs_best") and v > 1.0)
-                    on = f" on {e.detail['own_run']}, whose filter predicts the other runs best" \
-                        if "own_run" in e.detail else ""
-                    lines.append(f"  {'':<24} shape: {e.detail['shape']} (residual SSE of the others{on}: {others}); "
-                                 f"{e.detail['log_only']}")
-                if e.detail.get("against_description"):
-                    lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
-                if e.detail.get("payload"):
-                    lines.append(f"  {'':<24} {e.detail['payload']}")
-                if e.detail.get("across_runs_pct"):
-                    worse = [r for r, g in e.detail["across_runs_pct"].items() if g < -ACROSS_RUNS_WORSE_PCT]
-                    gains = ", ".join(f"{r} {g:.0f} %" for r, g in e.detail["across_runs_pct"].items())
-                    # Each of two runs is predicted from the other alone, whose fit may not fix the effect.
-                    why = "not a cause every run shows" if len(e.detail["across_runs_pct"]) > 2 else \
-                        "from the other run alone, which may not fix it"
-                    lines.append(f"  {'':<24} each run predicted from the others, RMS lower with it: {gains}"
-                                 + (f" (worse on {', '.join(worse)}: {why})" if worse else ""))
+                lines += _effect_lines(e)
         for x in self.ambiguous:
             lines.append(f"  not named: {x['name']} (held-out gain {x['gain_pct']:.0f} %) or the other shape of "
                          f"{x['or_shape_of']}: the data do not decide between them (beyond that shape it gains "
@@ -328,6 +297,44 @@ class Diagnosis:
                      "the model cannot predict from the command; RMS held out, fit % and residual tests in-sample; '-': not "
                      "judged, too short or a command computed from the measurements)")
         return "\n".join(lines)
+
+
+def _effect_lines(e: EffectReport) -> list[str]:
+    """The summary's lines of one named effect: its parameters, held-out gain and what its detail says."""
+    lines: list[str] = []
+    pars = ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
+    lines.append(f"  {e.name:<24} confidence {e.confidence:.4f}  {pars}")
+    lines.append(f"  {'':<24} held-out RMS {e.rms_before:.4f} -> {e.rms_after:.4f} Nm "
+                 f"({e.gain_pct:.1f}% lower)")
+    if "shape_fit" in e.detail:
+        lines.append(f"  {'':<24} its shape reaches {100 * e.detail['shape_fit']:.1f} % of the reduction "
+                     f"of {e.detail['free_shape']}; those remove {e.detail['shape_left_pct']:.0f} % "
+                     f"of what it leaves ({e.detail['shape_left_in']})")
+    if "other_shape" in e.detail:
+        lines.append(f"  {'':<24} in another shape than the model's: {e.detail['other_shape']}")
+    if "one_speed_rad_s" in e.detail:
+        lines.append(f"  {'':<24} the data move at one speed ({e.detail['one_speed_rad_s']:.2g} rad/s): the "
+                     f"friction at that speed, as Coulomb; runs at other speeds separate the viscous part")
+    if "log_only" in e.detail:
+        others = ", ".join(f"{k[4:-8].replace('_', ' ')} x{v:.3g}" for k, v in e.detail.items()
+                           if k.startswith("sse_") and k.endswith("_vs_best") and v > 1.0)
+        on = f" on {e.detail['own_run']}, whose filter predicts the other runs best" \
+            if "own_run" in e.detail else ""
+        lines.append(f"  {'':<24} shape: {e.detail['shape']} (residual SSE of the others{on}: {others}); "
+                     f"{e.detail['log_only']}")
+    if e.detail.get("against_description"):
+        lines.append(f"  {'':<24} against the robot's description: {e.detail['against_description']}")
+    if e.detail.get("payload"):
+        lines.append(f"  {'':<24} {e.detail['payload']}")
+    if e.detail.get("across_runs_pct"):
+        worse = [r for r, g in e.detail["across_runs_pct"].items() if g < -ACROSS_RUNS_WORSE_PCT]
+        gains = ", ".join(f"{r} {g:.0f} %" for r, g in e.detail["across_runs_pct"].items())
+        # Each of two runs is predicted from the other alone, whose fit may not fix the effect.
+        why = "not a cause every run shows" if len(e.detail["across_runs_pct"]) > 2 else \
+            "from the other run alone, which may not fix it"
+        lines.append(f"  {'':<24} each run predicted from the others, RMS lower with it: {gains}"
+                     + (f" (worse on {', '.join(worse)}: {why})" if worse else ""))
+    return lines
 
 
 def undecided_sentence(x: dict[str, Any]) -> str:
