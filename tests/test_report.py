@@ -347,6 +347,10 @@ def test_the_report_draws_what_the_pipeline_kept(workdir, tmp_path, monkeypatch)
         fh.write(b"\0")
     again = load_results(changed, doc, ("fit", "ripple"))
     assert again["load_errors"] == {"fit": "ran again"} and "ripple" in again, again["load_errors"]
+    # A kept file that cannot be read (cut short, or not a result tree) is not trusted either: computed again.
+    (changed / "ripple_result.h5").write_bytes((workdir / "ripple_result.h5").read_bytes()[:5000])
+    again = load_results(changed, doc, ("ripple",))
+    assert again["load_errors"] == {"ripple": "ran again"}, again["load_errors"]
 
 
 def test_the_paper_reproduction_page_is_a_table_of_the_printed_cells():
