@@ -191,9 +191,9 @@ class TestConfigFile:
         with pytest.raises(ConfigError, match=rf"c\.toml: {key}: missing"):
             read_config(path)
 
-    def test_two_ripple_periods_refused(self, config, tmp_path):
-        # A file (with a consistent hash) whose spatial filter and lookup table disagree on rho would
-        # compensate two periods: refused, naming both copies.
+    def test_one_ripple_period(self, config, tmp_path):
+        # The file holds rho once (ripple.period_rad, the filter's and the table's); a second one, in a
+        # file with a consistent hash, is refused.
         config = copy.deepcopy(config)
         config.ripple = RippleTable(0.01963, np.array([0.0, 1e-5, 0.0, -1e-5]))
         data = config_to_dict(config)
@@ -201,7 +201,7 @@ class TestConfigFile:
         data["sha256"] = content_sha256(data)
         path = tmp_path / "c.toml"
         path.write_text(dumps_toml(data))
-        with pytest.raises(ConfigError, match=r"c\.toml: filter\.period_rad: differs from ripple\.period_rad"):
+        with pytest.raises(ConfigError, match=r"c\.toml: filter\.period_rad: unknown key"):
             read_config(path)
 
     @pytest.mark.parametrize("lut, message", [
@@ -215,7 +215,7 @@ class TestConfigFile:
         from iiwa_ident.model import ModelError, table1_model
 
         config = copy.deepcopy(config)
-        config.ripple = RippleTable(config.filter.period_rad, np.array([0.0, 1e-5, 0.0, -1e-5]))
+        config.ripple = RippleTable(0.01963, np.array([0.0, 1e-5, 0.0, -1e-5]))
         data = config_to_dict(config)
         data["ripple"]["lut"] = lut
         data["sha256"] = content_sha256(data)

@@ -10,6 +10,7 @@ import pytest
 import iiwa_ident.design.cycle as cycle_module
 from iiwa_ident.design import (
     DESIGN_BETA,
+    RIPPLE_PERIOD_RAD,
     AdditiveController,
     ControlCycle,
     FilterSettings,
@@ -85,7 +86,6 @@ def test_restart_forgets_the_past():
 def test_one_period_for_the_filter_and_the_lookup_table():
     table = RippleTable(0.2, 1e-4 * np.sin(np.linspace(0, 2 * np.pi, 16, endpoint=False)))
     assert _cycle(ripple=table).torque_filter.period_rad == 0.2  # the filter takes the table's period
-    assert _cycle(ripple=table, filter=FilterSettings(beta=5.0, period_rad=0.2)).torque_filter.beta == 5.0
-    with pytest.raises(ValueError, match="differs from the lookup table's"):
-        _cycle(ripple=table, filter=FilterSettings(period_rad=0.21))
+    assert _cycle(ripple=table, filter=FilterSettings(beta=5.0)).torque_filter.beta == 5.0
+    assert _cycle().torque_filter.period_rad == RIPPLE_PERIOD_RAD  # no table: the paper's rho
     assert _cycle().filter.beta == DESIGN_BETA  # the design's beta by default, as the runtime deploys it

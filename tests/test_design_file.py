@@ -65,7 +65,7 @@ class TestWriteDesign:
             np.testing.assert_array_equal(b.ff[i], d.ff[i])
         assert b.params == d.params and b.feedforward == "reference"
         assert back.margins == margins
-        assert back.KI == 25.0 and back.filter == FilterSettings(5.0, 0.2, 0.01963)
+        assert back.KI == 25.0 and back.filter == FilterSettings(5.0, 0.2)
         assert back.model_file == str(model_path)
         assert back.model_sha256 == hashlib.sha256(model_path.read_bytes()).hexdigest()
         assert back.description == "test"
@@ -111,7 +111,7 @@ _DELETE = object()
 class TestDesignFromDict:
     @pytest.mark.parametrize("key, value, message", [
         ("format", "iiwa-ident-model", "format: expected 'iiwa-ident-design'"),
-        ("format_version", 2, "format_version: unsupported version 2"),
+        ("format_version", 1, "format_version: unsupported version 1 (this tool reads 2)"),
         ("extra", 1, "extra: unknown key"),
         ("gains.Kx", 1.0, "gains.Kx: unknown key"),
         ("sample_time_s", -0.001, "sample_time_s: must be positive"),
@@ -121,8 +121,8 @@ class TestDesignFromDict:
         ("filter.beta", _DELETE, "filter.beta: missing"),
         ("filter.v_min_rad_s", 0.0, "filter.v_min_rad_s: must be positive"),
         ("torque_observer.KI", 30.0, "torque_observer.KI: differs from model.parameters.KI"),
-        # one period for the spatial filter and the lookup table
-        ("filter.period_rad", 0.0197, "filter.period_rad: differs from model.ripple.period_rad"),
+        # one period for the spatial filter and the lookup table: model.ripple.period_rad
+        ("filter.period_rad", 0.0197, "filter.period_rad: unknown key"),
         ("model.parameters.Jc.value", -1.0, "model.parameters.Jc.value: must be positive"),
         ("model.parameters.K.unit", "N/m", "model.parameters.K.unit: expected 'Nm/rad'"),
         ("model.parameters.Td", 0.005, "model.parameters.Td: expected a table"),

@@ -275,7 +275,7 @@ class TestControllerRuntime:
             m = robot.step(Command(tau_c=rt.tau_c))
         q, tau = np.array(q), np.array(tau)
         theta = q - cfg.ripple(q)
-        f = SpatialFilter.from_settings(cfg.filter)
+        f = SpatialFilter.from_settings(cfg.filter, cfg.ripple)
         f.step(0.0, theta[0])  # the runtime starts the filter at rest with the offset removed
         expected = [f.step(x, th) for x, th in zip(tau[1:] - tau[0], theta[1:])]
         np.testing.assert_allclose(filt[1:], expected, rtol=0, atol=1e-12)

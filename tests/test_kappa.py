@@ -22,6 +22,7 @@ from iiwa_ident.design import (
     deployed_loop_matrix,
     deployed_margin,
     design_controller,
+    filter_period,
     kappa_max,
     make_record,
     outer_loop_margins,
@@ -127,7 +128,8 @@ class TestLinearModelOfTheDeployedLoop:
             np.testing.assert_allclose(deployed_loop_matrix(p, k, des), outer_loop_matrix(p, k, des), rtol=0,
                                        atol=1e-12)
             # An F/T sensor without a filter, a spatial filter at standstill: the same loop.
-            same = DeployedLoop("ft", ft_cutoff_hz=None, filter=FilterSettings().along(model.ripple))
+            same = DeployedLoop("ft", ft_cutoff_hz=None, filter=FilterSettings(),
+                                period_rad=filter_period(model.ripple))
             assert max(abs(np.linalg.eigvals(deployed_loop_matrix(p, k, des, loop=same)))) == pytest.approx(
                 max(abs(np.linalg.eigvals(outer_loop_matrix(p, k, des)))), abs=1e-9)
 
@@ -146,7 +148,7 @@ class TestLinearModelOfTheDeployedLoop:
     def test_speed_enters_through_the_spatial_filter(self, model):
         p = JointParameters.from_model(model)
         d = design_controller(p)
-        loop = DeployedLoop("ideal", filter=FilterSettings().along(model.ripple))
+        loop = DeployedLoop("ideal", filter=FilterSettings(), period_rad=filter_period(model.ripple))
         m = deployed_margin(p, d, HumanArm(), loop, [0.0, 0.2, 0.45])
         assert m.by_speed[0] == pytest.approx(kappa_max(p, d), rel=1e-3)
         assert m.kappa_max == min(m.by_speed) and m.kappa_max < m.by_speed[0]

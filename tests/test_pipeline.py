@@ -80,11 +80,11 @@ class TestShortPipeline:
         assert {s["name"]: s["status"] for s in doc["stages"]} == {s.name: "ok" for s in result.stages}
         assert all(s["duration_s"] > 0 for s in doc["stages"])
         h = doc["headline"]
-        for key in ("fit", "rho_rad", "kappa_linear", "observer_improvement", "tracking", "kappa_live",
+        for key in ("fit", "ripple_period_rad", "kappa_linear", "observer_improvement", "tracking", "kappa_live",
                     "named_effects", "replaced_effects", "undecided_effects"):
             assert key in h, key
         # Short experiments still identify the default plant closely.
-        assert abs(h["rho_rad"] - 0.01963) < 1e-4
+        assert abs(h["ripple_period_rad"] - 0.01963) < 1e-4
         assert all(abs(v["error_pct"]) < 5 for v in h["fit"].values()), h["fit"]
         assert h["kappa_linear"]["ratio"] > 2
         # The live margins through FRI (F/T source): the paper's ratio, each predicted by the loop as deployed.

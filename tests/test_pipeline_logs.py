@@ -78,7 +78,7 @@ def test_every_stage_on_logs(logs_run):
     assert h["data"] == "measured" and h["runs"] == ["joint1_vel_p3", "joint1_vel_p6"]
     assert h["ripple_decided"] is True
     # The default plant's ripple, found from the runs alone (0.01963 rad).
-    assert h["rho_rad"] == pytest.approx(0.01963, rel=0.01)
+    assert h["ripple_period_rad"] == pytest.approx(0.01963, rel=0.01)
     assert [r["run"] for r in h["held_out"]] == h["runs"]
     assert all(r["after_nm"] > 0 and r["before_nm"] > 0 for r in h["held_out"])
     held = next(s for s in result.stages if s.name == "held_out").headline["runs"]

@@ -180,7 +180,7 @@ def _non_finite(record: DesignRecord) -> int:
     parts: list = [list(d.params.as_dict().values()), d.sample_time_s, d.c1, d.c2, d.A, d.B, d.C, d.K_fsf, d.L,
                    d.Kr, d.Kr_c, d.Ad, d.Bd, d.Kd, d.Ld, d.Kr_d, d.poles, d.observer_poles, d.builtin_poles,
                    d.additive_poles, d.additive_poles_discrete, record.KI, record.filter.beta,
-                   record.filter.v_min_rad_s, record.filter.period_rad]
+                   record.filter.v_min_rad_s]
     if d.ff is not None:
         parts += list(d.ff) + [d.prefilter_hz, d.prefilter_zeta]
     if d.ffd is not None:
@@ -288,17 +288,17 @@ def check_design(record: DesignRecord, limits: ControllerLimits | None = None,
                         "" if ok_T else "the FRI runs at 1 ms; redesign at that cycle"))
     finite = bad == 0
 
-    rho = _closed_loop_radius(record) if finite else math.nan
-    ok = rho <= MAX_SPECTRAL_RADIUS
-    checks.append(Check("closed_loop_spectral_radius", rho, MAX_SPECTRAL_RADIUS, ok, "<=", "-",
-                        "" if ok else ("the 1 kHz closed loop is unstable" if rho >= 1 else
+    radius = _closed_loop_radius(record) if finite else math.nan
+    ok = radius <= MAX_SPECTRAL_RADIUS
+    checks.append(Check("closed_loop_spectral_radius", radius, MAX_SPECTRAL_RADIUS, ok, "<=", "-",
+                        "" if ok else ("the 1 kHz closed loop is unstable" if radius >= 1 else
                                        "the 1 kHz closed loop is too close to instability")))
-    rho_x = exact_delay_spectral_radius(record.design) if finite else math.nan
-    ok = rho_x <= MAX_SPECTRAL_RADIUS
-    checks.append(Check("exact_delay_spectral_radius", rho_x, MAX_SPECTRAL_RADIUS, ok, "<=", "-",
+    radius_exact = exact_delay_spectral_radius(record.design) if finite else math.nan
+    ok = radius_exact <= MAX_SPECTRAL_RADIUS
+    checks.append(Check("exact_delay_spectral_radius", radius_exact, MAX_SPECTRAL_RADIUS, ok, "<=", "-",
                         "" if ok else "unstable or nearly so with the exact delay instead of Pade"))
 
-    stable = finite and rho < 1.0 and rho_x < 1.0
+    stable = finite and radius < 1.0 and radius_exact < 1.0
     m = record.margins
     if stable:
         builtin = kappa_max(record.design.params, None, m.arm, m.kappa_limit)

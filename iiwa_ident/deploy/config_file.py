@@ -2,10 +2,10 @@
 
 Written by ``iiwa-ident deploy`` after :func:`~iiwa_ident.deploy.checks.check_design`
 passed; self-contained (no other file is needed to run it) and protected by
-the sha256 of its own content. TOML, format version 1::
+the sha256 of its own content. TOML, format version 2::
 
     format = "iiwa-ident-controller"
-    format_version = 1
+    format_version = 2
     sha256 = "..."                     # of the canonical form of everything else (below)
     tool_version = "0.1.0"
     created_utc = "2026-11-21T07:00:00+00:00"
@@ -41,13 +41,12 @@ the sha256 of its own content. TOML, format version 1::
     [prefilter]                        # F(s) P(s) of eq (22), discrete; absent with feedforward = "none"
     Ad = ...; Bd = ...; Cd = ...; Dd = ...
 
-    [filter]                           # spatial filter, eqs (10)-(12)
-    beta = 2.0
+    [filter]                           # spatial filter, eqs (10)-(12), at ripple.period_rad
+    beta = 2.0                         # (the paper's rho without a ripple table)
     v_min_rad_s = 0.2
-    period_rad = 0.01963               # rho
 
     [ripple]                           # optional: lookup table of eq (5)
-    period_rad = 0.01963
+    period_rad = 0.01963               # rho: the lookup table's and the spatial filter's
     lut = [...]                        # [rad]
 
     [torque_observer]                  # eq (13)
@@ -129,7 +128,7 @@ __all__ = [
 ]
 
 CONFIG_FORMAT = "iiwa-ident-controller"
-CONFIG_FORMAT_VERSION = 1
+CONFIG_FORMAT_VERSION = 2
 _C = (0.0, 0.0, 0.0, 1.0)
 
 
@@ -321,7 +320,7 @@ def config_to_dict(config: ControllerConfig) -> dict[str, Any]:
         Af, Bf, Cf, Df = config.prefilter
         out["prefilter"] = {"Ad": _mat(Af), "Bd": _mat(Bf), "Cd": _mat(Cf), "Dd": float(Df)}
     f = config.filter
-    out["filter"] = {"beta": float(f.beta), "v_min_rad_s": float(f.v_min_rad_s), "period_rad": float(f.period_rad)}
+    out["filter"] = {"beta": float(f.beta), "v_min_rad_s": float(f.v_min_rad_s)}
     if config.ripple is not None:
         out["ripple"] = {"period_rad": float(config.ripple.period_rad), "lut": _mat(config.ripple.lut)}
     out["torque_observer"] = {"KI": float(config.KI), "K": float(config.K), "Jl": float(config.Jl)}
@@ -361,7 +360,7 @@ _TABLES: dict[str, set[str]] = {
                "data_sheet_velocity_rad_s"},
     "controller": {"Ad", "Bd", "C", "Kd", "Ld", "Kr_d"},
     "prefilter": {"Ad", "Bd", "Cd", "Dd"},
-    "filter": {"beta", "v_min_rad_s", "period_rad"},
+    "filter": {"beta", "v_min_rad_s"},
     "ripple": {"period_rad", "lut"},
     "torque_observer": {"KI", "K", "Jl"},
     "provenance": {"design_file", "design_sha256", "model_file", "model_sha256", "datasets"},
@@ -402,7 +401,22 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
         raise r.fail("sha256", "does not match the content: the file was modified after it was written; refused "
                      "(a changed limit is written with its checks by 'iiwa-ident deploy --design DESIGN.toml --out "
                      "controller.toml --torque-limit NM' and the other limit options; see 'iiwa-ident deploy --help')")
+    header = _header(r)
+    T, mode = header["sample_time_s"], header["feedforward"]
+    flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True))
+    ripple = None
+    if "ripple" in data:
+        ripple = RippleTable.from_mapping(r.table("ripple"), f"{r.where}ripple", r.error)
+    return ControllerConfig(
+        **header, **_controller(r), prefilter=_config_prefilter(r, mode), filter=flt, ripple=ripple,
+        KI=r.number("torque_observer.KI", positive=True), K=r.number("torque_observer.K", positive=True),
+        Jl=r.number("torque_observer.Jl", positive=True), **_limits(r, header["robot_model"], header["joint"]),
+        robot=_robot(r, T), provenance=_provenance(r), checks=_checks(r),
+        tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")), sha256=sha)
 
+
+def _header(r: _Reader) -> dict[str, Any]:
+    """The robot model, the joint, the sample time and the feed-forward mode, by their config field names."""
     robot_model = r.string("robot_model")
     if robot_model not in ROBOT_MODELS:
         raise r.fail("robot_model", f"unknown robot model {robot_model!r} (known: {', '.join(ROBOT_MODELS)})")
@@ -415,8 +429,11 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
     mode = r.string("feedforward")
     if mode not in FEEDFORWARD_MODES:
         raise r.fail("feedforward", f"expected one of {', '.join(FEEDFORWARD_MODES)}, got {mode!r}")
+    return {"robot_model": robot_model, "joint": joint, "sample_time_s": T, "feedforward": mode}
 
-    # The runtime requires exactly these robot-side settings.
+
+def _robot(r: _Reader, T: float) -> RobotSettings:
+    """``[robot]``: the runtime requires exactly these robot-side settings; a watchdog of at least one cycle."""
     want = RobotSettings()
     for key in ("control_mode", "client_command_mode"):
         if r.string(f"robot.{key}") != getattr(want, key):
@@ -427,8 +444,11 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
     watchdog = r.number("robot.watchdog_timeout_s", positive=True)
     if watchdog < T:
         raise r.fail("robot.watchdog_timeout_s", f"shorter than one cycle ({T:g} s)")
-    robot = RobotSettings(watchdog_timeout_s=watchdog)
+    return RobotSettings(watchdog_timeout_s=watchdog)
 
+
+def _limits(r: _Reader, robot_model: str, joint: int) -> dict[str, Any]:
+    """``[limits]``, within the joint's data sheet, as the config's ``limits`` and data-sheet fields."""
     limits = ControllerLimits(r.number("limits.torque_nm", positive=True),
                               r.number("limits.torque_rate_nm_s", positive=True),
                               r.number("limits.velocity_rad_s", positive=True),
@@ -443,47 +463,41 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
         raise r.fail("limits.torque_nm", f"above the data-sheet limit {sheet.torque_nm:g} Nm")
     if limits.velocity_rad_s > sheet.velocity_rad_s:
         raise r.fail("limits.velocity_rad_s", f"above the data-sheet limit {sheet.velocity_rad_s:g} rad/s")
-    if limits.torque_rate_nm_s > default_rate_limit(sheet):
-        raise r.fail("limits.torque_rate_nm_s", f"above the default limit {default_rate_limit(sheet):g} Nm/s")
-    if limits.reference_rate_nm_s > default_rate_limit(sheet):
-        raise r.fail("limits.reference_rate_nm_s", f"above the default limit {default_rate_limit(sheet):g} Nm/s")
+    for key in ("torque_rate_nm_s", "reference_rate_nm_s"):
+        if getattr(limits, key) > default_rate_limit(sheet):
+            raise r.fail(f"limits.{key}", f"above the default limit {default_rate_limit(sheet):g} Nm/s")
     if limits.reference_nm > limits.torque_nm:
         raise r.fail("limits.reference_nm", "above limits.torque_nm")
+    return {"limits": limits, "data_sheet_torque_nm": ds_torque, "data_sheet_velocity_rad_s": ds_velocity}
 
-    Ad = r.array("controller.Ad", (4, 4))
-    Bd = r.array("controller.Bd", (4,))
+
+def _controller(r: _Reader) -> dict[str, Any]:
+    """``[controller]``: the matrices and gains of eqs (16)-(18), by their config field names."""
     C = r.array("controller.C", (4,))
     if not np.array_equal(C, _C):
         raise r.fail("controller.C", "expected [0, 0, 0, 1] (observable canonical form, eq (21))")
-    Kd, Ld = r.array("controller.Kd", (4,)), r.array("controller.Ld", (4,))
-    Kr_d = r.number("controller.Kr_d")
+    return {"Ad": r.array("controller.Ad", (4, 4)), "Bd": r.array("controller.Bd", (4,)), "C": C,
+            "Kd": r.array("controller.Kd", (4,)), "Ld": r.array("controller.Ld", (4,)),
+            "Kr_d": r.number("controller.Kr_d")}
 
-    prefilter = None
+
+def _config_prefilter(r: _Reader, mode: str) -> tuple | None:
+    """``[prefilter]`` as ``(Ad, Bd, Cd, Dd)``; present exactly when there is a feed-forward."""
     if mode == "none":
-        if "prefilter" in data:
+        if "prefilter" in r.data:
             raise r.fail("prefilter", 'present although feedforward = "none"')
-    else:
-        if "prefilter" not in data:
-            raise r.fail("prefilter", f'missing (required with feedforward = "{mode}")')
-        Af = r.array("prefilter.Ad")
-        if Af.ndim != 2 or Af.shape[0] != Af.shape[1] or Af.shape[0] == 0:
-            raise r.fail("prefilter.Ad", "expected a non-empty square matrix")
-        n = Af.shape[0]
-        prefilter = (Af, r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)), r.number("prefilter.Dd"))
+        return None
+    if "prefilter" not in r.data:
+        raise r.fail("prefilter", f'missing (required with feedforward = "{mode}")')
+    Af = r.array("prefilter.Ad")
+    if Af.ndim != 2 or Af.shape[0] != Af.shape[1] or Af.shape[0] == 0:
+        raise r.fail("prefilter.Ad", "expected a non-empty square matrix")
+    n = Af.shape[0]
+    return (Af, r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)), r.number("prefilter.Dd"))
 
-    flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True),
-                         r.number("filter.period_rad", positive=True))
-    ripple = None
-    if "ripple" in data:
-        ripple = RippleTable.from_mapping(r.table("ripple"), f"{r.where}ripple", r.error)
-        if abs(flt.period_rad - ripple.period_rad) > 1e-12 * ripple.period_rad:
-            # The spatial filter and the lookup table would compensate two different periods.
-            raise r.fail("filter.period_rad", f"differs from ripple.period_rad ({ripple.period_rad:.9g}): the "
-                         "spatial filter and the lookup table must use one period")
-    KI = r.number("torque_observer.KI", positive=True)
-    K = r.number("torque_observer.K", positive=True)
-    Jl = r.number("torque_observer.Jl", positive=True)
 
+def _provenance(r: _Reader) -> Provenance:
+    """``[provenance]``: the design's and the model's files with their sha256, the model's datasets."""
     prov = r.get("provenance")
     fields: dict[str, str] = {}
     for key in ("design_file", "model_file"):
@@ -501,9 +515,13 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
         if not isinstance(s, dict) or not isinstance(s.get("file"), str) or not isinstance(s.get("sha256"), str):
             raise r.fail(key, "expected file and sha256")
         datasets.append(Source(s["file"], s["sha256"], str(s.get("role", "fit"))))
+    return Provenance(datasets=tuple(datasets), **fields)
 
+
+def _checks(r: _Reader) -> list[Check]:
+    """``[[checks]]``: every deployment check, each of which must have passed."""
     checks = []
-    raw = data.get("checks")
+    raw = r.data.get("checks")
     if not isinstance(raw, list):
         raise r.fail("checks", "expected an array of tables")
     for i, c in enumerate(raw):
@@ -516,13 +534,7 @@ def config_from_dict(data: dict[str, Any], where: str = "") -> ControllerConfig:
         if not check.passed:
             raise r.fail(f"{key}.passed", f"check {check.name!r} failed; the config must not be run")
         checks.append(check)
-
-    return ControllerConfig(
-        robot_model=robot_model, joint=joint, sample_time_s=T, feedforward=mode, Ad=Ad, Bd=Bd, C=C, Kd=Kd, Ld=Ld,
-        Kr_d=Kr_d, prefilter=prefilter, filter=flt, ripple=ripple, KI=KI, K=K, Jl=Jl, limits=limits,
-        data_sheet_torque_nm=ds_torque, data_sheet_velocity_rad_s=ds_velocity, robot=robot,
-        provenance=Provenance(datasets=tuple(datasets), **fields), checks=checks,
-        tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")), sha256=sha)
+    return checks
 
 
 def read_config(path: str | os.PathLike) -> ControllerConfig:

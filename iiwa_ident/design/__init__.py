@@ -2,7 +2,7 @@
 
 Public API
 ----------
-SpatialFilter, FilterSettings, spatial_filter_response, ripple_bandpass_coefficients, gamma_weight, ripple_line_cut
+SpatialFilter, FilterSettings, filter_period, spatial_filter_response, ripple_bandpass_coefficients, gamma_weight, ripple_line_cut
     The spatial filter and its settings of eqs (10)-(12) (:mod:`iiwa_ident.design.spatial_filter`).
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
 run_observers, compare_observers, observer_lag
@@ -86,6 +86,7 @@ from iiwa_ident.design.spatial_filter import (
     V_MIN_RAD_S,
     FilterSettings,
     SpatialFilter,
+    filter_period,
     gamma_weight,
     ripple_bandpass_coefficients,
     ripple_line_cut,
@@ -99,7 +100,7 @@ __all__ = [
     "HumanArm", "AdditiveDesign", "AdditiveController", "DiscreteDesign", "OuterLoopMargins", "DesignError",
     "PAPER_POLES", "PAPER_OBSERVER_POLES", "design_controller", "kappa_max", "outer_loop_margins",
     "DeployedLoop", "DeployedMargin", "deployed_kappa_max", "deployed_loop_matrix", "deployed_margin",
-    "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "PAPER_FILTER", "DesignFileError", "make_record", "read_design",
+    "exact_delay_spectral_radius", "DesignRecord", "FilterSettings", "filter_period", "PAPER_FILTER", "DesignFileError", "make_record", "read_design",
     "write_design", "paper_reproduction", "format_reproduction",
     "reproduction_cells", "REPRODUCTION_COLUMNS", "REPRODUCTION_POLES", "ReproductionRow",
     "ClosedLoopRun", "KappaMargin", "ControlCycle",

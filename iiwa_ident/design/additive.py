@@ -269,7 +269,8 @@ def _acker(A: np.ndarray, B: np.ndarray, poles: np.ndarray) -> np.ndarray:
 
 def _place_scaled(A: np.ndarray, B: np.ndarray, C: np.ndarray, S: np.ndarray,
                   poles: np.ndarray, observer_poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``K`` with eig(A - B K) = poles and ``L`` with eig(A - L C) = observer_poles, placed on ``x = S x_s``."""
+    """The state feedback ``gain`` with eig(A - B gain) = poles and ``L`` with eig(A - L C) = observer_poles,
+    placed on ``x = S x_s``."""
     Si = np.linalg.inv(S)
     As, Bs, Cs = Si @ A @ S, Si @ B, C @ S
     Ks = _acker(As, Bs, poles)
@@ -408,17 +409,17 @@ class AdditiveDesign:
             ``Bc`` is (n, 2), ``Cc`` (n,), ``Dc`` (2,).
         """
         if discrete:
-            A, B, K, L, ff = self.Ad, self.Bd, self.Kd, self.Ld, self.ffd
+            A, B, gain, L, ff = self.Ad, self.Bd, self.Kd, self.Ld, self.ffd
             kr = self.Kr_d if kr is None else kr
         else:
-            A, B, K, L, ff = self.A, self.B, self.K_fsf, self.L, self.ff
+            A, B, gain, L, ff = self.A, self.B, self.K_fsf, self.L, self.ff
             kr = self.Kr_c if kr is None else kr
         C = self.C
         if scaled:
             S = _scaling(self.A)
             Si = np.linalg.inv(S)
-            A, B, C, K, L = Si @ A @ S, Si @ B, C @ S, K @ S, Si @ L
-        return _compose(A, B, C, K, L, kr, ff, self.feedforward == "reference")
+            A, B, C, gain, L = Si @ A @ S, Si @ B, C @ S, gain @ S, Si @ L
+        return _compose(A, B, C, gain, L, kr, ff, self.feedforward == "reference")
 
     def model_matrices(self, discrete: bool = True, scaled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The design model ``(A, B, C)`` (Padé-delayed eq (4)), continuous or ZOH at T."""
@@ -450,18 +451,18 @@ class AdditiveDesign:
         return AdditiveController(self)
 
 
-def _compose(A, B, C, K, L, kr, ff, reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _compose(A, B, C, gain, L, kr, ff, reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Stack eqs (16)-(18) (+ reference model, + feed-forward) into one system ``[r, y] -> tau_c``."""
     n = A.shape[0]
     nf = 0 if ff is None else ff[0].shape[0]
     nr = n if reference else 0
     N = n + nr + nf
     Ac, Bc, Cc, Dc = np.zeros((N, N)), np.zeros((N, 2)), np.zeros(N), np.zeros(2)
-    # Observer (17) fed with tau_fb = -K x_hat + kr r and the measured (minus reference) torque.
-    Ac[:n, :n] = A - np.outer(B, K) - np.outer(L, C)
+    # Observer (17) fed with tau_fb = -gain x_hat + kr r and the measured (minus reference) torque.
+    Ac[:n, :n] = A - np.outer(B, gain) - np.outer(L, C)
     Bc[:n, 0] = B * kr
     Bc[:n, 1] = L
-    Cc[:n] = -K
+    Cc[:n] = -gain
     Dc[0] = kr
     if ff is not None:
         Af, Bf, Cf, Df = ff
@@ -565,7 +566,7 @@ def design_controller(params: JointParameters, poles: Sequence[complex] = PAPER_
     S = _scaling(A)
     Si = np.linalg.inv(S)
     K_fsf, L = _place_scaled(A, B, C, S, p, o)
-    # Continuous feedback-only Kr (the paper's): 1 / (C (B K - A)^-1 B), on the scaled state.
+    # Continuous feedback-only Kr (the paper's): 1 / (C (B K_fsf - A)^-1 B), on the scaled state.
     As, Bs, Cs, Ks = Si @ A @ S, Si @ B, C @ S, K_fsf @ S
     Kr = float(1.0 / (Cs @ np.linalg.solve(np.outer(Bs, Ks) - As, Bs)))
 

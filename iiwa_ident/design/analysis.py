@@ -354,7 +354,7 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
     dt = robot.sample_time_s
     ripple = model.ripple if model is not None else getattr(controller, "ripple", None)
     theta = np.asarray(joint_position(run.q_m, ripple), float)
-    run.tau_j_filt = SpatialFilter.from_settings(filter or FilterSettings(), dt, ripple).apply(run.tau_j, theta)
+    run.tau_j_filt = SpatialFilter.from_settings(filter or FilterSettings(), ripple, dt).apply(run.tau_j, theta)
     return run
 
 

@@ -70,13 +70,13 @@ class ControlCycle:
         self.controller = controller
         self.ripple = ripple
         self.dt = float(dt)
-        #: The spatial filters' settings, the period fixed beside the lookup table (one rho for both).
-        self.filter = (filter or FilterSettings()).along(ripple)
-        self.torque_filter = SpatialFilter.from_settings(self.filter, dt)
+        #: The spatial filters' settings; they work at the lookup table's period (one rho for both).
+        self.filter = filter or FilterSettings()
+        self.torque_filter = SpatialFilter.from_settings(self.filter, ripple, dt)
         with_observer = K is not None and KI is not None and Jl is not None
         self._K = float(K) if K is not None else None
         self.observer = MomentumObserver(KI, Jl, dt) if with_observer else None
-        self.observer_filter = SpatialFilter.from_settings(self.filter, dt) if with_observer else None
+        self.observer_filter = SpatialFilter.from_settings(self.filter, ripple, dt) if with_observer else None
         self.started = False
         self.tau_offset = 0.0  #: tau_J at the (re)start [Nm]
         self.theta_j = 0.0  #: joint position of eq (8) at the last sample [rad]

@@ -1,9 +1,9 @@
-"""The design file: TOML, format version 1, written by ``iiwa-ident design``.
+"""The design file: TOML, format version 2, written by ``iiwa-ident design``.
 
 Everything a 1 kHz controller needs, plus what it was designed from::
 
     format = "iiwa-ident-design"
-    format_version = 1
+    format_version = 2
     tool_version = "0.1.0"
     created_utc = "2026-11-21T06:00:00+00:00"
     sample_time_s = 0.001
@@ -15,13 +15,12 @@ Everything a 1 kHz controller needs, plus what it was designed from::
     [model.parameters]                 # SI units
     Jc = { value = 1.03, unit = "kg m^2" }   # ... bc, K, Jl, Td, KI
     [model.ripple]                     # optional: the model's ripple table, eq (5)
-    period_rad = 0.01963
+    period_rad = 0.01963               # rho: the lookup table's and the spatial filter's
     lut = [...]
 
-    [filter]                           # spatial filter, eqs (10)-(12)
-    beta = 2.0
+    [filter]                           # spatial filter, eqs (10)-(12), at model.ripple.period_rad
+    beta = 2.0                         # (the paper's rho without a ripple table)
     v_min_rad_s = 0.2
-    period_rad = 0.01963               # rho (ripple period of the model, or the paper's)
 
     [torque_observer]                  # external-torque observer, eq (13)
     KI = 25.0                          # [rad/s]
@@ -108,7 +107,7 @@ __all__ = [
 ]
 
 DESIGN_FORMAT = "iiwa-ident-design"
-DESIGN_FORMAT_VERSION = 1
+DESIGN_FORMAT_VERSION = 2
 
 
 class DesignFileError(IiwaIdentError):
@@ -162,17 +161,13 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
     model_path : path, optional
         Its file; recorded with its sha256.
     filter : FilterSettings, optional
-        The spatial filter's beta and v_min (default: the design's); its period is the ripple table's
-        (a different one is refused).
+        The spatial filter's beta and v_min (default: the design's); it works at the ripple table's
+        period (:func:`~iiwa_ident.design.spatial_filter.filter_period`).
     """
     sha = None
     if model_path is not None:
         sha = hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
-    try:
-        settings = (filter or FilterSettings()).along(model.ripple)
-    except ValueError as err:
-        raise DesignError(str(err)) from None
-    return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")), filter=settings,
+    return DesignRecord(design=design, margins=margins, KI=float(model.value("KI")), filter=filter or FilterSettings(),
                         ripple=model.ripple, model_file=None if model_path is None else str(model_path),
                         model_sha256=sha, description=description, tool_version=tool_version())
 
@@ -211,8 +206,7 @@ def design_to_dict(record: DesignRecord) -> dict[str, Any]:
     if record.ripple is not None:
         model["ripple"] = {"period_rad": float(record.ripple.period_rad), "lut": _mat(record.ripple.lut)}
     out["model"] = model
-    out["filter"] = {"beta": record.filter.beta, "v_min_rad_s": record.filter.v_min_rad_s,
-                     "period_rad": record.filter.period_rad}
+    out["filter"] = {"beta": record.filter.beta, "v_min_rad_s": record.filter.v_min_rad_s}
     out["torque_observer"] = {"KI": record.KI}
     out["poles"] = {
         "controller": _pairs(d.poles), "observer": _pairs(d.observer_poles), "builtin": _pairs(d.builtin_poles),
@@ -251,7 +245,7 @@ _TOP = {"format", "format_version", "tool_version", "created_utc", "description"
         "model", "filter", "torque_observer", "poles", "gains", "continuous", "discrete", "prefilter", "outer_loop"}
 _TABLE_KEYS = {
     "model": {"file", "sha256", "parameters", "ripple"},
-    "filter": {"beta", "v_min_rad_s", "period_rad"},
+    "filter": {"beta", "v_min_rad_s"},
     "torque_observer": {"KI"},
     "poles": {"controller", "observer", "builtin", "additive", "additive_discrete"},
     "gains": {"K_fsf", "L", "Kr", "Kr_c", "Kd", "Ld", "Kr_d"},
@@ -294,8 +288,29 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
     mode = r.string("feedforward")
     if mode not in FEEDFORWARD_MODES:
         raise r.fail("feedforward", f"expected one of {', '.join(FEEDFORWARD_MODES)}, got {mode!r}")
+    values, params = _parameters(r)
+    model_file, sha = _model_source(r)
+    raw_ripple = r.table("model.ripple", required=False)
+    ripple = None if raw_ripple is None else RippleTable.from_mapping(raw_ripple, f"{r.where}model.ripple", r.error)
+    flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True))
+    KI = r.number("torque_observer.KI", positive=True)
+    if abs(KI - values["KI"]) > 1e-12 * max(1.0, KI):
+        raise r.fail("torque_observer.KI", f"differs from model.parameters.KI ({values['KI']:g})")
+    poles = _poles(r, T)
+    matrices = _matrices(r)
+    _check_placement(r, matrices, poles, T)
+    design = AdditiveDesign(
+        params=params, sample_time_s=T, feedforward=mode, poles=poles["controller"],
+        observer_poles=poles["observer"], builtin_poles=poles["builtin"], additive_poles=poles["additive"],
+        additive_poles_discrete=poles["additive_discrete"], **matrices, **_prefilter(r, mode))
+    description = data.get("description", "")
+    return DesignRecord(design=design, margins=_margins(r), KI=KI, filter=flt, ripple=ripple, model_file=model_file,
+                        model_sha256=sha, description=str(description),
+                        tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")))
 
-    # Model
+
+def _parameters(r: _Reader) -> tuple[dict[str, float], JointParameters]:
+    """``model.parameters``: the values by name (KI among them) and the joint's parameters."""
     values: dict[str, float] = {}
     for name, unit in PARAMETER_UNITS.items():
         key = f"model.parameters.{name}"
@@ -304,9 +319,13 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
         if entry.get("unit", unit) != unit:
             raise r.fail(f"{key}.unit", f"expected {unit!r}, got {entry.get('unit')!r}")
     try:
-        params = JointParameters.from_mapping(values)
+        return values, JointParameters.from_mapping(values)
     except ParameterError as err:
         raise r.fail("model.parameters", str(err)) from None
+
+
+def _model_source(r: _Reader) -> tuple[str | None, str | None]:
+    """The model's file and its sha256, each None where the design does not record it."""
     model_file = r.get("model.file", required=False)
     sha = r.get("model.sha256", required=False)
     if model_file is not None:
@@ -315,19 +334,11 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
         sha = r.string("model.sha256")
         if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
             raise r.fail("model.sha256", "expected 64 lower-case hex digits")
-    raw_ripple = r.table("model.ripple", required=False)
-    ripple = None if raw_ripple is None else RippleTable.from_mapping(raw_ripple, f"{r.where}model.ripple", r.error)
-    flt = FilterSettings(r.number("filter.beta", positive=True), r.number("filter.v_min_rad_s", positive=True),
-                         r.number("filter.period_rad", positive=True))
-    if ripple is not None and abs(flt.period_rad - ripple.period_rad) > 1e-12 * ripple.period_rad:
-        # The spatial filter and the lookup table would compensate two different periods.
-        raise r.fail("filter.period_rad", f"differs from model.ripple.period_rad ({ripple.period_rad:.9g}): the "
-                     "spatial filter and the lookup table must use one period")
-    KI = r.number("torque_observer.KI", positive=True)
-    if abs(KI - values["KI"]) > 1e-12 * max(1.0, KI):
-        raise r.fail("torque_observer.KI", f"differs from model.parameters.KI ({values['KI']:g})")
+    return model_file, sha
 
-    # Poles
+
+def _poles(r: _Reader, T: float) -> dict[str, np.ndarray]:
+    """``[poles]`` by key; the controller's and the observer's checked as a design's (:func:`check_poles`)."""
     poles = {}
     for key, what in (("controller", "poles"), ("observer", "observer poles")):
         p = r.poles(f"poles.{key}", 4)
@@ -335,73 +346,69 @@ def design_from_dict(data: dict[str, Any], where: str = "") -> DesignRecord:
             poles[key] = check_poles(p, what, T)
         except DesignError as err:
             raise r.fail(f"poles.{key}", str(err)) from None
-    builtin = r.poles("poles.builtin", 2)
-    additive = r.poles("poles.additive", 8)
-    additive_d = r.poles("poles.additive_discrete", 8)
+    poles["builtin"] = r.poles("poles.builtin", 2)
+    poles["additive"] = r.poles("poles.additive", 8)
+    poles["additive_discrete"] = r.poles("poles.additive_discrete", 8)
+    return poles
 
-    # Matrices and gains
-    A = r.array("continuous.A", (4, 4))
-    B = r.array("continuous.B", (4,))
+
+def _matrices(r: _Reader) -> dict[str, Any]:
+    """``[continuous]``, ``[discrete]`` and ``[gains]`` as :class:`AdditiveDesign`'s keyword arguments."""
     C = r.array("continuous.C", (4,))
     if not np.array_equal(C, [0.0, 0.0, 0.0, 1.0]):
         raise r.fail("continuous.C", "expected [0, 0, 0, 1] (observable canonical form, eq (21))")
-    c1, c2 = r.number("continuous.c1", positive=True), r.number("continuous.c2", positive=True)
-    Ad = r.array("discrete.Ad", (4, 4))
-    Bd = r.array("discrete.Bd", (4,))
-    g = {k: r.array(f"gains.{k}", (4,)) for k in ("K_fsf", "L", "Kd", "Ld")}
-    Kr, Kr_c, Kr_d = r.number("gains.Kr"), r.number("gains.Kr_c"), r.number("gains.Kr_d")
+    out: dict[str, Any] = {"A": r.array("continuous.A", (4, 4)), "B": r.array("continuous.B", (4,)), "C": C,
+                           "c1": r.number("continuous.c1", positive=True),
+                           "c2": r.number("continuous.c2", positive=True),
+                           "Ad": r.array("discrete.Ad", (4, 4)), "Bd": r.array("discrete.Bd", (4,))}
+    out.update({k: r.array(f"gains.{k}", (4,)) for k in ("K_fsf", "L", "Kd", "Ld")})
+    out.update({k: r.number(f"gains.{k}") for k in ("Kr", "Kr_c", "Kr_d")})
+    return out
 
-    ff = ffd = None
-    prefilter_hz, prefilter_zeta = 0.0, 0.0
-    if mode == "none":
-        if r.table("prefilter", required=False) is not None:
-            raise r.fail("prefilter", 'present although feedforward = "none"')
-    else:
-        if r.table("prefilter", required=False) is None:
-            raise r.fail("prefilter", f'missing (required with feedforward = "{mode}")')
-        prefilter_hz = r.number("prefilter.natural_frequency_hz", positive=True)
-        prefilter_zeta = r.number("prefilter.zeta", positive=True)
-        Af = r.square("prefilter.A")
-        n = Af.shape[0]
-        ff = (Af, r.array("prefilter.B", (n,)), r.array("prefilter.C", (n,)), r.number("prefilter.D"))
-        ffd = (r.array("prefilter.Ad", (n, n)), r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)),
-               r.number("prefilter.Dd"))
-        if np.abs(np.linalg.eigvals(ffd[0])).max() >= 1.0:
-            raise r.fail("prefilter.Ad", "is not stable")
 
-    # The stored gains must place the stored poles (on the well-conditioned scaled state).
-    S = _scaling(A)
+def _check_placement(r: _Reader, m: dict[str, Any], poles: dict[str, np.ndarray], T: float) -> None:
+    """The stored gains must place the stored poles (on the well-conditioned scaled state)."""
+    S = _scaling(m["A"])
     Si = np.linalg.inv(S)
+    A, B, C, Ad, Bd = m["A"], m["B"], m["C"], m["Ad"], m["Bd"]
     checks = [
-        ("gains.K_fsf", Si @ (A - np.outer(B, g["K_fsf"])) @ S, poles["controller"]),
-        ("gains.L", Si @ (A - np.outer(g["L"], C)) @ S, poles["observer"]),
-        ("gains.Kd", Si @ (Ad - np.outer(Bd, g["Kd"])) @ S, np.exp(poles["controller"] * T)),
-        ("gains.Ld", Si @ (Ad - np.outer(g["Ld"], C)) @ S, np.exp(poles["observer"] * T)),
+        ("gains.K_fsf", Si @ (A - np.outer(B, m["K_fsf"])) @ S, poles["controller"]),
+        ("gains.L", Si @ (A - np.outer(m["L"], C)) @ S, poles["observer"]),
+        ("gains.Kd", Si @ (Ad - np.outer(Bd, m["Kd"])) @ S, np.exp(poles["controller"] * T)),
+        ("gains.Ld", Si @ (Ad - np.outer(m["Ld"], C)) @ S, np.exp(poles["observer"] * T)),
     ]
     for key, M, roots in checks:
         if not _char_poly_close(M, roots, 1e-6):
             raise r.fail(key, "does not place the poles stored in [poles] (file edited or damaged?)")
 
-    arm_k = r.number("outer_loop.arm_stiffness", positive=True)
-    arm_d = r.number("outer_loop.arm_damping", nonneg=True)
-    arm_j = r.number("outer_loop.arm_inertia", nonneg=True)
-    margins = OuterLoopMargins(
+
+def _prefilter(r: _Reader, mode: str) -> dict[str, Any]:
+    """``[prefilter]`` as :class:`AdditiveDesign`'s keyword arguments (none with ``feedforward = "none"``)."""
+    if mode == "none":
+        if r.table("prefilter", required=False) is not None:
+            raise r.fail("prefilter", 'present although feedforward = "none"')
+        return {"ff": None, "ffd": None, "prefilter_hz": 0.0, "prefilter_zeta": 0.0}
+    if r.table("prefilter", required=False) is None:
+        raise r.fail("prefilter", f'missing (required with feedforward = "{mode}")')
+    Af = r.square("prefilter.A")
+    n = Af.shape[0]
+    ff = (Af, r.array("prefilter.B", (n,)), r.array("prefilter.C", (n,)), r.number("prefilter.D"))
+    ffd = (r.array("prefilter.Ad", (n, n)), r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)),
+           r.number("prefilter.Dd"))
+    if np.abs(np.linalg.eigvals(ffd[0])).max() >= 1.0:
+        raise r.fail("prefilter.Ad", "is not stable")
+    return {"ff": ff, "ffd": ffd, "prefilter_hz": r.number("prefilter.natural_frequency_hz", positive=True),
+            "prefilter_zeta": r.number("prefilter.zeta", positive=True)}
+
+
+def _margins(r: _Reader) -> OuterLoopMargins:
+    """``[outer_loop]``: the human arm and the design's outer-loop margins."""
+    arm = HumanArm(r.number("outer_loop.arm_stiffness", positive=True),
+                   r.number("outer_loop.arm_damping", nonneg=True), r.number("outer_loop.arm_inertia", nonneg=True))
+    return OuterLoopMargins(
         builtin=r.number("outer_loop.kappa_max_builtin", nonneg=True, allow_inf=True),
         additive=r.number("outer_loop.kappa_max_additive", nonneg=True, allow_inf=True),
-        arm=HumanArm(arm_k, arm_d, arm_j),
-        kappa_limit=r.number("outer_loop.kappa_limit", positive=True),
-    )
-    design = AdditiveDesign(
-        params=params, sample_time_s=T, feedforward=mode, poles=poles["controller"],
-        observer_poles=poles["observer"], prefilter_hz=prefilter_hz, prefilter_zeta=prefilter_zeta,
-        c1=c1, c2=c2, A=A, B=B, C=C, K_fsf=g["K_fsf"], L=g["L"], Kr=Kr, Kr_c=Kr_c, Ad=Ad, Bd=Bd,
-        Kd=g["Kd"], Ld=g["Ld"], Kr_d=Kr_d, ff=ff, ffd=ffd, builtin_poles=builtin,
-        additive_poles=additive, additive_poles_discrete=additive_d,
-    )
-    description = data.get("description", "")
-    return DesignRecord(design=design, margins=margins, KI=KI, filter=flt, ripple=ripple, model_file=model_file,
-                        model_sha256=sha, description=str(description),
-                        tool_version=str(data.get("tool_version", "")), created_utc=str(data.get("created_utc", "")))
+        arm=arm, kappa_limit=r.number("outer_loop.kappa_limit", positive=True))
 
 
 def read_design(path: str | os.PathLike) -> DesignRecord:

@@ -320,11 +320,13 @@ class DeployedLoop:
         Observer gain of ``"estimate"`` and ``"fri"`` [1/s].
     filter : FilterSettings or None
         The spatial filter of eqs (10)-(12) on the additive controller's torque feedback, eq (15), and
-        on the estimate, eq (14); None: no spatial filter (the model of section V.C). Its period must
-        be set.
+        on the estimate, eq (14); None: no spatial filter (the model of section V.C).
     speed_rad_s : float
         The joint speed the spatial filter is taken at [rad/s]: at a constant speed it is a linear
         time-invariant filter (a notch at the ripple frequency ``|v| / rho``, weighted by gamma).
+    period_rad : float
+        The ripple period rho the spatial filter works at [rad]: the lookup table's
+        (:func:`~iiwa_ident.design.spatial_filter.filter_period`).
     """
 
     source: str = "ideal"
@@ -333,12 +335,11 @@ class DeployedLoop:
     KI: float = 25.0
     filter: FilterSettings | None = None
     speed_rad_s: float = 0.0
+    period_rad: float = RIPPLE_PERIOD_RAD
 
     def __post_init__(self) -> None:
         if self.source not in ("ideal", *TAU_EXT_SOURCES):
             raise DesignError(f"unknown external-torque source {self.source!r}")
-        if self.filter is not None and self.filter.period_rad is None:
-            raise DesignError("the deployed loop's spatial filter needs its period")
 
 
 def _series(first: tuple, second: tuple) -> tuple:
@@ -369,7 +370,7 @@ def _siso(b: np.ndarray, a: np.ndarray) -> tuple:
 _ONE = (np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0)
 
 
-def _spatial_filter(settings: FilterSettings | None, speed: float, T: float) -> tuple:
+def _spatial_filter(settings: FilterSettings | None, period_rad: float, speed: float, T: float) -> tuple:
     """Eqs (10)-(12) at a constant speed: ``1 - gamma^2 H_bp(z)^2`` with the Tustin step ``|v| T``."""
     if settings is None:
         return _ONE
@@ -377,7 +378,7 @@ def _spatial_filter(settings: FilterSettings | None, speed: float, T: float) -> 
     delta = abs(speed) * T
     if g == 0.0 or delta == 0.0:
         return _ONE
-    b, a = ripple_bandpass_coefficients(settings.period_rad or RIPPLE_PERIOD_RAD, settings.beta, delta)
+    b, a = ripple_bandpass_coefficients(period_rad, settings.beta, delta)
     num = np.polysub(np.polymul(a, a), g * g * np.polymul(b, b))
     return _siso(num, np.polymul(a, a))
 
@@ -395,7 +396,7 @@ def _observer(KI: float, Jl: float, T: float) -> tuple[np.ndarray, np.ndarray, n
 def _measurement(params: JointParameters, arm: HumanArm, loop: DeployedLoop, T: float, additive: bool,
                  C_j: np.ndarray, C_e: np.ndarray) -> _Measurement:
     """The deployed loop's sensors, observers and filters as one :class:`_Measurement`."""
-    spatial = _spatial_filter(loop.filter, loop.speed_rad_s, T)
+    spatial = _spatial_filter(loop.filter, loop.period_rad, loop.speed_rad_s, T)
     # tau_j as the controller sees it: spatially filtered in the additive controller's feedback, eq (15).
     seen_j = _series(_static(C_j), spatial if additive else _ONE)
     if loop.source in ("ideal", "ft"):
@@ -475,6 +476,6 @@ def deployed_margin(params: JointParameters, design: AdditiveDesign | None, arm:
     uses_speed = loop.filter is not None and (design is not None or loop.source == "estimate")
     speeds = tuple(float(v) for v in speeds_rad_s) if uses_speed else (0.0,)
     values = tuple(deployed_kappa_max(params, design, arm, DeployedLoop(
-        loop.source, loop.ft_cutoff_hz, loop.ft_rate_hz, loop.KI, loop.filter, v), kappa_limit) for v in speeds)
+        loop.source, loop.ft_cutoff_hz, loop.ft_rate_hz, loop.KI, loop.filter, v, loop.period_rad), kappa_limit) for v in speeds)
     i = int(np.argmin(values))
     return DeployedMargin(values[i], speeds[i], speeds, values)

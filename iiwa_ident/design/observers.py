@@ -205,7 +205,7 @@ class FilteredObserver(LinkVelocityObserver):
         if model.ripple is None:
             raise IiwaIdentError("observer: the spatially filtered observer needs the model's ripple table "
                                  "(run the ripple identification first)")
-        self.filter = SpatialFilter.from_settings(filter, dt, model.ripple)
+        self.filter = SpatialFilter.from_settings(filter, model.ripple, dt)
         super().__init__(model, dt)
 
     def reset(self) -> None:

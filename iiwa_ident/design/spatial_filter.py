@@ -68,7 +68,7 @@ the notch and the boost (:func:`spatial_filter_response`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -92,6 +92,7 @@ __all__ = [
     "PAPER_BETA",
     "V_MIN_RAD_S",
     "FilterSettings",
+    "filter_period",
     "PAPER_FILTER",
     "SpatialFilter",
     "ripple_bandpass_coefficients",
@@ -112,38 +113,32 @@ class FilterSettings:
         Band-pass sharpness [-] (paper: :data:`PAPER_BETA`; default :data:`DESIGN_BETA`).
     v_min_rad_s : float
         Speed below which the filter fades out [rad/s] (:data:`V_MIN_RAD_S`).
-    period_rad : float or None
-        Ripple period rho [rad]; None: the ripple table's (the paper's rho without a table). One period
-        serves the filter and the lookup table: :meth:`period_for` refuses a table of another.
+
+    The period is not a setting: the filter works at the lookup table's rho (:func:`filter_period`), so
+    one period serves the filter and the position correction.
 
     Examples
     --------
-    >>> from iiwa_ident.model import RippleTable
-    >>> table = RippleTable(0.0196, np.zeros(8))
-    >>> FilterSettings(beta=5.0).along(table)
-    FilterSettings(beta=5.0, v_min_rad_s=0.2, period_rad=0.0196)
-    >>> FilterSettings(period_rad=0.0197).period_for(table)
-    Traceback (most recent call last):
-    ...
-    ValueError: spatial filter: period 0.0197 rad differs from the lookup table's 0.0196 rad (one period for both)
+    >>> FilterSettings(beta=5.0)
+    FilterSettings(beta=5.0, v_min_rad_s=0.2)
     """
 
     beta: float = DESIGN_BETA
     v_min_rad_s: float = V_MIN_RAD_S
-    period_rad: float | None = None
 
-    def period_for(self, table: RippleTable | None) -> float:
-        """The period [rad] the filter works at beside the lookup table ``table`` (None: no table)."""
-        if self.period_rad is None:
-            return table.period_rad if table is not None else RIPPLE_PERIOD_RAD
-        if table is not None and abs(self.period_rad - table.period_rad) > 1e-12 * table.period_rad:
-            raise ValueError(f"spatial filter: period {self.period_rad:.9g} rad differs from the lookup table's "
-                             f"{table.period_rad:.9g} rad (one period for both)")
-        return float(self.period_rad)
 
-    def along(self, table: RippleTable | None) -> FilterSettings:
-        """These settings with the period fixed beside ``table`` (:meth:`period_for`)."""
-        return replace(self, period_rad=self.period_for(table))
+def filter_period(table: RippleTable | None) -> float:
+    """The ripple period rho [rad] the spatial filter works at: the lookup table's; the paper's without one.
+
+    Examples
+    --------
+    >>> from iiwa_ident.model import RippleTable
+    >>> filter_period(RippleTable(0.0196, np.zeros(8)))
+    0.0196
+    >>> filter_period(None) == RIPPLE_PERIOD_RAD
+    True
+    """
+    return float(table.period_rad) if table is not None else RIPPLE_PERIOD_RAD
 
 
 #: The paper's filter (Fig. 7's observer comparison): :data:`PAPER_BETA`, :data:`V_MIN_RAD_S`, the table's period.
@@ -296,10 +291,10 @@ class SpatialFilter:
         self.reset()
 
     @classmethod
-    def from_settings(cls, settings: FilterSettings, dt: float = 1e-3, table: RippleTable | None = None,
+    def from_settings(cls, settings: FilterSettings, table: RippleTable | None, dt: float = 1e-3,
                       **kwargs: float) -> SpatialFilter:
-        """The filter of ``settings`` beside the lookup table ``table`` (:meth:`FilterSettings.period_for`)."""
-        return cls(settings.period_for(table), beta=settings.beta, v_min=settings.v_min_rad_s, dt=dt, **kwargs)
+        """The filter of ``settings`` at the period of the lookup table ``table`` (:func:`filter_period`)."""
+        return cls(filter_period(table), beta=settings.beta, v_min=settings.v_min_rad_s, dt=dt, **kwargs)
 
     @classmethod
     def from_model(cls, model: JointModel, dt: float = 1e-3, **kwargs: float) -> SpatialFilter:

@@ -513,10 +513,10 @@ def _headline(records: list[StageRecord]) -> dict[str, Any]:
         if "refit" in h:
             out["fit_ripple"] = {k: {kk: v[kk] for kk in ("value", "std", "rel_std_pct", "error_pct", "error_std")
                                      if kk in v} for k, v in h["refit"]["parameters"].items()}
-        out["rho_rad"] = h["period_rad"]
-        out["rho_std_rad"] = h["period_std_rad"]
+        out["ripple_period_rad"] = h["period_rad"]
+        out["ripple_period_std_rad"] = h["period_std_rad"]
         if "period_rel_error" in h:
-            out["rho_rel_error"] = h["period_rel_error"]
+            out["ripple_period_rel_error"] = h["period_rel_error"]
     if (h := ok("design")) is not None:
         out["kappa_linear"] = {"builtin": h["kappa_max_builtin"], "additive": h["kappa_max_additive"],
                                "ratio": h["kappa_ratio"]}
@@ -584,9 +584,9 @@ def format_summary(result: PipelineResult) -> str:
                 parts.append(f"{k} std {v['rel_std_pct']:.3f} %")
         lines.append(f"{title}: " + ", ".join(parts) + (" (error against the simulated plant)" if any(
             "error_pct" in v for v in h[key].values()) else ""))
-    if h.get("rho_rad") is not None:
-        extra = f", error {h['rho_rel_error']:+.1e} relative" if "rho_rel_error" in h else ""
-        lines.append(f"ripple period rho = {h['rho_rad']:.6f} rad (std {h['rho_std_rad']:.1e}{extra}; paper 0.01963)")
+    if h.get("ripple_period_rad") is not None:
+        extra = f", error {h['ripple_period_rel_error']:+.1e} relative" if "ripple_period_rel_error" in h else ""
+        lines.append(f"ripple period rho = {h['ripple_period_rad']:.6f} rad (std {h['ripple_period_std_rad']:.1e}{extra}; paper 0.01963)")
     if "observer_improvement" in h:
         lines.append(f"observer: built-in over filtered RMS error (fast motion, lag-matched) = "
                      f"{h['observer_improvement']:.2f}x")

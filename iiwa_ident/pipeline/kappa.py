@@ -29,7 +29,7 @@ import numpy as np
 
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import ControllerConfig
-from iiwa_ident.design import DeployedLoop, DesignRecord, HumanArm, deployed_margin
+from iiwa_ident.design import DeployedLoop, DesignRecord, HumanArm, deployed_margin, filter_period
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
 from iiwa_ident.pipeline.session import LOCKSTEP_GUARD_S, LateFriRobot, free_udp_port
@@ -214,8 +214,8 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
         row["linear_limit"] = row["linear_at_speed_rad_s"] = None
         if record is None:
             continue
-        the_loop = DeployedLoop(tau_ext, ft_settings.cutoff_hz, ft_settings.rate_hz, record.KI,
-                                record.filter.along(record.ripple))
+        the_loop = DeployedLoop(tau_ext, ft_settings.cutoff_hz, ft_settings.rate_hz, record.KI, record.filter,
+                                period_rad=filter_period(record.ripple))
         v_hi = row["speed_p95_rad_s"]
         speeds = np.linspace(0.0, v_hi, 6) if v_hi > 0 else [0.0]
         m = deployed_margin(record.design.params, record.design if loop == "additive" else None, arm, the_loop,

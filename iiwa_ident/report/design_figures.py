@@ -27,7 +27,7 @@ from iiwa_ident.design import (
     run_observers,
     spatial_filter_response,
 )
-from iiwa_ident.model import JointModel
+from iiwa_ident.model import JointModel, RippleTable
 
 __all__ = ["spatial_filter_figure", "observer_figure", "reproduction_figure"]
 
@@ -44,7 +44,7 @@ def _amplitude_spectrum(x: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
     return np.fft.rfftfreq(len(x), dt), spec
 
 
-def spatial_filter_figure(dataset: Dataset, filter: FilterSettings = PAPER_FILTER,
+def spatial_filter_figure(dataset: Dataset, filter: FilterSettings = PAPER_FILTER, ripple: RippleTable | None = None,
                           speeds: tuple[float, ...] = (0.3, 0.6, 1.2), periods_shown: float = 8.0) -> plt.Figure:
     """Joint torque before and after the spatial filter at several speeds, and the filter's response.
 
@@ -53,7 +53,9 @@ def spatial_filter_figure(dataset: Dataset, filter: FilterSettings = PAPER_FILTE
     dataset : Dataset
         A constant-velocity record (``t``, ``q_m``, ``tau_j``).
     filter : FilterSettings
-        The spatial filter of eqs (10)-(12) (a design's ``record.filter``; default: the paper's at its rho).
+        The spatial filter of eqs (10)-(12) (a design's ``record.filter``; default: the paper's).
+    ripple : RippleTable or None
+        The lookup table whose period the filter works at (a design's ``record.ripple``; None: the paper's rho).
     speeds : tuple of float
         Speeds to show [rad/s]; each row takes the longest pass within 10 % of it.
     periods_shown : float
@@ -68,7 +70,7 @@ def spatial_filter_figure(dataset: Dataset, filter: FilterSettings = PAPER_FILTE
     """
     t, q, tau = (np.asarray(dataset[k], float) for k in ("t", "q_m", "tau_j"))
     dt = 1.0 / dataset.sample_rate_hz
-    spatial = SpatialFilter.from_settings(filter, dt)
+    spatial = SpatialFilter.from_settings(filter, ripple, dt)
     period_rad, beta, v_min = spatial.period_rad, spatial.beta, spatial.v_min
     filtered = spatial.apply(tau, q)
     passes = ripple_line_cut(t, q, tau, filtered, period_rad)

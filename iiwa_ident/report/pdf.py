@@ -625,7 +625,7 @@ def _design_pages(r: dict[str, Any]) -> list[Page]:
                           f"after the spatial filter (beta = {rec.filter.beta:g}) at each speed, the spectra and the "
                           "filter's response. Look for the ripple line cut by tens of dB while slower torque "
                           "passes unchanged.",
-                          lambda: spatial_filter_figure(cv, rec.filter, speeds=speeds or (0.3, 0.6, 1.2))))
+                          lambda: spatial_filter_figure(cv, rec.filter, rec.ripple, speeds=speeds or (0.3, 0.6, 1.2))))
     hand = r.get("hand")
     if hand is not None and model is not None and hand.has("tau_ext_ref"):
         pages.append(Page("design", "External-torque observers (like Fig. 7)", "The built-in observer of eq (13), "
