@@ -6,7 +6,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -159,61 +159,15 @@ def import_cmd(
           --csv log.csv --map t=time --map q_m=q2 --map tau_j=tau2 \
           --split-runs --out runs/j2.h5
     """
-    from iiwa_ident.datasets import (
-        dataset_pose,
-        import_columns,
-        import_csv,
-        import_lcm,
-        import_rosbag,
-        note_warnings,
-        set_robot_name,
-        write_dataset,
-    )
+    from iiwa_ident.datasets import dataset_pose, note_warnings, set_robot_name
 
     try:
         check_joint(joint)
-        column_files = parse_pairs(columns, "--columns", "FILE")
-        csv_map = parse_pairs(mapping, "--map", "COLUMN")
-        factors = _parse_scale(scale)
-        given = [name for name, v in (("--columns", column_files), ("--csv", csv_file), ("--rosbag", rosbag),
-                                      ("--lcm", lcm_log)) if v]
-        if len(given) > 1:
-            raise IiwaIdentError(f"give one of --columns, --csv, --rosbag or --lcm: {' and '.join(given)} given, not "
-                                 f"{'both' if len(given) == 2 else 'all'}")
-        log = rosbag or lcm_log
-        if log is not None:
-            option = "--rosbag" if rosbag is not None else "--lcm"
-            for value, other in ((csv_map, "--map"), (column, "--column"), (rate, "--rate"), (scale, "--scale"),
-                                 (split_runs and lcm_log is not None, "--split-runs"),
-                                 (topic and lcm_log is not None, "--topic")):
-                if value:
-                    raise IiwaIdentError(f"{other} does not apply to {option} (the messages carry time and units)")
-            if rosbag is not None:
-                datasets = import_rosbag(rosbag, joint=joint, experiment=experiment, topic=topic,
-                                         split_runs=split_runs, robot_model=robot)
-            else:
-                datasets = import_lcm(lcm_log, joint=joint, experiment=experiment, channel=channel,
-                                      robot_model=robot)
-        elif csv_file is not None:
-            if not csv_map:
-                raise IiwaIdentError("--csv needs at least one --map SIGNAL=COLUMN")
-            if column is not None:
-                raise IiwaIdentError("--column applies to --columns files, not to --csv")
-            datasets = import_csv(
-                csv_file, csv_map, joint=joint, experiment=experiment,
-                sample_rate_hz=rate, scale=factors, split_runs=split_runs, robot_model=robot,
-            )
-        elif column_files:
-            if csv_map:
-                raise IiwaIdentError("--map applies to --csv; use --columns SIGNAL=FILE for column files")
-            datasets = import_columns(
-                {name: Path(p) for name, p in column_files.items()},
-                joint=joint, experiment=experiment, sample_rate_hz=rate,
-                column=column, scale=factors, split_runs=split_runs, robot_model=robot,
-            )
-        else:
-            raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE, --csv FILE --map SIGNAL=COLUMN, "
-                                 "--rosbag BAG or --lcm LOG")
+        datasets = _read_log(
+            joint=joint, experiment=experiment, column_files=parse_pairs(columns, "--columns", "FILE"),
+            csv_file=csv_file, csv_map=parse_pairs(mapping, "--map", "COLUMN"), rate=rate, column=column,
+            robot=robot, scale=scale, split_runs=split_runs, rosbag=rosbag, topic=topic, lcm_log=lcm_log,
+            channel=channel)
         if not split_runs:
             datasets = [datasets]
             targets = [out]
@@ -222,19 +176,7 @@ def import_cmd(
         for ds in datasets:
             set_robot_name(ds, robot_name)
         warnings = [note_warnings(ds) for ds in datasets]
-        # All runs or none, and no file already there lost: each run goes to a hidden file first and
-        # the files are renamed over their targets only when every run is written.
-        staged: list[Path] = []
-        try:
-            for target in targets:
-                staged.append(write_dataset(target.with_name(f".{target.name}.{os.getpid()}.staged"),
-                                            datasets[len(staged)]))
-        except BaseException:
-            for path in staged:
-                path.unlink(missing_ok=True)
-            raise
-        for tmp, target in zip(staged, targets):
-            os.replace(tmp, target)
+        _write_all_or_none(targets, datasets)
         written = targets
     except IiwaIdentError as err:
         raise fail(str(err)) from None
@@ -252,6 +194,64 @@ def import_cmd(
     left_out = datasets[0].experiment_attrs.get("split_left_out") if split_runs and datasets else None
     if left_out:
         typer.echo(f"warning: {out}: {left_out}", err=True)
+
+
+def _read_log(*, joint: int, experiment: str, column_files: dict[str, str], csv_file: Path | None,
+              csv_map: dict[str, str], rate: float | None, column: int | None, robot: str, scale: list[str] | None,
+              split_runs: bool, rosbag: Path | None, topic: str | None, lcm_log: Path | None, channel: str) -> Any:
+    """The dataset (a list of them with ``split_runs``) of the one source ``import`` was given."""
+    from iiwa_ident.datasets import import_columns, import_csv, import_lcm, import_rosbag
+
+    factors = _parse_scale(scale)
+    given = [name for name, v in (("--columns", column_files), ("--csv", csv_file), ("--rosbag", rosbag),
+                                  ("--lcm", lcm_log)) if v]
+    if len(given) > 1:
+        raise IiwaIdentError(f"give one of --columns, --csv, --rosbag or --lcm: {' and '.join(given)} given, not "
+                             f"{'both' if len(given) == 2 else 'all'}")
+    if rosbag is not None or lcm_log is not None:
+        option = "--rosbag" if rosbag is not None else "--lcm"
+        for value, other in ((csv_map, "--map"), (column, "--column"), (rate, "--rate"), (scale, "--scale"),
+                             (split_runs and lcm_log is not None, "--split-runs"),
+                             (topic and lcm_log is not None, "--topic")):
+            if value:
+                raise IiwaIdentError(f"{other} does not apply to {option} (the messages carry time and units)")
+        if rosbag is not None:
+            return import_rosbag(rosbag, joint=joint, experiment=experiment, topic=topic, split_runs=split_runs,
+                                 robot_model=robot)
+        return import_lcm(lcm_log, joint=joint, experiment=experiment, channel=channel, robot_model=robot)
+    if csv_file is not None:
+        if not csv_map:
+            raise IiwaIdentError("--csv needs at least one --map SIGNAL=COLUMN")
+        if column is not None:
+            raise IiwaIdentError("--column applies to --columns files, not to --csv")
+        return import_csv(csv_file, csv_map, joint=joint, experiment=experiment, sample_rate_hz=rate, scale=factors,
+                          split_runs=split_runs, robot_model=robot)
+    if column_files:
+        if csv_map:
+            raise IiwaIdentError("--map applies to --csv; use --columns SIGNAL=FILE for column files")
+        return import_columns({name: Path(p) for name, p in column_files.items()}, joint=joint,
+                              experiment=experiment, sample_rate_hz=rate, column=column, scale=factors,
+                              split_runs=split_runs, robot_model=robot)
+    raise IiwaIdentError("nothing to import: give --columns SIGNAL=FILE, --csv FILE --map SIGNAL=COLUMN, "
+                         "--rosbag BAG or --lcm LOG")
+
+
+def _write_all_or_none(targets: list[Path], datasets: list) -> None:
+    """All runs or none, and no file already there lost: each run goes to a hidden file first and the files
+    are renamed over their targets only when every run is written."""
+    from iiwa_ident.datasets import write_dataset
+
+    staged: list[Path] = []
+    try:
+        for target in targets:
+            staged.append(write_dataset(target.with_name(f".{target.name}.{os.getpid()}.staged"),
+                                        datasets[len(staged)]))
+    except BaseException:
+        for path in staged:
+            path.unlink(missing_ok=True)
+        raise
+    for tmp, target in zip(staged, targets):
+        os.replace(tmp, target)
 
 
 @app.command("info")

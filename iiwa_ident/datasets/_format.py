@@ -648,6 +648,29 @@ def dataset_files(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
     return out
 
 
+def _signal_nodes(group: h5py.Group, where: str) -> dict[str, h5py.Dataset]:
+    """The arrays of ``/signals`` in canonical order, each checked for its unit, shape and type."""
+    nodes: dict[str, h5py.Dataset] = {}
+    for name in SIGNAL_UNITS:
+        if name not in group:
+            continue
+        node = group[name]
+        if not isinstance(node, h5py.Dataset):
+            raise DatasetError(f"{where}: '/signals/{name}' is a group, expected an array")
+        expected = SIGNAL_UNITS[name]
+        unit = _plain(node.attrs.get("unit"))
+        if unit is None:
+            raise DatasetError(f"{where}: signal {name!r} has no unit (expected {expected!r})")
+        if unit != expected:
+            raise DatasetError(f"{where}: signal {name!r} has unit {unit!r} (expected {expected!r})")
+        if node.ndim != 1:
+            raise DatasetError(f"{where}: signal {name!r} is not 1-D (shape {node.shape})")
+        if node.dtype.kind not in ("f", "i", "u"):
+            raise DatasetError(f"{where}: signal {name!r} has non-numeric dtype {node.dtype}")
+        nodes[name] = node
+    return nodes
+
+
 def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     """Read and validate a dataset file.
 
@@ -702,26 +725,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
             problem = _signal_names_problem(names)
             if problem:
                 raise DatasetError(f"{where}: {problem}")
-            nodes: dict[str, h5py.Dataset] = {}
-            for name in SIGNAL_UNITS:
-                if name not in group:
-                    continue
-                node = group[name]
-                if not isinstance(node, h5py.Dataset):
-                    raise DatasetError(f"{where}: '/signals/{name}' is a group, expected an array")
-                expected = SIGNAL_UNITS[name]
-                unit = _plain(node.attrs.get("unit"))
-                if unit is None:
-                    raise DatasetError(f"{where}: signal {name!r} has no unit (expected {expected!r})")
-                if unit != expected:
-                    raise DatasetError(
-                        f"{where}: signal {name!r} has unit {unit!r} (expected {expected!r})"
-                    )
-                if node.ndim != 1:
-                    raise DatasetError(f"{where}: signal {name!r} is not 1-D (shape {node.shape})")
-                if node.dtype.kind not in ("f", "i", "u"):
-                    raise DatasetError(f"{where}: signal {name!r} has non-numeric dtype {node.dtype}")
-                nodes[name] = node
+            nodes = _signal_nodes(group, where)
             signals: dict[str, np.ndarray] = {}
             if in_progress:
                 lengths = [node.shape[0] for node in nodes.values()]

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -168,26 +169,12 @@ def _assemble(
     ``pose_rad``) and each joint's travel (``joint_travel_rad``).
     """
     if split_runs:
-        if "t" not in raw:
-            raise DatasetError("splitting into runs needs a time signal (where the time restarts)")
-        starts = [0, *(np.flatnonzero(np.diff(raw["t"]) < 0) + 1).tolist(), len(raw["t"])]
         runs = []
-        # A stretch of one sample (a stray row where the time restarts) is no run: left out, and said in
-        # every run of the log (SPLIT_LEFT_OUT_ATTR).
-        short = [f"run {k} (sample {a})" for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1)
-                 if b - a < 2]
-        if len(short) == len(starts) - 1:
-            raise DatasetError(f"{where}: no run of 2 samples or more between the times it goes back")
-        for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1):
-            if b - a < 2:
-                continue
-            # Samples are numbered from 0 in the whole log, so a message points at the rows of the file.
-            there = {name: f"{text}, run {k} (samples {a}-{b - 1})" for name, text in origin.items()}
-            runs.append(_assemble({name: arr[a:b] for name, arr in raw.items()}, there, joint, experiment,
-                                  sample_rate_hz, scale, f"{where}, run {k}", robot_model=robot_model,
-                                  positions=None if positions is None else positions[a:b], min_rate_hz=min_rate_hz))
-            if short:
-                runs[-1].experiment_attrs[SPLIT_LEFT_OUT_ATTR] = f"one sample, not a run: {', '.join(short)}"
+        for part in _runs(raw, origin, where, positions):
+            runs.append(_assemble(part.raw, part.origin, joint, experiment, sample_rate_hz, scale, part.where,
+                                  robot_model=robot_model, positions=part.positions, min_rate_hz=min_rate_hz))
+            if part.left_out:
+                runs[-1].experiment_attrs[SPLIT_LEFT_OUT_ATTR] = part.left_out
         return runs
     lengths = {name: arr.shape[0] for name, arr in raw.items()}
     if len(set(lengths.values())) > 1:
@@ -198,7 +185,67 @@ def _assemble(
         raise DatasetError(f"{where}: only {n} sample, need at least 2")
 
     signals = {name: arr * scale.get(name, 1.0) for name, arr in raw.items()}
+    signals, rate = _time_and_rate(signals, origin, n, sample_rate_hz, where, min_rate_hz)
 
+    # Canonical order makes printed summaries and files predictable.
+    ordered = {name: signals[name] for name in SIGNAL_UNITS if name in signals}
+    attrs: dict = {}
+    if robot_model is not None:
+        attrs["robot_model"] = robot_model
+    if positions is not None:
+        attrs["pose_rad"] = np.median(positions, axis=0)
+        attrs["joint_travel_rad"] = np.ptp(positions, axis=0)
+    dataset = Dataset(
+        signals=ordered,
+        experiment=experiment,
+        source="import",
+        joint=joint,
+        sample_rate_hz=rate,
+        experiment_attrs=attrs,
+    )
+    validate_dataset(dataset, where)
+    return dataset
+
+
+@dataclass
+class _Run:
+    """One run of a log that holds several: its rows of every signal, and where they came from."""
+
+    raw: dict[str, np.ndarray]
+    origin: dict[str, str]
+    where: str
+    positions: np.ndarray | None
+    left_out: str = ""
+
+
+def _runs(raw: dict[str, np.ndarray], origin: dict[str, str], where: str, positions: np.ndarray | None
+          ) -> list[_Run]:
+    """The runs of a log: a run ends where the time goes back."""
+    if "t" not in raw:
+        raise DatasetError("splitting into runs needs a time signal (where the time restarts)")
+    starts = [0, *(np.flatnonzero(np.diff(raw["t"]) < 0) + 1).tolist(), len(raw["t"])]
+    # A stretch of one sample (a stray row where the time restarts) is no run: left out, and said in
+    # every run of the log (SPLIT_LEFT_OUT_ATTR).
+    short = [f"run {k} (sample {a})" for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1)
+             if b - a < 2]
+    if len(short) == len(starts) - 1:
+        raise DatasetError(f"{where}: no run of 2 samples or more between the times it goes back")
+    runs = []
+    for k, (a, b) in enumerate(zip(starts[:-1], starts[1:]), start=1):
+        if b - a < 2:
+            continue
+        # Samples are numbered from 0 in the whole log, so a message points at the rows of the file.
+        runs.append(_Run({name: arr[a:b] for name, arr in raw.items()},
+                         {name: f"{text}, run {k} (samples {a}-{b - 1})" for name, text in origin.items()},
+                         f"{where}, run {k}", None if positions is None else positions[a:b],
+                         f"one sample, not a run: {', '.join(short)}" if short else ""))
+    return runs
+
+
+def _time_and_rate(signals: dict[str, np.ndarray], origin: dict[str, str], n: int, sample_rate_hz: float | None,
+                   where: str, min_rate_hz: float) -> tuple[dict[str, np.ndarray], float]:
+    """The signals with a time signal (checked, or made from the rate) and the sample rate [Hz] (given, or
+    estimated from the time), within ``min_rate_hz`` .. :data:`MAX_RATE_HZ`."""
     if sample_rate_hz is not None and (
         isinstance(sample_rate_hz, bool)
         or not isinstance(sample_rate_hz, (int, float))
@@ -238,25 +285,7 @@ def _assemble(
         hint = "" if given_rate else " (estimated from the time signal; check its unit or give the rate)"
         raise DatasetError(f"{where}: sample rate {rate:.6g} Hz is outside {min_rate_hz / 0.98:.0f} Hz..1 kHz "
                            f"(±2%){hint}")
-
-    # Canonical order makes printed summaries and files predictable.
-    ordered = {name: signals[name] for name in SIGNAL_UNITS if name in signals}
-    attrs: dict = {}
-    if robot_model is not None:
-        attrs["robot_model"] = robot_model
-    if positions is not None:
-        attrs["pose_rad"] = np.median(positions, axis=0)
-        attrs["joint_travel_rad"] = np.ptp(positions, axis=0)
-    dataset = Dataset(
-        signals=ordered,
-        experiment=experiment,
-        source="import",
-        joint=joint,
-        sample_rate_hz=rate,
-        experiment_attrs=attrs,
-    )
-    validate_dataset(dataset, where)
-    return dataset
+    return signals, rate
 
 
 def import_columns(

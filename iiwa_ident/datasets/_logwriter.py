@@ -728,7 +728,7 @@ def _writer_main(
 ) -> None:
     """Body of the writer process; reports ``ready``, then ``closed`` or ``error``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    terminated = []
+    terminated: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: terminated.append(signum))
     _drop_realtime()
     shm = SharedMemory(name=shm_name)
@@ -750,61 +750,8 @@ def _writer_main(
             return
         sink.hdr[_STATE] = _RUNNING
         send(("ready",))
-        final_attrs: dict[str, Any] = {}
-        seen_head = sink.tail
-        last_flush = time.monotonic()
-        while True:
-            if conn.poll(_POLL_S):
-                try:
-                    message = conn.recv()
-                except (EOFError, OSError):  # reset, not EOF, when the loop died with a reply unread
-                    parent_gone = True
-                    break
-                if message[0] == "close":
-                    final_attrs = dict(message[1])
-                    break
-            if os.getppid() != parent_pid:  # covers a copy of the pipe inherited by a grandchild
-                parent_gone = True
-                break
-            if terminated:
-                break
-            head = int(sink.hdr[_HEAD])
-            sink.drain(min(head, seen_head))  # see "Ring buffer" in the module docstring
-            seen_head = head
-            now = time.monotonic()
-            if now - last_flush >= flush_interval_s:
-                sink.flush()
-                last_flush = now
-
-        # The loop has stopped or died: every published row is visible now.
-        sink.drain(int(sink.hdr[_HEAD]))
-        sink.flush()
-        columns = sink.read_all()
-        lost = int(sink.hdr[_LOST])
-        sink.close_file()
-        written = sink.written
-        if written < _format._MIN_SAMPLES:
-            # No dataset holds fewer samples; leave no file that cannot be read.
-            try:
-                os.unlink(path)
-            except OSError:
-                pass
-        else:
-            attrs = dict(meta.experiment_attrs)
-            attrs.update(final_attrs)
-            attrs["lost_rows"] = lost
-            if parent_gone or terminated:
-                attrs["interrupted"] = True
-            final = Dataset(
-                signals=dict(zip(names, columns)),
-                experiment=meta.experiment,
-                source=meta.source,
-                joint=meta.joint,
-                sample_rate_hz=meta.sample_rate_hz,
-                experiment_attrs=attrs,
-                created_utc=meta.created_utc,
-            )
-            write_dataset(path, final)
+        final_attrs, parent_gone = _follow(sink, conn, parent_pid, flush_interval_s, terminated)
+        written = _finish(sink, path, names, meta, final_attrs, interrupted=parent_gone or bool(terminated))
         sink.hdr[_STATE] = _FINISHED
         send(("closed", written))
     except Exception as err:  # report any failure as one line, then exit
@@ -833,3 +780,62 @@ def _writer_main(
                 shm.unlink()
             except FileNotFoundError:
                 pass
+
+
+def _follow(sink: _Sink, conn: multiprocessing.connection.Connection, parent_pid: int, flush_interval_s: float,
+            terminated: list[int]) -> tuple[dict[str, Any], bool]:
+    """Drain the ring into the file until the loop closes the log, dies or the writer is terminated.
+
+    Returns the attributes the loop's ``close`` message adds (none without one) and whether the loop's
+    process is gone.
+    """
+    seen_head = sink.tail
+    last_flush = time.monotonic()
+    while True:
+        if conn.poll(_POLL_S):
+            try:
+                message = conn.recv()
+            except (EOFError, OSError):  # reset, not EOF, when the loop died with a reply unread
+                return {}, True
+            if message[0] == "close":
+                return dict(message[1]), False
+        if os.getppid() != parent_pid:  # covers a copy of the pipe inherited by a grandchild
+            return {}, True
+        if terminated:
+            return {}, False
+        head = int(sink.hdr[_HEAD])
+        sink.drain(min(head, seen_head))  # see "Ring buffer" in the module docstring
+        seen_head = head
+        now = time.monotonic()
+        if now - last_flush >= flush_interval_s:
+            sink.flush()
+            last_flush = now
+
+
+def _finish(sink: _Sink, path: str, names: list[str], meta: Dataset, final_attrs: dict[str, Any], *,
+            interrupted: bool) -> int:
+    """Write the whole log as a dataset once the loop has stopped or died; the number of rows written.
+
+    Every published row is visible now. A log shorter than any dataset may be leaves no file.
+    """
+    sink.drain(int(sink.hdr[_HEAD]))
+    sink.flush()
+    columns = sink.read_all()
+    lost = int(sink.hdr[_LOST])
+    sink.close_file()
+    written = sink.written
+    if written < _format._MIN_SAMPLES:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        return written
+    attrs = dict(meta.experiment_attrs)
+    attrs.update(final_attrs)
+    attrs["lost_rows"] = lost
+    if interrupted:
+        attrs["interrupted"] = True
+    write_dataset(path, Dataset(signals=dict(zip(names, columns)), experiment=meta.experiment, source=meta.source,
+                                joint=meta.joint, sample_rate_hz=meta.sample_rate_hz, experiment_attrs=attrs,
+                                created_utc=meta.created_utc))
+    return written

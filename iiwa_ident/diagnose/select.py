@@ -85,6 +85,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy import signal, stats
@@ -365,6 +366,23 @@ def _accept(sel: Selection, cand: CandidateEffect, record: Step, width: int) -> 
         sel.other_shape[cand.name] = record.other_shape
 
 
+class _Tried(NamedTuple):
+    """A candidate that passed a step's tests in one band: its columns and the step that scored it."""
+
+    cand: CandidateEffect
+    Xc: list[np.ndarray]
+    record: Step
+
+
+@dataclass
+class _EffectFit:
+    """A candidate's own least-squares fit beside the effects named so far, on the residual channels."""
+
+    coef: np.ndarray  #: the candidate's coefficients
+    total: np.ndarray  #: :meth:`CandidateEffect.total` of them
+    left: list[np.ndarray]  #: the residual per block after the joint fit
+
+
 def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates: Sequence[CandidateEffect],
                    min_gain: float = MIN_GAIN, min_confidence: float = MIN_CONFIDENCE,
                    max_effects: int = MAX_EFFECTS, first: Sequence[tuple[CandidateEffect, Step]] = ()) -> Selection:
@@ -392,7 +410,6 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
     sel = Selection()
     given = {cand.name for cand, _ in first}
     remaining = [c for c in candidates if c.name not in given]
-    filters = _band_filters(blocks)
     ys = list(ys)
     n0 = 0  # the columns held whole, first in the coefficient vector
     for cand, record in first:
@@ -400,108 +417,146 @@ def select_effects(blocks: Sequence[Block], ys: Sequence[np.ndarray], candidates
             ys[i] = ys[i] - X.sum(axis=1)
         _accept(sel, cand, record, n0)
         n0 += cand.n_columns()
-    ys_band = {band: _in_band(band, filters, ys) for band in BANDS}
-    cur_X = [np.zeros((len(y), 0)) for y in ys]
-    in_sample = list(ys)
-    coef = np.zeros(0)
-    step = 0
-    while remaining and len(sel.selected) < max_effects:
-        step += 1
-        cur_band = {band: _in_band(band, filters, cur_X) for band in BANDS}
-        cur_res = {band: cv_residuals(cur_band[band], ys_band[band]) for band in BANDS}
-        passed: dict[str, list] = {band: [] for band in BANDS + (_OWN,)}
-        near: list[tuple[CandidateEffect, list[np.ndarray], Step]] = []  # failed on the confidence alone
+    g = _Greedy(blocks=blocks, ys=ys, sel=sel, n0=n0, min_gain=min_gain, min_confidence=min_confidence,
+                max_effects=max_effects)
+    while remaining and len(sel.selected) < max_effects and g.name_next(remaining):
+        pass
+    coef = g.coef
+    if len(sel.selected) > len(first):
+        # Searched parameters may have moved after later selections: rebuild the columns once more.
+        cur_X = sel.columns(blocks, held=len(first))
+        coef = np.linalg.lstsq(np.vstack(cur_X), np.concatenate(ys), rcond=None)[0]
+    sel.coef = np.concatenate([np.ones(n0), coef]) if sel.selected else coef
+    return sel
+
+
+class _Greedy:
+    """The greedy steps of :func:`select_effects` after the effects held whole (``n0`` columns)."""
+
+    def __init__(self, *, blocks: Sequence[Block], ys: list[np.ndarray], sel: Selection, n0: int,
+                 min_gain: float, min_confidence: float, max_effects: int) -> None:
+        self.blocks, self.ys, self.sel, self.n0 = blocks, ys, sel, n0
+        self.min_gain, self.min_confidence, self.max_effects = min_gain, min_confidence, max_effects
+        self.filters = _band_filters(blocks)
+        self.ys_band = {band: _in_band(band, self.filters, ys) for band in BANDS}
+        self.cur_X = [np.zeros((len(y), 0)) for y in ys]
+        self.in_sample = list(ys)
+        self.coef = np.zeros(0)
+        self.step = 0
+
+    def name_next(self, remaining: list[CandidateEffect]) -> bool:
+        """One step: try every remaining candidate, name the best (or the best pair); False when none passes."""
+        self.step += 1
+        cur_band = {band: _in_band(band, self.filters, self.cur_X) for band in BANDS}
+        cur_res = {band: cv_residuals(cur_band[band], self.ys_band[band]) for band in BANDS}
+        passed: dict[str, list[_Tried]] = {band: [] for band in BANDS + (_OWN,)}
+        near: list[_Tried] = []  # failed on the confidence alone
         for cand in remaining:
-            # Two candidates one of which holds the other's shape share a column: once one is named, the other
-            # is not tried (their shared part would be split at random between them).
-            if any(cand.name in c.contains or c.name in cand.contains for c in sel.selected):
-                continue
-            full = np.concatenate([np.ones(n0), coef])
-            cand.beside = [(c, full[sl]) for c, sl in zip(sel.selected, sel.slices)]
-            if not cand.prepare(blocks, in_sample):
-                continue
-            Xc = block_columns(blocks, cand.columns, cand.n_columns())
-            full_norm = np.sqrt(sum(np.sum(X ** 2, axis=0) for X in Xc))
-            records: list[tuple[str, Step]] = []
-            fit = None
-            for band in BANDS:
-                Xc_b = _in_band(band, filters, Xc)
-                # A column with (almost) nothing in the band says nothing there; left in, it only adds rounding noise.
-                band_norm = np.sqrt(sum(np.sum(X ** 2, axis=0) for X in Xc_b))
-                dead = band_norm <= 1e-3 * np.maximum(full_norm, 1e-300)
-                if dead.all():
-                    continue
-                Xc_b = [np.where(dead, 0.0, X) for X in Xc_b]
-                Xs_b = [np.hstack([a, b]) for a, b in zip(cur_band[band], Xc_b)]
-                scored = _score(step, cand.name, band, Xs_b, Xc_b, ys_band[band], cur_res[band], cand.n_nonlinear)
-                if scored is None:
-                    continue
-                records.append((band, scored[0]))
-            ev = cand.evidence(blocks)
-            own = _score_own(step, cand, ev) if ev is not None else None
-            # Own evidence counts only where the residual channels do not contradict it.
-            agrees = any(r.gain > 0 and r.confidence > 0.5 for _, r in records)
-            if own is not None:
-                records.append((_OWN, own))
-            for band, record in records:
-                sel.steps.append(record)
-                if band == _OWN and not agrees:
-                    record.unconfirmed = True
-                    continue
-                if not _passes_but_confidence(record, max(min_gain, cand.min_gain)):
-                    continue
-                if record.confidence < min_confidence:
-                    if band == "full" and cand.is_effect:  # tried in pairs where nothing passes alone
-                        near.append((cand, Xc, record))
-                    continue
-                # The effect's own fit (on the residual channels) must be physically possible (a negative
-                # friction is a symptom of something else).
-                if fit is None:
-                    joint = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
-                    coef_all = np.linalg.lstsq(np.vstack(joint), np.concatenate(ys), rcond=None)[0]
-                    left = [y - X @ coef_all for y, X in zip(ys, joint)]
-                    fit = coef_all[-cand.n_columns():]
-                    total = cand.total(fit)
-                plausible = cand.plausible(total)
-                note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(total)
-                if plausible and not cand.relevant(fit):
-                    record.irrelevant = True
-                elif (plausible or note) and band == "full" and not _material(blocks, Xc, total, left):
-                    record.negligible = True
-                elif plausible or note:
-                    record.other_shape = note
-                    passed[band].append((cand, Xc, record))
-                else:
-                    record.implausible = True
+            self._try(cand, cur_band, cur_res, passed, near)
         # The whole band first (it judges the effect everywhere); the fast band only when nothing passes there;
         # an effect's own evidence channel last.
         choice = next((passed[band] for band in BANDS + (_OWN,) if passed[band]), None)
         if choice:
-            cand, Xc, record = max(choice, key=lambda x: x[2].gain)
+            best = max(choice, key=lambda x: x.record.gain)
             # A candidate whose shape holds a simpler one's (a spring's constant is an offset) must gain the least
             # gain more than that one, else the simpler explanation stands.
-            simpler = [c for c in choice if c[0].name in cand.contains and c[2].gain > record.gain - min_gain]
+            simpler = [c for c in choice if c.cand.name in best.cand.contains
+                       and c.record.gain > best.record.gain - self.min_gain]
             if simpler:
-                cand, Xc, record = max(simpler, key=lambda x: x[2].gain)
-            named = [(cand, Xc)]
+                best = max(simpler, key=lambda x: x.record.gain)
+            record, named = best.record, [(best.cand, best.Xc)]
         else:
-            pair = _pair(step, near, blocks, ys, ys_band["full"], cur_X, cur_res["full"], min_gain,
-                         min_confidence) if len(sel.selected) + 2 <= max_effects else None
+            pair = _pair(self.step, near, self.blocks, self.ys, self.ys_band["full"], self.cur_X, cur_res["full"],
+                         self.min_gain, self.min_confidence) if len(self.sel.selected) + 2 <= self.max_effects else None
             if pair is None:
-                break
+                return False
             record, named = pair
-            sel.steps.append(record)
+            self.sel.steps.append(record)
         for cand, Xc in named:
-            _accept(sel, cand, record, n0 + cur_X[0].shape[1])
+            _accept(self.sel, cand, record, self.n0 + self.cur_X[0].shape[1])
             remaining.remove(cand)
-            cur_X = [np.hstack([a, b]) for a, b in zip(cur_X, Xc)]
-        X, y = np.vstack(cur_X), np.concatenate(ys)
-        coef = np.linalg.lstsq(X, y, rcond=None)[0]
-        in_sample = [yb - Xb @ coef for yb, Xb in zip(ys, cur_X)]
-    if len(sel.selected) > len(first):
-        # Searched parameters may have moved after later selections: rebuild the columns once more.
-        cur_X = sel.columns(blocks, held=len(first))
-        X, y = np.vstack(cur_X), np.concatenate(ys)
-        coef = np.linalg.lstsq(X, y, rcond=None)[0]
-    sel.coef = np.concatenate([np.ones(n0), coef]) if sel.selected else coef
-    return sel
+            self.cur_X = [np.hstack([a, b]) for a, b in zip(self.cur_X, Xc)]
+        self.coef = np.linalg.lstsq(np.vstack(self.cur_X), np.concatenate(self.ys), rcond=None)[0]
+        self.in_sample = [yb - Xb @ self.coef for yb, Xb in zip(self.ys, self.cur_X)]
+        return True
+
+    def _try(self, cand: CandidateEffect, cur_band: dict, cur_res: dict, passed: dict[str, list[_Tried]],
+             near: list[_Tried]) -> None:
+        """Score ``cand`` in every band and on its own evidence; what passes goes to ``passed`` by band, what
+        fails on the confidence alone (whole band) to ``near``; every score to the selection's steps."""
+        sel = self.sel
+        # Two candidates one of which holds the other's shape share a column: once one is named, the other
+        # is not tried (their shared part would be split at random between them).
+        if any(cand.name in c.contains or c.name in cand.contains for c in sel.selected):
+            return
+        full = np.concatenate([np.ones(self.n0), self.coef])
+        cand.beside = [(c, full[sl]) for c, sl in zip(sel.selected, sel.slices)]
+        if not cand.prepare(self.blocks, self.in_sample):
+            return
+        Xc = block_columns(self.blocks, cand.columns, cand.n_columns())
+        records = self._band_records(cand, Xc, cur_band, cur_res)
+        ev = cand.evidence(self.blocks)
+        own = _score_own(self.step, cand, ev) if ev is not None else None
+        # Own evidence counts only where the residual channels do not contradict it.
+        agrees = any(r.gain > 0 and r.confidence > 0.5 for _, r in records)
+        if own is not None:
+            records.append((_OWN, own))
+        fit = None
+        for band, record in records:
+            sel.steps.append(record)
+            if band == _OWN and not agrees:
+                record.unconfirmed = True
+                continue
+            if not _passes_but_confidence(record, max(self.min_gain, cand.min_gain)):
+                continue
+            if record.confidence < self.min_confidence:
+                if band == "full" and cand.is_effect:  # tried in pairs where nothing passes alone
+                    near.append(_Tried(cand, Xc, record))
+                continue
+            fit = fit or self._effect_fit(cand, Xc)
+            if self._possible(cand, Xc, band, record, fit):
+                passed[band].append(_Tried(cand, Xc, record))
+
+    def _band_records(self, cand: CandidateEffect, Xc: list[np.ndarray], cur_band: dict, cur_res: dict
+                      ) -> list[tuple[str, Step]]:
+        """``cand``'s score in each band where its columns hold anything."""
+        full_norm = np.sqrt(sum(np.sum(X ** 2, axis=0) for X in Xc))
+        records: list[tuple[str, Step]] = []
+        for band in BANDS:
+            Xc_b = _in_band(band, self.filters, Xc)
+            # A column with (almost) nothing in the band says nothing there; left in, it only adds rounding noise.
+            band_norm = np.sqrt(sum(np.sum(X ** 2, axis=0) for X in Xc_b))
+            dead = band_norm <= 1e-3 * np.maximum(full_norm, 1e-300)
+            if dead.all():
+                continue
+            Xc_b = [np.where(dead, 0.0, X) for X in Xc_b]
+            Xs_b = [np.hstack([a, b]) for a, b in zip(cur_band[band], Xc_b)]
+            scored = _score(self.step, cand.name, band, Xs_b, Xc_b, self.ys_band[band], cur_res[band],
+                            cand.n_nonlinear)
+            if scored is not None:
+                records.append((band, scored[0]))
+        return records
+
+    def _effect_fit(self, cand: CandidateEffect, Xc: list[np.ndarray]) -> _EffectFit:
+        """``cand``'s least-squares fit beside the effects named so far."""
+        joint = [np.hstack([a, b]) for a, b in zip(self.cur_X, Xc)]
+        coef_all = np.linalg.lstsq(np.vstack(joint), np.concatenate(self.ys), rcond=None)[0]
+        fit = coef_all[-cand.n_columns():]
+        return _EffectFit(fit, cand.total(fit), [y - X @ coef_all for y, X in zip(self.ys, joint)])
+
+    def _possible(self, cand: CandidateEffect, Xc: list[np.ndarray], band: str, record: Step,
+                  fit: _EffectFit) -> bool:
+        """Whether the effect's own fit is physically possible (a negative friction is a symptom of something
+        else), relevant and material; ``record`` is marked with why not, or with the other shape it took."""
+        plausible = cand.plausible(fit.total)
+        note = "" if plausible or record.gain < MIN_GAIN_OTHER_SHAPE else cand.other_shape(fit.total)
+        if plausible and not cand.relevant(fit.coef):
+            record.irrelevant = True
+        elif (plausible or note) and band == "full" and not _material(self.blocks, Xc, fit.total, fit.left):
+            record.negligible = True
+        elif plausible or note:
+            record.other_shape = note
+            return True
+        else:
+            record.implausible = True
+        return False

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,8 @@ FAMILY_HARMONICS = 5
 #: Least power, as a share of the family's strongest line, of the strongest line that only a subharmonic
 #: k0/m explains, for k0/m to be the period: lines down to a tenth of the dominant one's amplitude.
 MIN_SUBHARMONIC_POWER = 0.01
+#: Log of the Fisher p-value below which a family's own lines are significant.
+_ALPHA = math.log(1e-3)
 #: Strongest grid points of the search whose T^2 is re-read between grid points.
 _REFINED = 32
 #: Independent tries the search counts per grid point (4 per resolution cell 1/span).
@@ -266,129 +269,167 @@ def harmonic_family(spec: LineSpectrum) -> Family:
     carry at least MIN_SUBHARMONIC_POWER of the family's strongest line; a weaker significant
     subharmonic family is kept as a note (a once-per-motor-revolution effect, for example).
     """
-    k, dk = spec.k, spec.dk
-    log_p = np.log(line_pvalues(spec))
-    # Only local peaks count as lines: a strong line is consistent across chunks on its flanks too (its
-    # T^2 is broad), and a family of flank points would otherwise beat it. Nor does a peak whose
-    # power is below 1e-3 of the strongest (the taper's sidelobes are at 7e-4).
-    peak = log_p <= -maximum_filter1d(-log_p, size=5, mode="nearest")
-    peak &= spec.power >= 1e-3 * spec.power[int(np.argmin(log_p))]
-    log_p = np.where(peak, log_p, 0.0)
-    n_k = len(k)
-    k_lo = k[0]
-    score = np.zeros(n_k)
-    dof = np.zeros(n_k)
-    for h in range(1, FAMILY_HARMONICS + 1):
-        idx = np.round((h * k - k_lo) / dk).astype(int)
-        inside = idx < n_k
-        if not inside.any():
-            break
-        lp = window_logp(log_p, 1 + h // 2)
-        score[inside] += -2.0 * lp[idx[inside]]
-        dof[inside] += 2.0
-    fam_logp = stats.chi2.logsf(score, np.maximum(dof, 2.0))
-    j0 = int(np.argmin(fam_logp))
-    alpha = math.log(1e-3)
+    s = _FamilySearch(spec)
+    fam_logp = s.summed()
+    k0 = s.recentre(s.off_lobe(fam_logp))
+    k0, weak_up = s.moved_up(k0)
+    k0, weak_sub = s.moved_down(k0, weak_up)
+    k0 = s.through_top_line(k0)
+    h_strong, i_strong = s.strongest_line(k0)
+    return Family(h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
 
-    def strongest(kk: float) -> float:
-        return max(peak_power(spec, h * kk, 1 + h // 2) for h in range(1, FAMILY_HARMONICS + 1)
-                   if h * kk <= k[-1])
 
-    # A line's chunk coefficients are phase-aligned one over the chunk length from it too (the Hann
-    # taper's first neighbours, at half its amplitude). On a clean line, whose spread between chunks is
-    # its own, T^2 cannot tell these neighbours from the line: of fundamentals there about as significant
-    # (half the log p-value or more), the one whose lines carry the most power is the line.
-    if spec.lobe_reach:
-        lo, hi = max(0, j0 - spec.lobe_reach), min(n_k, j0 + spec.lobe_reach + 1)
-        near = [j for j in range(lo, hi) if fam_logp[j] <= 0.5 * fam_logp[j0] < 0]
-        if len(near) > 1:
-            j0 = max(near, key=lambda j: strongest(float(k[j])))
-    k0 = float(k[j0])
+class _FamilySearch:
+    """The steps of :func:`harmonic_family` on one spectrum: its lines' log p-values (local peaks only)."""
 
-    def own_lines(kk: float, m: int) -> tuple[bool, float]:
+    def __init__(self, spec: LineSpectrum) -> None:
+        self.spec = spec
+        self.k, self.dk, self.n_k, self.k_lo = spec.k, spec.dk, len(spec.k), spec.k[0]
+        log_p = np.log(line_pvalues(spec))
+        # Only local peaks count as lines: a strong line is consistent across chunks on its flanks too (its
+        # T^2 is broad), and a family of flank points would otherwise beat it. Nor does a peak whose
+        # power is below 1e-3 of the strongest (the taper's sidelobes are at 7e-4).
+        peak = log_p <= -maximum_filter1d(-log_p, size=5, mode="nearest")
+        peak &= spec.power >= 1e-3 * spec.power[int(np.argmin(log_p))]
+        self.log_p = np.where(peak, log_p, 0.0)
+        # The same holds for a single line: T^2 at its neighbours one over the chunk length away can exceed
+        # its own (a 320-cycle line of a 2 rad run located at 342).
+        self.grating = max(1, int(round(spec.lobe_reach / 1.5)))
+
+    def summed(self) -> np.ndarray:
+        """Fisher's log p-value of the family of every grid point as a fundamental."""
+        k, n_k = self.k, self.n_k
+        score = np.zeros(n_k)
+        dof = np.zeros(n_k)
+        for h in range(1, FAMILY_HARMONICS + 1):
+            idx = np.round((h * k - self.k_lo) / self.dk).astype(int)
+            inside = idx < n_k
+            if not inside.any():
+                break
+            lp = window_logp(self.log_p, 1 + h // 2)
+            score[inside] += -2.0 * lp[idx[inside]]
+            dof[inside] += 2.0
+        return stats.chi2.logsf(score, np.maximum(dof, 2.0))
+
+    def strongest(self, kk: float) -> float:
+        """The largest power among the harmonics of ``kk`` inside the band."""
+        return max(peak_power(self.spec, h * kk, 1 + h // 2) for h in range(1, FAMILY_HARMONICS + 1)
+                   if h * kk <= self.k[-1])
+
+    def off_lobe(self, fam_logp: np.ndarray) -> float:
+        """The most significant fundamental, moved off the taper's first neighbours onto the line.
+
+        A line's chunk coefficients are phase-aligned one over the chunk length from it too (the Hann
+        taper's first neighbours, at half its amplitude). On a clean line, whose spread between chunks is
+        its own, T^2 cannot tell these neighbours from the line: of fundamentals there about as significant
+        (half the log p-value or more), the one whose lines carry the most power is the line.
+        """
+        j0 = int(np.argmin(fam_logp))
+        reach = self.spec.lobe_reach
+        if reach:
+            lo, hi = max(0, j0 - reach), min(self.n_k, j0 + reach + 1)
+            near = [j for j in range(lo, hi) if fam_logp[j] <= 0.5 * fam_logp[j0] < 0]
+            if len(near) > 1:
+                j0 = max(near, key=lambda j: self.strongest(float(self.k[j])))
+        return float(self.k[j0])
+
+    def own_lines(self, kk: float, m: int) -> tuple[bool, float]:
         """Whether the lines of kk that m kk does not explain are significant, and their largest power."""
-        own = [h for h in range(1, m * FAMILY_HARMONICS + 1) if h % m and h * kk <= k[-1]][:FAMILY_HARMONICS]
+        own = [h for h in range(1, m * FAMILY_HARMONICS + 1) if h % m and h * kk <= self.k[-1]][:FAMILY_HARMONICS]
         if not own:
             return False, 0.0
-        significant = lines_logp(spec, log_p, [h * kk for h in own], own) < alpha
-        return significant, max(peak_power(spec, h * kk, 1 + h // 2) for h in own)
+        significant = lines_logp(self.spec, self.log_p, [h * kk for h in own], own) < _ALPHA
+        return significant, max(peak_power(self.spec, h * kk, 1 + h // 2) for h in own)
 
-    def peaks(kk: float, h_last: int):
-        """(h, window half-width, index of the best line) for the harmonics of kk inside the band."""
+    def peaks(self, kk: float, h_last: int) -> Iterator[tuple[int, int]]:
+        """(h, index of the best line in its window) for the harmonics of kk inside the band."""
         for h in range(1, h_last + 1):
-            i = int(round((h * kk - k_lo) / dk))
-            if i >= n_k:
+            i = int(round((h * kk - self.k_lo) / self.dk))
+            if i >= self.n_k:
                 return
             half = 1 + h // 2
             lo = max(0, i - half)
-            yield h, half, lo + int(np.argmin(log_p[lo:i + half + 1]))
+            yield h, lo + int(np.argmin(self.log_p[lo:i + half + 1]))
 
-    # The same holds for a single line: T^2 at its neighbours one over the chunk length away can exceed
-    # its own (a 320-cycle line of a 2 rad run located at 342). Of the line and those neighbours about as
-    # significant, the one with the most power is the line.
-    grating = max(1, int(round(spec.lobe_reach / 1.5)))
-
-    def on_line(j: int) -> int:
+    def on_line(self, j: int) -> int:
+        """Of the line at ``j`` and its neighbours one over the chunk length away about as significant, the
+        one with the most power."""
+        log_p, power, g = self.log_p, self.spec.power, self.grating
         best = j
         for m in (-2, -1, 1, 2):
-            c = j + m * grating
-            lo, hi = max(0, c - grating // 4 - 1), min(n_k, c + grating // 4 + 2)
+            c = j + m * g
+            lo, hi = max(0, c - g // 4 - 1), min(self.n_k, c + g // 4 + 2)
             if lo >= hi:
                 continue
             c = lo + int(np.argmin(log_p[lo:hi]))
-            if log_p[c] <= 0.5 * log_p[j] < 0 and spec.power[c] > spec.power[best]:
+            if log_p[c] <= 0.5 * log_p[j] < 0 and power[c] > power[best]:
                 best = c
         return best
 
-    def recentre(kk: float) -> float:
+    def recentre(self, kk: float) -> float:
         """kk moved onto its family's most significant line (divided by its harmonic number): a
         fundamental on the grid is off by up to half a step, and its multiples by h times that."""
         best_lp, best_k = 0.0, kk
-        for h, _, j in peaks(kk, FAMILY_HARMONICS):
-            if log_p[j] < best_lp:
-                best_lp, best_k = float(log_p[j]), float(k[j]) / h
+        for h, j in self.peaks(kk, FAMILY_HARMONICS):
+            if self.log_p[j] < best_lp:
+                best_lp, best_k = float(self.log_p[j]), float(self.k[j]) / h
         return best_k
 
-    k0 = recentre(k0)
-    # Up while k0's own lines are not significant or carry less than MIN_SUBHARMONIC_POWER of the
-    # family's strongest line, then down once where a subharmonic's own lines are and do.
-    weak_sub = None
-    moved = True
-    while moved:
-        moved = False
-        for m in (2, 3, 5):
-            if m * k0 > k[-1]:
+    def moved_up(self, k0: float) -> tuple[float, tuple[float, float] | None]:
+        """Up to m k0 while k0's own lines are not significant or carry less than MIN_SUBHARMONIC_POWER of
+        the family's strongest line; with the last significant but weak subharmonic passed on the way."""
+        weak_sub = None
+        moved = True
+        while moved:
+            moved = False
+            for m in (2, 3, 5):
+                if m * k0 > self.k[-1]:
+                    continue
+                significant, power = self.own_lines(k0, m)
+                if not significant or power < MIN_SUBHARMONIC_POWER * self.strongest(m * k0):
+                    if significant:
+                        weak_sub = (k0, power / self.strongest(m * k0))
+                    k0, moved = self.recentre(m * k0), True
+                    break
+        return k0, weak_sub
+
+    def moved_down(self, k0: float, weak_sub: tuple[float, float] | None
+                   ) -> tuple[float, tuple[float, float] | None]:
+        """Down once to k0 / m where the subharmonic's own lines are significant and strong enough; a
+        significant one too weak is the note kept."""
+        for m in (2, 3):
+            kk = k0 / m
+            if kk < self.k_lo:
                 continue
-            significant, power = own_lines(k0, m)
-            if not significant or power < MIN_SUBHARMONIC_POWER * strongest(m * k0):
-                if significant:
-                    weak_sub = (k0, power / strongest(m * k0))
-                k0, moved = recentre(m * k0), True
-                break
-    for m in (2, 3):
-        kk = k0 / m
-        if kk < k_lo:
-            continue
-        significant, power = own_lines(kk, m)
-        if significant:
-            if power >= MIN_SUBHARMONIC_POWER * strongest(k0):
-                k0, weak_sub = recentre(kk), None
-                break
-            weak_sub = (kk, power / strongest(k0))
-    # A family whose harmonics miss the spectrum's most significant line is not the period (slow leftovers of
-    # the restored link motion made a family at 59 cycles, moved up through 294 to 1468, of a clean 272-cycle
-    # line): the period starts again from that line.
-    j_top = on_line(int(np.argmin(log_p)))
-    h_top = max(1, int(round(k[j_top] / k0)))
-    if abs(k[j_top] - h_top * k0) > (1 + h_top // 2) * dk:
-        k0 = float(k[j_top])
-    # The family's most significant line among its first 8 harmonics: where the period is best located.
-    h_strong, i_strong = 1, int(np.clip(round((k0 - k_lo) / dk), 0, n_k - 1))
-    for h, _, j in peaks(k0, 8):
-        if h == 1 or log_p[j] < log_p[i_strong]:
-            h_strong, i_strong = h, j
-    i_strong = on_line(i_strong)
-    return Family(h_strong, i_strong, float(np.min(fam_logp)), weak_sub)
+            significant, power = self.own_lines(kk, m)
+            if significant:
+                if power >= MIN_SUBHARMONIC_POWER * self.strongest(k0):
+                    return self.recentre(kk), None
+                weak_sub = (kk, power / self.strongest(k0))
+        return k0, weak_sub
+
+    def through_top_line(self, k0: float) -> float:
+        """k0, or the spectrum's most significant line where k0's harmonics miss it.
+
+        A family whose harmonics miss that line is not the period (slow leftovers of the restored link
+        motion made a family at 59 cycles, moved up through 294 to 1468, of a clean 272-cycle line): the
+        period starts again from that line.
+        """
+        k, dk = self.k, self.dk
+        j_top = self.on_line(int(np.argmin(self.log_p)))
+        h_top = max(1, int(round(k[j_top] / k0)))
+        if abs(k[j_top] - h_top * k0) > (1 + h_top // 2) * dk:
+            return float(k[j_top])
+        return k0
+
+    def strongest_line(self, k0: float) -> tuple[int, int]:
+        """(h, grid index) of the family's most significant line among its first 8 harmonics: where the
+        period is best located."""
+        h_strong, i_strong = 1, int(np.clip(round((k0 - self.k_lo) / self.dk), 0, self.n_k - 1))
+        for h, j in self.peaks(k0, 8):
+            if h == 1 or self.log_p[j] < self.log_p[i_strong]:
+                h_strong, i_strong = h, j
+        return h_strong, self.on_line(i_strong)
 
 
 @dataclass

@@ -29,11 +29,18 @@ import numpy as np
 
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import ControllerConfig
-from iiwa_ident.design import DeployedLoop, DesignRecord, HumanArm, deployed_margin, filter_period
+from iiwa_ident.design import (
+    AdditiveDesign,
+    DeployedLoop,
+    DesignRecord,
+    HumanArm,
+    deployed_margin,
+    filter_period,
+)
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
 from iiwa_ident.pipeline.session import LOCKSTEP_GUARD_S, LateFriRobot, free_udp_port
-from iiwa_ident.runtime import KappaSweep, SweepSettings, Watchdog, run_controller
+from iiwa_ident.runtime import KappaSweep, RunReport, SweepSettings, Watchdog, run_controller
 from iiwa_ident.sim import Plant, default_plant
 
 __all__ = ["HoldingHand", "run_kappa_sweep", "speeds_of_run", "prediction_error_pct", "rate_limited_pct",
@@ -133,21 +140,8 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
         the live bracket, :func:`prediction_error_pct`); ``ratio_live`` (of the live limits) and
         ``ratio_linear`` (additive / built-in; None where a figure is missing).
     """
-    if target not in ("sim", "robot"):
-        raise IiwaIdentError(f"kappa sweep: target {target!r}, expected 'sim' or 'robot'")
-    if target == "robot":
-        if not holding_the_arm:
-            raise IiwaIdentError("kappa sweep on the robot: the loop amplifies the torque a person applies and is "
-                                 "driven until it oscillates; a person must hold the arm "
-                                 "(--i-am-holding-the-arm)")
-        if robot is None:
-            raise IiwaIdentError("kappa sweep on the robot needs the robot's address")
-        if tau_ext == "ft" and ft is None:
-            raise IiwaIdentError("kappa sweep with the F/T source needs the sensor's address")
     plant = plant or default_plant()
-    if target == "sim" and tau_ext == "ft" and not plant.ft_sensor:
-        raise IiwaIdentError("kappa sweep with the F/T source on the simulated joint needs a plant with "
-                             "sensors.ft_sensor = true")
+    _refuse_unsafe(target, tau_ext, plant, holding_the_arm, robot, ft)
     outdir.mkdir(parents=True, exist_ok=True)
     lockstep = lockstep and target == "sim"
     duration = settings.steps() * settings.hold_s + 1.0
@@ -183,23 +177,7 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
                 sensor = NetFtSensor(ft_addr[0], ft_projection, ft_addr[1], ft_settings.calibration)  # type: ignore[index]
             rep = run_controller(config, fri, task, duration, path, tau_ext=tau_ext,  # type: ignore[arg-type]
                                  sensor=sensor, loop=loop, watchdog=Watchdog(config.sample_time_s))
-        t_end = (task.steps[-1]["t_start_s"] if task.reason else None)
-        row: dict[str, Any] = {
-            "live_limit": task.live_limit, "unstable_at": task.unstable_at, "reason": task.reason,
-            "stop_reason": rep.stop_reason, "file": path.name, "watchdog_events": len(rep.watchdog_events),
-            "steps": [{"kappa": s["kappa"], "t_start_s": s["t_start_s"], "stable": s["stable"],
-                       "rms_max_nm": max(s["rms_nm"]) if s["rms_nm"] else None} for s in task.steps],
-            "sensor": rep.sensor,
-        }
-        if task.reason == "" and not rep.stop_reason.startswith("kappa sweep"):
-            row["reason"] = f"ended before a judgement: {rep.stop_reason}"
-        row["speed_p95_rad_s"] = speeds_of_run(path, t_end)
-        limited = rate_limited_pct(path, [st["t_start_s"] for st in task.steps],
-                                   config.limits.torque_rate_nm_s)
-        for st, pct in zip(row["steps"], limited):
-            st["rate_limited_pct"] = pct
-        row["rate_limited_from"] = next((st["kappa"] for st in row["steps"]
-                                         if st["rate_limited_pct"] >= RATE_LIMITED_PCT), None)
+        row = _sweep_row(task, rep, path, config.limits.torque_rate_nm_s)
         say(f"  {loop} loop, tau_ext from {tau_ext}: stable up to kappa {_fmt(task.live_limit)}, unstable at "
             f"{_fmt(task.unstable_at)} ({task.reason or rep.stop_reason})")
         return row
@@ -212,17 +190,10 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
     arm = hand.arm() if target == "sim" else (record.margins.arm if record is not None else HumanArm())
     for loop, row in rows.items():
         row["linear_limit"] = row["linear_at_speed_rad_s"] = None
-        if record is None:
-            continue
-        the_loop = DeployedLoop(tau_ext, ft_settings.cutoff_hz, ft_settings.rate_hz, record.KI, record.filter,
-                                period_rad=filter_period(record.ripple))
-        v_hi = row["speed_p95_rad_s"]
-        speeds = np.linspace(0.0, v_hi, 6) if v_hi > 0 else [0.0]
-        m = deployed_margin(record.design.params, record.design if loop == "additive" else None, arm, the_loop,
-                            speeds)
-        row["linear_limit"] = _num(m.kappa_max)
-        row["linear_at_speed_rad_s"] = m.at_speed_rad_s
-        row["linear_error_pct"] = prediction_error_pct(m.kappa_max, row["live_limit"], row["unstable_at"])
+        if record is not None:
+            the_loop = DeployedLoop(tau_ext, ft_settings.cutoff_hz, ft_settings.rate_hz, record.KI, record.filter,
+                                    period_rad=filter_period(record.ripple))
+            _predict(row, record, record.design if loop == "additive" else None, arm, the_loop)
     b, a = rows["builtin"], rows["additive"]
     return {"tau_ext": tau_ext, "target": target, "clock": "lockstep" if lockstep else "realtime",
             "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
@@ -231,6 +202,57 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
             "builtin": b, "additive": a,
             "ratio_live": _ratio(a["live_limit"], b["live_limit"]),
             "ratio_linear": _ratio(a["linear_limit"], b["linear_limit"])}
+
+
+def _refuse_unsafe(target: str, tau_ext: str, plant: Plant, holding_the_arm: bool, robot: tuple[str, int] | None,
+                   ft: tuple[str, int] | None) -> None:
+    """Refuse a sweep that cannot run or must not: on the robot, nobody holding the arm."""
+    if target not in ("sim", "robot"):
+        raise IiwaIdentError(f"kappa sweep: target {target!r}, expected 'sim' or 'robot'")
+    if target == "robot":
+        if not holding_the_arm:
+            raise IiwaIdentError("kappa sweep on the robot: the loop amplifies the torque a person applies and is "
+                                 "driven until it oscillates; a person must hold the arm "
+                                 "(--i-am-holding-the-arm)")
+        if robot is None:
+            raise IiwaIdentError("kappa sweep on the robot needs the robot's address")
+        if tau_ext == "ft" and ft is None:
+            raise IiwaIdentError("kappa sweep with the F/T source needs the sensor's address")
+    if target == "sim" and tau_ext == "ft" and not plant.ft_sensor:
+        raise IiwaIdentError("kappa sweep with the F/T source on the simulated joint needs a plant with "
+                             "sensors.ft_sensor = true")
+
+
+def _sweep_row(task: KappaSweep, rep: RunReport, path: Path, torque_rate_nm_s: float) -> dict[str, Any]:
+    """One controller's sweep as measured: its judgement, its steps, its speeds and its rate-limited cycles."""
+    t_end = (task.steps[-1]["t_start_s"] if task.reason else None)
+    row: dict[str, Any] = {
+        "live_limit": task.live_limit, "unstable_at": task.unstable_at, "reason": task.reason,
+        "stop_reason": rep.stop_reason, "file": path.name, "watchdog_events": len(rep.watchdog_events),
+        "steps": [{"kappa": s["kappa"], "t_start_s": s["t_start_s"], "stable": s["stable"],
+                   "rms_max_nm": max(s["rms_nm"]) if s["rms_nm"] else None} for s in task.steps],
+        "sensor": rep.sensor,
+    }
+    if task.reason == "" and not rep.stop_reason.startswith("kappa sweep"):
+        row["reason"] = f"ended before a judgement: {rep.stop_reason}"
+    row["speed_p95_rad_s"] = speeds_of_run(path, t_end)
+    limited = rate_limited_pct(path, [st["t_start_s"] for st in task.steps], torque_rate_nm_s)
+    for st, pct in zip(row["steps"], limited):
+        st["rate_limited_pct"] = pct
+    row["rate_limited_from"] = next((st["kappa"] for st in row["steps"]
+                                     if st["rate_limited_pct"] >= RATE_LIMITED_PCT), None)
+    return row
+
+
+def _predict(row: dict[str, Any], record: DesignRecord, design: AdditiveDesign | None, arm: HumanArm,
+             loop: DeployedLoop) -> None:
+    """Add the linear prediction of ``row``'s sweep: the deployed loop's margin over the run's speeds."""
+    v_hi = row["speed_p95_rad_s"]
+    speeds = np.linspace(0.0, v_hi, 6) if v_hi > 0 else [0.0]
+    m = deployed_margin(record.design.params, design, arm, loop, speeds)
+    row["linear_limit"] = _num(m.kappa_max)
+    row["linear_at_speed_rad_s"] = m.at_speed_rad_s
+    row["linear_error_pct"] = prediction_error_pct(m.kappa_max, row["live_limit"], row["unstable_at"])
 
 
 #: Share of a step's cycles at the runtime's torque-rate limit from which the linear prediction, which

@@ -204,115 +204,153 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         additive run: the runtime's median compute time per cycle [us], the
         one figure that depends on the machine).
     """
-    from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
-
+    if target != "sim" and robot is None:
+        raise IiwaIdentError("validation on the robot needs the robot's address")
     outdir.mkdir(parents=True, exist_ok=True)
-    s = settings
     lockstep = lockstep and target == "sim"
+    v = _Validation(config=config, outdir=outdir, delay_s=delay_s, target=target, plant=plant, robot=robot,
+                    settings=settings, say=say, lockstep=lockstep, record=record)
+    kb, ka = kappa_margins
+    kappa_row: dict[str, Any] = {"linear_builtin": _num(kb), "linear_additive": _num(ka),
+                                 "linear_ratio": _num(ka / kb) if kb > 0 else None, "sweeps": {}}
     runs: list[dict[str, Any]] = []
     compute_us: dict[str, float] = {}
+    emulator_reports: list[dict[str, Any]] = []
+    for job in v.run_all(v.jobs()):
+        emulator_reports.extend(job.reports)
+        if job.sweep_source is not None:
+            kappa_row["sweeps"][job.sweep_source] = job.row
+            continue
+        runs.append(job.row)
+        if job.compute_us is not None:
+            compute_us[job.row["name"]] = job.compute_us
+    if target != "sim":
+        kappa_row["live_skipped"] = ("needs a person holding the arm: run 'iiwa-ident kappa --robot HOST "
+                                     "--tau-ext ft --ft SENSOR --i-am-holding-the-arm'")
+    return {"target": target, "clock": "lockstep" if lockstep else "realtime", "delay_s": delay_s, "runs": runs,
+            "tracking": _tracking_summary(runs), "kappa": kappa_row, "watchdog_trip_cycles": v.trip_cycles,
+            "emulator": emulator_reports, "compute_us_median": compute_us, "settings": asdict(settings)}
+
+
+@dataclass
+class _Job:
+    """One validation run's outcome: its row, what the robot side saw, the runtime's median compute time [us]
+    (additive tracking runs), the source of a kappa sweep (None: a tracking run)."""
+
+    row: dict[str, Any]
+    reports: list[dict[str, Any]] = field(default_factory=list)
+    compute_us: float | None = None
+    sweep_source: str | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Validation:
+    """The runs of :func:`run_validation` (its arguments, see there)."""
+
+    config: ControllerConfig
+    outdir: Path
+    delay_s: float
+    target: str
+    plant: Plant | None
+    robot: tuple[str, int] | None
+    settings: ValidationSettings
+    say: Callable[[str], None]
+    lockstep: bool
+    record: DesignRecord | None
+
+    @property
+    def trip_cycles(self) -> int:
+        """The watchdog's cycles: in real time the emulator shares this machine with the client; on a loaded
+        VM it is late now and then, which the default watchdog (3 cycles) reads as a lost link. In lockstep
+        no cycle is late."""
+        return 5 if self.target == "sim" and not self.lockstep else 3
+
+    def jobs(self) -> list[Callable[[], _Job]]:
+        """Step and sine with both controllers, then (sim target) the kappa sweep of each source."""
+        s = self.settings
+        plan = [
+            ("step", {"amplitude_nm": s.step_nm, "period_s": s.step_period_s},
+             StepTorque(s.step_nm, s.step_period_s, s.step_cycles),
+             make_task("step", s.step_nm, period_s=s.step_period_s), s.step_period_s * s.step_cycles),
+            ("sine", {"amplitude_nm": s.sine_nm, "frequency_hz": s.sine_hz},
+             SineTorque(s.sine_nm, s.sine_hz, s.sine_s), make_task("sine", s.sine_nm, s.sine_hz), s.sine_s),
+        ]
+        jobs: list[Callable[[], _Job]] = [
+            functools.partial(self.tracking_run, *item, kind) for item in plan for kind in ("builtin", "additive")]
+        if self.target == "sim":
+            jobs += [functools.partial(self.kappa_sweep, source) for source in s.kappa_sources]
+        return jobs
+
+    def run_all(self, jobs: list[Callable[[], _Job]]) -> list[_Job]:
+        """The jobs' outcomes in order: in lockstep each run has its own emulator process on a virtual clock,
+        so they are independent and go two at a time (one per core; this process mostly waits for the
+        emulators' answers); on the robot or in real time one at a time, as on the robot."""
+        if self.lockstep:
+            with ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+                return list(pool.map(lambda job: job(), jobs))
+        return [job() for job in jobs]
 
     @contextmanager
-    def robot_side(what: str, seed: int, reports: list, **kw: Any) -> Iterator[tuple[str, int]]:
+    def robot_side(self, what: str, seed: int, reports: list) -> Iterator[tuple[str, int]]:
         """The address of the robot side for one run: the robot, or an emulator of its own."""
-        if target != "sim":
-            yield robot  # type: ignore[misc]
+        from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
+
+        if self.target != "sim":
+            yield self.robot  # type: ignore[misc]  # run_validation refuses the robot target without it
             return
         port = free_udp_port()
-        with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=plant, seed=seed, lockstep=lockstep,
-                                           lockstep_guard_s=LOCKSTEP_GUARD_S, **kw)) as emu:
+        with spawn_emulator(EmulatorConfig(client=("127.0.0.1", port), plant=self.plant, seed=seed,
+                                           lockstep=self.lockstep, lockstep_guard_s=LOCKSTEP_GUARD_S)) as emu:
             try:
                 yield "127.0.0.1", port
             finally:
                 emu.stop()
                 reports.append(_emulator_summary(what, emu.join(30.0)))
 
-    def tracking_run(task: str, params: dict, experiment, rt_task, duration: float, kind: str
-                     ) -> tuple[dict[str, Any], list, float | None]:
-        """One tracking run: its row, the emulator's reports and the runtime's median compute time [us]."""
-        path = outdir / f"{kind}_{task}.h5"
+    def tracking_run(self, task: str, params: dict, experiment, rt_task, duration: float, kind: str) -> _Job:
+        """One tracking run of controller ``kind`` (``"builtin"`` or ``"additive"``)."""
+        path = self.outdir / f"{kind}_{task}.h5"
         t_run = time.perf_counter()
-        reports: list[dict[str, Any]] = []
-        compute = None
-        row: dict[str, Any] = {"name": f"{kind}_{task}", "controller": kind, "task": task,
-                               "file": str(path.name), "duration_s": duration, **params}
+        job = _Job({"name": f"{kind}_{task}", "controller": kind, "task": task, "file": str(path.name),
+                    "duration_s": duration, **params})
+        row = job.row
         # A session the loaded machine lost (late messages) says nothing about the controller: retry once.
         for attempt in (1, 2):
-            with robot_side(row["name"], 11, reports) as (host, port):
-                ds, rep = _tracking_run(kind, host, port, config, experiment, rt_task, duration, path,
-                                        trip_cycles, lockstep)
+            with self.robot_side(row["name"], 11, job.reports) as (host, port):
+                ds, rep = _tracking_run(kind, host, port, self.config, experiment, rt_task, duration, path,
+                                        self.trip_cycles, self.lockstep)
+            t = np.asarray(ds["t"], float)
+            t = t - t[0]
             if kind == "builtin":
                 row["stop_reason"] = ds.experiment_attrs.get("stopped_reason", "duration")
-                t = np.asarray(ds["t"], float)
-                t = t - t[0]
                 ref = reference_of(task, t, params["amplitude_nm"], params.get("period_s", 1.0),
                                    params.get("frequency_hz", 1.0))
             else:
                 row["stop_reason"] = rep.stop_reason
                 row["watchdog_events"] = len(rep.watchdog_events)
-                compute = rep.compute_us.get("median", math.nan)
-                t = np.asarray(ds["t"], float)
-                t = t - t[0]
+                job.compute_us = rep.compute_us.get("median", math.nan)
                 ref = np.asarray(ds["tau_r"], float)
             row["attempts"] = attempt
             if not _lost_session(row["stop_reason"]):
                 break
-        row.update(tracking_metrics(t, np.asarray(ds["tau_j"], float), ref, task, delay_s,
+        row.update(tracking_metrics(t, np.asarray(ds["tau_j"], float), ref, task, self.delay_s,
                                     params["amplitude_nm"], params.get("period_s", 1.0)))
-        say(f"  {kind} {task}: {duration:g} s through FRI, {row['stop_reason']}, peak error "
-            f"{row['peak_error_nm']:.1f} Nm ({time.perf_counter() - t_run:.1f} s)")
-        return row, reports, compute
+        self.say(f"  {kind} {task}: {duration:g} s through FRI, {row['stop_reason']}, peak error "
+                 f"{row['peak_error_nm']:.1f} Nm ({time.perf_counter() - t_run:.1f} s)")
+        return job
 
-    def kappa_sweep(source: str) -> tuple[dict[str, Any], list, None]:
+    def kappa_sweep(self, source: str) -> _Job:
+        """The live kappa sweep of both controllers with the external torque from ``source``."""
         t_run = time.perf_counter()
-        out = run_kappa_sweep(config, outdir, record=record, tau_ext=source, target="sim", plant=plant,
-                              settings=s.kappa, lockstep=lockstep, say=say)
-        say(f"  kappa sweep ({source}): live ratio {_fmt(out['ratio_live'])}, linear {_fmt(out['ratio_linear'])} "
-            f"({time.perf_counter() - t_run:.1f} s)")
-        return out, [], None
+        out = run_kappa_sweep(self.config, self.outdir, record=self.record, tau_ext=source, target="sim",
+                              plant=self.plant, settings=self.settings.kappa, lockstep=self.lockstep, say=self.say)
+        self.say(f"  kappa sweep ({source}): live ratio {_fmt(out['ratio_live'])}, linear "
+                 f"{_fmt(out['ratio_linear'])} ({time.perf_counter() - t_run:.1f} s)")
+        return _Job(out, sweep_source=source)
 
-    # In real time the emulator shares this machine with the client: on a loaded VM it is late now and then,
-    # which the default watchdog (3 cycles) reads as a lost link. In lockstep no cycle is late.
-    trip_cycles = 5 if target == "sim" and not lockstep else 3
-    kb, ka = kappa_margins
-    kappa_row: dict[str, Any] = {"linear_builtin": _num(kb), "linear_additive": _num(ka),
-                                 "linear_ratio": _num(ka / kb) if kb > 0 else None, "sweeps": {}}
-    emulator_reports: list[dict[str, Any]] = []
-    if target != "sim" and robot is None:
-        raise IiwaIdentError("validation on the robot needs the robot's address")
-    plan = [
-        ("step", {"amplitude_nm": s.step_nm, "period_s": s.step_period_s},
-         StepTorque(s.step_nm, s.step_period_s, s.step_cycles),
-         make_task("step", s.step_nm, period_s=s.step_period_s), s.step_period_s * s.step_cycles),
-        ("sine", {"amplitude_nm": s.sine_nm, "frequency_hz": s.sine_hz},
-         SineTorque(s.sine_nm, s.sine_hz, s.sine_s), make_task("sine", s.sine_nm, s.sine_hz), s.sine_s),
-    ]
-    jobs: list[Callable[[], tuple[dict[str, Any], list, float | None]]] = [
-        functools.partial(tracking_run, *item, kind) for item in plan for kind in ("builtin", "additive")]
-    sweeps = {}
-    if target == "sim":
-        for source in s.kappa_sources:
-            sweeps[source] = functools.partial(kappa_sweep, source)
-            jobs.append(sweeps[source])
-    if lockstep:
-        # Each run has its own emulator process on a virtual clock: independent, so two at a time (one per
-        # core; this process mostly waits for the emulators' answers).
-        with ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
-            results = list(pool.map(lambda job: job(), jobs))
-    else:  # the robot, or real time: one run at a time, as on the robot
-        results = [job() for job in jobs]
-    for job, (row, reports, compute) in zip(jobs, results):
-        emulator_reports.extend(reports)
-        source = next((k for k, v in sweeps.items() if v is job), None)
-        if source is not None:
-            kappa_row["sweeps"][source] = row
-            continue
-        runs.append(row)
-        if compute is not None:
-            compute_us[row["name"]] = compute
-    if target != "sim":
-        kappa_row["live_skipped"] = ("needs a person holding the arm: run 'iiwa-ident kappa --robot HOST "
-                                     "--tau-ext ft --ft SENSOR --i-am-holding-the-arm'")
+
+def _tracking_summary(runs: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per task, the built-in's and the additive's peak and RMS errors (and the step's overshoots)."""
     by = {r["name"]: r for r in runs}
     summary = {}
     for task in ("step", "sine"):
@@ -323,9 +361,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
             if task == "step":
                 summary[task]["builtin_overshoot_pct"] = b["overshoot_pct"]
                 summary[task]["additive_overshoot_pct"] = a["overshoot_pct"]
-    return {"target": target, "clock": "lockstep" if lockstep else "realtime", "delay_s": delay_s, "runs": runs, "tracking": summary, "kappa": kappa_row,
-            "watchdog_trip_cycles": trip_cycles, "emulator": emulator_reports, "compute_us_median": compute_us,
-            "settings": asdict(s)}
+    return summary
 
 
 def _emulator_summary(what: str, report) -> dict[str, Any]:

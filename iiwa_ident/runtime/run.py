@@ -328,6 +328,25 @@ class _StopFlag:
         self.flag = signal.Signals(signum).name
 
 
+def _check_run(config: ControllerConfig, robot: RobotInterface, duration_s: float,
+               sensor: NetFtSensor | None) -> None:
+    """Refuse a run the config does not fit (another joint, another cycle), of no length, or with a sensor
+    whose projection cannot be had; load the description's model a sensor will need."""
+    if robot.joint != config.joint:
+        raise IiwaIdentError(f"the config controls joint {config.joint}, the robot interface joint {robot.joint}")
+    if abs(robot.sample_time_s - config.sample_time_s) > 1e-12:
+        raise IiwaIdentError(f"the config runs at {config.sample_time_s * 1e3:g} ms, the robot at "
+                             f"{robot.sample_time_s * 1e3:g} ms")
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise IiwaIdentError(f"duration must be positive, got {duration_s!r}")
+    if sensor is not None and sensor.projection is None:
+        if not hasattr(robot, "pose"):
+            raise IiwaIdentError("the F/T sensor's projection needs the arm's pose, which this robot interface "
+                                 "does not report: give the sensor's lever arm")
+        # Load the description's model now: at the first commanding message only its kinematics run.
+        flange_axis(config.robot_model, config.joint, [0.0] * 7)
+
+
 def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, duration_s: float,
                    log: str | Path, *, watchdog: Watchdog | None = None,
                    progress: Callable[[str], None] | None = None, realtime: bool = False,
@@ -369,20 +388,8 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     -------
     RunReport
     """
-    if robot.joint != config.joint:
-        raise IiwaIdentError(f"the config controls joint {config.joint}, the robot interface joint {robot.joint}")
-    if abs(robot.sample_time_s - config.sample_time_s) > 1e-12:
-        raise IiwaIdentError(f"the config runs at {config.sample_time_s * 1e3:g} ms, the robot at "
-                             f"{robot.sample_time_s * 1e3:g} ms")
-    if not (math.isfinite(duration_s) and duration_s > 0):
-        raise IiwaIdentError(f"duration must be positive, got {duration_s!r}")
+    _check_run(config, robot, duration_s, sensor)
     say = progress or (lambda _msg: None)
-    if sensor is not None and sensor.projection is None:
-        if not hasattr(robot, "pose"):
-            raise IiwaIdentError("the F/T sensor's projection needs the arm's pose, which this robot interface "
-                                 "does not report: give the sensor's lever arm")
-        # Load the description's model now: at the first commanding message only its kinematics run.
-        flange_axis(config.robot_model, config.joint, [0.0] * 7)
     runtime = ControllerRuntime(config, task, watchdog, tau_ext=tau_ext, sensor=sensor, loop=loop)
     dt = config.sample_time_s
     attrs = {"controller_sha256": config.sha256, "duration_s": float(duration_s), "tau_ext_source": tau_ext,

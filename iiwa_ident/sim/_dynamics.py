@@ -32,6 +32,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -80,6 +81,68 @@ def _effect_params(plant: Plant, p: ca.SX) -> list[tuple]:
     return out
 
 
+class _Torques(NamedTuple):
+    """The joint torque [Nm] of eq (1), as the sensor reports it [Nm], and the deflection's slope [-]."""
+
+    tau_j: Any
+    tau_s: Any
+    df: Any
+
+
+class _Effects:
+    """The plant's effects on symbolic quantities: each hook summed (or chained) over the plant's effects."""
+
+    def __init__(self, effect_params: list, P: dict) -> None:
+        self.effect_params, self.P = effect_params, P
+
+    def deflection(self, theta_m):
+        """The transmission's deflection f(theta_m) [rad] and its slope [-]."""
+        f, df = 0, 0
+        for e, Pe in self.effect_params:
+            out = e.deflection(theta_m, Pe)
+            if out is not None:
+                f, df = f + out[0], df + out[1]
+        return f, df
+
+    def sensor(self, tau, t):
+        for e, Pe in self.effect_params:
+            tau = e.sensor(tau, t, Pe)
+        return tau
+
+    def link_torque(self, theta_l, omega_l):
+        total = 0
+        for e, Pe in self.effect_params:
+            out = e.link_torque(theta_l, omega_l, Pe)
+            if out is not None:
+                total = total + out
+        return total
+
+    def model_torque(self, theta_m):
+        total = 0
+        for e, Pe in self.effect_params:
+            out = e.robot_model_torque(theta_m, Pe)
+            if out is not None:
+                total = total + out
+        return total
+
+    def torques(self, s, t) -> _Torques:
+        f, df = self.deflection(s[0])
+        tau_j = self.P["K"] * (s[0] - f - s[2])
+        return _Torques(tau_j, self.sensor(tau_j, t), df)
+
+    def rhs(self, s, t, tau, free, ext):
+        """The state's derivative and the external torque [Nm] at ``s``, time ``t``, motor torque ``tau``."""
+        Jc, bc, K, Jl = self.P["Jc"], self.P["bc"], self.P["K"], self.P["Jl"]
+        ext_tau, ext_pos, ext_vel, ext_k, ext_d = ext
+        tau_j, tau_s, df = self.torques(s, t)
+        e = tau - tau_s
+        dtheta_m = free * ((bc / K) * e + s[1]) / Jc
+        dz = free * (tau - tau_s * (1 - df))
+        tau_ext = ext_tau + ext_k * (ext_pos - s[2]) + ext_d * (ext_vel - s[3])
+        domega_l = (tau_j + tau_ext + self.link_torque(s[2], s[3])) / Jl
+        return ca.vertcat(dtheta_m, dz, s[3], domega_l), tau_ext
+
+
 def _build(plant: Plant) -> ca.Function:
     """The symbolic cycle function ``F(x, u, p) -> (x_next, y)``."""
     M = plant.substeps
@@ -88,54 +151,8 @@ def _build(plant: Plant) -> ca.Function:
     u = ca.SX.sym("u", 1 + nin * M)
     p = ca.SX.sym("p", _n_params(plant))
     P = {name: p[k] for k, name in enumerate(_BASE)}
-    effect_params = _effect_params(plant, p)
-
-    Jc, bc, K, Jl = P["Jc"], P["bc"], P["K"], P["Jl"]
+    fx = _Effects(_effect_params(plant, p), P)
     h = P["cycle_s"] / M
-
-    def deflection(theta_m):
-        f, df = 0, 0
-        for e, Pe in effect_params:
-            out = e.deflection(theta_m, Pe)
-            if out is not None:
-                f, df = f + out[0], df + out[1]
-        return f, df
-
-    def sensor(tau, t):
-        for e, Pe in effect_params:
-            tau = e.sensor(tau, t, Pe)
-        return tau
-
-    def link_torque(theta_l, omega_l):
-        total = 0
-        for e, Pe in effect_params:
-            out = e.link_torque(theta_l, omega_l, Pe)
-            if out is not None:
-                total = total + out
-        return total
-
-    def model_torque(theta_m):
-        total = 0
-        for e, Pe in effect_params:
-            out = e.robot_model_torque(theta_m, Pe)
-            if out is not None:
-                total = total + out
-        return total
-
-    def torques(s, t):
-        f, df = deflection(s[0])
-        tau_j = K * (s[0] - f - s[2])
-        return tau_j, sensor(tau_j, t), df
-
-    def rhs(s, t, tau, free, ext):
-        ext_tau, ext_pos, ext_vel, ext_k, ext_d = ext
-        tau_j, tau_s, df = torques(s, t)
-        e = tau - tau_s
-        dtheta_m = free * ((bc / K) * e + s[1]) / Jc
-        dz = free * (tau - tau_s * (1 - df))
-        tau_ext = ext_tau + ext_k * (ext_pos - s[2]) + ext_d * (ext_vel - s[3])
-        domega_l = (tau_j + tau_ext + link_torque(s[2], s[3])) / Jl
-        return ca.vertcat(dtheta_m, dz, s[3], domega_l), tau_ext
 
     s = x[0:4]
     standing_s, held, theta_prev = x[4], x[5], x[6]
@@ -146,14 +163,14 @@ def _build(plant: Plant) -> ca.Function:
         ext = tuple(row[3 + k] for k in range(5))
         t = t0 + j * h
         omega_est = (s[0] - theta_prev) / h
-        comp = -model_torque(s[0])  # the robot's own gravity compensation
+        comp = -fx.model_torque(s[0])  # the robot's own gravity compensation
         # The client's command arrives already through the feasibility filter's slew limit (applied
         # per cycle by the caller); the position controller is the robot's own, at the internal rate.
         tau_f = ca.if_else(pos_mode > 0.5, P["kp"] * (q_cmd - s[0]) - P["kd"] * omega_est, tau_cmd)
         # Torque control is suppressed from standstill while command and sensed load stay below the
         # threshold (section II.A): standstill means the motor has not moved for t_still; position
         # mode never is.
-        _, tau_s_now, _ = torques(s, t)
+        tau_s_now = fx.torques(s, t).tau_s
         small = ca.logic_and(ca.fabs(tau_f) < P["tau_still"], ca.fabs(tau_s_now - comp) < P["tau_still"])
         standing_s = ca.if_else(ca.fabs(omega_est) < P["v_still"], standing_s + h, 0)
         standing = standing_s >= P["t_still"]
@@ -161,17 +178,17 @@ def _build(plant: Plant) -> ca.Function:
         free = 1 - held
         tau = free * (tau_f + comp)
         theta_prev = s[0]
-        k1, _ = rhs(s, t, tau, free, ext)
-        k2, _ = rhs(s + h / 2 * k1, t + h / 2, tau, free, ext)
-        k3, _ = rhs(s + h / 2 * k2, t + h / 2, tau, free, ext)
-        k4, _ = rhs(s + h * k3, t + h, tau, free, ext)
+        k1, _ = fx.rhs(s, t, tau, free, ext)
+        k2, _ = fx.rhs(s + h / 2 * k1, t + h / 2, tau, free, ext)
+        k3, _ = fx.rhs(s + h / 2 * k2, t + h / 2, tau, free, ext)
+        k4, _ = fx.rhs(s + h * k3, t + h, tau, free, ext)
         s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
     t_end = t0 + M * h
-    deriv, tau_ext = rhs(s, t_end, tau, free, ext)
-    tau_j, tau_s, _ = torques(s, t_end)
+    deriv, tau_ext = fx.rhs(s, t_end, tau, free, ext)
+    tau_j, tau_s, _ = fx.torques(s, t_end)
     x_next = ca.vertcat(s, standing_s, held, theta_prev)
-    y = ca.vertcat(s[0], tau_j, tau_s, s[2], s[3], deriv[0], tau_ext, tau, held, model_torque(s[0]))
+    y = ca.vertcat(s[0], tau_j, tau_s, s[2], s[3], deriv[0], tau_ext, tau, held, fx.model_torque(s[0]))
     return ca.Function("iiwa_cycle", [x, u, p], [x_next, y])
 
 
