@@ -27,8 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fit import TRUTH  # noqa: E402  (the same truth as the chirp benchmark)
 
 from iiwa_ident.excite import Multisine, record  # noqa: E402  (after bench/ is on the path, as above)
-from iiwa_ident.ident.bla import best_linear_approximation, fit_bla  # noqa: E402  (as above)
-from iiwa_ident.ident.tf_fit import cramer_rao_std
+from iiwa_ident.ident import best_linear_approximation, cramer_rao_std, fit_bla  # noqa: E402  (as above)
 from iiwa_ident.model import PARAMETER_NAMES
 from iiwa_ident.sim import SimulatedJoint, default_plant  # noqa: E402  (as above)
 

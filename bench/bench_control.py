@@ -9,16 +9,16 @@ import sys
 import time
 from pathlib import Path
 
-from iiwa_ident.design import FilterSettings
-from iiwa_ident.design.analysis import (
+from iiwa_ident.design import (
     AdditiveTorqueControl,
+    FilterSettings,
     analysis_design,
     compare_controllers,
     identified_model,
     kappa_margin,
     sine_tracking,
 )
-from iiwa_ident.report.control_figures import kappa_figure, pole_figure, tracking_figure
+from iiwa_ident.report import kappa_figure, pole_figure, tracking_figure
 
 
 def main(outdir: str = "/tmp") -> None:

@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python bench/bench_diagnose.py [--cases 30] [--first-seed 1] [--causes] [--apart]``.
 Each case hides 0, 1 or 2 random plant effects in the simulated joint
-(:mod:`iiwa_ident.diagnose.benchmark`), simulates the typical input and
+(:mod:`iiwa_ident.testing`), simulates the typical input and
 diagnoses it with the Table I model (the case's own eq (4)); ``--causes``: a log filter or a link
 spring, alone or beside another effect; ``--apart``: on the joint simulated apart from the project's
 simulator.
@@ -15,7 +15,7 @@ import time
 from collections import Counter
 
 from iiwa_ident.diagnose import CANDIDATES
-from iiwa_ident.diagnose.benchmark import run_case
+from iiwa_ident.testing import run_case
 
 
 def main() -> None:
@@ -25,7 +25,7 @@ def main() -> None:
     parser.add_argument("--causes", action="store_true", help="a log filter or a link spring, alone or beside "
                         "one effect of the shared generator (draw_cause_case)")
     parser.add_argument("--apart", action="store_true", help="the second data path: a joint simulated apart from "
-                        "the project's simulator (iiwa_ident.diagnose.apart)")
+                        "the project's simulator (iiwa_ident.testing)")
     args = parser.parse_args()
     rows = []
     t0 = time.perf_counter()

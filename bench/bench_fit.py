@@ -44,8 +44,7 @@ import time
 import numpy as np
 
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident.joint_fit import METHODS, fit_joint
-from iiwa_ident.ident.tf_fit import cramer_rao_std
+from iiwa_ident.ident import METHODS, cramer_rao_std, fit_joint
 from iiwa_ident.model import PARAMETER_NAMES
 from iiwa_ident.sim import SimulatedJoint, default_plant
 

@@ -1,6 +1,6 @@
 """The joint fit on chirps whose logged torque passed a driver's filter.
 
-Draws ``--draws`` scenarios of the shared generator (:func:`iiwa_ident.excite.scenarios.draw_scenario`: random
+Draws ``--draws`` scenarios of the shared generator (:func:`iiwa_ident.testing.draw_scenario`: random
 truths from wrist to base joints, chirp protocols, held or free links, 0-3 nuisances), half logged at 200 Hz and
 half at 1 kHz, 20 s each. Each is simulated twice: with a first-order ``torque_log_filter`` of cut-off
 log-uniform in 5-50 Hz (the simulator's effect: after the robot's loop, on the logged ``tau_j`` only), and
@@ -26,8 +26,8 @@ import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.excite.scenarios import draw_scenario, scenario_plant
 from iiwa_ident.sim import SimulatedJoint, make_effect
+from iiwa_ident.testing import draw_scenario, scenario_plant
 
 _REL, _TD_S = 0.03, 0.5e-3
 RATES = (200.0, 1000.0)
@@ -36,7 +36,7 @@ CUTOFF_HZ = (5.0, 50.0)
 
 def run_draw(seed: int) -> dict:
     """The scenario of ``seed`` with and without a drawn log filter, each fitted: the outcomes."""
-    from iiwa_ident.ident.joint_fit import fit_joint
+    from iiwa_ident.ident import fit_joint
 
     rate = RATES[seed % 2]
     sc = draw_scenario(seed, duration_s=20.0, rate_hz=rate)

@@ -69,7 +69,7 @@ def _peak_rss_mb() -> float:
 
 def predicted_detection(group: dict, amplitude_rad: float, cycles_per_rev: float) -> float:
     """Probability that at least one of the group's runs alone detects its ripple, by the detection curve."""
-    from iiwa_ident.ident.ripple_detect import detection_probability
+    from iiwa_ident.ident import detection_probability
 
     miss = 1.0
     for run in (group["ripple"] or {}).get("sensitivity") or []:
@@ -82,7 +82,7 @@ def predicted_detection(group: dict, amplitude_rad: float, cycles_per_rev: float
 
 def predicted_pooled(group: dict, amplitude_rad: float, cycles_per_rev: float) -> float:
     """Probability that the search over all the group's passes together detects its ripple, by the pooled curve."""
-    from iiwa_ident.ident.ripple_detect import RunSensitivity, pooled_detection_probability
+    from iiwa_ident.ident import RunSensitivity, pooled_detection_probability
 
     runs = [RunSensitivity.from_json(dict(run, cycles_per_rev=cycles_per_rev))
             for run in (group["ripple"] or {}).get("sensitivity") or []]

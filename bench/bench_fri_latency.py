@@ -36,10 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from iiwa_ident.deploy import deploy, write_config
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.design_file import make_record
-from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.design import design_controller, identified_model, make_record, outer_loop_margins
 from iiwa_ident.emulator import DEFAULT_JOINT_POSITIONS
 from iiwa_ident.fri import protocol as P
 from iiwa_ident.model import JointParameters

@@ -17,12 +17,9 @@ from pathlib import Path
 
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import deploy
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.design_file import make_record
-from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.design import design_controller, identified_model, make_record, outer_loop_margins
 from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
-from iiwa_ident.fri.robot import FriRobot
+from iiwa_ident.fri import FriRobot
 from iiwa_ident.model import JointParameters
 from iiwa_ident.runtime import make_task, run_controller
 

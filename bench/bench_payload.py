@@ -16,8 +16,8 @@ import numpy as np
 
 from iiwa_ident.description import gravity_sinusoid
 from iiwa_ident.diagnose import diagnose
-from iiwa_ident.diagnose.benchmark import described_runs
 from iiwa_ident.ident import starting_model
+from iiwa_ident.testing import described_runs
 
 
 def main() -> None:

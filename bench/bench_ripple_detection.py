@@ -29,8 +29,7 @@ import scipy.signal as sg
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import identify_ripple
-from iiwa_ident.ident.ripple_detect import detection_probability
+from iiwa_ident.ident import detection_probability, identify_ripple
 
 __all__ = ["main"]
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from iiwa_ident.datasets import Dataset, import_columns
-from iiwa_ident.ident.ripple import RippleResult, identify_ripple
+from iiwa_ident.ident import RippleResult, identify_ripple
 
 __all__ = ["load_run", "joint_runs", "main"]
 

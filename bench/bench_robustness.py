@@ -1,6 +1,6 @@
 """Robustness of the identification on the shared scenario generator.
 
-``fit``: draws ``--draws`` scenarios (:mod:`iiwa_ident.excite.scenarios`: random truths from wrist to base joints,
+``fit``: draws ``--draws`` scenarios (:mod:`iiwa_ident.testing`: random truths from wrist to base joints,
 chirp protocols at 200-1000 Hz, held or free links, and 0-3 nuisance effects, some of shapes the fit does not
 assume), simulates each, runs :func:`iiwa_ident.ident.joint_fit.fit_joint` on it (``--method``) and prints:
 
@@ -15,7 +15,7 @@ Run: ``.venv/bin/python bench/bench_robustness.py fit [--draws 200] [--first 0] 
 engine of ``iiwa-ident fleet``).
 
 ``ripple``: draws ``--draws`` ripple scenarios and as many null ones
-(:func:`iiwa_ident.excite.scenarios.draw_ripple_scenario`: 100-800 cycles per revolution, harmonics stronger than
+(:func:`iiwa_ident.testing.draw_ripple_scenario`: 100-800 cycles per revolution, harmonics stronger than
 the fundamental, two or three runs at 0.05-1.3 rad/s, 200-1000 Hz, friction, load, hum with harmonics, coloured
 noise, gaps), runs :func:`iiwa_ident.ident.ripple.identify_ripple` on each draw's runs together and prints:
 
@@ -28,7 +28,7 @@ noise, gaps), runs :func:`iiwa_ident.ident.ripple.identify_ripple` on each draw'
 Run: ``.venv/bin/python bench/bench_robustness.py ripple [--draws 100] [--first 0] [--jobs 2]``.
 
 ``coverage``: the draws of ``fit``, excited by their chirp and by random-phase odd multisines over the
-same band (:func:`iiwa_ident.excite.scenarios.simulate_scenario_multisine`, fitted through the best
+same band (:func:`iiwa_ident.testing.simulate_scenario_multisine`, fitted through the best
 linear approximation), and for each parameter and excitation the share of 95 % intervals (1.96 reported
 std) that cover the truth, overall and by nuisance (target 90-98 %), with the block sandwich std the chirp
 fit computes alongside, and the median of |error| / std.
@@ -36,13 +36,13 @@ fit computes alongside, and the median of |error| / std.
 Run: ``.venv/bin/python bench/bench_robustness.py coverage [--draws 100] [--first 0] [--jobs 2]
 [--excitation chirp|multisine|both]``.
 
-``diagnose``: hidden-effect cases (:mod:`iiwa_ident.diagnose.benchmark`, ``shapes=True``: 0-2 hidden effects of
+``diagnose``: hidden-effect cases (:mod:`iiwa_ident.testing`, ``shapes=True``: 0-2 hidden effects of
 random size, half of them in a shape the candidates do not have, on a joint within 30 % of Table I; chirp,
 constant-velocity and hand-guided runs), each diagnosed against the true eq (4) and against the chirp's fit;
 prints the share named exactly (target 90 %), the share with a false-positive effect (target at most 5 %) and
 found, missed and false per hidden effect and shape. Then the user's protocol (``fit`` the 10 s chirp, the fit's
 effects included, then ``diagnose`` the other runs against that model), scored on the final model's effects, on
-both data paths: the project's simulator and a joint simulated apart from it (:mod:`iiwa_ident.diagnose.apart`);
+both data paths: the project's simulator and a joint simulated apart from it (:mod:`iiwa_ident.testing`);
 targets 95 % exact, at most 2 % false positives, ``model_parameters`` named wrongly in at most 1 %.
 
 Run: ``.venv/bin/python bench/bench_robustness.py diagnose [--draws 100] [--first 0] [--jobs 2] [--verbose]
@@ -62,7 +62,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite.scenarios import (
+from iiwa_ident.testing import (
     NUISANCES,
     RIPPLE_NUISANCES,
     draw_ripple_scenario,
@@ -110,7 +110,7 @@ def run_all(fn: Callable[..., dict], *columns: list, jobs: int = 1, scheduler: s
 
 def run_draw(seed: int, method: str = "auto") -> dict:
     """Simulate and fit the scenario of ``seed`` with ``method``; return its outcome."""
-    from iiwa_ident.ident.joint_fit import fit_joint
+    from iiwa_ident.ident import fit_joint
 
     sc = draw_scenario(seed)
     out = {"seed": seed, "describe": sc.describe(), "nuisances": sc.nuisances}
@@ -196,7 +196,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 def run_multisine_draw(seed: int) -> dict:
     """Simulate the scenario of ``seed`` with multisines and fit it through the BLA; return its outcome."""
-    from iiwa_ident.ident.bla import best_linear_approximation, fit_bla
+    from iiwa_ident.ident import best_linear_approximation, fit_bla
 
     sc = draw_scenario(seed)
     out = {"seed": seed, "describe": sc.describe(), "nuisances": sc.nuisances, "method": "bla"}
@@ -274,7 +274,7 @@ def _coverage_of(excitation: str, seeds: list[int], jobs: int, scheduler: str | 
 
 def run_ripple_draw(seed: int, null: bool = False) -> dict:
     """Simulate the ripple scenario of ``seed`` (``null``: without the ripple) and identify it."""
-    from iiwa_ident.ident.ripple import identify_ripple
+    from iiwa_ident.ident import identify_ripple
 
     sc = draw_ripple_scenario(seed, null=null)
     out = {"seed": seed, "null": null, "describe": sc.describe(), "nuisances": sc.nuisances,
@@ -359,9 +359,9 @@ def _ripple(args: argparse.Namespace) -> int:
 
 
 def run_diagnose_draw(seed: int, fit: bool) -> dict:
-    """One hidden-effect case of :mod:`iiwa_ident.diagnose.benchmark` (harder shapes), diagnosed against the
+    """One hidden-effect case of :mod:`iiwa_ident.testing` (harder shapes), diagnosed against the
     true eq (4) or the chirp's fit; its score, or its refusal or traceback."""
-    from iiwa_ident.diagnose.benchmark import run_case
+    from iiwa_ident.testing import run_case
 
     out: dict = {"seed": seed, "fit": fit}
     res = _guarded(lambda: run_case(seed, shapes=True, fit=fit), out)
@@ -371,9 +371,9 @@ def run_diagnose_draw(seed: int, fit: bool) -> dict:
 
 
 def run_user_draw(seed: int, apart: bool) -> dict:
-    """One case under the user's protocol (:func:`iiwa_ident.diagnose.benchmark.run_user_case`); its score, or
+    """One case under the user's protocol (:func:`iiwa_ident.testing.run_user_case`); its score, or
     its refusal or traceback."""
-    from iiwa_ident.diagnose.benchmark import run_user_case
+    from iiwa_ident.testing import run_user_case
 
     out: dict = {"seed": seed, "apart": apart}
     res = _guarded(lambda: run_user_case(seed, apart=apart), out)
@@ -411,7 +411,7 @@ def _by_hidden(done: list[dict], absorbed) -> None:
 
 
 def _user(args: argparse.Namespace, seeds: list[int]) -> None:
-    from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
+    from iiwa_ident.testing import ABSORBED_BY_FIT
 
     for apart in {"both": (False, True), "project": (False,), "apart": (True,)}[args.path]:
         rows, done, wall = _cases(run_user_draw, seeds, apart, args.jobs, args.scheduler)
@@ -443,7 +443,7 @@ def _user(args: argparse.Namespace, seeds: list[int]) -> None:
 
 
 def _diagnose(args: argparse.Namespace) -> int:
-    from iiwa_ident.diagnose.benchmark import ABSORBED_BY_FIT
+    from iiwa_ident.testing import ABSORBED_BY_FIT
 
     seeds = list(range(args.first, args.first + args.draws))
     if args.protocol == "user":

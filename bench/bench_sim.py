@@ -27,8 +27,7 @@ import numpy as np
 
 from iiwa_ident.references import exponential_sweep
 from iiwa_ident.robot import Command
-from iiwa_ident.sim import SimulatedJoint, default_plant
-from iiwa_ident.sim.reference import simulate_reference
+from iiwa_ident.sim import SimulatedJoint, default_plant, simulate_reference
 
 
 def chirp(seconds: float, dt: float = 1e-3) -> np.ndarray:

@@ -13,13 +13,13 @@ from conftest import real_constant_velocity
 from iiwa_ident.cli import app
 from iiwa_ident.datasets import write_dataset
 from iiwa_ident.diagnose import CANDIDATES, CandidateEffect, build_context, diagnose, residual_rms
-from iiwa_ident.diagnose.benchmark import Case, case_model, score_case, simulate_case
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.ident import dataset_model, model_from_dict, read_model, write_model
 from iiwa_ident.model import ModelError, table1_model
 from iiwa_ident.sim import SimulatedJoint, plant_from_model
 from iiwa_ident.sim.effects import make_effect
+from iiwa_ident.testing import Case, case_model, score_case, simulate_case
 
 PAPER_RHO = 0.01963
 

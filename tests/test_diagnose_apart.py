@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iiwa_ident.diagnose.apart import ApartCase, draw_apart_case, simulate_apart_case
-from iiwa_ident.diagnose.benchmark import final_effects
 from iiwa_ident.diagnose.predict import build_context
 from iiwa_ident.model import table1_model
+from iiwa_ident.testing import ApartCase, draw_apart_case, final_effects, simulate_apart_case
 
 
 def _model(dynamics):
@@ -51,7 +50,7 @@ class TestSecondDataPath:
 
 
 def _protocol(effects, tmp_path, dyn=None):
-    from iiwa_ident.diagnose.benchmark import user_protocol
+    from iiwa_ident.testing import user_protocol
 
     case = ApartCase(11, dyn or {"Jc": 1.1, "bc": 50.0, "K": 20000.0, "Jl": 5.0, "Td": 0.005}, effects)
     return user_protocol(simulate_apart_case(case), tmp_path)
@@ -171,7 +170,7 @@ class TestTheModelsOwnEffects:
         # The project simulator's harder draw 86: a Stribeck friction and a 0.93 Nm offset, both fitted from
         # the chirp. Without the offset the diagnosis names a 1.1 Nm load and a sensor scale that gain 10 %
         # held out; the same two with the offset kept gain as much, so the offset is not replaced.
-        from iiwa_ident.diagnose.benchmark import run_user_case
+        from iiwa_ident.testing import run_user_case
 
         out = run_user_case(86)
         assert out["replaced"] == []
@@ -184,7 +183,7 @@ class TestTheModelsOwnEffects:
         # compensation that is no fraction of the load (not physically possible), so the model with the offset
         # names nothing; without it the load is named. The reference "the same effects with the offset kept"
         # counts only where they are possible.
-        from iiwa_ident.diagnose.benchmark import run_user_case
+        from iiwa_ident.testing import run_user_case
 
         out = run_user_case(52, apart=True)
         assert out["fitted"] == ["torque_sensor_offset"]
@@ -197,7 +196,7 @@ class TestTheModelsOwnEffects:
         # of that one models the friction the diagnosis then keeps.
         import re
 
-        from iiwa_ident.diagnose.benchmark import run_user_case
+        from iiwa_ident.testing import run_user_case
 
         out = run_user_case(54, apart=True)
         assert out["rerecorded"] and re.search("bc: not determined.*stronger or longer chirp", out["refusal"])
@@ -207,7 +206,7 @@ class TestTheModelsOwnEffects:
 
 class TestScoring:
     def test_model_parameters_is_judged_against_what_a_scaled_sensor_determines(self):
-        from iiwa_ident.diagnose.benchmark import Case, score_case
+        from iiwa_ident.testing import Case, score_case
 
         dyn = {"Jc": 1.0, "bc": 55.0, "K": 18000.0, "Jl": 5.5, "Td": 0.005}
         case = Case(0, {"torque_sensor_scale": {"scale": 1.08}}, {"torque_sensor_scale": {"scale": 1.08}}, dyn)
@@ -230,8 +229,7 @@ class TestCausesRealLogsShow:
         # This path's own filter (a driver's exponential smoothing of the logged reading, noise included) and
         # its own spring: named exactly, with their parameters within tolerance (bench_diagnose.py --causes --apart
         # measures them beside other effects).
-        from iiwa_ident.diagnose.apart import draw_apart_cause_case
-        from iiwa_ident.diagnose.benchmark import run_case
+        from iiwa_ident.testing import draw_apart_cause_case, run_case
 
         case = draw_apart_cause_case(seed)
         assert {"torque_log_filter", "link_spring"} & set(case.expected) and not case.reshaped

@@ -12,8 +12,8 @@ import pytest
 from test_diagnose import _case, _named
 
 from iiwa_ident.diagnose import diagnose
-from iiwa_ident.diagnose.benchmark import TOLERANCES, Case, case_model, draw_case, run_case, simulate_case
 from iiwa_ident.model import table1_model
+from iiwa_ident.testing import TOLERANCES, Case, case_model, draw_case, run_case, simulate_case
 
 BATCH_SEEDS = range(101, 109)
 

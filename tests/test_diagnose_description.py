@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from iiwa_ident.diagnose import diagnose
-from iiwa_ident.diagnose.benchmark import described_runs
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
 from iiwa_ident.ident import physical_ranges, starting_model
 from iiwa_ident.sim import SimulatedJoint, plant_from_model
+from iiwa_ident.testing import described_runs
 
 
 def _runs(plant_model, joint: int, seed: int, range_rad: float = 1.2):

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario_multisine
 from iiwa_ident.ident.bla import best_linear_approximation, fit_bla
+from iiwa_ident.testing import draw_scenario, simulate_scenario_multisine
 
 _SEEDS = list(range(7000, 7012))
 _NAMES = ("Jc", "bc", "K", "Jl", "Td")

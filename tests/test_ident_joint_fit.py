@@ -12,7 +12,6 @@ import pytest
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
 from iiwa_ident.ident.idim import fit_idim
 from iiwa_ident.ident.joint_fit import fit_joint
 from iiwa_ident.ident.records import held_windows, prepare_record
@@ -20,6 +19,7 @@ from iiwa_ident.ident.tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
 from iiwa_ident.sim import SimulatedJoint, default_plant, plant_from_model
 from iiwa_ident.sim.effects import TransmissionRipple
+from iiwa_ident.testing import draw_scenario, simulate_scenario
 
 _REL = 0.03
 _TD_S = 0.5e-3

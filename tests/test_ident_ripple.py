@@ -343,7 +343,7 @@ class TestReproducedAcrossSpeeds:
         # rad/s: seed 29's fast run detects 135 cycles and the slow run shows it at p = 6e-4, where its own
         # search had picked it among 732 frequencies; seed 65's short slow run detects 133.3 by itself, too
         # short to place a ±5 % window on it. Both came back as a harmonic.
-        from iiwa_ident.excite.scenarios import draw_ripple_scenario, simulate_ripple_scenario
+        from iiwa_ident.testing import draw_ripple_scenario, simulate_ripple_scenario
 
         sc = draw_ripple_scenario(seed)
         r = identify_ripple(simulate_ripple_scenario(sc))

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iiwa_ident.excite.scenarios import draw_ripple_scenario, simulate_ripple_scenario
 from iiwa_ident.ident.ripple import identify_ripple
 from iiwa_ident.sim import TransmissionRipple
+from iiwa_ident.testing import draw_ripple_scenario, simulate_ripple_scenario
 
 # A seeded subset of ``bench/bench_robustness.py ripple`` (ripple and null draws of the shared scenario
 # generator: 100-800 cycles per revolution, harmonics stronger than the fundamental, 0.05-1.3 rad/s,

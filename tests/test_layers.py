@@ -9,6 +9,9 @@ Imports inside functions count. The root package's own helper modules
 foundation every part may use; beyond those, no part imports a private
 module (``_name``) or a private name of another part. Between modules there is no import circle,
 not even through imports made only for the type checker.
+
+The harness of the tests and the benchmarks (``iiwa_ident.testing``) stands above every layer: no part
+imports it. It and ``bench/`` use the library as a user does, through the packages' public APIs.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("pipeline", "fleet"),
     ("report",),
     ("cli",),
+    ("testing",),  # the harness: outside the library, which never imports it
 )
 FOUNDATION = set(LAYERS[0])
 ROOT = Path(iiwa_ident.__file__).parent
@@ -43,19 +47,24 @@ def _part(module: str) -> str:
     return parts[1] if len(parts) > 1 else "iiwa_ident"
 
 
+def _file_imports(path: Path):
+    """(line, imported module, imported names) of every iiwa_ident import in one file."""
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("iiwa_ident"):
+            yield node.lineno, node.module, [a.name for a in node.names]
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.startswith("iiwa_ident"):
+                    yield node.lineno, a.name, []
+
+
 def _imports():
     """(file, line, importing part, imported module, imported names) of every iiwa_ident import."""
     for path in sorted(ROOT.rglob("*.py")):
         rel = path.relative_to(ROOT.parent).with_suffix("")
-        module = ".".join(p for p in rel.parts if p != "__init__")
-        own = _part(module)
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("iiwa_ident"):
-                yield path, node.lineno, own, node.module, [a.name for a in node.names]
-            elif isinstance(node, ast.Import):
-                for a in node.names:
-                    if a.name.startswith("iiwa_ident"):
-                        yield path, node.lineno, own, a.name, []
+        own = _part(".".join(p for p in rel.parts if p != "__init__"))
+        for line, module, names in _file_imports(path):
+            yield path, line, own, module, names
 
 
 def _layer(part: str) -> int:
@@ -98,7 +107,7 @@ def test_every_part_has_a_layer():
 
 #: Packages whose ``__init__`` is their public API: other parts import them only as a package.
 PUBLIC_API = ("model", "datasets", "sim", "excite", "ident", "design", "deploy", "diagnose", "fri", "netft", "runtime",
-              "emulator", "pipeline", "fleet", "report")
+              "emulator", "pipeline", "fleet", "report", "testing")
 
 
 def test_packages_are_imported_through_their_public_api():
@@ -107,6 +116,22 @@ def test_packages_are_imported_through_their_public_api():
         parts = module.split(".")
         if len(parts) >= 3 and parts[1] != own and parts[1] in PUBLIC_API:
             bad.append(f"{path.relative_to(ROOT.parent)}:{line}: {own} imports {module} (use iiwa_ident.{parts[1]})")
+    assert not bad, "\n".join(bad)
+
+
+def test_bench_and_the_harness_use_the_public_api_only():
+    # What they measure and draw is what a user runs: packages, never their modules or private names.
+    files = sorted((ROOT.parent / "bench").rglob("*.py")) + sorted((ROOT / "testing").rglob("*.py"))
+    assert len(files) > 20
+    bad = []
+    for path in files:
+        for line, module, names in _file_imports(path):
+            parts = module.split(".")
+            if path.parent == ROOT / "testing" and parts[1:2] == ["testing"]:
+                continue  # the harness's own modules
+            private = [n for n in names if n.startswith("_")]
+            if any(p.startswith("_") for p in parts[1:]) or private or (len(parts) >= 3 and parts[1] in PUBLIC_API):
+                bad.append(f"{path.relative_to(ROOT.parent)}:{line}: imports {module} {private or ''}")
     assert not bad, "\n".join(bad)
 
 

@@ -88,7 +88,7 @@ def test_without_gravity_or_friction_nothing_decides():
 def test_a_hand_guided_run_is_not_judged_by_friction():
     # The hand moves the link: friction there says nothing of the reading's sign (the simulated joint's
     # hand-guided run with Stribeck friction, of the convention's sign, read -0.30 Nm pushing along the motion).
-    from iiwa_ident.diagnose.benchmark import Case, simulate_case
+    from iiwa_ident.testing import Case, simulate_case
 
     hidden = {"link_friction": {"coulomb_nm": 2.9, "viscous_nms_rad": 1.2, "stribeck_nm": 1.16,
                                 "stribeck_velocity_rad_s": 0.05}}

@@ -5,7 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from iiwa_ident.excite.scenarios import (
+from iiwa_ident.model import resonance_hz
+from iiwa_ident.sim.plant import default_plant
+from iiwa_ident.testing import (
     HIDDEN_OTHER_SHAPES,
     HIDDEN_RANGES,
     NUISANCES,
@@ -18,8 +20,6 @@ from iiwa_ident.excite.scenarios import (
     simulate_ripple_scenario,
     simulate_scenario,
 )
-from iiwa_ident.model import resonance_hz
-from iiwa_ident.sim.plant import default_plant
 
 
 def test_same_seed_same_scenario():

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import math
 
-from iiwa_ident.excite.scenarios import draw_scenario, simulate_scenario
 from iiwa_ident.ident.joint_fit import fit_joint
 from iiwa_ident.model import PARAMETER_NAMES
+from iiwa_ident.testing import draw_scenario, simulate_scenario
 
 Z95 = 1.959964
 

@@ -13,6 +13,10 @@ DeployedLoop, DeployedMargin, deployed_loop_matrix, deployed_kappa_max, deployed
     The additive torque controller of section V.B: its design (:mod:`iiwa_ident.design.additive`), the
     controller one sample at a time (:mod:`iiwa_ident.design.controller`) and the outer-loop margin
     (:mod:`iiwa_ident.design.margins`; the loop as deployed: source, F/T filter, spatial filter).
+ClosedLoopRun, KappaMargin, AdditiveTorqueControl, analysis_design, identified_model, compare_controllers,
+kappa_margin, sine_tracking
+    The closed-loop analysis on the simulated joint: both controllers compared, the outer loop's live
+    margin and the tracking of a sine (:mod:`iiwa_ident.design.analysis`).
 ControlCycle
     Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
 DesignRecord, DesignFileError, make_record, read_design, write_design
@@ -34,7 +38,16 @@ from iiwa_ident.design.additive import (
     design_controller,
     natural_frequency_damping,
 )
-from iiwa_ident.design.analysis import ClosedLoopRun, KappaMargin
+from iiwa_ident.design.analysis import (
+    AdditiveTorqueControl,
+    ClosedLoopRun,
+    KappaMargin,
+    analysis_design,
+    compare_controllers,
+    identified_model,
+    kappa_margin,
+    sine_tracking,
+)
 from iiwa_ident.design.controller import AdditiveController, DiscreteDesign
 from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.design_file import (
@@ -94,6 +107,8 @@ from iiwa_ident.design.spatial_filter import (
 )
 
 __all__ = [
+    "AdditiveTorqueControl", "analysis_design", "compare_controllers", "identified_model", "kappa_margin",
+    "sine_tracking",
     "SpatialFilter", "spatial_filter_response", "ripple_bandpass_coefficients", "gamma_weight",
     "ripple_line_cut", "ExternalTorqueObserver", "BuiltinObserver", "LinkVelocityObserver", "FilteredObserver",
     "OBSERVERS", "make_observer", "run_observers", "compare_observers", "observer_lag",

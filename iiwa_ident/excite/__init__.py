@@ -35,15 +35,10 @@ from iiwa_ident.excite.programs import (
                                          StepTorque,
 )
 from iiwa_ident.excite.safety import LimitGuard
-from iiwa_ident.excite.scenarios import (
-                                         HiddenEffectScenario,
-                                         draw_hidden_effects,
-                                         simulate_hidden_effects,
-)
 
 EXPERIMENTS = {cls.name: cls for cls in (Chirp, Multisine, ConstantVelocity, QuasiStatic, HandGuided, StepTorque,
                                          SineTorque)}
 
 __all__ = ["record", "Experiment", "ClientState", "velocity_filter_coefficient", "Chirp", "Multisine",
            "ConstantVelocity",
-           "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS", "HiddenEffectScenario", "draw_hidden_effects", "simulate_hidden_effects"]
+           "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "LimitGuard", "EXPERIMENTS"]

@@ -1,10 +1,13 @@
 """Identification: the joint model file's reader and writer, the joint fit and the ripple identification.
 
 The model's types (:class:`~iiwa_ident.model.JointModel`, :class:`~iiwa_ident.model.RippleTable`) and the
-position correction live in :mod:`iiwa_ident.model`.
+position correction live in :mod:`iiwa_ident.model`. Beside the names below: :func:`best_linear_approximation`
+and :func:`fit_bla` (the best linear approximation from multisines), :func:`cramer_rao_std` (the fit's
+Cramér-Rao bound), :func:`detection_probability`, :func:`pooled_detection_probability` and
+:class:`RunSensitivity` (the ripple search's chance of finding a line of a given amplitude).
 """
 
-from iiwa_ident.ident.bla import BlaFit
+from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
 from iiwa_ident.ident.joint_fit import METHODS, fit_joint, fit_model
 from iiwa_ident.ident.lines import line_ratio
 from iiwa_ident.ident.log_filter import LOG_FILTER_MIN_HZ, LOG_ONLY, log_filter_text
@@ -17,6 +20,7 @@ from iiwa_ident.ident.ripple import (
     identify_ripple,
     ripple_model,
 )
+from iiwa_ident.ident.ripple_detect import RunSensitivity, detection_probability, pooled_detection_probability
 from iiwa_ident.ident.ripple_passes import find_passes
 from iiwa_ident.ident.starting_model import (
     DESCRIPTION_FACTOR,
@@ -32,10 +36,12 @@ from iiwa_ident.ident.starting_model import (
     physical_ranges,
     starting_model,
 )
-from iiwa_ident.ident.tf_fit import FitResult
+from iiwa_ident.ident.tf_fit import FitResult, cramer_rao_std
 
 __all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "ripple_model", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description",
            "Payload", "payload_of_load", "PAYLOAD_LEVER_MIN_M", "ResidualTest",
-           "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG", "LOG_FILTER_MIN_HZ", "LOG_ONLY", "log_filter_text"]
+           "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG", "LOG_FILTER_MIN_HZ", "LOG_ONLY", "log_filter_text",
+           "best_linear_approximation", "fit_bla", "cramer_rao_std", "detection_probability",
+           "pooled_detection_probability", "RunSensitivity"]

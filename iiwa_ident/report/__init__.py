@@ -8,8 +8,11 @@ fit_figure_pngs, lookup_table_figure, spatial_spectrum_figure, velocity_frequenc
     The figures of ``fit --plots``, ``ripple --plots`` and ``diagnose --plots``.
 comparison_figure
     A model against one dataset's channel (``compare --figures``).
+kappa_figure, pole_figure, tracking_figure
+    The closed-loop analysis's figures: the live kappa sweep, the poles, the tracking of a sine.
 """
 
+from iiwa_ident.report.control_figures import kappa_figure, pole_figure, tracking_figure
 from iiwa_ident.report.diagnose_figures import comparison_figure, figure_set
 from iiwa_ident.report.fit_figures import fit_figure_pngs
 from iiwa_ident.report.pdf import build_report
@@ -20,4 +23,5 @@ from iiwa_ident.report.ripple_figures import (
 )
 
 __all__ = ["build_report", "fit_figure_pngs", "lookup_table_figure", "spatial_spectrum_figure",
-           "velocity_frequency_figure", "figure_set", "comparison_figure"]
+           "velocity_frequency_figure", "figure_set", "comparison_figure", "kappa_figure", "pole_figure",
+           "tracking_figure"]

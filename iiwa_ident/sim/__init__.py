@@ -9,6 +9,8 @@ Effect, EFFECTS, register_effect, make_effect and the effect classes
     (:mod:`iiwa_ident.sim.effects`; EffectSignals, Column, INJECTIONS, own_dataset_columns).
 SimulatedJoint, SimTrace, ExternalAgent
     The joint as the robot presents it through FRI (:mod:`iiwa_ident.sim.joint`).
+simulate_reference
+    The reference model: eqs (1)-(4) integrated apart from the compiled cycle (:mod:`iiwa_ident.sim.reference`).
 """
 
 from iiwa_ident.sim.agents import ImpedanceAgent
@@ -40,6 +42,7 @@ from iiwa_ident.sim.plant import (
     plant_from_model,
     save_plant,
 )
+from iiwa_ident.sim.reference import simulate_reference
 
 __all__ = [
     "EFFECTS", "Effect", "register_effect", "make_effect", "EffectSignals", "Column", "INJECTIONS",
@@ -47,6 +50,6 @@ __all__ = [
     "TransmissionRipple", "LinkFriction", "PositionDependentLoad", "LinkSpring", "TorqueSensorOffset",
     "TorqueSensorScale", "TorqueLogFilter", "PeriodicDisturbance", "InputDelay",
     "Plant", "default_plant", "load_plant", "plant_from_dict", "plant_from_model", "save_plant",
-    "SimulatedJoint", "SimTrace", "ExternalAgent",
+    "SimulatedJoint", "SimTrace", "ExternalAgent", "simulate_reference",
     "ImpedanceAgent",
 ]

@@ -56,10 +56,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.excite._runner import record
-from iiwa_ident.excite.chirp import Chirp
-from iiwa_ident.excite.multisine import Multisine
-from iiwa_ident.excite.programs import ConstantVelocity, HandGuided
+from iiwa_ident.excite import Chirp, ConstantVelocity, HandGuided, Multisine, record
 from iiwa_ident.model import resonance_hz
 from iiwa_ident.sim import Plant, SimulatedJoint, default_plant, make_effect
 

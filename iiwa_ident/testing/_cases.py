@@ -2,7 +2,7 @@
 
 A case hides 0, 1 or 2 plant effects with random parameters in the simulated
 joint, drawn by the shared scenario generator
-(:func:`iiwa_ident.excite.scenarios.draw_hidden_effects`, which also
+(:func:`iiwa_ident.testing.draw_hidden_effects`, which also
 simulates the typical input of the experiments: a short chirp,
 constant-velocity runs, a hand-guided run), and scores a diagnosis against
 the hidden truth: every hidden effect must be named (as
@@ -34,17 +34,11 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset, read_dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.excite import (
-    ConstantVelocity,
-    HandGuided,
-    HiddenEffectScenario,
-    draw_hidden_effects,
-    record,
-    simulate_hidden_effects,
-)
+from iiwa_ident.excite import ConstantVelocity, HandGuided, record
 from iiwa_ident.ident import fit_model
 from iiwa_ident.model import JointModel, table1_model
 from iiwa_ident.sim import SimulatedJoint, make_effect, plant_from_model
+from iiwa_ident.testing._scenarios import HiddenEffectScenario, draw_hidden_effects, simulate_hidden_effects
 
 __all__ = ["TOLERANCES", "ABSORBED_BY_FIT", "Case", "expected_findings", "draw_case", "case_model", "simulate_case",
            "score_case", "run_case", "draw_cause_case", "CAUSE_RANGES", "described_runs", "final_effects", "user_protocol",
@@ -98,7 +92,7 @@ def expected_findings(hidden: dict[str, dict[str, Any]], dynamics: dict[str, flo
 
 
 def draw_case(seed: int, n_effects: int | None = None, *, shapes: bool = False) -> Case:
-    """A case drawn by the shared scenario generator (:func:`iiwa_ident.excite.scenarios.draw_hidden_effects`:
+    """A case drawn by the shared scenario generator (:func:`iiwa_ident.testing.draw_hidden_effects`:
     0-2 effects, weights 1:2:2 unless ``n_effects`` is given; ``shapes`` the harder draw), with its findings."""
     sc = draw_hidden_effects(seed, n_effects, shapes=shapes)
     return Case(seed, sc.hidden, expected_findings(sc.hidden, sc.dynamics), dict(sc.dynamics), list(sc.reshaped))
@@ -147,7 +141,7 @@ def case_model(case: Case) -> JointModel:
 
 def simulate_case(case: Case, model: JointModel | None = None, chirp_s: float = 4.0) -> list[Dataset]:
     """The typical input on a joint with the case's hidden effects
-    (:func:`~iiwa_ident.excite.scenarios.simulate_hidden_effects`), on the model's dynamics (the case's by
+    (:func:`~iiwa_ident.testing.simulate_hidden_effects`), on the model's dynamics (the case's by
     default)."""
     sc = HiddenEffectScenario(case.seed, case.hidden, dict(case.dynamics), list(case.reshaped))
     return simulate_hidden_effects(sc, plant_from_model(model or case_model(case)), chirp_s)
@@ -216,18 +210,18 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
 def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, fit: bool = False,
              causes: bool = False, apart: bool = False) -> dict[str, Any]:
     """Draw, simulate, diagnose and score one case; adds timing [s]; ``causes``: a case of
-    :func:`draw_cause_case`; ``apart``: of the second data path (:mod:`iiwa_ident.diagnose.apart`:
-    :func:`~iiwa_ident.diagnose.apart.draw_apart_cause_case` with ``causes``).
+    :func:`draw_cause_case`; ``apart``: of the second data path (:mod:`iiwa_ident.testing`:
+    :func:`~iiwa_ident.testing.draw_apart_cause_case` with ``causes``).
 
     The model is the case's true eq (4), or with ``fit`` the eq (4) parameters of
     :func:`~iiwa_ident.ident.joint_fit.fit_joint` on the case's chirp (10 s then; the
     fitted effects are left out: the diagnosis must find them).
     """
-    from iiwa_ident.diagnose.diagnosis import diagnose
+    from iiwa_ident.diagnose import diagnose
 
     t0 = time.perf_counter()
     if apart:  # the second data path's joint (its own simulator and experiments)
-        from iiwa_ident.diagnose.apart import draw_apart_case, draw_apart_cause_case, simulate_apart_case
+        from iiwa_ident.testing import draw_apart_case, draw_apart_cause_case, simulate_apart_case
 
         ac = draw_apart_cause_case(seed) if causes else draw_apart_case(seed, n_effects)
         case = Case(seed, dict(ac.effects), dict(ac.expected), dict(ac.dynamics), list(ac.reshaped))
@@ -277,7 +271,7 @@ def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[st
     """What a user does: ``fit`` the chirp (``datasets[0]``, written to ``folder``), then ``diagnose`` the
     other runs against the fitted model; the final model's effects (:func:`final_effects` of the extended
     model) with what the fit and the diagnosis said."""
-    from iiwa_ident.diagnose.diagnosis import diagnose
+    from iiwa_ident.diagnose import diagnose
 
     paths = []
     for i, ds in enumerate(datasets):
@@ -302,13 +296,13 @@ def user_protocol(datasets: list[Dataset], folder: str | os.PathLike) -> dict[st
 def run_user_case(seed: int, *, apart: bool = False) -> dict[str, Any]:
     """One case under the user's protocol (:func:`user_protocol`), scored on the final model's effects.
 
-    ``apart``: the case of the second data path (:mod:`iiwa_ident.diagnose.apart`), otherwise the project
+    ``apart``: the case of the second data path (:mod:`iiwa_ident.testing`), otherwise the project
     simulator's harder draw (:func:`draw_case` with ``shapes``); the chirp is 10 s long on both. Where the fit
     refuses the first chirp, ``rerecorded`` is true and ``refusal`` holds its message.
     """
     rerecorded, refusal = False, None
     if apart:
-        from iiwa_ident.diagnose.apart import CHIRP_AMPLITUDE_NM, draw_apart_case, simulate_apart_case
+        from iiwa_ident.testing import CHIRP_AMPLITUDE_NM, draw_apart_case, simulate_apart_case
 
         ac = draw_apart_case(seed)
         case = Case(seed, dict(ac.effects), dict(ac.expected), dict(ac.dynamics), list(ac.reshaped))

@@ -1,6 +1,6 @@
 """A second data path for judging ``diagnose``: a joint simulated apart from the project's simulator.
 
-The hidden-effect cases of :mod:`iiwa_ident.diagnose.benchmark` are drawn and simulated by the project's own
+The hidden-effect cases of :mod:`iiwa_ident.testing` are drawn and simulated by the project's own
 simulator (:mod:`iiwa_ident.sim`), whose effects are the very ones the candidates fit. An estimator tested
 only there is judged on its own assumptions. This module writes the joint once more, from the paper's
 equations, with its own integrator, its own effects in other shapes and its own experiments:
@@ -23,7 +23,7 @@ equations, with its own integrator, its own effects in other shapes and its own 
   control before logging starts (no standstill switch).
 
 The truth is returned in the project's terms (candidate names and the parameters a diagnosis reports:
-:func:`~iiwa_ident.diagnose.benchmark.expected_findings`' conventions), for scoring; the datasets carry
+:func:`~iiwa_ident.testing.expected_findings`' conventions), for scoring; the datasets carry
 none of it.
 """
 
