@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, NamedTuple, Optional
 
 import typer
 
@@ -22,12 +22,20 @@ __all__ = ["fit_cmd", "format_fit", "format_bla_fit"]
 _DISPLAY = {"Td": ("ms", 1e3)}
 
 
-def _value_text(name: str, value: float, std: float) -> tuple[str, str, str]:
+class _ValueText(NamedTuple):
+    """A parameter's value, std and relative std as printed."""
+
+    value: str
+    std: str
+    rel_std: str
+
+
+def _value_text(name: str, value: float, std: float) -> _ValueText:
     from iiwa_ident.model import PARAMETER_UNITS
 
     unit, factor = _DISPLAY.get(name, (PARAMETER_UNITS[name], 1.0))
     rel = f"{100 * std / abs(value):.2f} %" if value else "-"
-    return f"{value * factor:.6g} {unit}", f"{std * factor:.3g} {unit}", rel
+    return _ValueText(f"{value * factor:.6g} {unit}", f"{std * factor:.3g} {unit}", rel)
 
 
 def _band(lo: float, hi: float) -> str:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -111,7 +112,15 @@ def decode_iiwa_status(data: bytes) -> tuple[int, dict[str, np.ndarray]]:
     return utime, dict(zip(IIWA_STATUS_FIELDS, values))
 
 
-def _events(path: Path, channel: str) -> tuple[list[int], list[dict[str, np.ndarray]], set[str]]:
+class _Events(NamedTuple):
+    """The status messages of an LCM log: their times [us], their fields, and every channel seen."""
+
+    times: list[int]
+    rows: list[dict[str, np.ndarray]]
+    seen: set[str]
+
+
+def _events(path: Path, channel: str) -> _Events:
     import lcm  # here: only this importer needs the LCM library
 
     times, rows, seen = [], [], set()
@@ -143,7 +152,7 @@ def _events(path: Path, channel: str) -> tuple[list[int], list[dict[str, np.ndar
     if end < size:
         raise DatasetError(f"{path}: the log ends inside an event (byte {end} of {size} read; a cut or corrupted "
                            f"recording)" if seen else f"{path}: not an LCM event log (no event in {size} bytes)")
-    return times, rows, seen
+    return _Events(times, rows, seen)
 
 
 def import_lcm(path: Path, joint: int, experiment: str, channel: str = IIWA_STATUS_CHANNEL,

@@ -6,6 +6,8 @@ Each check returns one line for the user, or None; :func:`dataset_warnings` gath
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from iiwa_ident.datasets._format import Dataset, dataset_pose
@@ -133,7 +135,15 @@ def time_gaps_problem(dataset: Dataset) -> str | None:
             "lost; the analyses take the samples as they are, across each gap")
 
 
-def _top_band_slope(x: np.ndarray, fs: float) -> tuple[float, float, float] | None:
+class _BandFloor(NamedTuple):
+    """The spectrum's floor over the top of the band: a line in log-log."""
+
+    slope_db_decade: float
+    level_lo_db: float  #: at the band's lower end
+    level_hi_db: float  #: at its upper end
+
+
+def _top_band_slope(x: np.ndarray, fs: float) -> _BandFloor | None:
     """The floor of the spectrum over the top of the band: its slope [dB/decade] and its level at the band's
     two ends [dB]. The floor of each of :data:`_FLOOR_BANDS` sub-bands is the lower quartile of the Welch
     spectrum there (lines of the motion, a ripple's harmonics, stand above it); a line through the floors in
@@ -154,7 +164,7 @@ def _top_band_slope(x: np.ndarray, fs: float) -> tuple[float, float, float] | No
         floors.append(10 * np.log10(np.percentile(p[sel], 25)))
     lf = np.log10(centres)
     slope, icpt = np.polyfit(lf, floors, 1)
-    return float(slope), float(icpt + slope * lf[0]), float(icpt + slope * lf[-1])
+    return _BandFloor(float(slope), float(icpt + slope * lf[0]), float(icpt + slope * lf[-1]))
 
 
 def band_limited_problem(dataset: Dataset) -> str | None:

@@ -22,7 +22,7 @@ time from the header's stamp, the bag's receive time where it is zero.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -117,7 +117,15 @@ def _read(path: Path, topic: str | None) -> tuple[str, list[tuple[int, Any]]]:
     return msgtype, out
 
 
-def _lbr_state(msgs: list[tuple[int, Any]], joint: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+class _LbrState(NamedTuple):
+    """The signals of LBRState messages, the 7 measured positions and the session states."""
+
+    raw: dict[str, np.ndarray]
+    positions: np.ndarray
+    session_states: np.ndarray
+
+
+def _lbr_state(msgs: list[tuple[int, Any]], joint: int) -> _LbrState:
     """The signals of LBRState messages, the 7 measured positions, and the session states."""
     j = joint - 1
 
@@ -132,7 +140,7 @@ def _lbr_state(msgs: list[tuple[int, Any]], joint: int) -> tuple[dict[str, np.nd
     tau_c = col("commanded_torque")[:, j]
     if np.any(modes == _TORQUE_MODE) and np.any(tau_c):
         raw["tau_c"] = tau_c
-    return raw, positions, np.array([m.session_state for _, m in msgs])
+    return _LbrState(raw, positions, np.array([m.session_state for _, m in msgs]))
 
 
 def _joint_state(msgs: list[tuple[int, Any]], joint: int, path: Path) -> tuple[dict[str, np.ndarray], np.ndarray | None]:

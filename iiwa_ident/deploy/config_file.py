@@ -107,7 +107,7 @@ from iiwa_ident.deploy.checks import (
 )
 from iiwa_ident.design import FEEDFORWARD_MODES, SAMPLE_TIME_S, AdditiveController, DesignRecord, FilterSettings
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointModel, RippleTable, Source
+from iiwa_ident.model import JointModel, RippleTable, Source, StateSpaceMatrices
 from iiwa_ident.robot import ROBOT_MODELS, joint_limits
 
 __all__ = [
@@ -481,7 +481,7 @@ def _controller(r: _Reader) -> dict[str, Any]:
             "Kr_d": r.number("controller.Kr_d")}
 
 
-def _config_prefilter(r: _Reader, mode: str) -> tuple | None:
+def _config_prefilter(r: _Reader, mode: str) -> StateSpaceMatrices | None:
     """``[prefilter]`` as ``(Ad, Bd, Cd, Dd)``; present exactly when there is a feed-forward."""
     if mode == "none":
         if "prefilter" in r.data:
@@ -493,7 +493,8 @@ def _config_prefilter(r: _Reader, mode: str) -> tuple | None:
     if Af.ndim != 2 or Af.shape[0] != Af.shape[1] or Af.shape[0] == 0:
         raise r.fail("prefilter.Ad", "expected a non-empty square matrix")
     n = Af.shape[0]
-    return (Af, r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)), r.number("prefilter.Dd"))
+    return StateSpaceMatrices(Af, r.array("prefilter.Bd", (n,)), r.array("prefilter.Cd", (n,)),
+                              r.number("prefilter.Dd"))
 
 
 def _provenance(r: _Reader) -> Provenance:

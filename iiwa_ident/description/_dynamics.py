@@ -10,6 +10,7 @@ import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -27,7 +28,7 @@ ROBOTS: tuple[str, ...] = tuple(sorted(ARM_LINKS))
 GRAVITY_M_S2 = 9.80665
 
 
-def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, ...]:
     """(w, x, y, z) of ``Rz(yaw) Ry(pitch) Rx(roll)``."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
@@ -84,6 +85,14 @@ def check_pose(q: Sequence[float] | np.ndarray, robot: str | None = None) -> np.
     return arr
 
 
+class _MjState(NamedTuple):
+    """MuJoCo, the compiled model and its data."""
+
+    mujoco: Any
+    model: Any
+    data: Any
+
+
 def _state(robot: str, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0):
     import mujoco
 
@@ -91,7 +100,7 @@ def _state(robot: str, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0)
     data = mujoco.MjData(model)
     data.qpos[:] = check_pose(q)
     mujoco.mj_forward(model, data)
-    return mujoco, model, data
+    return _MjState(mujoco, model, data)
 
 
 def mass_matrix(robot: str, q: Sequence[float] | np.ndarray, payload_kg: float = 0.0) -> np.ndarray:

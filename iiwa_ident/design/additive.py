@@ -103,7 +103,14 @@ from scipy.signal import cont2discrete
 from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, FEEDFORWARD_MODES  # one definition, light for the CLI's help
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.model import JointParameters, coefficients, pade_coefficients, zoh
+from iiwa_ident.model import (
+    JointParameters,
+    StateSpaceMatrices,
+    StrictlyProperMatrices,
+    coefficients,
+    pade_coefficients,
+    zoh,
+)
 
 if TYPE_CHECKING:
     import control as ct  # imported where used: python-control is slow to import
@@ -142,7 +149,7 @@ class DesignError(IiwaIdentError):
 # ---------------------------------------------------------------------------
 # Model (eq (4) itself: iiwa_ident.model)
 # ---------------------------------------------------------------------------
-def realisation(params: JointParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def realisation(params: JointParameters) -> StrictlyProperMatrices:
     """Observable canonical realisation of the Padé-delayed eq (4), eqs (19)-(21).
 
     Returns
@@ -161,7 +168,7 @@ def realisation(params: JointParameters) -> tuple[np.ndarray, np.ndarray, np.nda
     A = np.zeros((4, 4))
     A[1, 0] = A[2, 1] = A[3, 2] = 1.0
     A[:, 3] = -a
-    return A, b.copy(), np.array([0.0, 0.0, 0.0, 1.0])
+    return StrictlyProperMatrices(A, b.copy(), np.array([0.0, 0.0, 0.0, 1.0]))
 
 
 def builtin_poles(params: JointParameters) -> np.ndarray:
@@ -278,7 +285,7 @@ def _place_scaled(A: np.ndarray, B: np.ndarray, C: np.ndarray, S: np.ndarray,
     return Ks @ Si, S @ Ls
 
 
-def _realised(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def _realised(num: np.ndarray, den: np.ndarray) -> StateSpaceMatrices:
     """A balanced state-space realisation of ``num/den`` (proper)."""
     import control as ct  # here: python-control takes a quarter of a second to import
 
@@ -287,7 +294,7 @@ def _realised(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     # Diagonal balancing only: keeps the realisation, evens out the entry sizes.
     _, (scale, _perm) = matrix_balance(A, permute=False, separate=True)
     A = A * scale[None, :] / scale[:, None]
-    return A, B.ravel() / scale, C.ravel() * scale, float(D.ravel()[0])
+    return StateSpaceMatrices(A, B.ravel() / scale, C.ravel() * scale, float(D.ravel()[0]))
 
 
 def feedforward_transfer_function(params: JointParameters, prefilter_hz: float = DEFAULT_PREFILTER_HZ,
@@ -386,7 +393,7 @@ class AdditiveDesign:
 
     # -- realisations of the whole controller ----------------------------------
     def controller_matrices(self, discrete: bool = True, kr: float | None = None,
-                            scaled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                            scaled: bool = True) -> StateSpaceMatrices:
         """The controller as one LTI system from ``[tau_r, tau_J,filt]`` to ``tau_c``.
 
         States ``[x_hat (4), x_ref (4, "reference" mode), x_ff (feed-forward)]``;
@@ -421,14 +428,14 @@ class AdditiveDesign:
             A, B, C, gain, L = Si @ A @ S, Si @ B, C @ S, gain @ S, Si @ L
         return _compose(A, B, C, gain, L, kr, ff, self.feedforward == "reference")
 
-    def model_matrices(self, discrete: bool = True, scaled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def model_matrices(self, discrete: bool = True, scaled: bool = True) -> StrictlyProperMatrices:
         """The design model ``(A, B, C)`` (Padé-delayed eq (4)), continuous or ZOH at T."""
         A, B, C = (self.Ad, self.Bd, self.C) if discrete else (self.A, self.B, self.C)
         if scaled:
             S = _scaling(self.A)
             Si = np.linalg.inv(S)
             A, B, C = Si @ A @ S, Si @ B, C @ S
-        return A, B, C
+        return StrictlyProperMatrices(A, B, C)
 
     def closed_loop(self, discrete: bool = True, kr: float | None = None) -> ct.StateSpace:
         """The controller on its own design model: ``tau_r`` -> ``[tau_J, tau_c]``.
@@ -451,7 +458,7 @@ class AdditiveDesign:
         return AdditiveController(self)
 
 
-def _compose(A, B, C, gain, L, kr, ff, reference) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _compose(A, B, C, gain, L, kr, ff, reference) -> StateSpaceMatrices:
     """Stack eqs (16)-(18) (+ reference model, + feed-forward) into one system ``[r, y] -> tau_c``."""
     n = A.shape[0]
     nf = 0 if ff is None else ff[0].shape[0]
@@ -477,10 +484,10 @@ def _compose(A, B, C, gain, L, kr, ff, reference) -> tuple[np.ndarray, np.ndarra
             Ac[n:i, i:] = np.outer(B, Cf)
             Bc[n:i, 0] = B * Df
             Ac[:n, n:i] = -np.outer(L, C)
-    return Ac, Bc, Cc, Dc
+    return StateSpaceMatrices(Ac, Bc, Cc, Dc)
 
 
-def _close_on_model(ctrl, model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _close_on_model(ctrl, model) -> StateSpaceMatrices:
     """Controller ``[r, y] -> u`` (no direct feed-through from y) around ``y = C x``, ``x' = A x + B u``."""
     Ac, Bc, Cc, Dc = ctrl
     Am, Bm, Cm = model
@@ -497,7 +504,7 @@ def _close_on_model(ctrl, model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     C[0, :n] = Cm
     C[1, n:] = Cc
     D = np.array([[0.0], [Dc[0]]])
-    return A, B, C, D
+    return StateSpaceMatrices(A, B, C, D)
 
 
 def _dc(system, discrete: bool) -> float:

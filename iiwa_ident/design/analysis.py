@@ -74,6 +74,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
@@ -436,7 +437,16 @@ class StepMetrics:
                 "rise_time_s": self.rise_time_s, "settling_time_s": self.settling_time_s, "band": self.band}
 
 
-def _edge_metrics(run: ClosedLoopRun, i0: int, i1: int, height: float, band: float, delay: int) -> tuple:
+class _EdgeMetrics(NamedTuple):
+    """One step edge's overshoots [%] (raw and filtered torque), rise and settling time [s]."""
+
+    overshoot_raw: float
+    overshoot_filtered: float
+    rise_s: float
+    settle_s: float
+
+
+def _edge_metrics(run: ClosedLoopRun, i0: int, i1: int, height: float, band: float, delay: int) -> _EdgeMetrics:
     """Overshoot (raw, filt), rise and settling time of one edge at sample ``i0`` (window up to ``i1``)."""
     sgn = math.copysign(1.0, height)
     ref = _delayed(run.tau_r, delay)[i0:i1]
@@ -455,7 +465,7 @@ def _edge_metrics(run: ClosedLoopRun, i0: int, i1: int, height: float, band: flo
         settle = math.nan  # still outside the band at the end of the half period
     else:
         settle = (outside[-1] + 1) * run.dt
-    return over_raw, over_f, rise, settle
+    return _EdgeMetrics(over_raw, over_f, rise, settle)
 
 
 @dataclass

@@ -38,7 +38,14 @@ from scipy.signal import tf2ss
 from iiwa_ident._defaults import TAU_EXT_SOURCES
 from iiwa_ident.design.additive import SAMPLE_TIME_S, AdditiveDesign, DesignError
 from iiwa_ident.design.spatial_filter import FilterSettings, gamma_weight, ripple_bandpass_coefficients
-from iiwa_ident.model import RIPPLE_PERIOD_RAD, JointParameters, coefficients, delayed_hold
+from iiwa_ident.model import (
+    RIPPLE_PERIOD_RAD,
+    JointParameters,
+    StateSpaceMatrices,
+    StrictlyProperMatrices,
+    coefficients,
+    delayed_hold,
+)
 
 __all__ = ["HumanArm", "OuterLoopMargins", "arm_plant", "outer_loop_matrix", "exact_delay_spectral_radius",
            "kappa_max", "outer_loop_margins", "DeployedLoop", "deployed_loop_matrix", "deployed_kappa_max",
@@ -72,7 +79,7 @@ class HumanArm:
                 raise DesignError(f"arm {name} must be non-negative, got {v!r}")
 
 
-def arm_plant(params: JointParameters, arm: HumanArm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def arm_plant(params: JointParameters, arm: HumanArm) -> StrictlyProperMatrices:
     """Eqs (1)-(3) with the link and the hand, without the delay.
 
     State ``[theta_j, z, theta_l, omega_l]`` with eq (1) integrated once,
@@ -98,7 +105,7 @@ def arm_plant(params: JointParameters, arm: HumanArm) -> tuple[np.ndarray, np.nd
     B = np.array([bc / (K * Jc), 1.0, 0.0, 0.0])
     accel = A[3]
     C = np.vstack([[K, 0.0, -K, 0.0], -(np.array([0.0, 0.0, Kh, Dh]) + Jh * accel)])
-    return A, B, C
+    return StrictlyProperMatrices(A, B, C)
 
 
 class _Measurement(NamedTuple):
@@ -342,7 +349,7 @@ class DeployedLoop:
             raise DesignError(f"unknown external-torque source {self.source!r}")
 
 
-def _series(first: tuple, second: tuple) -> tuple:
+def _series(first: tuple, second: tuple) -> StateSpaceMatrices:
     """``second(first(x))``: ``first`` maps the plant's state to one signal (``B`` a matrix over it, ``D`` a
     row), ``second`` is a discrete SISO filter (1-D ``B`` and ``C``); the result maps the state the same way."""
     A1, B1, C1, D1 = first
@@ -354,23 +361,24 @@ def _series(first: tuple, second: tuple) -> tuple:
     A[n1:, n1:] = A2
     B = np.vstack([B1, np.outer(B2, D1)])
     C = np.concatenate([D2 * C1, C2])
-    return A, B, C, D2 * D1
+    return StateSpaceMatrices(A, B, C, D2 * D1)
 
 
-def _static(row: np.ndarray) -> tuple:
+def _static(row: np.ndarray) -> StateSpaceMatrices:
     """The signal ``row . x`` as a system without states (the start of a :func:`_series`)."""
-    return np.zeros((0, 0)), np.zeros((0, len(row))), np.zeros(0), np.asarray(row, float)
+    return StateSpaceMatrices(np.zeros((0, 0)), np.zeros((0, len(row))), np.zeros(0), np.asarray(row, float))
 
 
-def _siso(b: np.ndarray, a: np.ndarray) -> tuple:
+def _siso(b: np.ndarray, a: np.ndarray) -> StateSpaceMatrices:
     A, B, C, D = tf2ss(b, a)
-    return np.atleast_2d(A), np.asarray(B, float).ravel(), np.asarray(C, float).ravel(), float(np.ravel(D)[0])
+    return StateSpaceMatrices(np.atleast_2d(A), np.asarray(B, float).ravel(), np.asarray(C, float).ravel(),
+                              float(np.ravel(D)[0]))
 
 
-_ONE = (np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0)
+_ONE = StateSpaceMatrices(np.zeros((0, 0)), np.zeros(0), np.zeros(0), 1.0)
 
 
-def _spatial_filter(settings: FilterSettings | None, period_rad: float, speed: float, T: float) -> tuple:
+def _spatial_filter(settings: FilterSettings | None, period_rad: float, speed: float, T: float) -> StateSpaceMatrices:
     """Eqs (10)-(12) at a constant speed: ``1 - gamma^2 H_bp(z)^2`` with the Tustin step ``|v| T``."""
     if settings is None:
         return _ONE
@@ -383,14 +391,14 @@ def _spatial_filter(settings: FilterSettings | None, period_rad: float, speed: f
     return _siso(num, np.polymul(a, a))
 
 
-def _observer(KI: float, Jl: float, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _observer(KI: float, Jl: float, T: float) -> StateSpaceMatrices:
     """Eq (13) as the runtime runs it (:class:`~iiwa_ident.model.MomentumObserver`): inputs ``[theta,
     tau_j]``, states ``[theta_prev, S]``, output the estimate, velocity by the backward difference."""
     A = np.array([[0.0, 0.0], [-KI * Jl, 1.0 - T * KI]])
     B = np.array([[1.0, 0.0], [KI * Jl, T]])
     C = np.array([-KI * Jl / T, -KI])
     D = np.array([KI * Jl / T, 0.0])
-    return A, B, C, D
+    return StateSpaceMatrices(A, B, C, D)
 
 
 def _measurement(params: JointParameters, arm: HumanArm, loop: DeployedLoop, T: float, additive: bool,

@@ -33,7 +33,7 @@ through that lag, which is what the improvements of section IV can reduce.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
@@ -61,17 +61,25 @@ __all__ = [
 _DT_TOLERANCE = 1e-6
 
 
-def _signals(data: Any) -> tuple[np.ndarray, np.ndarray, float | None]:
+class _Signals(NamedTuple):
+    """q_m [rad], tau_j [Nm] and the sample time [s] where the data tells it."""
+
+    q_m: np.ndarray
+    tau_j: np.ndarray
+    dt: float | None
+
+
+def _signals(data: Any) -> _Signals:
     """q_m [rad], tau_j [Nm] and the sample time [s] if the data tells it."""
     if isinstance(data, tuple):
         q_m, tau_j = data
-        return np.asarray(q_m, float), np.asarray(tau_j, float), None
+        return _Signals(np.asarray(q_m, float), np.asarray(tau_j, float), None)
     q_m, tau_j = np.asarray(data["q_m"], float), np.asarray(data["tau_j"], float)
     if isinstance(data, Dataset):
-        return q_m, tau_j, 1.0 / data.sample_rate_hz
+        return _Signals(q_m, tau_j, 1.0 / data.sample_rate_hz)
     if isinstance(data, Mapping) and "t" in data and len(data["t"]) > 1:
-        return q_m, tau_j, float(np.median(np.diff(np.asarray(data["t"], float))))
-    return q_m, tau_j, None
+        return _Signals(q_m, tau_j, float(np.median(np.diff(np.asarray(data["t"], float)))))
+    return _Signals(q_m, tau_j, None)
 
 
 class ExternalTorqueObserver:

@@ -57,7 +57,7 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from scipy import optimize, signal
@@ -397,6 +397,15 @@ def _sse_of(blocks: Sequence[Block], residuals: Sequence[np.ndarray], columns, n
 RIPPLE_MAX_AMPLITUDE_RAD = 1e-3
 
 
+class _Identified(NamedTuple):
+    """Section III.B's identification on the contexts."""
+
+    period_rad: float  #: 0.0: none
+    detail: dict[str, Any]
+    passes: list
+    false_alarm: float | None
+
+
 @register_candidate
 class TransmissionRippleCandidate(CandidateEffect):
     """Position-periodic transmission deflection f(theta_m mod rho), eq (5).
@@ -519,7 +528,7 @@ class TransmissionRippleCandidate(CandidateEffect):
         self.detail = dict(self.detail)
         return period
 
-    def _identified(self, ctxs) -> tuple[float, dict[str, Any], list, float | None]:
+    def _identified(self, ctxs) -> _Identified:
         """Section III.B's identification on the contexts: the period (0.0: none), the detail, the passes and
         the false-alarm probability."""
         from iiwa_ident.ident import identify_ripple
@@ -533,12 +542,13 @@ class TransmissionRippleCandidate(CandidateEffect):
         try:
             r = identify_ripple(data, K=p["K"], Jl=p["Jl"])
         except IiwaIdentError:
-            return 0.0, {}, [], None  # no constant-speed motion: a deflection cannot be told from other effects
+            # No constant-speed motion: a deflection cannot be told from other effects.
+            return _Identified(0.0, {}, [], None)
         if not r.detected:
-            return 0.0, {}, [], None
-        return (float(r.period_rad), {"false_alarm_probability": r.false_alarm,
-                                      "period_from_identification_rad": r.period_rad},
-                list(r.passes), float(r.false_alarm))
+            return _Identified(0.0, {}, [], None)
+        return _Identified(float(r.period_rad), {"false_alarm_probability": r.false_alarm,
+                                                 "period_from_identification_rad": r.period_rad},
+                           list(r.passes), float(r.false_alarm))
 
     def columns(self, ctx):
         return TransmissionRipple.shape(self.period, self.harmonics).columns(self.signals(ctx))

@@ -24,7 +24,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -425,8 +425,16 @@ def residual_rms(datasets: Sequence[Dataset], model: JointModel) -> list[tuple[s
     return [(ctx.name, ch, _rms([ctx.residual[ch][ctx.masks[ch]]])) for ctx in contexts for ch in ctx.channels]
 
 
+class _Residuals(NamedTuple):
+    """The model as it predicts, each dataset's context, and the effects the model already holds."""
+
+    work: JointModel
+    contexts: list[Context]
+    known: dict[str, tuple[CandidateEffect, np.ndarray]]
+
+
 def _residuals(datasets: Sequence[Dataset], model: JointModel
-               ) -> tuple[JointModel, list[Context], dict[str, tuple[CandidateEffect, np.ndarray]]]:
+               ) -> _Residuals:
     """The model as it predicts (an extra-delay effect in its total delay), each dataset's context with the
     residual left by the model and its effects, and those effects (:func:`_known_effects`)."""
     check_model_matches(model, datasets)
@@ -434,7 +442,7 @@ def _residuals(datasets: Sequence[Dataset], model: JointModel
     extra = sum(float(e.get("extra_s", 0.0)) for e in work.effects if e.get("name") == "input_delay")
     work.parameters["Td"].value += extra
     contexts = [build_context(ds, work, i) for i, ds in enumerate(datasets)]
-    return work, contexts, _known_effects(work, contexts)
+    return _Residuals(work, contexts, _known_effects(work, contexts))
 
 
 def _blocks(contexts: list[Context]) -> list[Block]:

@@ -17,6 +17,7 @@ step, sine
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,8 +30,16 @@ from iiwa_ident.sim import ImpedanceAgent
 __all__ = ["ConstantVelocity", "QuasiStatic", "HandGuided", "StepTorque", "SineTorque", "trapezoid_profile"]
 
 
+class TrapezoidProfile(NamedTuple):
+    """Position [rad], velocity [rad/s] and acceleration [rad/s^2] references of :func:`trapezoid_profile`."""
+
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+
+
 def trapezoid_profile(q_start: float, moves: list[tuple[float, float]], accel: float, dt: float,
-                      pause_s: float = 0.2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      pause_s: float = 0.2) -> TrapezoidProfile:
     """Position, velocity and acceleration references of point-to-point moves.
 
     Parameters
@@ -65,7 +74,7 @@ def trapezoid_profile(q_start: float, moves: list[tuple[float, float]], accel: f
         v_parts += [sgn * v, np.zeros(int(pause_s / dt))]
         a_parts += [sgn * a, np.zeros(int(pause_s / dt))]
         q = target
-    return np.concatenate(q_parts), np.concatenate(v_parts), np.concatenate(a_parts)
+    return TrapezoidProfile(np.concatenate(q_parts), np.concatenate(v_parts), np.concatenate(a_parts))
 
 
 class _Profiled(Experiment):

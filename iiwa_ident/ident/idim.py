@@ -98,7 +98,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -267,8 +267,18 @@ class _DelayCost:
         return float(e @ e)
 
 
+class _LinkRows(NamedTuple):
+    """The link equation's rows: ``y``, regressors, instruments, their names and the samples they are of."""
+
+    y: np.ndarray
+    Phi: np.ndarray
+    Z: np.ndarray
+    names: list[str]
+    samples: np.ndarray
+
+
 def _link_rows(p: Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.ndarray] | None = None,
-               moving: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str], np.ndarray]:
+               moving: np.ndarray | None = None) -> _LinkRows:
     """(y, Phi, Z, names, samples) of the link equation, ``theta_l`` and ``omega_l`` from eq (9) at stiffness ``K``.
 
     ``moving``: the samples to use besides ``p.keep`` (default all).
@@ -294,7 +304,7 @@ def _link_rows(p: Prepared, K: float, load: str, tau_hat: tuple[np.ndarray, np.n
     Z = Phi.copy()
     if tau_hat is not None:
         Z[:, 1] = -tau_hat[1][k]
-    return p.tau_s[k], Phi, Z, names, k
+    return _LinkRows(p.tau_s[k], Phi, Z, names, k)
 
 
 def _moving(omega: np.ndarray, p: Prepared) -> np.ndarray:
@@ -430,13 +440,22 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
     return _identified(result, records)
 
 
-def _link_residual(preps: list[Prepared], K: float, load: str) -> tuple[list, np.ndarray, np.ndarray, np.ndarray]:
+class _LinkResidual(NamedTuple):
+    """The link equation's rows per record, stacked ``y`` and ``Phi``, and the residual of the fit."""
+
+    rows: list
+    y: np.ndarray
+    Phi: np.ndarray
+    residual: np.ndarray
+
+
+def _link_residual(preps: list[Prepared], K: float, load: str) -> _LinkResidual:
     """The link equation's rows per record at stiffness ``K``, stacked ``y`` and ``Phi``, and the residual of
     their least-squares fit (no physical check: a search only needs what the columns leave)."""
     rows = [_link_rows(p, K, load) for p in preps]
     y = np.concatenate([r[0] for r in rows])
     Phi = np.concatenate([r[1] for r in rows])
-    return rows, y, Phi, y - Phi @ _iv(y, Phi, Phi)
+    return _LinkResidual(rows, y, Phi, y - Phi @ _iv(y, Phi, Phi))
 
 
 def _line_search(preps: list[Prepared], load: str) -> tuple[float, ...]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from scipy import fft as _fft
@@ -267,8 +268,16 @@ def dealiased(rec: FitRecord, prm: dict[str, float], td: float) -> FitRecord:
     return replace(rec, tau=rec.tau - tau_alias, q=rec.q - q_alias)
 
 
+class MotorRows(NamedTuple):
+    """The motor equation's ``y``, regressors and instruments on the kept samples."""
+
+    y: np.ndarray
+    Phi: np.ndarray
+    Z: np.ndarray
+
+
 def motor_rows(p: Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                ) -> MotorRows:
     """(y, Phi, Z) of the motor equation at delay ``td`` on the kept samples.
 
     Columns: Jc, beta, then the robot model's g_m: sin q, cos q, 1, and beta g_m': q' cos q, -q' sin q.
@@ -278,18 +287,26 @@ def motor_rows(p: Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | 
     Phi = np.column_stack([S[:, :1], c, S[:, 1:]])
     Z = Phi.copy()
     Z[:, 1] = z
-    return y, Phi, Z
+    return MotorRows(y, Phi, Z)
+
+
+class MotorDelayed(NamedTuple):
+    """The motor equation's parts that depend on the delay: ``y``, the beta column and its instrument."""
+
+    y: np.ndarray
+    beta: np.ndarray
+    instrument: np.ndarray
 
 
 def motor_delayed(p: Prepared, td: float, tau_hat: tuple[np.ndarray, np.ndarray] | None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> MotorDelayed:
     """The motor equation's parts that depend on the delay ``td``: ``y``, the beta column and its instrument."""
     Ud = p.sp.held_delayed(p.U, td)
     u, du = p.sp.back(Ud), p.sp.back(Ud, 1)
     k = p.keep
     c = (p.dtau_s - du)[k]
     z = c if tau_hat is None else (tau_hat[0] - du)[k]
-    return (u - p.tau_s)[k], c, z
+    return MotorDelayed((u - p.tau_s)[k], c, z)
 
 
 def motor_static(p: Prepared) -> np.ndarray:

@@ -22,7 +22,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -401,8 +401,17 @@ def model_effects(effects: Sequence[LinkEffectEstimate]) -> list[dict[str, Any]]
     return out
 
 
+class _FitInputs(NamedTuple):
+    """A fit's base model, datasets, their sources (with sha256) and the joint."""
+
+    base: JointModel
+    datasets: list[Dataset]
+    sources: list[Source]
+    joint: int
+
+
 def _inputs(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | JointModel | None
-            ) -> tuple[JointModel, list[Dataset], list[Source], int]:
+            ) -> _FitInputs:
     """The base model, the datasets, the sources (with sha256) and the joint of a fit's input files."""
     if not paths:
         raise IiwaIdentError("fit needs at least one dataset file")
@@ -421,7 +430,7 @@ def _inputs(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike | 
     joint = int(datasets[0].joint)
     if base_model is not None:
         check_model_matches(base, datasets, f"{base_path}: " if base_path else "base model: ")
-    return base, datasets, sources, joint
+    return _FitInputs(base, datasets, sources, joint)
 
 
 def _multisine_model(paths: Sequence[str | os.PathLike], datasets: list[Dataset], base: JointModel,

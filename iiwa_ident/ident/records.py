@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.sparse
@@ -166,7 +166,15 @@ def _simpson(G: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
     return means, slopes
 
 
-def _sampled(G: np.ndarray, n: int, M: int, substeps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+class _Fine(NamedTuple):
+    """A signal at ``substeps`` points per sample, with its means and slopes between them."""
+
+    values: np.ndarray
+    means: np.ndarray
+    slopes: np.ndarray
+
+
+def _sampled(G: np.ndarray, n: int, M: int, substeps: int) -> _Fine:
     """Values at ``substeps`` points per sample and the means and slopes between them from ``G`` at ``M``
     points per sample; past the last sample the last value, no slope (it reaches no output in the record)."""
     step = M // substeps
@@ -174,16 +182,16 @@ def _sampled(G: np.ndarray, n: int, M: int, substeps: int) -> tuple[np.ndarray, 
     means, slopes = _simpson(G, step)
     rows = n * substeps
     last = np.repeat(vals[-1:], rows - len(means), axis=0)
-    return (np.concatenate([vals, last[:rows - len(vals)]]), np.concatenate([means, last]),
-            np.concatenate([slopes, np.zeros_like(last)]))
+    return _Fine(np.concatenate([vals, last[:rows - len(vals)]]), np.concatenate([means, last]),
+                 np.concatenate([slopes, np.zeros_like(last)]))
 
 
-def _fine_signal(signal: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fine_signal(signal: np.ndarray, substeps: int) -> _Fine:
     """A signal known at the samples only, ``substeps`` times finer (cubic), and its
     :func:`~iiwa_ident.model.sample_means` and :func:`~iiwa_ident.model.sample_slopes` there."""
     n = signal.shape[0]
     fine = signal if substeps == 1 else CubicSpline(np.arange(n), signal, axis=0)(np.arange(n * substeps) / substeps)
-    return fine, sample_means(fine), sample_slopes(fine)
+    return _Fine(fine, sample_means(fine), sample_slopes(fine))
 
 
 @dataclass
@@ -468,8 +476,17 @@ MAX_LOST_SHARE = 0.01
 MAX_LOST_RUN = 5
 
 
+class FilledRecord(NamedTuple):
+    """A record back on the uniform grid (:func:`fill_lost_cycles`): command, torque, position, cycles filled in."""
+
+    u: np.ndarray
+    tau_j: np.ndarray
+    q: np.ndarray
+    lost: int
+
+
 def fill_lost_cycles(t: np.ndarray, T: float, u: np.ndarray, tau_j: np.ndarray, q: np.ndarray,
-                      label: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                      label: str) -> FilledRecord:
     """Put a record with a few lost robot cycles (FRI) back on the uniform grid.
 
     Over FRI a lost or late message leaves a gap of whole cycles in the log while the robot goes on
@@ -490,7 +507,7 @@ def fill_lost_cycles(t: np.ndarray, T: float, u: np.ndarray, tau_j: np.ndarray, 
     k = np.concatenate([[0], np.cumsum(whole)]).astype(int)
     grid = np.arange(n)
     held = np.searchsorted(k, grid, side="right") - 1  # the last recorded cycle at or before each cycle
-    return (u[held], np.interp(grid, k, tau_j), np.interp(grid, k, q), lost)
+    return FilledRecord(u[held], np.interp(grid, k, tau_j), np.interp(grid, k, q), lost)
 
 
 def check_joints(records: list[FitRecord]) -> None:

@@ -40,7 +40,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import optimize, stats
@@ -245,13 +245,29 @@ def _design(theta: np.ndarray, period: float, harmonics: int) -> np.ndarray:
     return out
 
 
-def _group(p: Pass) -> tuple:
+class _PassGroup(NamedTuple):
+    """Passes that see the deflection through the same dynamics: one dataset, method, direction and speed."""
+
+    dataset: Any
+    method: str
+    speed: float  #: [rad/s], to 0.1
+
+
+def _group(p: Pass) -> _PassGroup:
     """Passes of one dataset, method, direction and speed see the deflection through the same dynamics."""
-    return (p.dataset, p.method, round(p.speed, 1))
+    return _PassGroup(p.dataset, p.method, round(p.speed, 1))
+
+
+class _FourierFit(NamedTuple):
+    """The joint least squares of :func:`_fourier_fit`: coefficients, residual sum of squares, covariance."""
+
+    coef: np.ndarray
+    ss: float
+    cov: np.ndarray
 
 
 def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
-                 grouped: bool = False, ss_only: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
+                 grouped: bool = False, ss_only: bool = False) -> _FourierFit:
     """Joint least squares of a Fourier series in theta and each pass's slow nuisance.
 
     By Frisch-Waugh-Lovell the nuisance is projected out of the regressors of
@@ -270,7 +286,7 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
         ss = 0.0
         for g in sorted({_group(p) for p in passes}):
             ss += _fourier_fit([p for p in passes if _group(p) == g], period, harmonics, ss_only=True)[1]
-        return np.zeros(0), ss, np.zeros((0, 0))
+        return _FourierFit(np.zeros(0), ss, np.zeros((0, 0)))
     blocks, data = [], []
     for p in passes:
         A = _design(p.theta, period, harmonics)
@@ -285,10 +301,10 @@ def _fourier_fit(passes: list[Pass], period: float, harmonics: int,
     resid = f - A @ coef
     ss = float(resid @ resid)
     if ss_only:
-        return coef, ss, np.zeros((0, 0))
+        return _FourierFit(coef, ss, np.zeros((0, 0)))
     dof = max(1, len(f) - A.shape[1] - sum(p.nuisance.shape[1] for p in passes))
     cov = np.linalg.pinv(A.T @ A) * ss / dof
-    return coef, ss, cov
+    return _FourierFit(coef, ss, cov)
 
 
 def _normal_solve(A: np.ndarray, f: np.ndarray) -> np.ndarray | None:
@@ -710,7 +726,16 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
     return pooled
 
 
-def _runs_mean(values: np.ndarray, stds: np.ndarray) -> tuple[float, float, float | None, int | None]:
+class _RunsMean(NamedTuple):
+    """The runs' estimates combined: mean, its std, and the spread's chi^2 and degrees of freedom where tested."""
+
+    mean: float
+    std: float
+    chi2: float | None
+    dof: int | None
+
+
+def _runs_mean(values: np.ndarray, stds: np.ndarray) -> _RunsMean:
     """The runs' estimates combined: ``(mean, std, chi2, dof)``.
 
     Runs with a known std are weighted by it and their std is widened by the Birge ratio; a run's std is
@@ -722,13 +747,13 @@ def _runs_mean(values: np.ndarray, stds: np.ndarray) -> tuple[float, float, floa
         v, w = values[known], 1.0 / np.maximum(stds[known], 1e-12 * np.abs(values[known])) ** 2
         mean = float(np.sum(w * v) / np.sum(w))
         if len(v) < 2:
-            return mean, float(1.0 / math.sqrt(float(np.sum(w)))), None, None
+            return _RunsMean(mean, float(1.0 / math.sqrt(float(np.sum(w)))), None, None)
         chi2 = float(np.sum(w * (v - mean) ** 2))
         dof = len(v) - 1
-        return mean, math.sqrt(max(1.0, chi2 / dof)) / math.sqrt(float(np.sum(w))), chi2, dof
+        return _RunsMean(mean, math.sqrt(max(1.0, chi2 / dof)) / math.sqrt(float(np.sum(w))), chi2, dof)
     mean = float(np.mean(values))
     spread = float(np.std(values, ddof=1) / math.sqrt(len(values))) if len(values) >= 2 else math.inf
-    return mean, spread, None, None
+    return _RunsMean(mean, spread, None, None)
 
 
 #: Strongest lines of a run's own spectrum offered as candidates beside its detected period.

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -126,8 +127,16 @@ def _smooth_basis(t: np.ndarray, knot_spacing: float) -> np.ndarray:
     return BSpline.design_matrix(np.clip(t, t0, t1), knots, 3).toarray()
 
 
+class _PassDeflection(NamedTuple):
+    """One pass's deflection estimate, high-passed torque and nuisance basis."""
+
+    deflection: np.ndarray
+    tau_hp: np.ndarray
+    basis: np.ndarray
+
+
 def _pass_deflection(t: np.ndarray, q: np.ndarray, tau: np.ndarray, q_l: np.ndarray | None, K: float,
-                     Jl: float | None, f_cut: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     Jl: float | None, f_cut: float) -> _PassDeflection:
     """Deflection estimate, high-passed torque and nuisance basis of one pass.
 
     ``q - tau/K - theta_l`` with theta_l the measured link position (static)
@@ -149,7 +158,7 @@ def _pass_deflection(t: np.ndarray, q: np.ndarray, tau: np.ndarray, q_l: np.ndar
     else:
         theta_l = q_l
     raw = q - tau / K - theta_l
-    return raw - Q @ (Q.T @ raw), tau - Q @ (Q.T @ tau), Q
+    return _PassDeflection(raw - Q @ (Q.T @ raw), tau - Q @ (Q.T @ tau), Q)
 
 
 def spread_repeated_stamps(t: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import functools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
@@ -88,7 +89,15 @@ def chunk_coefficients(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return coefs, valid
 
 
-def hotelling(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+class Hotelling(NamedTuple):
+    """Hotelling's T^2 per spatial frequency, the mean coefficient's power and the chunks counted."""
+
+    t2: np.ndarray
+    power: np.ndarray
+    count: np.ndarray
+
+
+def hotelling(chunks, k: np.ndarray) -> Hotelling:
     """Hotelling T^2 of the chunks' Fourier coefficients at ``k`` [cycles/rad].
 
     Returns T^2, the power of the mean coefficient, and the number of chunks
@@ -102,7 +111,7 @@ def hotelling(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     var = spread / np.maximum(count - 1, 1) / n
     with np.errstate(divide="ignore", invalid="ignore"):
         t2 = np.where(count >= 3, np.abs(mean) ** 2 / var, 0.0)
-    return np.nan_to_num(t2, nan=0.0, posinf=0.0), np.abs(mean) ** 2, count
+    return Hotelling(np.nan_to_num(t2, nan=0.0, posinf=0.0), np.abs(mean) ** 2, count)
 
 
 @functools.lru_cache(maxsize=256)

@@ -86,7 +86,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
@@ -254,6 +254,24 @@ def _outputs(rec: FitRecord, simulate: Callable[[], np.ndarray]) -> np.ndarray:
 # maximum likelihood
 
 
+class _RippleFit(NamedTuple):
+    """A record's ripple coefficients, their weighted projected response and their response in signal units."""
+
+    coef: np.ndarray
+    weighted: np.ndarray
+    response: np.ndarray  #: (2, n)
+
+
+class _RippleColumns(NamedTuple):
+    """The ripple columns' weighted projected responses (tau_j, q_m), their Gram matrix and their response in
+    signal units."""
+
+    C_t: np.ndarray
+    C_q: np.ndarray
+    gram: np.ndarray
+    Y: np.ndarray  #: (2, n, columns)
+
+
 class _Problem:
     """Weighted, nuisance-projected output-error residuals of all records.
 
@@ -371,7 +389,7 @@ class _Problem:
         return hit[1]
 
     def _ripple_fit(self, p: Sequence[float], i: int, e_t: np.ndarray, e_q: np.ndarray,
-                    lf: TorqueLogFilter | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                    lf: TorqueLogFilter | None = None) -> _RippleFit | None:
         """Record ``i``'s ripple coefficients fitted to its weighted residual: (coefficients, their weighted
         projected response, their response in signal units ``(2, n)``), or ``None`` where the model does
         not exist."""
@@ -382,10 +400,10 @@ class _Problem:
         C_t, C_q, gram, Y = columns
         # Normal equations: a handful of columns against two outputs of every sample.
         coef, *_ = np.linalg.lstsq(gram, C_t.T @ e_t + C_q.T @ e_q, rcond=None)
-        return coef, np.concatenate([C_t @ coef, C_q @ coef]), Y @ coef
+        return _RippleFit(coef, np.concatenate([C_t @ coef, C_q @ coef]), Y @ coef)
 
     def _ripple_columns(self, p: Sequence[float], r: FitRecord, weights: tuple, lf: TorqueLogFilter | None = None
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+                        ) -> _RippleColumns | None:
         """The ripple columns' weighted, projected responses (tau_j, q_m), their Gram matrix and their
         response in signal units ``(2, n, columns)``; ``None`` where the model does not exist."""
         try:
@@ -400,7 +418,7 @@ class _Problem:
             return None
         if not (np.all(np.isfinite(C_t)) and np.all(np.isfinite(C_q))):
             return None
-        return C_t, C_q, C_t.T @ C_t + C_q.T @ C_q, Y
+        return _RippleColumns(C_t, C_q, C_t.T @ C_t + C_q.T @ C_q, Y)
 
     def ripple_response(self, x: np.ndarray) -> list[np.ndarray | None]:
         """Per record, the fitted ripple's output response ``(2, n)`` in signal units (``None`` without)."""

@@ -12,8 +12,10 @@ RIPPLE_PERIOD_RAD, OBSERVER_GAIN
 INPUTS, pade_coefficients, resonance_hz, coefficients, transfer_function, polynomials,
 frequency_response
     Eq (4) (:mod:`iiwa_ident.model._eq4`).
-zoh, delayed_hold, state_matrices, DiscreteModel, discretize, simulate_outputs
+zoh, delayed_hold, DelayedHold, state_matrices, DiscreteModel, discretize, simulate_outputs
     Eqs (1)-(4) as a state-space model, sampled exactly with the delay (:mod:`iiwa_ident.model._sampled`).
+StateSpaceMatrices, StrictlyProperMatrices, ParameterValues
+    Named results: a system's matrices (:mod:`iiwa_ident.model._matrices`), eq (4)'s parameters as numbers.
 MomentumObserver
     The robot's external-torque observer, eq (13), as the robot and the runtime run it
     (:mod:`iiwa_ident.model._observer`).
@@ -47,6 +49,7 @@ from iiwa_ident.model._joint_model import (
     ripple_period,
     table1_model,
 )
+from iiwa_ident.model._matrices import StateSpaceMatrices, StrictlyProperMatrices
 from iiwa_ident.model._observer import MomentumObserver
 from iiwa_ident.model._parameters import (
     JOINT_PARAMETERS,
@@ -57,9 +60,11 @@ from iiwa_ident.model._parameters import (
     JointParameters,
     Param,
     ParameterError,
+    ParameterValues,
     parameter_values,
 )
 from iiwa_ident.model._sampled import (
+    DelayedHold,
     DiscreteModel,
     delayed_hold,
     discretize,
@@ -78,6 +83,10 @@ __all__ = [
     "PARAMETER_UNITS",
     "JointParameters",
     "parameter_values",
+    "ParameterValues",
+    "StateSpaceMatrices",
+    "StrictlyProperMatrices",
+    "DelayedHold",
     "RIPPLE_PERIOD_RAD",
     "OBSERVER_GAIN",
     "INPUTS",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from iiwa_ident.errors import IiwaIdentError
 
@@ -113,11 +114,21 @@ class JointParameters:
         return {n: getattr(self, n) for n in PARAMETER_NAMES}
 
 
-def parameter_values(params) -> tuple[float, float, float, float, float]:
+class ParameterValues(NamedTuple):
+    """Eq (4)'s parameters as plain numbers [SI], in the order of :data:`PARAMETER_NAMES`."""
+
+    Jc: float
+    bc: float
+    K: float
+    Jl: float
+    Td: float
+
+
+def parameter_values(params) -> ParameterValues:
     """``(Jc, bc, K, Jl, Td)`` [SI] of :class:`JointParameters`, a mapping, a model file's joint model
     (anything with ``value(name)``) or a sequence of five numbers; not validated."""
     if isinstance(params, JointParameters):
-        return params.Jc, params.bc, params.K, params.Jl, params.Td
+        return ParameterValues(params.Jc, params.bc, params.K, params.Jl, params.Td)
     if hasattr(params, "value") and callable(params.value):
         return tuple(float(params.value(n)) for n in PARAMETER_NAMES)  # type: ignore[return-value]
     if isinstance(params, dict):

@@ -32,13 +32,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
 from scipy.signal import cont2discrete, lfilter
 
 from iiwa_ident.model._eq4 import INPUTS
+from iiwa_ident.model._matrices import StrictlyProperMatrices
 from iiwa_ident.model._parameters import parameter_values
 
 __all__ = ["zoh", "delayed_hold", "sample_means", "sample_slopes", "state_matrices", "DiscreteModel", "discretize",
@@ -66,8 +67,17 @@ def split_delay(delay: float, T: float) -> tuple[int, float]:
     return d, (0.0 if tau < 1e-9 * T else tau)
 
 
+class DelayedHold(NamedTuple):
+    """The sampled system of :func:`delayed_hold`: ``x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]``."""
+
+    Phi: np.ndarray
+    Gamma0: np.ndarray
+    Gamma1: np.ndarray  #: zero without a fraction of a sample
+    d: int  #: whole samples of the delay
+
+
 def delayed_hold(A: np.ndarray, B: np.ndarray, T: float, delay: float
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                 ) -> DelayedHold:
     """``x[k+1] = Phi x[k] + Gamma0 u[k-d] + Gamma1 u[k-d-1]`` for ``x' = A x + B u(t - delay)``, ``u`` held.
 
     ``delay = d T + tau`` with ``0 <= tau < T`` (module docstring); ``Gamma1`` is zero without a fraction.
@@ -81,9 +91,9 @@ def delayed_hold(A: np.ndarray, B: np.ndarray, T: float, delay: float
     d, tau = split_delay(delay, T)
     Phi, G = zoh(A, B, T)
     if tau == 0.0:
-        return Phi, G, np.zeros_like(G), d
+        return DelayedHold(Phi, G, np.zeros_like(G), d)
     Pa, Ga = zoh(A, B, T - tau)
-    return Phi, Ga, Pa @ zoh(A, B, tau)[1], d
+    return DelayedHold(Phi, Ga, Pa @ zoh(A, B, tau)[1], d)
 
 
 @dataclass
@@ -256,7 +266,7 @@ def _slope_hold(A: np.ndarray, B: np.ndarray, T: float) -> np.ndarray:
     return -0.5 * E[:n, n] + E[:n, n + 1]
 
 
-def state_matrices(p, input: str = "command") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def state_matrices(p, input: str = "command") -> StrictlyProperMatrices:
     """``(A, B, C)`` of eqs (1)-(3), state ``(theta_m, z, theta_l, omega_l)``, outputs ``(tau_J, theta_m)``.
 
     Eq (1) integrated once: ``Jc theta_m' = (bc / K)(tau_c - tau_J) + z``,
@@ -281,7 +291,7 @@ def state_matrices(p, input: str = "command") -> tuple[np.ndarray, np.ndarray, n
     else:
         raise ValueError(f"input must be one of {INPUTS}")
     C = np.array([[K, 0.0, -K, 0.0], [1.0, 0.0, 0.0, 0.0]])
-    return A, B, C
+    return StrictlyProperMatrices(A, B, C)
 
 
 def discretize(params: Any, sample_time_s: float, input: str = "command") -> DiscreteModel:

@@ -113,7 +113,7 @@ class Calibration:
         """Counts -> ``[Fx, Fy, Fz]`` [N] and ``[Tx, Ty, Tz]`` [Nm] as one array of 6."""
         return np.asarray(counts, dtype=float) / self._scale()
 
-    def counts(self, wrench) -> tuple[int, int, int, int, int, int]:
+    def counts(self, wrench) -> tuple[int, ...]:
         """A wrench [N, Nm] -> counts, rounded and clipped to int32 (what the sensor's range saturates at)."""
         c = np.clip(np.rint(np.asarray(wrench, dtype=float) * self._scale()), *_I32)
         return tuple(int(x) for x in c)  # type: ignore[return-value]

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -47,6 +48,14 @@ class SimTrace:
 
     measured: dict[str, np.ndarray]
     hidden: dict[str, np.ndarray]
+
+
+class _CommandRow(NamedTuple):
+    """One cycle's command as the compiled cycle takes it."""
+
+    tau_cmd: float  #: [Nm]
+    q_cmd: float  #: [rad]
+    position_mode: float  #: 1.0: the robot's position controller
 
 
 class SimulatedJoint(RobotInterface):
@@ -141,12 +150,12 @@ class SimulatedJoint(RobotInterface):
         step = self.plant.internal["slew_rate_nm_s"] * self.sample_time_s
         return previous + min(max(tau - previous, -step), step)
 
-    def _command_row(self, command: Command) -> tuple[float, float, float]:
+    def _command_row(self, command: Command) -> _CommandRow:
         if command.tau_c is not None:
             self._tau_prev = self._feasible(float(command.tau_c), self._tau_prev)
-            return (self._tau_prev, 0.0, 0.0)
+            return _CommandRow(self._tau_prev, 0.0, 0.0)
         self._tau_prev = 0.0
-        return (0.0, float(command.q_cmd), 1.0)
+        return _CommandRow(0.0, float(command.q_cmd), 1.0)
 
     # -- measurement model ------------------------------------------------
     def _noise(self, n: int) -> np.ndarray:

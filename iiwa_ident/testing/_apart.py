@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -304,7 +304,15 @@ def _simulate(case: ApartCase, client, hand, n: int, seed: int, preroll: int = 5
             "tau_ext_ref": rows[:, 3] + 0.05 * white[:, 2]}
 
 
-def _trapezoids(speeds: tuple[float, ...], travel: float, accel: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+class _Moves(NamedTuple):
+    """Position [rad], velocity [rad/s] and acceleration [rad/s^2] references."""
+
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+
+
+def _trapezoids(speeds: tuple[float, ...], travel: float, accel: float) -> _Moves:
     """Position, velocity, acceleration of back-and-forth moves over ``travel`` centred on the start."""
     q, out_q, out_v, out_a = 0.0, [0.0], [0.0], [0.0]
     targets = [(travel / 2, speeds[0])] + [(s * travel / 2, v) for v in speeds for s in (-1, 1)] + [(0.0, speeds[0])]
@@ -330,7 +338,16 @@ def _trapezoids(speeds: tuple[float, ...], travel: float, accel: float) -> tuple
         out_q += [q] * 150
         out_v += [0.0] * 150
         out_a += [0.0] * 150
-    return np.array(out_q), np.array(out_v), np.array(out_a)
+    return _Moves(np.array(out_q), np.array(out_v), np.array(out_a))
+
+
+class _Hold(NamedTuple):
+    """The hand's impedance and where it holds the link."""
+
+    stiffness: float  #: [Nm/rad]
+    damping: float  #: [Nm s/rad]
+    position: float  #: [rad]
+    velocity: float  #: [rad/s]
 
 
 def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0, amplitude_nm: float = CHIRP_AMPLITUDE_NM
@@ -365,10 +382,10 @@ def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0, amplitude_nm: fl
 
     def hand(t):
         if t < 0:
-            return (250.0, 35.0, 0.0, 0.0)
+            return _Hold(250.0, 35.0, 0.0, 0.0)
         pos = sum(a * (math.sin(w * t + p) - math.sin(p)) for w, p, a in lines)
         vel = sum(a * w * math.cos(w * t + p) for w, p, a in lines)
-        return (250.0, 35.0, pos, vel)
+        return _Hold(250.0, 35.0, pos, vel)
 
     out.append(Dataset(_simulate(case, lambda k, q, v, q0: 0.0, hand, 6000, s + 3), "hand_guided", "simulation", 1,
                        1 / _T, {"duration_s": 6.0}))
