@@ -27,11 +27,12 @@ demo: $(STAMP)
 	$(CLI) pipeline --target sim --workdir $(DEMO); status=$$?; cp $(DEMO)/report.pdf reports/demo.pdf; exit $$status
 	@echo "report: reports/demo.pdf; every intermediate file in $(DEMO)/ (pipeline.json lists them)"
 
-# The linter first (its rules in pyproject.toml), then two workers, one test file each at a time (module
+# The linter and the type checker first (their rules in pyproject.toml), then two workers, one test file each at a time (module
 # fixtures are built once); nothing in it depends on wall-clock timing. The few tests that must run in real time are marked `realtime` and run apart.
 # One BLAS thread per worker: two workers with a BLAS thread pool each oversubscribe the cores.
 test: $(STAMP)
 	$(BIN)/ruff check iiwa_ident tests bench
+	$(BIN)/mypy
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not realtime" --durations=25
 
 test-realtime: $(STAMP)

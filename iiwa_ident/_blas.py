@@ -14,6 +14,7 @@ import contextlib
 import ctypes
 import os
 from collections.abc import Iterator
+from typing import Any
 
 __all__ = ["single_threaded_blas"]
 
@@ -30,7 +31,7 @@ def _openblas_libraries() -> list[str]:
         return []
 
 
-def _set_threads(n: int) -> list[tuple[object, int]]:
+def _set_threads(n: int) -> list[tuple[Any, int]]:
     """Set every loaded OpenBLAS to ``n`` threads; return (setter, previous count) pairs to restore."""
     import numpy  # noqa: F401  (load every BLAS the stages use before looking for them)
     import scipy.linalg  # noqa: F401  (as numpy)

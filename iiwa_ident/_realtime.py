@@ -132,9 +132,11 @@ def realtime_process(cpu: int | None = None, priority: int = 80,
     str
         That line.
     """
-    done, missing = [], []
-    old_affinity = old_policy = None
-    old_param = None
+    done: list[str] = []
+    missing: list[str] = []
+    old_affinity: set[int] | None = None
+    old_policy: int | None = None
+    old_param: os.sched_param | None = None
     locked = False
     has_sched = hasattr(os, "sched_setaffinity") and hasattr(os, "sched_setscheduler")
     try:
@@ -176,7 +178,7 @@ def realtime_process(cpu: int | None = None, priority: int = 80,
     finally:
         if locked:
             _munlockall()
-        if old_policy is not None:
+        if old_policy is not None and old_param is not None:
             with contextlib.suppress(OSError):
                 os.sched_setscheduler(0, old_policy, old_param)
         if old_affinity is not None:

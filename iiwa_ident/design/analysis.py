@@ -79,7 +79,13 @@ from typing import NamedTuple
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from iiwa_ident.design.additive import DEFAULT_PREFILTER_HZ, AdditiveDesign, builtin_poles, design_controller
+from iiwa_ident.design.additive import (
+    DEFAULT_PREFILTER_HZ,
+    AdditiveDesign,
+    DesignError,
+    builtin_poles,
+    design_controller,
+)
 from iiwa_ident.design.controller import AdditiveController
 from iiwa_ident.design.cycle import ControlCycle
 from iiwa_ident.design.margins import HumanArm, kappa_max
@@ -299,6 +305,8 @@ class _ClosedLoop(Experiment):
         r = self.reference(s.t)
         tau_r = r - self.hold_stiffness * (s.q - s.q0) - self.hold_damping * s.v
         if self.kappa != 0.0:
+            if s.meas.tau_ext_ref is None:
+                raise DesignError("the outer loop of section V.C needs the external-torque reference")
             tau_r += self.kappa * s.meas.tau_ext_ref
         self.r.append(r)
         self.tau_r.append(tau_r)
@@ -532,7 +540,7 @@ def step_response(controller: TorqueControl, plant: Plant | None = None, amplitu
     n_half = int(round(half / run.dt))
     edges = np.arange(0, len(run.t), n_half)
     rows = []
-    for j, i0 in enumerate(edges):
+    for j, i0 in enumerate(edges.tolist()):
         i1 = min(i0 + n_half, len(run.t))
         if i1 - i0 < n_half // 2:
             break
@@ -544,8 +552,8 @@ def step_response(controller: TorqueControl, plant: Plant | None = None, amplitu
                           float(np.nanmean(arr[:, 3])) if np.all(np.isfinite(arr[:, 3])) else math.nan, band)
     # Steady state: the end of every half period.
     sel = np.zeros(len(run.t), bool)
-    for i0 in edges:
-        sel[i0 + int(round(settle_s / run.dt)):i0 + n_half] = True
+    for start in edges:
+        sel[start + int(round(settle_s / run.dt)):start + n_half] = True
     errors = _errors_on(run, sel, dly)
     return StepResult(run, metrics, errors, edges * run.dt)
 

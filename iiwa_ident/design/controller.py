@@ -19,13 +19,33 @@ class DiscreteDesign(Protocol):
     """What :class:`AdditiveController` runs on: the discrete model and gains of a design
     (:class:`~iiwa_ident.design.AdditiveDesign`, or a controller config, which holds no continuous data)."""
 
-    Ad: Any  # [4x4] discrete model of eqs (19)-(21)
-    Bd: Any  # [4]
-    Kd: Any  # [4] state feedback
-    Ld: Any  # [4] observer gain
-    Kr_d: float  # reference gain
-    feedforward: str  # the feed-forward mode
-    ffd: Any  # discrete pre-filter (A, B, C, D), or None
+    @property
+    def Ad(self) -> Any:
+        """[4x4] discrete model of eqs (19)-(21)."""
+
+    @property
+    def Bd(self) -> Any:
+        """[4]."""
+
+    @property
+    def Kd(self) -> Any:
+        """[4] state feedback."""
+
+    @property
+    def Ld(self) -> Any:
+        """[4] observer gain."""
+
+    @property
+    def Kr_d(self) -> float:
+        """Reference gain."""
+
+    @property
+    def feedforward(self) -> str:
+        """The feed-forward mode."""
+
+    @property
+    def ffd(self) -> Any:
+        """Discrete pre-filter (A, B, C, D), or None."""
 
 
 class AdditiveController:
@@ -60,7 +80,7 @@ class AdditiveController:
         if design.ffd is not None:
             Af, Bf, Cf, Df = design.ffd
             Af = np.atleast_2d(np.array(Af, float))
-            self._Af = [[float(v) for v in row] for row in Af]
+            self._Af: list[list[float]] | None = [[float(v) for v in row] for row in Af]
             self._Bf = [float(v) for v in np.array(Bf, float).ravel()]
             self._Cf = [float(v) for v in np.array(Cf, float).ravel()]
             self._Df = float(Df)

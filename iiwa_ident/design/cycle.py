@@ -73,10 +73,13 @@ class ControlCycle:
         #: The spatial filters' settings; they work at the lookup table's period (one rho for both).
         self.filter = filter or FilterSettings()
         self.torque_filter = SpatialFilter.from_settings(self.filter, ripple, dt)
-        with_observer = K is not None and KI is not None and Jl is not None
-        self._K = float(K) if K is not None else None
-        self.observer = MomentumObserver(KI, Jl, dt) if with_observer else None
-        self.observer_filter = SpatialFilter.from_settings(self.filter, ripple, dt) if with_observer else None
+        self._K: float | None = None
+        self.observer: MomentumObserver | None = None
+        self.observer_filter: SpatialFilter | None = None
+        if K is not None and KI is not None and Jl is not None:
+            self._K = float(K)
+            self.observer = MomentumObserver(KI, Jl, dt)
+            self.observer_filter = SpatialFilter.from_settings(self.filter, ripple, dt)
         self.started = False
         self.tau_offset = 0.0  #: tau_J at the (re)start [Nm]
         self.theta_j = 0.0  #: joint position of eq (8) at the last sample [rad]
@@ -104,7 +107,7 @@ class ControlCycle:
         self.theta_j, self._theta_l_prev = self._theta(meas.q_m, meas.tau_j)
         self.torque_filter.reset()
         self.torque_filter.step(0.0, self.theta_j)
-        if self.observer is not None:
+        if self.observer is not None and self.observer_filter is not None:
             self.observer.reset()
             self.observer_filter.reset()
             self.observer_filter.step(0.0, self.theta_j)
@@ -122,7 +125,7 @@ class ControlCycle:
         self.theta_j = theta_j
         tau = meas.tau_j - self.tau_offset
         self.tau_j_filt = self.torque_filter.step(tau, theta_j)  # eq (15)
-        if self.observer is not None:
+        if self.observer is not None and self.observer_filter is not None:
             v_l = (theta_l - self._theta_l_prev) / (self.dt * max(gap_cycles, 1.0))
             self._theta_l_prev = theta_l
             self.tau_ext = self.observer_filter.step(self.observer.update(v_l, tau), theta_j)  # eqs (13)-(14)

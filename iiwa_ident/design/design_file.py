@@ -314,7 +314,7 @@ def _parameters(r: _Reader) -> tuple[dict[str, float], JointParameters]:
     values: dict[str, float] = {}
     for name, unit in PARAMETER_UNITS.items():
         key = f"model.parameters.{name}"
-        entry = r.table(key)
+        entry = r.table(key) or {}
         values[name] = r.number(f"{key}.value", positive=name != "bc", nonneg=True)
         if entry.get("unit", unit) != unit:
             raise r.fail(f"{key}.unit", f"expected {unit!r}, got {entry.get('unit')!r}")

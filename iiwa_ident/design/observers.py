@@ -224,7 +224,7 @@ class FilteredObserver(LinkVelocityObserver):
         return self.filter.step(estimate, float(joint_position(q_m, self.table)))
 
     def _post_batch(self, estimate: np.ndarray, q_m: np.ndarray) -> np.ndarray:
-        return self.filter.apply(estimate, joint_position(q_m, self.table), self.dt)
+        return self.filter.apply(estimate, np.asarray(joint_position(q_m, self.table), float), self.dt)
 
 
 #: The observers by name, in the order of Fig. 7.

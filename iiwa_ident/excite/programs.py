@@ -80,6 +80,9 @@ def trapezoid_profile(q_start: float, moves: list[tuple[float, float]], accel: f
 class _Profiled(Experiment):
     """An experiment following precomputed references sampled at the robot's cycle."""
 
+    _dt: float  #: the robot's cycle [s], set by _setup
+    _q: np.ndarray  #: the position reference [rad], one sample per cycle
+
     def _setup(self, dt: float) -> None:
         raise NotImplementedError
 
@@ -295,6 +298,7 @@ class _TorqueReference(Experiment):
 
     hold_stiffness = 30.0
     hold_damping = 10.0
+    peak_nm: float  #: the reference's largest magnitude [Nm]
 
     def reference(self, t: float) -> float:
         raise NotImplementedError

@@ -58,6 +58,8 @@ class LimitGuard:
                 return self._hold(state, position_mode), f"position command {cmd.q_cmd:.3f} rad is outside +-{self.q_max:.3f} rad"
             return cmd, ""
         tau = cmd.tau_c
+        if tau is None:
+            return self._hold(state, position_mode), "the command holds neither a torque nor a position"
         if not math.isfinite(tau):
             return self._hold(state, position_mode), "torque command is not finite"
         lim = self.limits.torque_nm

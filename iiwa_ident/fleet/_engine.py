@@ -131,9 +131,9 @@ def run_fleet(stage: str, paths: Sequence[str | Path], out_dir: str | Path, sche
                     progress(done, total, g.label)
     doc: dict[str, Any] = {"stage": stage, "engine": engine, "groups": rows, "resumed": resumed}
     if stage == "ripple":
-        wear = flag_worn(rows)  # type: ignore[arg-type]  (every row is set by now)
+        wear = flag_worn(rows)  # type: ignore[arg-type]  # every row is set by now
         for row, judged in zip(rows, wear.pop("rows")):
-            row["wear"] = judged  # type: ignore[index]
+            row["wear"] = judged  # type: ignore[index]  # every row is set by now
         doc["wear"] = wear
     doc["wall_s"] = time.perf_counter() - t0
     return doc

@@ -98,11 +98,11 @@ def run_group(stage: str, paths: Sequence[str | Path]) -> dict[str, Any]:
     """
     if stage not in STAGES:
         raise ValueError(f"stage must be one of {', '.join(STAGES)}, got {stage!r}")
-    paths = [Path(p) for p in paths]
+    files = [Path(p) for p in paths]
     try:
         if stage == "fit":
-            return {stage: _fit(paths)}
-        datasets = [read_dataset(p) for p in paths]
+            return {stage: _fit(files)}
+        datasets = [read_dataset(p) for p in files]
         return {stage: (_ripple if stage == "ripple" else _diagnose)(datasets)}
     except IiwaIdentError as err:
         return {"error": str(err)}

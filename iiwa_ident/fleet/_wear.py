@@ -99,17 +99,18 @@ def flag_worn(groups: list[dict[str, Any]], false_alarm: float = WEAR_FALSE_ALAR
     if not 0.0 < false_alarm < 1.0:
         raise ValueError(f"false_alarm must lie in (0, 1), got {false_alarm!r}")
     est = [_estimate(g) for g in groups]
+    known = {i: e for i, e in enumerate(est) if e is not None}
     by_joint: dict[Any, list[int]] = {}
-    for i, (g, e) in enumerate(zip(groups, est)):
-        if e is not None:
-            by_joint.setdefault(g.get("joint"), []).append(i)
-    medians = {j: float(np.median([math.log(est[i][0]) for i in idx]))
+    for i in known:
+        by_joint.setdefault(groups[i].get("joint"), []).append(i)
+    medians = {j: float(np.median([math.log(known[i][0]) for i in idx]))
                for j, idx in by_joint.items() if len(idx) >= MIN_GROUPS}
     judged = [i for j in medians for i in by_joint[j]]
-    sigma_fleet, dof = None, 1
+    sigma_fleet: float | None = None
+    dof = 1
     if judged:
-        d = np.array([math.log(est[i][0]) - medians[groups[i]["joint"]] for i in judged])
-        own = np.array([(est[i][1] / est[i][0]) ** 2 for i in judged])
+        d = np.array([math.log(known[i][0]) - medians[groups[i]["joint"]] for i in judged])
+        own = np.array([(known[i][1] / known[i][0]) ** 2 for i in judged])
         # The spread of d from the groups within 3.5 robust (MAD) spreads of the median: as robust to the worn
         # ones as the MAD, and as efficient as a standard deviation (the MAD's own error flagged healthy joints
         # of a 210-joint fleet).
@@ -131,6 +132,7 @@ def flag_worn(groups: list[dict[str, Any]], false_alarm: float = WEAR_FALSE_ALAR
         elif j not in medians:
             row["why"] = f"fewer than {MIN_GROUPS} detections of joint {j} in the fleet: no median to compare with"
         else:
+            assert sigma_fleet is not None  # a joint with a median is judged, so the spread is known
             a, s = e
             n = len(by_joint[j])
             var = (s / a) ** 2 + sigma_fleet ** 2 + math.pi / 2.0 / n * (sigma_fleet ** 2 + (s / a) ** 2)

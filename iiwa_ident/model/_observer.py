@@ -36,7 +36,7 @@ class MomentumObserver:
 
     def reset(self) -> None:
         """Forget the past: the next :meth:`update` sets ``p(0)``."""
-        self._p0 = None
+        self._p0: float | None = None
         self._S = 0.0
 
     def update(self, velocity: float, tau_j: float, tau_model: float = 0.0) -> float:

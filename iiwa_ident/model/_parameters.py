@@ -130,10 +130,10 @@ def parameter_values(params) -> ParameterValues:
     if isinstance(params, JointParameters):
         return ParameterValues(params.Jc, params.bc, params.K, params.Jl, params.Td)
     if hasattr(params, "value") and callable(params.value):
-        return tuple(float(params.value(n)) for n in PARAMETER_NAMES)  # type: ignore[return-value]
+        return ParameterValues(*(float(params.value(n)) for n in PARAMETER_NAMES))
     if isinstance(params, dict):
-        return tuple(float(params[n]) for n in PARAMETER_NAMES)  # type: ignore[return-value]
-    vals = tuple(float(v) for v in params)
+        return ParameterValues(*(float(params[n]) for n in PARAMETER_NAMES))
+    vals = [float(v) for v in params]
     if len(vals) != len(PARAMETER_NAMES):
         raise ValueError("expected the five parameters Jc, bc, K, Jl, Td")
-    return vals  # type: ignore[return-value]
+    return ParameterValues(*vals)

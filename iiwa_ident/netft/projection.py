@@ -58,7 +58,7 @@ class JointAxisProjection:
     def from_description(cls, robot: str, joint: int, pose: Sequence[float]) -> JointAxisProjection:
         """The geometry of ``joint`` from the description of ``robot`` at ``pose`` [rad], sensor on the flange."""
         axis, lever = flange_axis(robot, joint, pose)
-        return cls(tuple(float(x) for x in axis), tuple(float(x) for x in lever),  # type: ignore[arg-type]
+        return cls(tuple(float(x) for x in axis), tuple(float(x) for x in lever),  # type: ignore[arg-type]  # 3 each
                    f"{robot} description, joint {joint}, pose [" + ", ".join(f"{q:.4f}" for q in pose) + "] rad")
 
     @classmethod

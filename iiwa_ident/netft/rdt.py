@@ -74,7 +74,7 @@ class RdtRecord:
     rdt_sequence: int
     ft_sequence: int
     status: int
-    counts: tuple[int, int, int, int, int, int]
+    counts: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -116,7 +116,7 @@ class Calibration:
     def counts(self, wrench) -> tuple[int, ...]:
         """A wrench [N, Nm] -> counts, rounded and clipped to int32 (what the sensor's range saturates at)."""
         c = np.clip(np.rint(np.asarray(wrench, dtype=float) * self._scale()), *_I32)
-        return tuple(int(x) for x in c)  # type: ignore[return-value]
+        return tuple(int(x) for x in c)
 
 
 def encode_request(command: int, sample_count: int = 0) -> bytes:
@@ -147,4 +147,4 @@ def decode_record(data: bytes) -> RdtRecord:
     if len(data) != RECORD_BYTES:
         raise RdtError(f"RDT record of {len(data)} bytes, expected {RECORD_BYTES}")
     rdt, ft, status, *counts = _RECORD.unpack(data)
-    return RdtRecord(rdt, ft, status, tuple(counts))  # type: ignore[arg-type]
+    return RdtRecord(rdt, ft, status, tuple(counts))

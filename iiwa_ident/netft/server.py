@@ -115,7 +115,7 @@ class RdtServer:
             elif command == RdtCommand.SET_SOFTWARE_BIAS:
                 self.bias_requested = True
 
-    def publish(self, counts: tuple[int, int, int, int, int, int], status: int = 0) -> None:
+    def publish(self, counts: tuple[int, ...], status: int = 0) -> None:
         """One sensor sample: streamed as a record while a client asked for them."""
         self.ft_sequence += 1
         if self.client is None or self.remaining == 0:

@@ -249,8 +249,22 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     write_atomic(ctx.path("fit_json"), json.dumps(result.to_json(), indent=2) + "\n")
     save_results(ctx.path("fit_result"), ctx.workdir, [ctx.path("chirp")], fit=result)
     ctx.results.update(model=model, fit=result)
-    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings),
-            "model_rejected": result.model_rejected, **residual_level(ctx, result)}
+    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": fit_warnings(result),
+            "model_rejected": model_rejected(result), **residual_level(ctx, result)}
+
+
+def fit_warnings(result: Any) -> list[str]:
+    """A fit's warnings: a chirp's fit holds them, a multisine's best linear approximation computes them."""
+    from iiwa_ident.ident import BlaFit
+
+    return result.warnings() if isinstance(result, BlaFit) else list(result.warnings)
+
+
+def model_rejected(result: Any) -> bool:
+    """Whether the fit rejected eq (4) (only a chirp's fit judges that)."""
+    from iiwa_ident.ident import FitResult
+
+    return isinstance(result, FitResult) and bool(result.model_rejected)
 
 
 def residual_level(ctx: PipelineContext, result: Any) -> dict[str, float]:
@@ -332,7 +346,7 @@ def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
                            "warnings": list(r.warnings)}
     if refit is not None:
         out["refit"] = {"parameters": parameter_rows(ctx, refit), "method": refit.method,
-                        "warnings": list(refit.warnings), "model_rejected": refit.model_rejected,
+                        "warnings": fit_warnings(refit), "model_rejected": model_rejected(refit),
                         **residual_level(ctx, refit)}
     if ctx.target == "sim":
         true = [e for e in ctx.plant.effects if e.name == "transmission_ripple"]

@@ -149,7 +149,7 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
     @contextmanager
     def robot_side() -> Iterator[tuple[tuple[str, int], tuple[str, int] | None]]:
         if target != "sim":
-            yield robot, ft  # type: ignore[misc]
+            yield robot, ft  # type: ignore[misc]  # _refuse_unsafe: the robot target comes with both
             return
         from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
 
@@ -174,8 +174,8 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
             fri = LateFriRobot(fri_addr[0], fri_addr[1], config.joint, config.robot_model, lockstep)
             sensor = None
             if tau_ext == "ft":
-                sensor = NetFtSensor(ft_addr[0], ft_projection, ft_addr[1], ft_settings.calibration)  # type: ignore[index]
-            rep = run_controller(config, fri, task, duration, path, tau_ext=tau_ext,  # type: ignore[arg-type]
+                sensor = NetFtSensor(ft_addr[0], ft_projection, ft_addr[1], ft_settings.calibration)  # type: ignore[index]  # set with the F/T source
+            rep = run_controller(config, fri, task, duration, path, tau_ext=tau_ext,  # type: ignore[arg-type]  # a FriRobot once started
                                  sensor=sensor, loop=loop, watchdog=Watchdog(config.sample_time_s))
         row = _sweep_row(task, rep, path, config.limits.torque_rate_nm_s)
         say(f"  {loop} loop, tau_ext from {tau_ext}: stable up to kappa {_fmt(task.live_limit)}, unstable at "
@@ -248,7 +248,7 @@ def _predict(row: dict[str, Any], record: DesignRecord, design: AdditiveDesign |
              loop: DeployedLoop) -> None:
     """Add the linear prediction of ``row``'s sweep: the deployed loop's margin over the run's speeds."""
     v_hi = row["speed_p95_rad_s"]
-    speeds = np.linspace(0.0, v_hi, 6) if v_hi > 0 else [0.0]
+    speeds = [float(v) for v in np.linspace(0.0, v_hi, 6)] if v_hi > 0 else [0.0]
     m = deployed_margin(record.design.params, design, arm, loop, speeds)
     row["linear_limit"] = _num(m.kappa_max)
     row["linear_at_speed_rad_s"] = m.at_speed_rad_s

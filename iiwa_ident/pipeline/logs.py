@@ -35,6 +35,7 @@ from iiwa_ident.pipeline.core import (
     _num,
     _stage_deploy,
     _stage_design,
+    fit_warnings,
     parameter_rows,
     record_diagnosis,
     run_stages,
@@ -217,10 +218,10 @@ def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
         ds.path = path
         for w in warnings:
             ctx.progress(f"  warning: {run.name}: {w}")
-        w = _moving_speeds(ds)
+        speeds = _moving_speeds(ds)
         rows.append({"run": run.name, "source": str(run.path), "file": f"{RUNS_DIR}/{path.name}",
                      "experiment": ds.experiment, "samples": ds.n_samples, "rate_hz": ds.sample_rate_hz,
-                     "speed_rad_s": _num(float(np.median(w))) if w.size else None, "warnings": warnings})
+                     "speed_rad_s": _num(float(np.median(speeds))) if speeds.size else None, "warnings": warnings})
     ctx.results["runs"] = datasets
     how = ("as logged" if not flip else
            "flipped (--torque-sign -1)" if sign == "-1" else
@@ -332,7 +333,7 @@ def _stage_fit(ctx: PipelineContext) -> dict[str, Any]:
     with_table.ripple = ctx.results["model_ripple"].ripple
     write_model(ctx.path("model_ripple"), with_table)
     ctx.results.update(model=model, fit=result, model_ripple=with_table)
-    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": list(result.warnings)}
+    return {"parameters": parameter_rows(ctx, result), "method": result.method, "warnings": fit_warnings(result)}
 
 
 #: The stages of a pipeline on logs, in the order they run.

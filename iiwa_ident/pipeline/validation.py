@@ -151,7 +151,7 @@ def _tracking_run(kind: str, host: str, port: int, config: ControllerConfig, exp
 def _additive_run(host: str, port: int, config: ControllerConfig, task, duration_s: float, path: Path,
                   trip_cycles: int, lockstep: bool):
     robot = LateFriRobot(host, port, config.joint, config.robot_model, lockstep)
-    return run_controller(config, robot, task, duration_s, path,  # type: ignore[arg-type]
+    return run_controller(config, robot, task, duration_s, path,  # type: ignore[arg-type]  # a FriRobot once started
                           watchdog=Watchdog(config.sample_time_s, trip_cycles=trip_cycles))
 
 

@@ -218,10 +218,13 @@ class ControllerRuntime:
         elif src == "fri":
             tau_ext = meas.tau_ext_fri - self._fri_offset
         else:
-            self.sensor.poll()  # type: ignore[union-attr]
-            tau_ext = self.sensor.tau  # type: ignore[union-attr]
-            if self.sensor.fault:  # type: ignore[union-attr]
-                self.request_stop(self.sensor.fault)  # type: ignore[union-attr]
+            sensor = self.sensor
+            if sensor is None:  # refused by the constructor: the F/T source comes with its sensor
+                raise IiwaIdentError("the F/T source needs its sensor")
+            sensor.poll()
+            tau_ext = sensor.tau
+            if sensor.fault:
+                self.request_stop(sensor.fault)
         self.tau_ext_loop = tau_ext
         task_in = self._input
         task_in.t, task_in.theta_j, task_in.tau_ext = meas.t, control.theta_j, tau_ext
@@ -416,7 +419,7 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
             if sensor is not None:
                 if sensor.projection is None:
                     sensor.projection = JointAxisProjection.from_description(
-                        config.robot_model, config.joint, robot.pose)  # type: ignore[attr-defined]
+                        config.robot_model, config.joint, robot.pose)  # type: ignore[attr-defined]  # _check_run: it has one
                 sensor.flush()  # records of the wait for commanding are no measurement of this run
             say(f"commanding: {task.name} for {duration_s:g} s ({loop} loop, external torque: {tau_ext})")
             last_ns = time.perf_counter_ns()

@@ -297,7 +297,7 @@ class TransmissionRipple(Effect):
                 ))
             a = np.array([A * math.sin(ph) for A, ph in amp_phase])  # cos coefficients
             b = np.array([A * math.cos(ph) for A, ph in amp_phase])  # sin coefficients
-            self.source = {"harmonics": [list(r) for r in amp_phase]}
+            self.source: dict[str, Any] = {"harmonics": [list(r) for r in amp_phase]}
         else:
             lut = values["lut"]
             if not isinstance(lut, list) or len(lut) < 4:
@@ -621,9 +621,9 @@ def _log_filter_coefficients(cutoff_hz: float, order: float, damping: float, del
         g = (1.0 - p) / (w * dt)
         return (1.0 - g, g - p), (1.0, -p)
     den = [1.0, 2.0 * damping * w, w * w]
-    b, a, _ = _signal.cont2discrete(([den[-1]], den), dt, method="foh")
-    b, a = np.ravel(b), np.ravel(a)
-    return tuple(float(x) for x in b / a[0]), tuple(float(x) for x in a / a[0])
+    num, den_d, _ = _signal.cont2discrete(([den[-1]], den), dt, method="foh")
+    num, den_d = np.ravel(num), np.ravel(den_d)
+    return tuple(float(x) for x in num / den_d[0]), tuple(float(x) for x in den_d / den_d[0])
 
 
 @register_effect

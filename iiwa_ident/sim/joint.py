@@ -96,6 +96,7 @@ class SimulatedJoint(RobotInterface):
         self._log_filter = next((f for f in (e.log_filter() for e in self.plant.effects) if f is not None), None)
         self.agent: ExternalAgent | None = None
         self._started = False
+        self._tau_prev = 0.0  #: the last torque command, through the feasibility filter [Nm]
 
     # -- set-up ----------------------------------------------------------
     def set_agent(self, agent: ExternalAgent | None) -> None:
@@ -155,6 +156,8 @@ class SimulatedJoint(RobotInterface):
             self._tau_prev = self._feasible(float(command.tau_c), self._tau_prev)
             return _CommandRow(self._tau_prev, 0.0, 0.0)
         self._tau_prev = 0.0
+        if command.q_cmd is None:
+            raise ValueError("a command holds a torque or a position")
         return _CommandRow(0.0, float(command.q_cmd), 1.0)
 
     # -- measurement model ------------------------------------------------
@@ -189,7 +192,7 @@ class SimulatedJoint(RobotInterface):
         meas = self._measure(y0[None, :], self._noise(1))
         self._q_prev = float(meas["q_m"][0])
         tau_ext = self._observer.update(0.0, float(meas["tau_j"][0]), float(y0[_Y["tau_model"]]))
-        self._log_state = None
+        self._log_state: list[float] | None = None
         self._log_through_filter(meas)
         self._started = True
         return self._measurement(0.0, meas, tau_ext)

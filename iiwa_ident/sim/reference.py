@@ -15,6 +15,7 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from iiwa_ident.sim.effects import TransmissionRipple
 from iiwa_ident.sim.plant import Plant
 
 __all__ = ["simulate_reference", "SUPPORTED_EFFECTS"]
@@ -24,7 +25,7 @@ SUPPORTED_EFFECTS = ("transmission_ripple", "link_friction")
 
 def _ripple(plant: Plant):
     eff = plant.effect("transmission_ripple")
-    if eff is None:
+    if not isinstance(eff, TransmissionRipple):
         return lambda th: (0.0, 0.0)
     w = 2 * math.pi / eff.values["period_rad"]
     a, b = eff.cos_coef, eff.sin_coef

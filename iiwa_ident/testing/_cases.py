@@ -200,8 +200,8 @@ def score_case(case: Case, named: dict[str, dict[str, float]], fit_error: dict[s
         found -= absorbed
     for name in (hidden & found & set(case.expected)) - set(case.reshaped):
         for key, truth in case.expected[name].items():
-            value = named[name].get(key)
-            if value is None or not _within(value, truth, TOLERANCES[name][key], angle=key == "phase_rad"):
+            found_value = named[name].get(key)
+            if found_value is None or not _within(found_value, truth, TOLERANCES[name][key], angle=key == "phase_rad"):
                 bad.append(f"{name}.{key}")
     return {"hit": hidden == found and not bad, "names_ok": hidden == found, "missed": sorted(hidden - found),
             "false": sorted(found - hidden), "bad_parameters": bad}

@@ -182,7 +182,9 @@ def draw_scenario(seed: int, *, nuisances: Sequence[str] | None = None, duration
             off["drift_nm_s"] = rng.uniform(-0.01, 0.01)
         effects["torque_sensor_offset"] = off
     if "ripple" in on:
-        effects["transmission_ripple"] = dict(default_plant().effect("transmission_ripple").to_dict())
+        ripple = default_plant().effect("transmission_ripple")
+        assert ripple is not None  # the default plant has the paper's ripple
+        effects["transmission_ripple"] = dict(ripple.to_dict())
     if "hum" in on:
         effects["periodic_disturbance"] = _hum(np.random.default_rng([seed, 2]), rate)
 
