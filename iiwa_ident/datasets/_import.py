@@ -147,6 +147,23 @@ def _read_column_file(path: Path, column: int | None, every: bool = False) -> np
 SPLIT_LEFT_OUT_ATTR = "split_left_out"
 
 
+def _assemble_log(raw: dict[str, np.ndarray], origin: dict[str, str], joint: int, experiment: str,
+                  sample_rate_hz: float | None, scale: dict[str, float], where: str, split_runs: bool,
+                  robot_model: str | None = None, positions: np.ndarray | None = None) -> Dataset | list[Dataset]:
+    """A log's dataset (:func:`_assemble`), or with ``split_runs`` one per run: a run ends where the time
+    goes back."""
+    if not split_runs:
+        return _assemble(raw, origin, joint, experiment, sample_rate_hz, scale, where, robot_model=robot_model,
+                         positions=positions)
+    runs = []
+    for part in _runs(raw, origin, where, positions):
+        runs.append(_assemble(part.raw, part.origin, joint, experiment, sample_rate_hz, scale, part.where,
+                              robot_model=robot_model, positions=part.positions))
+        if part.left_out:
+            runs[-1].experiment_attrs[SPLIT_LEFT_OUT_ATTR] = part.left_out
+    return runs
+
+
 def _assemble(
     raw: dict[str, np.ndarray],
     origin: dict[str, str],
@@ -155,27 +172,17 @@ def _assemble(
     sample_rate_hz: float | None,
     scale: dict[str, float],
     where: str,
-    split_runs: bool = False,
     robot_model: str | None = None,
     positions: np.ndarray | None = None,
     min_rate_hz: float = MIN_RATE_HZ,
-) -> Dataset | list[Dataset]:
+) -> Dataset:
     """Scale, add or check time, check the rate (``min_rate_hz`` .. :data:`MAX_RATE_HZ`) and build the dataset.
 
     ``raw`` maps signal names (time under ``"t"``) to arrays and ``origin``
     maps them to a description of where they came from, for messages.
-    With ``split_runs``, one dataset per run: a run ends where the time goes back.
     ``positions``: all 7 joints' positions (samples x 7) [rad], kept as the run's pose (the medians,
     ``pose_rad``) and each joint's travel (``joint_travel_rad``).
     """
-    if split_runs:
-        runs = []
-        for part in _runs(raw, origin, where, positions):
-            runs.append(_assemble(part.raw, part.origin, joint, experiment, sample_rate_hz, scale, part.where,
-                                  robot_model=robot_model, positions=part.positions, min_rate_hz=min_rate_hz))
-            if part.left_out:
-                runs[-1].experiment_attrs[SPLIT_LEFT_OUT_ATTR] = part.left_out
-        return runs
     lengths = {name: arr.shape[0] for name, arr in raw.items()}
     if len(set(lengths.values())) > 1:
         listed = ", ".join(f"{origin[name]} has {n} rows" for name, n in lengths.items())
@@ -374,8 +381,8 @@ def import_columns(
             raw[name] = _read_column_file(path, use)
     origin = {name: f"{name} ({path})" for name, path in files.items()}
     where = str(files.get("q_m", next(iter(files.values()))).parent)
-    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, where, split_runs,
-                     robot_model=robot_model, positions=positions)
+    return _assemble_log(raw, origin, joint, experiment, sample_rate_hz, factors, where, split_runs,
+                         robot_model=robot_model, positions=positions)
 
 
 #: A joint whose travel in a run is below this share of another joint's did not move in it.
@@ -502,5 +509,5 @@ def import_csv(
     raw = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
     origin = {name: f"column {mapping[name]!r}" for name in mapping}
     _check_robot(robot_model)
-    return _assemble(raw, origin, joint, experiment, sample_rate_hz, factors, str(path), split_runs,
-                     robot_model=robot_model)
+    return _assemble_log(raw, origin, joint, experiment, sample_rate_hz, factors, str(path), split_runs,
+                         robot_model=robot_model)

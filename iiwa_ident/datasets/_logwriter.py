@@ -297,7 +297,7 @@ class LogWriter:
         rows[head % self._capacity] = row
         head += 1
         self._head = head
-        self._hdr[_HEAD] = head  # publishes the row
+        self._hdr[_HEAD] = head  # type: ignore[index]  # publishes the row; set with _rows, checked above
         return True
 
     @property
@@ -382,7 +382,7 @@ class LogWriter:
                 f"({err.strerror or err})"
             ) from err
         self._shm = shm
-        self._hdr = shm.buf[:_ROWS_OFFSET].cast("q")
+        self._hdr = _shared_buffer(shm)[:_ROWS_OFFSET].cast("q")
         rows = np.ndarray((self._capacity, self._n), dtype=np.float64, buffer=shm.buf, offset=_ROWS_OFFSET)
         rows.fill(0.0)  # touch every page now, not as page faults inside the loop
         self._rows = rows
@@ -424,14 +424,16 @@ class LogWriter:
             raise RuntimeError("LogWriter.ready() before start()")
         if not self._starting:
             return True
-        proc = self._proc
+        proc, conn = self._proc, self._conn
+        if conn is None:
+            raise RuntimeError("LogWriter.ready() before start()")
         try:
-            arrived = self._conn.poll(timeout_s)
+            arrived = conn.poll(timeout_s)
         except (EOFError, OSError):
             arrived = True
         if not arrived and proc.is_alive():
             return False
-        reply = _receive(self._conn, 0.0)
+        reply = _receive(conn, 0.0)
         self._starting = False
         if reply is None or reply[0] != "ready":
             self._abort()
@@ -494,13 +496,15 @@ class LogWriter:
                     pass
                 raise
 
-        conn = self._conn
+        conn, hdr = self._conn, self._hdr
+        if conn is None or hdr is None:
+            raise RuntimeError("LogWriter.close(): the writer was started without its pipe and ring")
         try:
             conn.send(("close", attrs))
         except OSError:  # the writer already exited; its last message may still be queued
             pass
         reply = _receive(conn, _CLOSE_TIMEOUT_S)
-        written = int(self._hdr[_TAIL])
+        written = int(hdr[_TAIL])
         error = None
         if reply is not None and reply[0] == "closed":
             written = int(reply[1])
@@ -634,14 +638,22 @@ def _drop_realtime() -> None:
         pass
 
 
+def _shared_buffer(shm: SharedMemory) -> memoryview:
+    """The shared memory's buffer (there while it is open)."""
+    if shm.buf is None:
+        raise OSError(f"shared memory {shm.name} is closed")
+    return shm.buf
+
+
 class _Sink:
     """The writer's side: SWMR file, ring consumer and flush bookkeeping."""
 
     def __init__(self, shm: SharedMemory, path: str, names: Sequence[str], capacity: int) -> None:
         self.path = path
         self.capacity = capacity
-        self.hdr = shm.buf[:_ROWS_OFFSET].cast("q")
-        self.rows = np.ndarray((capacity, len(names)), dtype=np.float64, buffer=shm.buf, offset=_ROWS_OFFSET)
+        buf = _shared_buffer(shm)
+        self.hdr = buf[:_ROWS_OFFSET].cast("q")
+        self.rows = np.ndarray((capacity, len(names)), dtype=np.float64, buffer=buf, offset=_ROWS_OFFSET)
         self.tail = int(self.hdr[_TAIL])
         self.written = 0
         self.flushed = 0
@@ -676,7 +688,7 @@ class _Sink:
 
     def flush(self) -> None:
         """Flush signals, then the row count, so the count is never ahead of the data."""
-        if self.flushed == self.written:
+        if self.flushed == self.written or self.h5 is None:
             return
         self.h5.flush()
         self.progress[0] = self.written
@@ -694,7 +706,7 @@ class _Sink:
     def release(self) -> None:
         """Close the file and drop every view of the shared memory."""
         self.close_file()
-        self.rows = None
+        self.rows = np.zeros((0, 0))  # drops the view of the shared memory
         self.hdr.release()
 
 

@@ -216,6 +216,8 @@ def import_rosbag(path: Path, joint: int, experiment: str, topic: str | None = N
     if not split_runs:
         return _assemble({**raw, "t": (raw["t"] - raw["t"][0]) * 1e-9}, origin, joint, experiment, None, {}, where,
                          robot_model=robot_model, positions=positions, min_rate_hz=MIN_MESSAGE_RATE_HZ)
+    if states is None or positions is None:  # LBRState messages carry both
+        raise DatasetError(f"{path}: no session states to split runs at")
     runs = _active_runs(states)
     if not runs:
         raise DatasetError(f"{path}: the session is never COMMANDING_ACTIVE: no run to split out")

@@ -243,7 +243,7 @@ class ControllerConfig:
 # ---------------------------------------------------------------------------
 # Running the controller from a config
 # ---------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass
 class _DiscreteDesign:
     """The part of a design :class:`AdditiveController` runs on (the config holds no continuous data)."""
 

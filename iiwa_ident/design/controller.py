@@ -19,33 +19,13 @@ class DiscreteDesign(Protocol):
     """What :class:`AdditiveController` runs on: the discrete model and gains of a design
     (:class:`~iiwa_ident.design.AdditiveDesign`, or a controller config, which holds no continuous data)."""
 
-    @property
-    def Ad(self) -> Any:
-        """[4x4] discrete model of eqs (19)-(21)."""
-
-    @property
-    def Bd(self) -> Any:
-        """[4]."""
-
-    @property
-    def Kd(self) -> Any:
-        """[4] state feedback."""
-
-    @property
-    def Ld(self) -> Any:
-        """[4] observer gain."""
-
-    @property
-    def Kr_d(self) -> float:
-        """Reference gain."""
-
-    @property
-    def feedforward(self) -> str:
-        """The feed-forward mode."""
-
-    @property
-    def ffd(self) -> Any:
-        """Discrete pre-filter (A, B, C, D), or None."""
+    Ad: Any  # [4x4] discrete model of eqs (19)-(21)
+    Bd: Any  # [4]
+    Kd: Any  # [4] state feedback
+    Ld: Any  # [4] observer gain
+    Kr_d: float  # reference gain
+    feedforward: str  # the feed-forward mode
+    ffd: Any  # discrete pre-filter (A, B, C, D), or None
 
 
 class AdditiveController:
