@@ -82,6 +82,8 @@ def evidence_figure(d: Diagnosis, name: str) -> plt.Figure:
     effect's own contribution: what the data say about the effect alone.
     """
     report = d.effect(name)
+    if report is None:
+        raise ValueError(f"evidence figure: the diagnosis names no {name!r}")
     cand = next(c for c in d.selection.selected if c.name == name)
     blocks = [b for b in d.blocks if np.any(d.contribution(b.ctx, b.channel, only=name)[b.mask])][:4]
     fig, axes = plt.subplots(1, max(len(blocks), 1), figsize=(4.2 * max(len(blocks), 1), 4), squeeze=False)

@@ -16,10 +16,11 @@ held-out prediction.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import textwrap
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -100,7 +101,7 @@ def _on_page(fig: plt.Figure, bottom_in: float = 0.2) -> plt.Figure:
     fig.set_size_inches(W, H)
     for ax in fig.axes:
         p = ax.get_position()
-        ax.set_position([x0 + p.x0 * fw, y0 + p.y0 * fh, p.width * fw, p.height * fh])
+        ax.set_position((x0 + p.x0 * fw, y0 + p.y0 * fh, p.width * fw, p.height * fh))
     for txt in fig.texts:
         if txt.get_transform() == fig.transFigure:
             x, y = txt.get_position()
@@ -299,7 +300,7 @@ def _load_experiments(ld: _Loader) -> None:
     for key, stage in (("chirp", "chirp"), ("cv", "constant_velocity"), ("qs", "constant_velocity"),
                        ("hand", "hand_guided")):
         if p[key].is_file() and ld.usable(stage):
-            ld.attempt(stage, lambda key=key: read_dataset(p[key]), key)
+            ld.attempt(stage, functools.partial(read_dataset, p[key]), key)
     if want & {"fit"} and "chirp" in out and ld.usable("fit"):
         ld.attempt("fit", lambda: ld.fit([p["chirp"]]))
     if p["model_ripple"].is_file() and ld.usable("ripple"):
@@ -365,7 +366,7 @@ def _thumbnail(page: Page) -> Any:
         return None
 
 
-def _verdict_page(doc: dict[str, Any], index: list[str], thumbs: list[Page] = ()) -> Page:
+def _verdict_page(doc: dict[str, Any], index: list[str], thumbs: Sequence[Page] = ()) -> Page:
     """Page 1: the banner, one verdict per stage (:mod:`iiwa_ident.report.verdict`), thumbnails of the key
     figures, the warnings, the pages."""
     def draw() -> plt.Figure:
@@ -387,10 +388,10 @@ def _verdict_page(doc: dict[str, Any], index: list[str], thumbs: list[Page] = ()
                          colWidths=[0.11, 0.52, 0.29, 0.08], loc="upper left", cellLoc="left")
         table.auto_set_font_size(False)
         table.set_fontsize(8)
-        lines = [1] + [max(c.count("\n") + 1 for c in row) for row in cells]  # per row, the header first
-        unit = 1.0 / sum(1 + 0.6 * (n - 1) for n in lines)
+        row_lines = [1] + [max(c.count("\n") + 1 for c in row) for row in cells]  # per row, the header first
+        unit = 1.0 / sum(1 + 0.6 * (n - 1) for n in row_lines)
         for (i, j), cell in table.get_celld().items():
-            cell.set_height(unit * (1 + 0.6 * (lines[i] - 1)))
+            cell.set_height(unit * (1 + 0.6 * (row_lines[i] - 1)))
             if i == 0:
                 cell.set_text_props(weight="bold")
             elif j == 3:
@@ -693,7 +694,7 @@ def _diagnose_pages(r: dict[str, Any]) -> list[Page]:
             pages.append(Page("diagnose", f"Residuals before and after: {ctx.name}"
                               f" / {ch}", f"Residual of the {what} with the model before and after the named effects. "
                               "Look for structure that disappears after: what is left should look like noise.",
-                              lambda ctx=ctx, ch=ch: df.residuals_figure(d, ctx.index, ch)))
+                              functools.partial(df.residuals_figure, d, ctx.index, ch)))
     for e in d.effects:
         # What the effect means beyond its curve, as the summary says it: a filter acts on the log only, a load
         # against the description is a payload.
@@ -701,7 +702,7 @@ def _diagnose_pages(r: dict[str, Any]) -> list[Page]:
         pages.append(Page("diagnose", f"Evidence for {e.name}", "Partial residual against the effect's variable "
                           "with the fitted effect. Look for the curve following the binned points."
                           + "".join(f" {x[0].upper()}{x[1:]}." for x in said),
-                          lambda e=e: df.evidence_figure(d, e.name)))
+                          functools.partial(df.evidence_figure, d, e.name)))
     return pages
 
 
@@ -788,7 +789,7 @@ def report_pages(workdir: Path, doc: dict[str, Any] | None, results: dict[str, A
     if stage is not None and stage not in REPORT_STAGES:
         raise IiwaIdentError(f"--stage {stage}: expected one of {', '.join(REPORT_STAGES)}")
     pages: list[Page] = []
-    if stage is None and _measured(doc):
+    if stage is None and doc is not None and _measured(doc):
         pages += [p for p in (_runs_page(doc), _held_out_page(doc)) if p is not None]
     makers = {"fit": (("fit",), lambda: _fit_pages(results, doc)),
               "ripple": (("ripple",), lambda: _ripple_pages(results)),

@@ -49,7 +49,7 @@ def spatial_spectrum_figure(result: RippleResult) -> plt.Figure:
 
 def _spectrum_note(result: RippleResult, period: np.ndarray) -> str:
     """What the spectrum shows, from its own lines: whether the detected period's line is the tallest."""
-    if not result.detected or not len(period):
+    if not result.detected or result.period_rad is None or not len(period):
         return ("No line stands out as a position-periodic deflection would (phase-locked in every pass, noise is "
                 "not): the runs do not show a ripple this method can find.")
     top = float(period[int(np.argmax(result.spectrum_stat))])
@@ -66,9 +66,9 @@ def _spectrum_note(result: RippleResult, period: np.ndarray) -> str:
 def lookup_table_figure(result: RippleResult) -> plt.Figure:
     """Deflection samples folded modulo rho and the lookup tables of each method (like the paper's Fig. 6)."""
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    if not result.detected:
+    rho, lut = result.period_rad, result.lut
+    if not result.detected or rho is None or lut is None:
         return _notice(fig, ax, "no periodic deflection detected")
-    rho = result.period_rad
     colours = {"static": "C0", "dynamic": "C1"}
     # Folded samples averaged in 64 bins per method: the raw samples of a real log are mostly noise.
     edges = np.linspace(0, rho, 65)
@@ -82,11 +82,11 @@ def lookup_table_figure(result: RippleResult) -> plt.Figure:
         centres = 0.5 * (edges[1:] + edges[:-1])
         ax.plot(centres[counts > 0] * 1e3, means[counts > 0] * 1e6, "o", ms=3, alpha=0.6,
                 color=colours.get(name, "C7"), label=f"{name}: folded samples, mean of 64 bins")
-    x = np.arange(len(result.lut)) * rho / len(result.lut)
+    x = np.arange(len(lut)) * rho / len(lut)
     for name, m in result.methods.items():
         ax.plot(x * 1e3, m.lut * 1e6, lw=2, color=colours.get(name, "C7"),
                 label=f"{name} method ({m.n_passes} passes, shift {m.shift_rad * 1e6:.1f} µrad)")
-    ax.plot(x * 1e3, result.lut * 1e6, "k--", lw=1.2, label="table written to the model")
+    ax.plot(x * 1e3, lut * 1e6, "k--", lw=1.2, label="table written to the model")
     ax.set_xlabel("θm mod ρ [mrad]")
     ax.set_ylabel("θm − θj [µrad]")
     ax.set_title(f"Transmission deflection f(θm mod ρ), ρ = {rho:.5f} rad")

@@ -16,6 +16,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Rectangle
 
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.pipeline import reference_of
@@ -147,9 +148,9 @@ def kappa_margin_figure(validation: dict[str, Any], folder: Path) -> plt.Figure:
                          label=f"{'built-in' if loop == 'builtin' else 'additive'} section V.C model {k[key]:.1f}")
     ax_b.set_xticks(range(len(labels)), labels, fontsize=8)
     ax_b.set_yscale("log")
-    shown = [y for line in ax_b.get_lines() for y in line.get_ydata()] + [
-        v for p in ax_b.patches for v in (p.get_y(), p.get_y() + p.get_height())]
-    shown = [float(y) for y in shown if np.isfinite(y) and y > 0]
+    values = [float(y) for line in ax_b.get_lines() for y in np.asarray(line.get_ydata(), float)] + [
+        float(v) for p in ax_b.patches if isinstance(p, Rectangle) for v in (p.get_y(), p.get_y() + p.get_height())]
+    shown = [y for y in values if np.isfinite(y) and y > 0]
     if shown:  # room above for the legend
         ax_b.set_ylim(min(shown) / 1.3, max(shown) * 2.5)
     ax_b.set_ylabel("outer-loop gain kappa [-]")

@@ -97,7 +97,7 @@ def _fit_row(stage: str, h: dict[str, Any]) -> VerdictRow:
         tests += f"; residual {level:.3g} Nm RMS" + (f" (sensor noise {floor:.3g})" if floor is not None else "")
     rejected = bool(rejected) or above
     if z:
-        worst = max(z, key=z.get)
+        worst = max(z, key=lambda k: z[k])
         fig = f"worst {worst} at {z[worst]:.1f} std of the plant (error {params[worst]['error_pct']:+.3g} %){tests}"
         verdict = PASS if z[worst] <= 3 else (WARN if z[worst] <= 6 else FAIL)
         if rejected:
