@@ -8,6 +8,7 @@ import math
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -110,8 +111,9 @@ class _BracketsAsWritten(typer.core.TyperCommand):
         if self.help:
             self.help = escape(reflow_help(self.help))
         for param in self.params:
-            if getattr(param, "help", None):
-                param.help = escape(param.help)
+            option: Any = param  # click's options carry a help text, its arguments not
+            if getattr(option, "help", None):
+                option.help = escape(option.help)
 
 
 class _Analysis(_BracketsAsWritten):

@@ -218,7 +218,8 @@ def _read_log(*, joint: int, experiment: str, column_files: dict[str, str], csv_
         if rosbag is not None:
             return import_rosbag(rosbag, joint=joint, experiment=experiment, topic=topic, split_runs=split_runs,
                                  robot_model=robot)
-        return import_lcm(lcm_log, joint=joint, experiment=experiment, channel=channel, robot_model=robot)
+        if lcm_log is not None:
+            return import_lcm(lcm_log, joint=joint, experiment=experiment, channel=channel, robot_model=robot)
     if csv_file is not None:
         if not csv_map:
             raise IiwaIdentError("--csv needs at least one --map SIGNAL=COLUMN")

@@ -36,7 +36,8 @@ def parse_poles(text: str, option: str) -> list[complex]:
 
 def _pole_text(poles: np.ndarray) -> str:
     """Poles as ``-180 +- 30j, -620`` (one entry per conjugate pair)."""
-    out, seen = [], []
+    out: list[str] = []
+    seen: list[complex] = []
     for z in poles:
         if z.imag < 0 and any(abs(w - z.conjugate()) < 1e-9 * max(1.0, abs(z)) for w in seen):
             continue

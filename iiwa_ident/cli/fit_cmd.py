@@ -113,13 +113,13 @@ def format_fit(result: FitResult) -> str:
         lines.append("nonlinear share per octave band (output power in harmonics 2.. of the sweep)")
         for label, bands in zip(result.labels, result.nonlinear):
             tag = f"  [{Path(label).name}]" if multi else ""
-            for b in bands:
-                share = "     n/a" if not math.isfinite(b.share) else f"{100 * b.share:6.2f} %"
-                if len(b.harmonics) > 1:
-                    ks = f"harmonics 2-{b.harmonics[-1]} measurable"
+            for nb in bands:
+                share = "     n/a" if not math.isfinite(nb.share) else f"{100 * nb.share:6.2f} %"
+                if len(nb.harmonics) > 1:
+                    ks = f"harmonics 2-{nb.harmonics[-1]} measurable"
                 else:
                     ks = "no harmonic inside the sweep"
-                lines.append(f"  {_band(b.lo_hz, b.hi_hz):<16}  {share}  ({ks}){tag}")
+                lines.append(f"  {_band(nb.lo_hz, nb.hi_hz):<16}  {share}  ({ks}){tag}")
     return "\n".join(lines)
 
 
@@ -134,10 +134,10 @@ def format_bla_fit(result: BlaFit) -> str:
     lines.append("realisations' spread beyond it)")
     lines.append("  output  band              lines   noise        nonlinear")
     multi = len(result.labels) > 1
-    for b in result.variance_bands():
-        tag = f"  [{Path(str(b['dataset'])).name}]" if multi else ""
-        lines.append(f"  {b['output']:<6}  {_band(b['lo_hz'], b['hi_hz']):<16}  {b['lines']:5d}   "
-                     f"{b['noise_rel']:<11.3g}  {b['nonlinear_rel']:.3g}{tag}")
+    for row in result.variance_bands():
+        tag = f"  [{Path(str(row['dataset'])).name}]" if multi else ""
+        lines.append(f"  {row['output']:<6}  {_band(float(row['lo_hz']), float(row['hi_hz'])):<16}  {row['lines']:5d}   "
+                     f"{row['noise_rel']:<11.3g}  {row['nonlinear_rel']:.3g}{tag}")
     return "\n".join(lines)
 
 
@@ -216,10 +216,10 @@ def fit_cmd(
         # Prepare every output before writing any, so a failure leaves no partial results.
         json_doc = json_text(result.to_json()) if json_out else None
         written = [write_model(out, joint_model)]
-        if json_doc is not None:
+        if json_doc is not None and json_out is not None:
             written.append(write_atomic(json_out, json_doc))
         for name, data in pngs.items():
-            written.append(write_atomic(figures / name, data))
+            written.append(write_atomic(figures / name, data))  # type: ignore[operator]  # pngs only with --figures
     except IiwaIdentError as err:
         raise fail(str(err)) from None
     except OSError as err:

@@ -44,9 +44,11 @@ def fleet_cmd(
 
     try:
         with progress(f"fleet {stage}: {len(data)} dataset(s)") as shown:
-            doc = run_fleet(stage, data, out, scheduler=scheduler, workers=workers,
-                            progress=lambda done, total, label: (shown.say(f"fleet {stage}: {label}"),
-                                                                 shown.advance(done, total)))
+            def step(done: int, total: int, label: str) -> None:
+                shown.say(f"fleet {stage}: {label}")
+                shown.advance(done, total)
+
+            doc = run_fleet(stage, data, out, scheduler=scheduler, workers=workers, progress=step)
         table = fleet_table(doc)
         # The table beside the JSON (in OUT without one).
         table_path = Path(out) / "fleet.csv" if json_out is None else Path(json_out).with_suffix(".csv")

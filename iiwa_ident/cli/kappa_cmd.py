@@ -9,17 +9,11 @@ import typer
 
 from iiwa_ident._defaults import DEFAULT_PORT, TAU_EXT_SOURCES
 from iiwa_ident.cli._app import app, fail, json_option, write_json
-from iiwa_ident.cli.run_cmd import ft_options
+from iiwa_ident.cli.run_cmd import FtCpfOpt, FtCptOpt, FtHostOpt, FtLeverOpt
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["kappa_cmd", "format_sweep"]
 
-_FT = ft_options()
-# The F/T options as names: typer reads the annotations as strings in this module.
-_FT_HOST = _FT["ft"]
-_FT_LEVER = _FT["ft_lever"]
-_FT_CPF = _FT["ft_cpf"]
-_FT_CPT = _FT["ft_cpt"]
 
 
 def _f(x: Any) -> str:
@@ -66,10 +60,10 @@ def kappa_cmd(
                                          "as a limit cycle [Nm].")] = 5.0,
     holding: Annotated[bool, typer.Option("--i-am-holding-the-arm", help="--target robot: a person holds the "
                                           "arm (the sweep drives the loop until it oscillates).")] = False,
-    ft: _FT_HOST = None,
-    ft_lever: _FT_LEVER = None,
-    ft_cpf: _FT_CPF = 1e6,
-    ft_cpt: _FT_CPT = 1e6,
+    ft: FtHostOpt = None,
+    ft_lever: FtLeverOpt = None,
+    ft_cpf: FtCpfOpt = 1e6,
+    ft_cpt: FtCptOpt = 1e6,
     ft_rate: Annotated[float, typer.Option("--ft-rate", help="The sensor's output rate [Hz] (emulated on "
                                            "--target sim; the prediction's on the robot).")] = 1000.0,
     ft_cutoff: Annotated[float, typer.Option("--ft-cutoff", help="The sensor's low-pass cut-off [Hz], 0: "

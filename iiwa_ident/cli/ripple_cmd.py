@@ -34,12 +34,13 @@ def format_ripple(r: RippleResult) -> str:
         lines.append(f"no periodic nonlinearity: the strongest line has false-alarm probability {r.false_alarm:.2g} "
                      f"(T² = {r.statistic:.1f}); nothing is written as a ripple table")
     else:
+        amplitude = r.amplitude_rad if r.amplitude_rad is not None else math.nan  # set when detected
         lines += [
             f"periodic transmission deflection detected (false-alarm probability {r.false_alarm:.1e})",
             f"  period rho     {r.period_rad:.6f} rad  (std {r.period_std_rad:.1e} rad)",
             f"                 {r.cycles_per_rev:.2f} cycles per joint revolution",
             f"                 {r.period_ticks:.0f} encoder ticks (5.989e-8 rad a tick)",
-            f"  amplitude      {r.amplitude_rad * 1e6:.2f} µrad (half peak-to-peak of the table; std "
+            f"  amplitude      {amplitude * 1e6:.2f} µrad (half peak-to-peak of the table; std "
             + (f"{r.amplitude_std_rad * 1e6:.2f} µrad)" if r.amplitude_std_rad is not None
                else "unknown: fewer than three passes)"),
             f"  link motion    {r.link_motion}",
@@ -122,7 +123,7 @@ def _lines_table(x) -> str:
     return "\n".join(rows)
 
 
-def _run_verdict(run: dict, agree: set, alone: dict) -> str:
+def _run_verdict(run: dict, agree: set, alone: set) -> str:
     """How a run's line stands against the joint's period: it agrees (its fundamental, or a subharmonic seen at
     this speed only whose harmonic is the period's line), it is seen at this speed only, or it disagrees."""
     if run["run"] in agree:

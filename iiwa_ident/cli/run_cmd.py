@@ -36,31 +36,18 @@ def make_sensor(tau_ext: str, ft: Optional[str], lever: Optional[float], counts_
     return NetFtSensor(host, projection, port, Calibration(counts_per_force, counts_per_torque), fault_cycles)
 
 
-def ft_options():
-    """The ``--ft*`` options of the commands that read an F/T sensor, as typer parameters."""
-    return dict(
-        ft=Annotated[Optional[str], typer.Option("--ft", help="--tau-ext ft: the Net F/T's HOST[:PORT] (RDT, "
-                                                 "port 49152).")],
-        ft_lever=Annotated[Optional[float], typer.Option("--ft-lever", help="--tau-ext ft: the sensor's lever "
-                                                         "arm about the joint's axis [m] (default: the flange's "
-                                                         "geometry from the description at the arm's pose).")],
-        ft_cpf=Annotated[float, typer.Option("--ft-counts-per-force", help="--tau-ext ft: the sensor's "
-                                             "counts per N.")],
-        ft_cpt=Annotated[float, typer.Option("--ft-counts-per-torque", help="--tau-ext ft: the sensor's "
-                                             "counts per Nm.")],
-        ft_fault=Annotated[int, typer.Option("--ft-fault-cycles", help="--tau-ext ft: cycles in a row "
-                                             "without a good record that ramp the loop down and end the "
-                                             "run.")],
-    )
+# The ``--ft*`` options of the commands that read an F/T sensor (run, kappa).
+FtHostOpt = Annotated[Optional[str], typer.Option("--ft", help="--tau-ext ft: the Net F/T's HOST[:PORT] (RDT, "
+                                                  "port 49152).")]
+FtLeverOpt = Annotated[Optional[float], typer.Option("--ft-lever", help="--tau-ext ft: the sensor's lever arm about "
+                                                     "the joint's axis [m] (default: the flange's geometry from the "
+                                                     "description at the arm's pose).")]
+FtCpfOpt = Annotated[float, typer.Option("--ft-counts-per-force", help="--tau-ext ft: the sensor's counts per N.")]
+FtCptOpt = Annotated[float, typer.Option("--ft-counts-per-torque", help="--tau-ext ft: the sensor's counts per Nm.")]
+FtFaultOpt = Annotated[int, typer.Option("--ft-fault-cycles", help="--tau-ext ft: cycles in a row without a good "
+                                         "record that ramp the loop down and end the run.")]
 
 
-_FT = ft_options()
-# The F/T options as names: typer reads the annotations as strings in this module.
-_FT_HOST = _FT["ft"]
-_FT_LEVER = _FT["ft_lever"]
-_FT_CPF = _FT["ft_cpf"]
-_FT_CPT = _FT["ft_cpt"]
-_FT_FAULT = _FT["ft_fault"]
 
 
 def format_report(report: RunReport) -> str:
@@ -125,11 +112,11 @@ def run_cmd(
     loop: Annotated[str, typer.Option("--loop", help=f"{' | '.join(LOOPS)}: the deployed controller, or "
                                       "the reference sent as the torque command (the robot's own "
                                       "loop).")] = "additive",
-    ft: _FT_HOST = None,
-    ft_lever: _FT_LEVER = None,
-    ft_cpf: _FT_CPF = 1e6,
-    ft_cpt: _FT_CPT = 1e6,
-    ft_fault: _FT_FAULT = 20,
+    ft: FtHostOpt = None,
+    ft_lever: FtLeverOpt = None,
+    ft_cpf: FtCpfOpt = 1e6,
+    ft_cpt: FtCptOpt = 1e6,
+    ft_fault: FtFaultOpt = 20,
     json_out: Annotated[Optional[Path], json_option("the run report")] = None,
 ) -> None:
     """Execute a deployed controller at 1 kHz: eq (9) correction, spatial filter, improved observer,

@@ -521,8 +521,8 @@ def _solve_kr(make, discrete: bool) -> float:
     return (1.0 - g0) / (g1 - g0)
 
 
-def design_controller(params: JointParameters, poles: Sequence[complex] = PAPER_POLES,
-                      observer_poles: Sequence[complex] = PAPER_OBSERVER_POLES,
+def design_controller(params: JointParameters, poles: Sequence[complex] | np.ndarray = PAPER_POLES,
+                      observer_poles: Sequence[complex] | np.ndarray = PAPER_OBSERVER_POLES,
                       sample_time_s: float = SAMPLE_TIME_S, feedforward: str = "reference",
                       prefilter_hz: float = DEFAULT_PREFILTER_HZ,
                       prefilter_zeta: float = DEFAULT_PREFILTER_ZETA) -> AdditiveDesign:
