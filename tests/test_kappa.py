@@ -129,7 +129,7 @@ class TestLinearModelOfTheDeployedLoop:
                                        atol=1e-12)
             # An F/T sensor without a filter, a spatial filter at standstill: the same loop.
             same = DeployedLoop("ft", ft_cutoff_hz=None, filter=FilterSettings(),
-                                period_rad=filter_period(model.ripple))
+                                ripple_period_rad=filter_period(model.ripple))
             assert max(abs(np.linalg.eigvals(deployed_loop_matrix(p, k, des, loop=same)))) == pytest.approx(
                 max(abs(np.linalg.eigvals(outer_loop_matrix(p, k, des)))), abs=1e-9)
 
@@ -148,7 +148,8 @@ class TestLinearModelOfTheDeployedLoop:
     def test_speed_enters_through_the_spatial_filter(self, model):
         p = JointParameters.from_model(model)
         d = design_controller(p)
-        loop = DeployedLoop("ideal", filter=FilterSettings(), period_rad=filter_period(model.ripple))
+        loop = DeployedLoop("ideal", filter=FilterSettings(),
+                            ripple_period_rad=filter_period(model.ripple))
         m = deployed_margin(p, d, HumanArm(), loop, [0.0, 0.2, 0.45])
         assert m.by_speed[0] == pytest.approx(kappa_max(p, d), rel=1e-3)
         assert m.kappa_max == min(m.by_speed) and m.kappa_max < m.by_speed[0]

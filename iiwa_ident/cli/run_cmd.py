@@ -48,8 +48,6 @@ FtFaultOpt = Annotated[int, typer.Option("--ft-fault-cycles", help="--tau-ext ft
                                          "record that ramp the loop down and end the run.")]
 
 
-
-
 def format_report(report: RunReport) -> str:
     """Human-readable summary of a run, several lines."""
     lines = [f"ran {report.cycles} cycles ({report.duration_s:.3f} s); ended: {report.stop_reason or 'duration'}"]

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -331,7 +331,7 @@ class DeployedLoop:
     speed_rad_s : float
         The joint speed the spatial filter is taken at [rad/s]: at a constant speed it is a linear
         time-invariant filter (a notch at the ripple frequency ``|v| / rho``, weighted by gamma).
-    period_rad : float
+    ripple_period_rad : float
         The ripple period rho the spatial filter works at [rad]: the lookup table's
         (:func:`~iiwa_ident.design.spatial_filter.filter_period`).
     """
@@ -342,7 +342,7 @@ class DeployedLoop:
     KI: float = 25.0
     filter: FilterSettings | None = None
     speed_rad_s: float = 0.0
-    period_rad: float = RIPPLE_PERIOD_RAD
+    ripple_period_rad: float = RIPPLE_PERIOD_RAD
 
     def __post_init__(self) -> None:
         if self.source not in ("ideal", *TAU_EXT_SOURCES):
@@ -404,7 +404,7 @@ def _observer(KI: float, Jl: float, T: float) -> StateSpaceMatrices:
 def _measurement(params: JointParameters, arm: HumanArm, loop: DeployedLoop, T: float, additive: bool,
                  C_j: np.ndarray, C_e: np.ndarray) -> _Measurement:
     """The deployed loop's sensors, observers and filters as one :class:`_Measurement`."""
-    spatial = _spatial_filter(loop.filter, loop.period_rad, loop.speed_rad_s, T)
+    spatial = _spatial_filter(loop.filter, loop.ripple_period_rad, loop.speed_rad_s, T)
     # tau_j as the controller sees it: spatially filtered in the additive controller's feedback, eq (15).
     seen_j = _series(_static(C_j), spatial if additive else _ONE)
     if loop.source in ("ideal", "ft"):
@@ -483,7 +483,6 @@ def deployed_margin(params: JointParameters, design: AdditiveDesign | None, arm:
     """
     uses_speed = loop.filter is not None and (design is not None or loop.source == "estimate")
     speeds = tuple(float(v) for v in speeds_rad_s) if uses_speed else (0.0,)
-    values = tuple(deployed_kappa_max(params, design, arm, DeployedLoop(
-        loop.source, loop.ft_cutoff_hz, loop.ft_rate_hz, loop.KI, loop.filter, v, loop.period_rad), kappa_limit) for v in speeds)
+    values = tuple(deployed_kappa_max(params, design, arm, replace(loop, speed_rad_s=v), kappa_limit) for v in speeds)
     i = int(np.argmin(values))
     return DeployedMargin(values[i], speeds[i], speeds, values)
