@@ -57,9 +57,7 @@ class LimitGuard:
             if abs(cmd.q_cmd) > self.q_max:
                 return self._hold(state, position_mode), f"position command {cmd.q_cmd:.3f} rad is outside +-{self.q_max:.3f} rad"
             return cmd, ""
-        tau = cmd.tau_c
-        if tau is None:
-            return self._hold(state, position_mode), "the command holds neither a torque nor a position"
+        tau = cmd.tau_c if cmd.tau_c is not None else math.nan  # a Command holds a torque or a position
         if not math.isfinite(tau):
             return self._hold(state, position_mode), "torque command is not finite"
         lim = self.limits.torque_nm

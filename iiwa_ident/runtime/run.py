@@ -219,8 +219,7 @@ class ControllerRuntime:
             tau_ext = meas.tau_ext_fri - self._fri_offset
         else:
             sensor = self.sensor
-            if sensor is None:  # refused by the constructor: the F/T source comes with its sensor
-                raise IiwaIdentError("the F/T source needs its sensor")
+            assert sensor is not None  # the constructor refuses the F/T source without its sensor
             sensor.poll()
             tau_ext = sensor.tau
             if sensor.fault:

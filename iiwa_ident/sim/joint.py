@@ -156,8 +156,7 @@ class SimulatedJoint(RobotInterface):
             self._tau_prev = self._feasible(float(command.tau_c), self._tau_prev)
             return _CommandRow(self._tau_prev, 0.0, 0.0)
         self._tau_prev = 0.0
-        if command.q_cmd is None:
-            raise ValueError("a command holds a torque or a position")
+        assert command.q_cmd is not None  # a Command holds a torque or a position
         return _CommandRow(0.0, float(command.q_cmd), 1.0)
 
     # -- measurement model ------------------------------------------------
