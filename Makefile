@@ -54,4 +54,4 @@ clean:
 proto:
 	$(PYTHON) -m venv /tmp/iiwa-ident-protoc
 	/tmp/iiwa-ident-protoc/bin/pip install --quiet 'grpcio-tools==1.85.1'
-	/tmp/iiwa-ident-protoc/bin/python -m grpc_tools.protoc -I. --python_out=. iiwa_ident/fri/messages.proto
+	/tmp/iiwa-ident-protoc/bin/python -m grpc_tools.protoc -I. --python_out=. --pyi_out=. iiwa_ident/fri/messages.proto

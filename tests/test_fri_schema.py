@@ -64,3 +64,14 @@ def test_kuka_field_numbers():
     assert messages["CommandData"]["joint_torque"][0] == 3
     assert messages["IpoData"]["client_command_mode"][0] == 10
     assert messages["MessageHeader"]["message_identifier"] == (1, "uint32", False, True)
+
+
+def test_the_written_enums_are_the_schemas():
+    """protocol's IntEnums (written out for the type checker) hold the schema's members, prefix dropped."""
+    from iiwa_ident.fri import protocol
+
+    _, enums = schema_blocks()
+    for name, members in enums.items():
+        prefix = re.sub(r"(?<!^)(?=[A-Z])", "_", name).upper() + "_"
+        written = {m.name: m.value for m in getattr(protocol, name)}
+        assert written == {k.removeprefix(prefix): v for k, v in members.items()}, name

@@ -26,7 +26,7 @@ def format_summary(report: EmulatorReport) -> str:
     """Human-readable summary of an emulator run, several lines."""
     r = report
     lines = [
-        "session: " + " -> ".join(s.name for s in r.state_sequence()),  # type: ignore[attr-defined]  # an IntEnum of messages.proto
+        "session: " + " -> ".join(s.name for s in r.state_sequence()),
         f"cycles: {r.cycles} ({r.skipped_cycles} skipped), overruns (> 0.5 ms late): {r.overruns}; "
         f"cycle start delay median {_ms(r.cycle_delay_median_s)}, p99 {_ms(r.cycle_delay_p99_s)}, "
         f"max {_ms(r.cycle_delay_max_s)}",
@@ -99,10 +99,8 @@ def _config(plant, client, bind, duration, mode, loss, jitter_ms, duplicate, reo
         bind=parse_host_port(bind, None, "--bind", allow_any_port=True),
         plant=load_plant(plant) if plant else None,
         seed=seed,
-        # The enums' members are made from messages.proto when the module loads.
-        control_mode=ControlMode.JOINT_IMPEDANCE if torque else ControlMode.POSITION,  # type: ignore[attr-defined]
-        client_command_mode=(ClientCommandMode.TORQUE  # type: ignore[attr-defined]
-                             if torque else ClientCommandMode.POSITION),  # type: ignore[attr-defined]
+        control_mode=ControlMode.JOINT_IMPEDANCE if torque else ControlMode.POSITION,
+        client_command_mode=ClientCommandMode.TORQUE if torque else ClientCommandMode.POSITION,
         duration_s=duration,
         faults=faults,
         agent=agent,

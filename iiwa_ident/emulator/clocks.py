@@ -75,7 +75,7 @@ class SentRing:
 
     seq: list[int] = field(default_factory=lambda: [-1] * RING)
     t: list[float] = field(default_factory=lambda: [0.0] * RING)
-    state: list[int] = field(default_factory=lambda: [0] * RING)
+    state: list[SessionState] = field(default_factory=lambda: [SessionState.IDLE] * RING)
 
 
 @dataclass(frozen=True)
@@ -126,11 +126,18 @@ class RealTimeClock:
         self.t0 = 0.0
         #: How late each cycle started after its deadline [s].
         self.delay = Histogram()
-        self.port: ClockPort | None = None
+        self._port: ClockPort | None = None
 
     def connect(self, port: ClockPort) -> None:
         """Give the clock the robot side it drives (the link it uses is built with the clock)."""
-        self.port = port
+        self._port = port
+
+    @property
+    def port(self) -> ClockPort:
+        """The robot side this clock drives (:meth:`connect`)."""
+        if self._port is None:
+            raise RuntimeError("the clock is not connected to a robot side (connect() first)")
+        return self._port
 
     def start(self) -> None:
         self.t0 = time.perf_counter() + 1e-3

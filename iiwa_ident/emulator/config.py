@@ -359,5 +359,5 @@ def resolve_address(address: Any, name: str, allow_any_port: bool) -> tuple[str,
     except (socket.gaierror, UnicodeError) as err:
         raise IiwaIdentError(f"{name} host {host!r} does not resolve to an IPv4 address "
                              f"({getattr(err, 'strerror', None) or err})") from None
-    return info[0][4][0], port
+    return str(info[0][4][0]), port
 

@@ -37,6 +37,7 @@ def _child_main(config: EmulatorConfig, conn, stop_conn) -> None:
     signal.signal(signal.SIGTERM, lambda *_: emulator.stop())
     threading.Thread(target=_watch_stop, args=(stop_conn, emulator), daemon=True).start()
     conn.send(("address", emulator.address))
+    message: tuple[str, str | EmulatorReport]
     try:
         report = emulator.run()
     except Exception as err:  # noqa: BLE001  (any failure must reach the parent as a message)

@@ -115,7 +115,7 @@ import math
 import socket
 from array import array
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -158,6 +158,22 @@ _U32 = 0xFFFFFFFF
 # restarted client rather than a stale answer.
 _STALE_WINDOW = 1000
 _COMMANDING = (SessionState.COMMANDING_WAIT, SessionState.COMMANDING_ACTIVE)
+
+
+class _Brake(NamedTuple):
+    """Where a safety stop's braking ramp began."""
+
+    q: float  # position [rad]
+    v: float  # speed [rad/s]
+    step: int  # simulation step
+
+
+class _Answer(NamedTuple):
+    """A client's answer as the robot side takes it."""
+
+    msg: CommandMessage
+    latency_s: float | None  # since the message it reflects was sent; None: not one of the ring's
+    state: SessionState | None  # the session state of the message it reflects
 
 
 class _ShiftedAgent:
@@ -335,7 +351,7 @@ class RobotEmulator:
         self._positions = self._measured_positions(self._meas)
         self._q_prev = self._meas.q_m  # the previous measurement's position, for the speed [rad]
         self._limits = self._plant.limits
-        self._brake: tuple[float, float, int] | None = None  # safety stop: (q, v, simulation step) at its start
+        self._brake: _Brake | None = None  # the safety stop's ramp
         # The robot's reaction: this cycle, then the input delay of its commands (the simulated joint's).
         self._reaction_s = T + self._robot.delay_substeps * T / self._plant.substeps
         self._closing_s = cfg.closing_s
@@ -351,8 +367,10 @@ class RobotEmulator:
     def _info(self, safety: SafetyState) -> RobotInfo:
         """The robot info the messages carry, in safety state ``safety``."""
         cfg = self.config
-        return RobotInfo(number_of_joints=N_JOINTS, safety_state=safety, drive_state=(DriveState.ACTIVE,) * N_JOINTS,
-                         operation_mode=cfg.operation_mode, control_mode=cfg.control_mode)
+        # protobuf takes an enum field's number; its stubs name only protobuf's own enum types.
+        return RobotInfo(number_of_joints=N_JOINTS, safety_state=safety,  # type: ignore[arg-type]
+                         drive_state=(DriveState.ACTIVE,) * N_JOINTS,  # type: ignore[arg-type]
+                         operation_mode=cfg.operation_mode, control_mode=cfg.control_mode)  # type: ignore[arg-type]
 
     def _record_names(self) -> list[str]:
         names = ["t", "q_m", "tau_j", "tau_ext_fri"]
@@ -427,7 +445,7 @@ class RobotEmulator:
                 self._window.add(0, 0.0)
             else:
                 self._silent = 0
-                self._window.add(1, answer[1] or 0.0)
+                self._window.add(1, answer.latency_s or 0.0)
         elif answer is not None:
             self._silent = 0
         if answer is not None:
@@ -435,15 +453,15 @@ class RobotEmulator:
         if state != SessionState.IDLE:
             self._quality = self._window.quality()
             rep.quality[self._quality.name] += 1
-        self._session(k, answer, error)
+        self._session(k, error)
         state = self._state
         if state == SessionState.COMMANDING_ACTIVE:
             violation = self._limit_violation()
             if violation:
                 self._safety_stop(k, violation)
                 state = self._state
-        if state == SessionState.COMMANDING_ACTIVE and answer is not None and answer[2] == state:
-            cd = answer[0].command_data
+        if state == SessionState.COMMANDING_ACTIVE and answer is not None and answer.state == state:
+            cd = answer.msg.command_data
             self._cmd_pos = tuple(cd.joint_position.value)
             self._cmd_tau = tuple(cd.joint_torque.value) if cd.HasField("joint_torque") else None
         if self._restart_now:
@@ -453,7 +471,7 @@ class RobotEmulator:
         else:
             command = self._command(state)
             if self._rows is not None:
-                self._record(self._meas, command)
+                self._record(self._rows, self._meas, command)
             self._q_prev = self._meas.q_m
             self._meas = meas = self._robot.step(command)
             self._sim_k += 1
@@ -480,8 +498,8 @@ class RobotEmulator:
         self._send_monitoring(meas, state)
         self._due = state != SessionState.IDLE
 
-    def _take_answers(self) -> tuple[tuple[CommandMessage, float | None, int | None] | None, str | None]:
-        """This cycle's newest answer ``(message, latency, state it answers)`` and the first command problem."""
+    def _take_answers(self) -> tuple[_Answer | None, str | None]:
+        """This cycle's newest answer and the first command problem."""
         rep = self._report
         link = self._link
         answer = None
@@ -489,14 +507,14 @@ class RobotEmulator:
         commanding = self._state in _COMMANDING
         inbox, self._inbox = self._inbox, []
         for t_arrival, data, addr, latest in inbox:
-            data = link.receive(data)
-            if data is None:
+            received = link.receive(data)
+            if received is None:
                 continue
             if addr[:2] != self._client:
                 rep.answers_foreign += 1
                 continue
             try:
-                msg = decode_command(data, check=False)  # content: see _check_command
+                msg = decode_command(received, check=False)  # content: see _check_command
             except FriDecodeError:
                 rep.answers_invalid += 1
                 continue
@@ -509,6 +527,8 @@ class RobotEmulator:
             self._client_seq = seq
             reflected = msg.header.reflected_sequence_counter
             slot = reflected & (RING - 1)
+            latency: float | None
+            answered_state: SessionState | None
             if self._ring.seq[slot] == reflected:
                 latency = t_arrival - self._ring.t[slot]
                 answered_state = self._ring.state[slot]
@@ -517,7 +537,7 @@ class RobotEmulator:
                     rep.late_answers += 1
             else:
                 latency = answered_state = None
-            answer = (msg, latency, answered_state)
+            answer = _Answer(msg, latency, answered_state)
             if error is None and commanding and (answered_state is None or answered_state in _COMMANDING):
                 error = self._check_command(msg)
         return answer, error
@@ -544,7 +564,7 @@ class RobotEmulator:
                         f"(limit {limit:g} rad)")
         return None
 
-    def _session(self, k: int, answer, error: str | None) -> None:
+    def _session(self, k: int, error: str | None) -> None:
         """Session drops and state transitions of cycle ``k``."""
         cfg = self.config
         T = self._period
@@ -665,7 +685,7 @@ class RobotEmulator:
         t = k * self._period
         rep.safety_stop, rep.safety_stop_t_s, rep.end_reason = reason, t, "safety_stop"
         v = self._speed()
-        self._brake = (self._meas.q_m, v, self._sim_k)
+        self._brake = brake = _Brake(self._meas.q_m, v, self._sim_k)
         self._robot_info = self._info(SafetyState.SAFETY_STOP_LEVEL_1)
         if self._on_event is not None:
             self._on_event(t, f"safety stop: {reason}")
@@ -674,18 +694,19 @@ class RobotEmulator:
         self._closing_s = max(self.config.closing_s,
                               abs(v) / self.config.brake_decel_rad_s2 + self._reaction_s + BRAKE_SETTLE_S)
         self._enter(k, SessionState.MONITORING_READY)
-        self._hold(self._brake_position(math.inf))
+        self._hold(self._brake_position(brake, math.inf))
 
-    def _brake_position(self, t: float) -> float:
+    def _brake_position(self, brake: _Brake, t: float) -> float:
         """The braking ramp's position ``t`` [s] after the safety stop began [rad]."""
-        q, v, _ = self._brake
+        q, v = brake.q, brake.v
         a = math.copysign(self.config.brake_decel_rad_s2, v)
         t = min(t, abs(v) / self.config.brake_decel_rad_s2)
         return q + v * t - 0.5 * a * t * t
 
     def _command(self, state: SessionState) -> Command:
-        if self._brake is not None:
-            return Command(q_cmd=self._brake_position((self._sim_k - self._brake[2]) * self._period))
+        brake = self._brake
+        if brake is not None:
+            return Command(q_cmd=self._brake_position(brake, (self._sim_k - brake.step) * self._period))
         if state == SessionState.COMMANDING_ACTIVE:
             if self._torque_mode:
                 return Command(tau_c=self._cmd_tau[self._j] if self._cmd_tau is not None else 0.0)
@@ -704,8 +725,7 @@ class RobotEmulator:
         pose[self._j] = meas.q_m
         return tuple(pose)
 
-    def _record(self, meas: Measurement, command: Command) -> None:
-        rows = self._rows
+    def _record(self, rows: dict[str, array], meas: Measurement, command: Command) -> None:
         rows["t"].append(self._t_offset + meas.t)
         rows["q_m"].append(meas.q_m)
         rows["tau_j"].append(meas.tau_j)
@@ -774,16 +794,17 @@ class RobotEmulator:
         rep.cycle_delay_median_s = self._clock.delay.quantile(0.5)
         rep.cycle_delay_p99_s = self._clock.delay.quantile(0.99)
         rep.cycle_delay_max_s = self._clock.delay.max if self._clock.delay.n else None
-        if self._rows is not None:
+        rows, record = self._rows, self.config.record
+        if rows is not None and record is not None:
             try:
-                rep.dataset = write_dataset(self.config.record, self._dataset())
+                rep.dataset = write_dataset(record, self._dataset(rows))
             except IiwaIdentError as err:
                 rep.dataset_error = str(err)
 
-    def _dataset(self) -> Dataset:
+    def _dataset(self, rows: dict[str, array]) -> Dataset:
         cfg = self.config
         rep = self._report
-        signals = {name: np.frombuffer(col, dtype=np.float64).copy() for name, col in self._rows.items()}
+        signals = {name: np.frombuffer(col, dtype=np.float64).copy() for name, col in rows.items()}
         attrs: dict[str, Any] = {
             "emulator": "fri",
             "client_command_mode": ClientCommandMode(cfg.client_command_mode).name,

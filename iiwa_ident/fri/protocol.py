@@ -109,23 +109,95 @@ class FriDecodeError(ValueError):
     """A datagram is not a valid FRI message; ``str(err)`` says what is wrong in one line."""
 
 
-def _schema_enum(name: str, doc: str) -> type[IntEnum]:
-    """The schema's enum ``name`` as an IntEnum, its members without the schema's ``NAME_`` prefix."""
+class SessionState(IntEnum):
+    """State of the FRI session (``ConnectionInfo.session_state``)."""
+
+    IDLE = 0
+    MONITORING_WAIT = 1
+    MONITORING_READY = 2
+    COMMANDING_WAIT = 3
+    COMMANDING_ACTIVE = 4
+
+
+class ConnectionQuality(IntEnum):
+    """Quality of the connection as the robot controller judges it."""
+
+    POOR = 0
+    FAIR = 1
+    GOOD = 2
+    EXCELLENT = 3
+
+
+class SafetyState(IntEnum):
+    """Safety state of the robot."""
+
+    NORMAL_OPERATION = 0
+    SAFETY_STOP_LEVEL_0 = 1
+    SAFETY_STOP_LEVEL_1 = 2
+    SAFETY_STOP_LEVEL_2 = 3
+
+
+class OperationMode(IntEnum):
+    """Operation mode selected on the smartPAD."""
+
+    T1 = 0
+    T2 = 1
+    AUT = 2
+
+
+class DriveState(IntEnum):
+    """State of one joint drive."""
+
+    OFF = 0
+    TRANSITIONING = 1
+    ACTIVE = 2
+
+
+class ControlMode(IntEnum):
+    """Controller running on the robot."""
+
+    POSITION = 0
+    CARTESIAN_IMPEDANCE = 1
+    JOINT_IMPEDANCE = 2
+    NO_CONTROL = 3
+
+
+class ClientCommandMode(IntEnum):
+    """What the client is expected to command."""
+
+    NO_COMMAND = 0
+    POSITION = 1
+    WRENCH = 2
+    TORQUE = 3
+
+
+class OverlayType(IntEnum):
+    """Kind of FRI overlay the robot program started."""
+
+    NO_OVERLAY = 0
+    JOINT = 1
+    CARTESIAN = 2
+
+
+def _schema_members(name: str) -> dict[str, int]:
+    """The schema's enum ``name`` as {member: number}, the members without the schema's ``NAME_`` prefix."""
     prefix = re.sub(r"(?<!^)(?=[A-Z])", "_", name).upper() + "_"
-    values = _pb.DESCRIPTOR.enum_types_by_name[name].values
-    enum = IntEnum(name, [(v.name.removeprefix(prefix), v.number) for v in values], module=__name__)
-    enum.__doc__ = doc
-    return enum
+    return {v.name.removeprefix(prefix): v.number for v in _pb.DESCRIPTOR.enum_types_by_name[name].values}
 
 
-SessionState = _schema_enum("SessionState", "State of the FRI session (``ConnectionInfo.session_state``).")
-ConnectionQuality = _schema_enum("ConnectionQuality", "Quality of the connection as the robot controller judges it.")
-SafetyState = _schema_enum("SafetyState", "Safety state of the robot.")
-OperationMode = _schema_enum("OperationMode", "Operation mode selected on the smartPAD.")
-DriveState = _schema_enum("DriveState", "State of one joint drive.")
-ControlMode = _schema_enum("ControlMode", "Controller running on the robot.")
-ClientCommandMode = _schema_enum("ClientCommandMode", "What the client is expected to command.")
-OverlayType = _schema_enum("OverlayType", "Kind of FRI overlay the robot program started.")
+def _check_enums_match_schema() -> None:
+    # The enums are written out so a type checker sees their members; the schema stays the authority.
+    enums = (SessionState, ConnectionQuality, SafetyState, OperationMode, DriveState, ControlMode,
+             ClientCommandMode, OverlayType)
+    for enum in enums:
+        if {m.name: m.value for m in enum} != _schema_members(enum.__name__):
+            raise ImportError(f"{__name__}: enum {enum.__name__} disagrees with messages.proto")
+    names = {e.__name__ for e in enums}
+    if names != set(_pb.DESCRIPTOR.enum_types_by_name):
+        raise ImportError(f"{__name__}: the schema's enums are not those written here")
+
+
+_check_enums_match_schema()
 
 _MONITOR_ARRAYS = ("measured_joint_position", "measured_torque", "commanded_joint_position", "commanded_torque",
                    "external_torque")

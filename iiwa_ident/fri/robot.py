@@ -54,7 +54,7 @@ def _name(enum, value) -> str:
         return str(value)
 
 
-def required_settings(mode: str) -> tuple[int, int]:
+def required_settings(mode: str) -> tuple[ControlMode, ClientCommandMode]:
     """(control mode, client command mode) the robot must run for ``mode`` ``"torque"`` or ``"position"``."""
     if mode == "torque":
         return ControlMode.JOINT_IMPEDANCE, ClientCommandMode.TORQUE
@@ -219,6 +219,8 @@ class FriRobot(RobotInterface):
             else:
                 if self.mode != "torque":
                     raise SafetyStop("FRI: a torque command in position mode")
+                # Torque mode allocated the torques; a Command without a position holds a torque.
+                assert torques is not None and command.tau_c is not None
                 torques[self.joint - 1] = command.tau_c
         self.connection.answer(msg, positions, torques)
 
