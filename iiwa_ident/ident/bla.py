@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -75,7 +76,7 @@ class BestLinearApproximation:
         """Variance of ``G`` due to the stochastic nonlinear distortions (total less noise, at least 0)."""
         return np.maximum(self.var_total - self.var_noise, 0.0)
 
-    def bands(self, edges_hz: np.ndarray) -> list[dict[str, float | str]]:
+    def bands(self, edges_hz: np.ndarray) -> list[dict[str, Any]]:
         """Per output and band: mean total, noise and nonlinear variance relative to ``|G|^2`` [-].
 
         ``edges_hz`` are the band edges; a band without lines is left out.
@@ -227,7 +228,7 @@ class BlaFit:
     #: The link terms (:data:`LINK_TERMS`) fitted alongside: name -> (value, std) [SI].
     link: dict[str, tuple[float, float]] = field(default_factory=dict)
 
-    def variance_bands(self) -> list[dict[str, float | str]]:
+    def variance_bands(self) -> list[dict[str, Any]]:
         """Per dataset, output and octave band: the BLA's total, noise and nonlinear variance relative to |G|^2."""
         out = []
         for label, bla in zip(self.labels, self.blas):
@@ -382,7 +383,8 @@ def fit_bla(blas: BestLinearApproximation | Sequence[BestLinearApproximation], s
     from iiwa_ident.model import PARAMETER_NAMES
 
     blas = [blas] if isinstance(blas, BestLinearApproximation) else list(blas)
-    Ts = [float(sample_time_s)] * len(blas) if np.ndim(sample_time_s) == 0 else [float(t) for t in sample_time_s]
+    T_given = np.asarray(sample_time_s, dtype=float)
+    Ts = [float(T_given)] * len(blas) if T_given.ndim == 0 else [float(t) for t in T_given]
     if not blas or len(Ts) != len(blas):
         raise IiwaIdentError("fit_bla needs one sample time per BLA, and at least one BLA")
     for bla in blas:

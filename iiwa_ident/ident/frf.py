@@ -207,7 +207,7 @@ def log_bands(f_lo_hz: float, f_hi_hz: float, per_octave: int = 12) -> np.ndarra
 
 def octave_bands(f_lo_hz: float, f_hi_hz: float) -> list[tuple[float, float]]:
     """Octave bands ``[f_lo 2^i, f_lo 2^(i+1))`` covering ``[f_lo_hz, f_hi_hz]``, the last one clipped."""
-    bands = []
+    bands: list[tuple[float, float]] = []
     lo = f_lo_hz
     while lo < f_hi_hz * (1 - 1e-9):
         hi = min(2.0 * lo, f_hi_hz)
@@ -365,6 +365,8 @@ def h1_estimate(u: np.ndarray | None, y: np.ndarray | None, fs: float, f_lo_hz: 
         spacing at low frequency are merged into their neighbours.
     """
     if spectra is None:
+        if u is None or y is None:
+            raise ValueError("h1_estimate needs the samples u and y or their spectra")
         if nperseg is None:
             spectra = multi_resolution_spectra(u, y, fs, f_lo_hz)
         else:
@@ -659,8 +661,8 @@ def nonlinear_share(harm: HarmonicResponses, bands: list[tuple[float, float]] | 
 def levy_fit(G: np.ndarray, s: np.ndarray, iterations: int = 6) -> tuple[np.ndarray, float] | None:
     """Sanathanan-Koerner (iterated Levy) fit of ``(a s + b0) / (s^2 + a s + a0)`` to ``G``; returns ((a, b0, a0), rel. error)."""
     weight = 1.0 / np.abs(G * s**2)
-    x = None
-    for _ in range(iterations):
+    x = np.zeros(3)
+    for _ in range(max(iterations, 1)):
         # a s (1 - G) + b0 - a0 G = G s^2, weighted towards the relative error of G.
         M = np.column_stack([s * (1 - G), np.ones_like(G), -G]) * weight[:, None]
         rhs = G * s**2 * weight

@@ -431,7 +431,8 @@ def fit_idim(datasets: Sequence[Dataset], ripple_period_rad: float | None = None
                 # The searched family may be the second harmonic's: with twice the period and twice the
                 # harmonics the odd ones are new; they are the fundamental's family if they show.
                 double = _with_ripple(records, preps, load, span, double_period, 2 * RIPPLE_HARMONICS, td0)
-                if double is not None and _odd_wald(double.effect("transmission_ripple")) > RIPPLE_CHI2:
+                odd = None if double is None else double.effect("transmission_ripple")
+                if double is not None and odd is not None and _odd_wald(odd) > RIPPLE_CHI2:
                     result = double
     result.lines_hz = lines
     if lines:

@@ -86,12 +86,12 @@ class Prepared:
     q: np.ndarray  # absolute motor position, filtered [rad]
     dq: np.ndarray
     ddq: np.ndarray
-    q_w: np.ndarray  # motor position, velocity, torque reading and its rate through the wider low-pass
+    q_w: np.ndarray  # motor position, velocity, acceleration, torque reading and its rate through the wider low-pass
     dq_w: np.ndarray
+    ddq_w: np.ndarray
     tau_w: np.ndarray
     dtau_w: np.ndarray
     g_cols: list[np.ndarray] = field(default_factory=list)  # the robot model's terms, filtered (see motor_rows)
-    ddq_w: np.ndarray | None = None
     ripple: tuple[float, int] | None = None  # (period [rad], harmonics) of the ripple columns below
     rm_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's motor-side reaction, filtered
     rl_cols: list[np.ndarray] = field(default_factory=list)  # the ripple's link acceleration, filtered
@@ -145,8 +145,8 @@ def prepare_rows(rec: FitRecord, ripple: tuple[float, int] | None = None, lines:
             h, dh = line_of(sp, TSw, f, keep, block)
             tau_w, dtau_w = tau_w - h, dtau_w - dh
     p = Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
-                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, tau_w, dtau_w,
-                  robot_model_terms(sp, q_w, dq_w), ddq_w)
+                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, ddq_w, tau_w, dtau_w,
+                  robot_model_terms(sp, q_w, dq_w))
     if ripple is not None:
         p.ripple = ripple
         p.rm_cols, p.rl_cols = ripple_terms(p, *ripple)

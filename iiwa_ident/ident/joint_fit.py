@@ -163,6 +163,7 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto",
         filtered = _fit_joint(datasets, method, ripple_table, candidate.effect())
     except IiwaIdentError:
         if plain is None:
+            assert refusal is not None  # plain is None only where its fit was refused
             raise refusal from None
         return plain
     assert filtered.log_filter is not None
@@ -253,8 +254,10 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTab
                                        log_filter=log_filter)
         if terms is not None and terms.table is None and ripple is not None:
             # The output-error fit refined the searched period: the later fits and the effect start there.
-            terms = replace(terms, period_rad=result.ripple_period_rad, search=False)
-            ripple.values["period_rad"] = result.ripple_period_rad
+            period = result.ripple_period_rad
+            assert period is not None  # a fit with a searched period reports it
+            terms = replace(terms, period_rad=period, search=False)
+            ripple.values["period_rad"] = period
         if any(idim.known_inputs):
             result = _best_known_inputs(datasets, idim, result, terms)
         if terms is not None:
@@ -272,7 +275,8 @@ def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTab
                                            ripple=terms, log_filter=log_filter)
             except IiwaIdentError:
                 pass
-        _model_error_std(result, oe and oe.parameters, oe and oe.std, "the output-error estimate")
+        _model_error_std(result, None if oe is None else oe.parameters, None if oe is None else oe.std,
+                         "the output-error estimate")
     result.method = method
     result.effects = idim.effects
     result.lines_hz = idim.lines_hz
@@ -291,7 +295,7 @@ def _eq4_only(datasets: Sequence[Dataset], starts: Sequence[Dataset],
             other = fit_idim(starts)
         except IiwaIdentError:
             pass
-    _model_error_std(result, other and other.parameters, other and other.std,
+    _model_error_std(result, None if other is None else other.parameters, None if other is None else other.std,
                      "the inverse-dynamics (IDIM-IV) estimate")
     return result
 

@@ -104,6 +104,13 @@ class SampledInputs:
     RX_slopes: np.ndarray
     substeps: int
 
+    @classmethod
+    def of(cls, parts: Sequence[np.ndarray], substeps: int) -> SampledInputs:
+        """From ``(D, D_means, D_slopes, RX, RX_means, RX_slopes)``, each in Fortran order."""
+        D, D_means, D_slopes, RX, RX_means, RX_slopes = map(np.asfortranarray, parts)
+        return cls(D=D, RX=RX, D_means=D_means, RX_means=RX_means, D_slopes=D_slopes, RX_slopes=RX_slopes,
+                   substeps=substeps)
+
 
 def record_motion(u: np.ndarray, q: np.ndarray, tau: np.ndarray, T: float, params: Any) -> Motion:
     """The motion between samples: the command's modelled response at ``params`` (its speed jumps exact,
@@ -309,8 +316,7 @@ class FitRecord:
                 parts = self._from_motion(self.ripple_signals, substeps)
                 for whole, part in zip((D, D_means, D_slopes, RX, RX_means, RX_slopes), parts):
                     whole[:, :m] = part
-            self._inputs[key] = SampledInputs(*map(np.asfortranarray, (D, RX, D_means, RX_means, D_slopes,
-                                                                       RX_slopes)), substeps)
+            self._inputs[key] = SampledInputs.of((D, D_means, D_slopes, RX, RX_means, RX_slopes), substeps)
         return self._inputs[key]
 
     def table_inputs(self, substeps: int = 1) -> SampledInputs | None:
@@ -325,9 +331,7 @@ class FitRecord:
             else:
                 D, RX = self.table_signals(self.q + self.q0, self.carried)
                 parts = (*_fine_signal(D - D[:1], substeps), *_fine_signal(RX, substeps))
-            D, D_means, D_slopes, RX, RX_means, RX_slopes = parts
-            self._inputs[key] = SampledInputs(*map(np.asfortranarray, (D, RX, D_means, RX_means, D_slopes,
-                                                                       RX_slopes)), substeps)
+            self._inputs[key] = SampledInputs.of(parts, substeps)
         return self._inputs[key]
 
     def _from_motion(self, signals: MotionSignals, substeps: int) -> tuple[np.ndarray, ...]:

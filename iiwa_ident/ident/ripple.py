@@ -210,12 +210,12 @@ def _period_std(passes: list[Pass], k_hat: float, harmonics: int, half: float, p
     groups = np.array_split(np.arange(len(passes)), min(parts, len(passes)))
     if len(groups) < 3:
         return float("nan")
-    estimates = []
-    for g in groups:
-        drop = set(g.tolist())
-        keep = [p for i, p in enumerate(passes) if i not in drop]
-        estimates.append(_best_k(keep, k_hat, half, harmonics, 1e-8, grid=5))
-    estimates = np.asarray(estimates)
+
+    def without(group: np.ndarray) -> list[Pass]:
+        drop = set(group.tolist())
+        return [p for i, p in enumerate(passes) if i not in drop]
+
+    estimates = np.asarray([_best_k(without(g), k_hat, half, harmonics, 1e-8, grid=5) for g in groups])
     m = len(estimates)
     std = float(math.sqrt((m - 1) / m * np.sum((estimates - estimates.mean()) ** 2)))
     if np.any(np.abs(np.abs(estimates - k_hat) - half) < 1e-3 * half):
@@ -429,6 +429,21 @@ def _circular_shift(reference: np.ndarray, other: np.ndarray) -> int:
 
 # --------------------------------------------------------------------------- main entry
 
+@dataclass(frozen=True)
+class _Search:
+    """What :func:`identify_ripple` was asked for (its arguments, same names and units)."""
+
+    K: float
+    Jl: float
+    period_min: float
+    period_max: float
+    bins: int
+    max_harmonics: int
+    min_speed: float
+    false_alarm: float
+    link_motion: str
+
+
 @dataclass
 class _Candidate:
     """One deflection estimate (a choice of link motion) with its line and refined period."""
@@ -448,6 +463,7 @@ class _Candidate:
         spec = self.spectrum
         k, dk = spec.k, spec.dk
         fam = spec.family
+        assert fam is not None  # line_search names the family of every spectrum
         k_star, half = fam.bracket(k, dk)
         # The harmonics the data show (as for the table), at least up to the strongest line: an unmodelled
         # harmonic above a pass's Nyquist limit leaves its mirror image next to a modelled one and pulls the
@@ -473,9 +489,8 @@ class _Candidate:
         self.period_std = std if math.isfinite(std) else math.inf
 
 
-def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, Jl: float, period_max: float, min_speed: float,
-                  min_travel: float, false_alarm: float) -> str:
-    """Why ``c``'s line is a harmonic of a period beyond ``period_max`` ('' when it is not).
+def _beyond_range(datasets: list[Dataset], period: float, link_motion: str, o: _Search) -> str:
+    """Why the line at ``period`` [rad] is a harmonic of a period beyond ``o.period_max`` ('' when it is not).
 
     The passes were high-passed for the searched range, which takes such a fundamental out: they are
     made again for periods up to three times the line's, and the line's halves and thirds tested with
@@ -484,26 +499,28 @@ def _beyond_range(datasets: list[Dataset], c: _Candidate, K: float, Jl: float, p
     """
     passes: list[Pass] = []
     for i, ds in enumerate(datasets):
-        passes += deflection(ds, i, K, Jl, 3.0 * c.period, min_speed, min_travel, link_motion=c.link_motion)
+        passes += deflection(ds, i, o.K, o.Jl, 3.0 * period, o.min_speed, 4.0 * o.period_min,
+                             link_motion=link_motion)
     if not passes:
         return ""
     span = max(p.theta.max() for p in passes) - min(p.theta.min() for p in passes)
     chunks = cut_chunks(passes, span)
     dk = 1.0 / (4.0 * span)
-    k_line = 1.0 / c.period
+    k_line = 1.0 / period
     _, power_line, _ = hotelling(chunks, np.array([k_line]))
     for m in (2, 3):
         kk = k_line / m
-        if 1.0 / kk <= period_max or 1.0 / kk > max(p.period_max for p in passes):
+        if 1.0 / kk <= o.period_max or 1.0 / kk > max(p.period_max for p in passes):
             continue
         grid = kk + dk * np.arange(-25, 26)
-        t2, power, count = hotelling(chunks, grid[grid > 0])
+        t2, power, chunks_counted = hotelling(chunks, grid[grid > 0])
         centre = int(np.argmin(np.abs(grid[grid > 0] - kk)))
         floor = float(np.median(t2))
         t2_c = float(t2[centre]) * min(1.0, math.log(2.0) / max(floor, 1e-300))
-        if false_alarm_probability(t2_c, int(count[centre]), 4.0) < false_alarm and power[centre] >= 0.1 * power_line[0]:
-            return (f"the line at {c.period:.4g} rad looks like harmonic {m} of a period of {1 / kk:.4g} rad, "
-                    f"longer than the longest searched ({period_max:.4g} rad): not a detection; widen "
+        if (false_alarm_probability(t2_c, int(chunks_counted[centre]), 4.0) < o.false_alarm
+                and power[centre] >= 0.1 * power_line[0]):
+            return (f"the line at {period:.4g} rad looks like harmonic {m} of a period of {1 / kk:.4g} rad, "
+                    f"longer than the longest searched ({o.period_max:.4g} rad): not a detection; widen "
                     "--period-max")
     return ""
 
@@ -566,9 +583,9 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     IiwaIdentError
         When no usable motion is found (too short, too slow, standing still).
     """
-    options = dict(K=K, Jl=Jl, period_min=period_min, period_max=period_max, bins=bins, max_harmonics=max_harmonics,
-                   min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
-    pooled = _identify_pooled(datasets, **options)
+    options = _Search(K=K, Jl=Jl, period_min=period_min, period_max=period_max, bins=bins,
+                      max_harmonics=max_harmonics, min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
+    pooled = _identify_pooled(datasets, options)
     if len(datasets) < 2:
         speed = pass_speed(pooled.passes) if pooled.passes else _median_speed(datasets[0]) if datasets else 0.0
         beyond = _beyond_nyquist(pooled, datasets[0], speed) if datasets else None
@@ -580,7 +597,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
         name = str(ds.path) if ds.path else f"run {i + 1}"
         speed = _median_speed(ds)
         try:
-            r = _identify_pooled([ds], **options)
+            r = _identify_pooled([ds], options)
         except IiwaIdentError as err:
             runs.append({"run": name, "speed_rad_s": speed, "detected": False, "usable": False, "reason": str(err)})
             run_lines.append(_run_lines(name, ds, None, speed, options))
@@ -595,7 +612,8 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
                "amplitude_rad": r.amplitude_rad, "warnings": r.warnings, "link_motion": r.link_motion,
                "nyquist_cycles_per_rev": nyquist_cpr}
         beyond = _beyond_nyquist(r, ds, speed)
-        if beyond and r.cycles_per_rev > nyquist_cpr:
+        cpr = r.cycles_per_rev
+        if beyond and cpr is not None and cpr > nyquist_cpr:
             row.update(detected=False, reason=f"{beyond}: an alias; this run does not decide the period")
         elif beyond:
             # The fundamental's own line is below the limit: the run votes, and says what its estimate rests on.
@@ -607,18 +625,19 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     return _with_sensitivity(_decide(result, lines, runs, datasets, options), amplitude_of_interest, options)
 
 
-def _with_sensitivity(result: RippleResult, amplitude_rad: float, options: dict) -> RippleResult:
+def _with_sensitivity(result: RippleResult, amplitude_rad: float, options: _Search) -> RippleResult:
     """The result with what each run detects at its period (the paper's rho where none is detected), for the
     search as it was asked (false-alarm probability, period range)."""
-    cycles = result.cycles_per_rev if result.detected else 2.0 * math.pi / RIPPLE_PERIOD_RAD
+    period = result.period_rad if result.detected else None
+    cycles = 2 * math.pi / (RIPPLE_PERIOD_RAD if period is None else period)
     passes = result.passes
-    if result.detected and result.lut is not None:
+    if period is not None and result.lut is not None:
         # The noise is read off what the table leaves: a strong line's sidelobes would pass for noise.
-        rho, lut = float(result.period_rad), result.lut
+        rho, lut = float(period), result.lut
         x = np.arange(len(lut)) * rho / len(lut)
         passes = [dataclasses.replace(p, f=p.f - np.interp(p.theta, x, lut, period=rho)) for p in passes]
-    result.sensitivity = sensitivity(passes, cycles, amplitude_rad, options["false_alarm"],
-                                     options["period_min"], options["period_max"]) if passes else []
+    result.sensitivity = sensitivity(passes, cycles, amplitude_rad, options.false_alarm,
+                                     options.period_min, options.period_max) if passes else []
     return result
 
 
@@ -660,11 +679,12 @@ def _beyond_nyquist(r: RippleResult, ds: Dataset, speed: float) -> str:
     """Why a detected family may be an alias, or '': the family's strongest line (of its table) lies beyond
     the spatial Nyquist limit at the ``speed`` of the run's passes [rad/s], pi x rate / speed cycles per
     revolution."""
-    if not r.detected or r.lut is None:
+    cpr = r.cycles_per_rev
+    if not r.detected or r.lut is None or cpr is None:
         return ""
     nyquist = math.pi * ds.sample_rate_hz / max(speed, 1e-9)
     h = int(np.argmax(np.abs(np.fft.rfft(r.lut))[1:FAMILY_HARMONICS + 4])) + 1
-    line = h * r.cycles_per_rev
+    line = h * cpr
     if line <= nyquist:
         return ""
     which = "its line" if h == 1 else f"its strongest line, harmonic {h} of {r.cycles_per_rev:.1f},"
@@ -684,7 +704,8 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
     if not detected:
         agreement["verdict"] = "none"
         return pooled
-    if not pooled.detected:
+    period, period_std = pooled.period_rad, pooled.period_std_rad
+    if not pooled.detected or period is None or period_std is None:  # (a detection has both)
         agreement["verdict"] = "disagree"
         agreement["disagree"] = [r["run"] for r in detected]
         pooled.warnings.append("the runs disagree: " + "; ".join(
@@ -692,7 +713,7 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
             + (f"; {len(runs) - len(detected)} of {len(runs)} detect nothing" if len(detected) < len(runs) else "")
             + "; together they detect nothing: the data do not decide")
         return pooled
-    k0, s0 = 1.0 / pooled.period_rad, pooled.period_std_rad / pooled.period_rad ** 2
+    k0, s0 = 1.0 / period, period_std / period ** 2
     fund, stds = [], []
     for r in detected:
         k, sk = 1.0 / r["period_rad"], r["period_std_rad"] / r["period_rad"] ** 2
@@ -715,7 +736,7 @@ def _combine_runs(pooled: RippleResult, runs: list[dict]) -> RippleResult:
     agreement["verdict"] = "agree"
     if len(fund) >= 2:
         mean, spread_std, chi2, dof = _runs_mean(np.asarray(fund), np.asarray(stds))
-        if chi2 is not None:
+        if chi2 is not None and dof is not None:
             birge = math.sqrt(max(1.0, chi2 / dof))
             agreement.update(chi2=chi2, dof=dof, p_value=float(stats.chi2.sf(chi2, dof)), birge_ratio=birge)
         else:
@@ -760,7 +781,7 @@ def _runs_mean(values: np.ndarray, stds: np.ndarray) -> _RunsMean:
 _SEEDS_PER_RUN = 3
 
 
-def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, options: dict) -> RunLines:
+def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, options: _Search) -> RunLines:
     """A run for the cross-run test: its passes (those of its own search, or made here when the search found
     too little motion for itself: a short run still tests a line another run predicts) and its own lines."""
     o = options
@@ -768,9 +789,9 @@ def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, opt
         passes = r.passes
     else:
         try:
-            passes = deflection(ds, 0, o["K"], o["Jl"], o["period_max"], o["min_speed"],
-                                min_travel=4.0 * o["period_min"],
-                                link_motion="restored" if o["link_motion"] == "auto" else o["link_motion"])
+            passes = deflection(ds, 0, o.K, o.Jl, o.period_max, o.min_speed,
+                                min_travel=4.0 * o.period_min,
+                                link_motion="restored" if o.link_motion == "auto" else o.link_motion)
         except IiwaIdentError:
             passes = []
     seeds: list[tuple[float, float]] = []
@@ -793,7 +814,7 @@ def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, opt
 
 
 def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],
-            options: dict) -> RippleResult:
+            options: _Search) -> RippleResult:
     """The period to compensate where lines are reproduced at two speeds or more; else the joint analysis.
 
     The cross-run test's family (:attr:`CrossRunLines.k0`) is the shortest period whose harmonics are all the
@@ -823,14 +844,15 @@ def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datase
         return (f"the period compensated is the shortest whose harmonics are all the lines reproduced at two "
                 f"speeds or more: {2 * math.pi * k:.2f} cycles per revolution (lines at {family})")
 
-    found = _family_result(result, lines, runs, datasets, options)
+    found = _family_result(result, lines, lines.k0, runs, datasets, options)
+    assert found.period_rad is not None  # the family's result is a detection
     lines.k_ref = 1.0 / found.period_rad
     found.warnings += [said(lines.k_ref)] + _line_warnings(lines)
     return found
 
 
-def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],
-                   options: dict) -> RippleResult:
+def _family_result(pooled: RippleResult, lines: CrossRunLines, k0: float, runs: list[dict],
+                   datasets: list[Dataset], options: _Search) -> RippleResult:
     """The family's period refined (grouped, weighted Fourier fit) on the passes of the runs that show its
     lines, its std the larger of the passes' jackknife and the scatter of the runs' own refined periods, and
     its table."""
@@ -838,30 +860,30 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
     support = lines.support
     names = [lines.runs[i].name for i in support]
     h_max = max(h for _, h in lines.harmonics)
-    harmonics = max(1, min(o["max_harmonics"], h_max))
+    harmonics = max(1, min(o.max_harmonics, h_max))
     # A run whose link is measured (static passes) chose nothing: its link motion is neither restored nor neglected.
-    motions = [r.get("link_motion") if r.get("link_motion") in ("restored", "neglected") else "restored"
-               for r in runs if r["run"] in names and r.get("usable", True)]
+    chosen = (str(r.get("link_motion")) for r in runs if r["run"] in names and r.get("usable", True))
+    motions = [m if m in ("restored", "neglected") else "restored" for m in chosen]
     # The link motion most supporting runs chose; a tie is decided as one run's choice is, by the smaller
     # residual of the family's table (not by a set's order, which changes with the interpreter's hash seed).
     most = max((motions.count(m) for m in motions), default=0)
     tied = sorted({m for m in motions if motions.count(m) == most}) or ["restored"]
-    if o["link_motion"] != "auto":
-        tied = [o["link_motion"]]
+    if o.link_motion != "auto":
+        tied = [o.link_motion]
     # The family's fundamental as the runs' tests place its lines (each within its window), and a bracket of
     # half the finest run's resolution cell.
     ks = [t.k / h for c, h in lines.harmonics for t, s in zip(c.tests, c.significant) if s]
-    k_c = float(np.median(ks)) if ks else lines.k0
+    k_c = float(np.median(ks)) if ks else k0
 
     def support_passes(motion: str) -> list[Pass]:
         out: list[Pass] = []
         for j, i in enumerate(support):
-            out += deflection(datasets[i], j, o["K"], o["Jl"], o["period_max"], o["min_speed"],
-                              min_travel=4.0 * o["period_min"], link_motion=motion)
+            out += deflection(datasets[i], j, o.K, o.Jl, o.period_max, o.min_speed,
+                              min_travel=4.0 * o.period_min, link_motion=motion)
         return out
 
     options_passes = {m: support_passes(m) for m in tied}
-    motion = min(tied, key=lambda m: _residual_rms(options_passes[m], 1.0 / k_c, o["max_harmonics"])
+    motion = min(tied, key=lambda m: _residual_rms(options_passes[m], 1.0 / k_c, o.max_harmonics)
                  if options_passes[m] else math.inf)
     passes = options_passes[motion]
     half = 0.5 * min(lines.runs[i].cell for i in support)
@@ -878,12 +900,13 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, runs: list[dict],
         std_k = half / math.sqrt(3.0)  # placed only within the bracket
     # Where the runs' own periods already agreed on this family, their agreement stands and its std (widened by
     # the Birge ratio) is kept when it is the larger.
-    agreed = pooled.detected and pooled.agreement.get("verdict") == "agree" and \
-        abs(1.0 / pooled.period_rad - k_hat) <= 3e-3 * k_hat + 3.0 * pooled.period_std_rad / pooled.period_rad ** 2
-    if agreed:
-        std_k = max(std_k, pooled.period_std_rad / pooled.period_rad ** 2)
+    p, p_std = pooled.period_rad, pooled.period_std_rad
+    agreed = pooled.detected and p is not None and p_std is not None and pooled.agreement.get("verdict") == "agree" \
+        and abs(1.0 / p - k_hat) <= 3e-3 * k_hat + 3.0 * p_std / p ** 2
+    if agreed and p is not None and p_std is not None:
+        std_k = max(std_k, p_std / p ** 2)
     period = 1.0 / k_hat
-    methods, combined = _methods(passes, period, o["max_harmonics"], o["bins"])
+    methods, combined = _methods(passes, period, o.max_harmonics, o.bins)
     for r in runs:
         r.pop("harmonic", None)  # set against the joint analysis's period, which this one replaces
         if r["run"] in names and r["detected"]:
@@ -927,9 +950,10 @@ def _line_warnings(lines: CrossRunLines) -> list[str]:
     return out
 
 
-def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: float, period_max: float, bins: int,
-                     max_harmonics: int, min_speed: float, false_alarm: float, link_motion: str) -> RippleResult:
+def _identify_pooled(datasets: list[Dataset], o: _Search) -> RippleResult:
     """identify_ripple on all runs together, without the per-run analysis."""
+    K, Jl, period_min, period_max, bins = o.K, o.Jl, o.period_min, o.period_max, o.bins
+    max_harmonics, min_speed, false_alarm, link_motion = o.max_harmonics, o.min_speed, o.false_alarm, o.link_motion
     if not 0 < period_min < period_max:
         raise IiwaIdentError("ripple: need 0 < period_min < period_max")
     if bins < 16:
@@ -968,11 +992,15 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
             c.refine(max_harmonics)
     for c in candidates:
         if c.period is not None and 2.0 * c.period > period_max:
-            beyond = _beyond_range(datasets, c, K, Jl, period_max, min_speed, 4.0 * period_min, false_alarm)
+            beyond = _beyond_range(datasets, c.period, c.link_motion, o)
             if beyond:
                 c.period, c.not_decided = None, beyond
     detected = [c for c in candidates if c.period is not None]
-    best = min(detected, key=lambda c: _residual_rms(c.passes, c.period, max_harmonics)) if len(detected) > 1 \
+
+    def misfit(c: _Candidate) -> float:
+        return math.inf if c.period is None else _residual_rms(c.passes, c.period, max_harmonics)
+
+    best = min(detected, key=misfit) if len(detected) > 1 \
         else detected[0] if detected else \
         min(candidates, key=lambda c: c.spectrum.detection_false_alarm(len(candidates)))
     passes, spec = best.passes, best.spectrum
@@ -989,18 +1017,15 @@ def _identify_pooled(datasets: list[Dataset], K: float, Jl: float, period_min: f
                         "periodic effect (once per motor revolution?) below what the table needs")
     fap = spec.detection_false_alarm(len(candidates))
     stat = float(spec.t2[spec.i_best])
-    base = dict(spectrum_k=spec.k, spectrum_stat=spec.t2, spectrum_power=spec.power, passes=passes,
-                warnings=warnings, K=K, Jl=Jl, link_motion=best.name)
-    if best.period is None:
-        return RippleResult(False, None, None, fap, stat, None, None, {}, velocity_table=[], **base)
     period, period_std = best.period, best.period_std
-
+    if period is None:
+        return RippleResult(False, None, None, fap, stat, None, None, {}, spec.k, spec.t2, spec.power, [], passes,
+                            warnings, K, Jl, best.name)
     methods, combined = _methods(passes, period, max_harmonics, bins)
     table = _velocity_table(passes, period)
-    base["warnings"] = warnings + _consistency_warnings(table, combined)
     return RippleResult(True, period, period_std, fap, stat, combined.lut, combined.amplitude_rad, methods,
-                        velocity_table=table,
-                        amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad), **base)
+                        spec.k, spec.t2, spec.power, table, passes, warnings + _consistency_warnings(table, combined),
+                        K, Jl, best.name, amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad))
 
 
 def _finite_or_none(x: float) -> float | None:

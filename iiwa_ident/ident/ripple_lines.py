@@ -383,9 +383,12 @@ class CrossRunLines:
     def temporal(self) -> list[Candidate]:
         """Lines periodic in time, one per frequency in Hz."""
         out: list[Candidate] = []
+        seen: list[float] = []
         for c in self.candidates:
-            if c.temporal_hz is not None and all(abs(c.temporal_hz / d.temporal_hz - 1) > 0.01 for d in out):
+            f = c.temporal_hz
+            if f is not None and all(abs(f / g - 1) > 0.01 for g in seen):
                 out.append(c)
+                seen.append(f)
         return out
 
     def temporal_at(self, k: float) -> float | None:
@@ -488,7 +491,7 @@ def _fraction(q: float) -> str:
 
 
 def cross_run_lines(runs: list[RunLines], false_alarm: float, k_min: float, k_max: float,
-                    extra: list[tuple[float, str]] = ()) -> CrossRunLines:
+                    extra: Sequence[tuple[float, str]] = ()) -> CrossRunLines:
     """Test every candidate line in every run and decide the family to compensate (module docstring).
 
     Parameters

@@ -94,7 +94,7 @@ class Hotelling(NamedTuple):
 
     t2: np.ndarray
     power: np.ndarray
-    count: np.ndarray
+    chunks: np.ndarray
 
 
 def hotelling(chunks, k: np.ndarray) -> Hotelling:

@@ -348,7 +348,7 @@ class _Problem:
 
     def residual(self, x: np.ndarray) -> np.ndarray:
         self.n_evaluations += 1
-        parts = []
+        parts: list[np.ndarray] = []
         p, lf = self.x_to_params(x), self.log_filter(x)
         for i, (r, weights) in enumerate(zip(self.records, self._weights)):
             y = self._outputs(i, p, lf)
@@ -753,11 +753,11 @@ def _warnings(result_std: dict[str, float], values: dict[str, float], bands: lis
                        f"by {b.z_rms:.1f} times its uncertainty ({100 * b.rel_error:.1f} % RMS)")
     for label, bands_nl in zip(labels, nonlinear):
         where = f"{label}: " if len(labels) > 1 else ""
-        for b in bands_nl:
-            if math.isfinite(b.share) and b.share > _NONLINEAR_WARN:
-                ks = [k for k in b.harmonics if k > 1]
-                out.append(f"{where}the joint is not linear in band {_fmt_band(b.lo_hz, b.hi_hz)}: "
-                           f"{100 * b.share:.0f} % of the output power is in harmonics {ks[0]}-{ks[-1]}")
+        for nb in bands_nl:
+            if math.isfinite(nb.share) and nb.share > _NONLINEAR_WARN:
+                ks = [k for k in nb.harmonics if k > 1]
+                out.append(f"{where}the joint is not linear in band {_fmt_band(nb.lo_hz, nb.hi_hz)}: "
+                           f"{100 * nb.share:.0f} % of the output power is in harmonics {ks[0]}-{ks[-1]}")
     return out
 
 
@@ -925,7 +925,7 @@ def _covariance(problem: _Problem, x: np.ndarray, ripple: RippleTerms | None, or
     J = problem.jacobian(x)
     r = problem.residual(x)
     searched = ripple is not None and ripple.table is None
-    if searched:
+    if ripple is not None and searched:
         # The period was fitted too: its column, so that the parameters' std carry its uncertainty.
         J = np.column_stack([J, _period_column(problem, x, ripple)])
     F = np.einsum("ki,kj->ij", J, J)
@@ -986,7 +986,9 @@ class _RecordChecks:
 def _record_checks(problem: _Problem, x: np.ndarray, records: list[FitRecord], values: dict[str, float],
                    lf: TorqueLogFilter | None) -> _RecordChecks:
     """What each record says of the fit at ``x`` (:class:`_RecordChecks`)."""
-    noise, frfs, model_frfs, bands, harmonics, nonlinear, tests = [], [], [], [], [], [], []
+    checks = _RecordChecks([], [], [], [], [], [], [])
+    noise, frfs, model_frfs, bands = checks.noise, checks.frf, checks.model_frf, checks.bands
+    harmonics, nonlinear, tests = checks.harmonics, checks.nonlinear, checks.tests
     for rec, (e_t, e_q), y_ripple in zip(records, problem.unweighted(x), problem.ripple_response(x)):
         noise.append({"tau_j_nm": float(np.sqrt(np.mean(e_t**2))), "q_m_rad": float(np.sqrt(np.mean(e_q**2)))})
         tests.append(residual_tests(e_t, rec.u) if len(e_t) == len(rec.u) else None)
@@ -997,8 +999,11 @@ def _record_checks(problem: _Problem, x: np.ndarray, records: list[FitRecord], v
             plain = replace(plain, tau=plain.tau - y_ripple[0], q=plain.q - y_ripple[1], spectra=None)
         est_t, _ = record_frf(plain, delay_s=values["Td"])
         dm = discretize(values, rec.T)
-        model = est_t.band_average(lambda f, dm=dm, T=rec.T: dm.frequency_response(f)[0] * (
-            1.0 if lf is None else lf.frequency_response(f, T)))
+
+        def response(f: np.ndarray, dm: Any = dm, T: float = rec.T) -> np.ndarray:
+            return dm.frequency_response(f)[0] * (1.0 if lf is None else lf.frequency_response(f, T))
+
+        model = est_t.band_average(response)
         frfs.append(est_t)
         model_frfs.append(model)
         bands.extend(_band_quality(rec.label, est_t, model, rec.f_lo, rec.f_hi))
@@ -1011,7 +1016,7 @@ def _record_checks(problem: _Problem, x: np.ndarray, records: list[FitRecord], v
         else:
             harmonics.append(None)
             nonlinear.append([])
-    return _RecordChecks(noise, frfs, model_frfs, bands, harmonics, nonlinear, tests)
+    return checks
 
 
 def _fit_warnings(records: list[FitRecord], checks: _RecordChecks, std_d: dict[str, float],
@@ -1108,13 +1113,9 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
     # Noise levels for comparing the starts: from the best start's residuals.
     x_first = _Problem.params_to_x([starts[0][k] for k in PARAMETER_NAMES], fc0)
     problem.reweight(x_first, per_block=False)
-    best = None
-    for cand in starts[:max_starts]:
-        x0 = _Problem.params_to_x([cand[k] for k in PARAMETER_NAMES], fc0)
-        sol = _solve(problem, x0, max_iterations=40 if refine else 0)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    x = best.x
+    sols = [_solve(problem, _Problem.params_to_x([cand[k] for k in PARAMETER_NAMES], fc0),
+                   max_iterations=40 if refine else 0) for cand in starts[:max_starts]]
+    x = min(sols, key=lambda sol: sol.cost).x  # the first of equal costs, as the starts are ordered
     _set_motion(problem, x)  # the ripple's inputs between samples, from the command's response at the estimate
     if refine and ripple is not None and ripple.table is None and ripple.search:
         ripple = _refined_period(problem, x, ripple)  # the outer iterations solve at it
