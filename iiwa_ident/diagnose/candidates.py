@@ -225,8 +225,9 @@ class CandidateEffect:
     name: ClassVar[str] = ""
     #: One line of meaning.
     summary: ClassVar[str] = ""
-    #: Parameters found by search rather than least squares (counted by the information criterion).
-    n_nonlinear: ClassVar[int] = 0
+    #: Parameters found by search rather than least squares (counted by the information criterion); a
+    #: candidate whose search frees more or fewer of them sets its own.
+    n_nonlinear: int = 0
 
     #: Whether the candidate is the plant effect of its name (:attr:`effect`); False for the model's own parameters.
     is_effect: ClassVar[bool] = True
@@ -260,6 +261,14 @@ class CandidateEffect:
     def _default_effect(self) -> Effect:
         return make_effect(self.name)
 
+    @property
+    def plant(self) -> Effect:
+        """The plant effect at the current nonlinear parameters (:attr:`effect`); TypeError for a candidate that
+        is none (the model's own parameters)."""
+        if self.effect is None:
+            raise TypeError(f"{self.name} is not a plant effect")
+        return self.effect
+
     def signals(self, ctx: Context) -> EffectSignals:
         """The dataset's signals as the effects' regressors take them (the wide-band link velocity)."""
         return EffectSignals(ctx.t, ctx.q_m, ctx.theta_l, ctx.omega_fast, ctx.tau, ctx.index, max(self.n_datasets, 1))
@@ -270,7 +279,7 @@ class CandidateEffect:
 
     def n_columns(self) -> int:
         """Number of linear coefficients (after :meth:`prepare`): the effect's, per dataset where it has its own."""
-        return len(self.effect.coefficients()) * (self.n_datasets if self.per_dataset else 1)
+        return len(self.plant.coefficients()) * (self.n_datasets if self.per_dataset else 1)
 
     def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         """Find nonlinear parameters on the current (weighted, masked) residuals.
@@ -282,16 +291,16 @@ class CandidateEffect:
 
     def columns(self, ctx: Context) -> list[Column]:
         """The effect's columns for one dataset (exactly :meth:`n_columns` of them): the plant effect's."""
-        return self.effect.columns(self.signals(ctx))
+        return self.plant.columns(self.signals(ctx))
 
     # -- results -------------------------------------------------------------
     def parameters(self, coef: np.ndarray) -> dict[str, float]:
         """The reported parameters (module docstring) from fitted coefficients: the plant effect's."""
-        return self.effect.reported(coef)
+        return self.plant.reported(coef)
 
     def extend(self, model: JointModel, coef: np.ndarray) -> None:
         """Add the effect with these coefficients to ``model`` (in place), brought into the plant-file ranges."""
-        self._replace_effect(model, self.effect.clip(self.effect.values_from(coef)))
+        self._replace_effect(model, self.plant.clip(self.plant.values_from(coef)))
 
     def total(self, coef: np.ndarray) -> np.ndarray:
         """Fitted coefficients (a correction where the model has the effect) with the model's own values added."""
@@ -333,7 +342,7 @@ class CandidateEffect:
         if self.effect is None:
             return None
         self.effect = make_effect(self.name, values)
-        return self.effect.coefficients()
+        return self.plant.coefficients()
 
     def evidence(self, blocks: Sequence[Block]) -> EvidenceChannel | None:
         """The effect's own evidence channel at its current nonlinear parameters (after :meth:`prepare`).
@@ -449,7 +458,7 @@ class TransmissionRippleCandidate(CandidateEffect):
         return TransmissionRipple.shape(TransmissionRipple.params[0].default, self.harmonics)
 
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         if self._found is None:
             self._found = self._identify(blocks)
@@ -463,15 +472,15 @@ class TransmissionRippleCandidate(CandidateEffect):
         def sse(rho: float) -> float:
             self.period = rho
             total = _sse_of(blocks, residuals, self.columns, self.n_columns()) / sse0
-            if own0 > 0:
-                ev = self._evidence_at(rho)
+            ev = self._evidence_at(rho) if own0 > 0 else None  # (None only where ev0 was)
+            if ev is not None:
                 total += block_sse(ev.X, ev.y)[0] / own0
             return total
 
         self.period = _search_1d(sse, rho0 * (1 + np.linspace(-3e-3, 3e-3, 13)))
         return True
 
-    def evidence(self, blocks):
+    def evidence(self, blocks: Sequence[Block]) -> EvidenceChannel | None:
         return self._evidence_at(self.period) if self.period > 0 else None
 
     def _evidence_at(self, period: float) -> EvidenceChannel | None:
@@ -544,32 +553,32 @@ class TransmissionRippleCandidate(CandidateEffect):
         except IiwaIdentError:
             # No constant-speed motion: a deflection cannot be told from other effects.
             return _Identified(0.0, {}, [], None)
-        if not r.detected:
+        if not r.detected or r.period_rad is None:
             return _Identified(0.0, {}, [], None)
         return _Identified(float(r.period_rad), {"false_alarm_probability": r.false_alarm,
                                                  "period_from_identification_rad": r.period_rad},
                            list(r.passes), float(r.false_alarm))
 
-    def columns(self, ctx):
+    def columns(self, ctx: Context) -> list[Column]:
         return TransmissionRipple.shape(self.period, self.harmonics).columns(self.signals(ctx))
 
     free_shape = "harmonics 1-6 of the period"
 
-    def free_columns(self, ctx):
+    def free_columns(self, ctx: Context) -> list[Column]:
         return TransmissionRipple.shape(self.period, 6).columns(self.signals(ctx))  # the own three first
 
-    def from_values(self, values):
+    def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
         return None  # the model's deflection is its ripple table, corrected on the motor position already
 
-    def parameters(self, coef):
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
         return TransmissionRipple.shape(self.period, self.harmonics).reported(coef)
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # A strain-wave gear's transmission error is about an arcminute: a deflection ripple many times that is
         # some other torque at the line's frequency (a log filter's column of a fast line, divided by its gain).
         return self.parameters(coef)["amplitude_rad"] <= RIPPLE_MAX_AMPLITUDE_RAD
 
-    def extend(self, model, coef):
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
         lut = TransmissionRipple.table(coef, 256)
         old = model.ripple
         if old is not None and abs(old.period_rad / self.period - 1) < 2e-3:
@@ -582,7 +591,7 @@ class TransmissionRippleCandidate(CandidateEffect):
             "amplitude_rad": float(np.ptp(lut) / 2), "method": "diagnose",
             **{k: float(v) for k, v in self.detail.items() if v is not None}})
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         return np.mod(ctx.q_m, self.period), f"q_m mod {self.period:.5f} rad [rad]"
 
 
@@ -609,7 +618,7 @@ class LinkFrictionCandidate(CandidateEffect):
         #: The one speed the data move at [rad/s], where their speeds do not separate Coulomb from viscous.
         self.one_speed: float | None = None
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         # Runs at one speed (back and forth) show the friction at that speed only: the Coulomb and viscous
         # columns are then nearly proportional, and their split is set by the reversals' few samples (a large
@@ -625,14 +634,14 @@ class LinkFrictionCandidate(CandidateEffect):
                 self.detail["one_speed_rad_s"] = self.one_speed
         return True
 
-    def n_columns(self):
+    def n_columns(self) -> int:
         return 1 if self.one_speed is not None else 2
 
-    def columns(self, ctx):
+    def columns(self, ctx: Context) -> list[Column]:
         cols = super().columns(ctx)
         return cols[:1] if self.one_speed is not None else cols
 
-    def total(self, coef):
+    def total(self, coef: np.ndarray) -> np.ndarray:
         base = self.base_coef
         if self.one_speed is not None and base is not None and len(base) == 2 and len(coef) == 1:
             # The model's friction at that speed, as Coulomb, plus the correction.
@@ -645,24 +654,24 @@ class LinkFrictionCandidate(CandidateEffect):
         coef = np.asarray(coef, float)
         return np.array([coef[0], 0.0]) if len(coef) == 1 else coef
 
-    def parameters(self, coef):
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
         return super().parameters(self._two(coef))
 
-    def extend(self, model, coef):
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
         super().extend(model, self._two(coef))
 
-    def free_columns(self, ctx):
+    def free_columns(self, ctx: Context) -> list[Column]:
         w = ctx.omega_fast
-        sign = np.tanh(w / self.effect.values["smoothing_rad_s"])
+        sign = np.tanh(w / self.plant.values["smoothing_rad_s"])
         return self.columns(ctx) + [[("link", -sign * np.exp(-(w / vs) ** 2))] for vs in (0.01, 0.03, 0.1, 0.3)] \
             + [[("link", -w * np.abs(w))]]
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # Friction dissipates: a clearly negative level is some other misfit.
         coef = self._two(coef)
         return coef[0] > -0.05 and coef[1] > -0.05
 
-    def other_shape(self, coef):
+    def other_shape(self, coef: np.ndarray) -> str:
         # A friction that is larger at standstill than the Coulomb-plus-viscous line: a negative slope.
         coef = self._two(coef)
         if coef[0] > 0.05 and coef[1] <= -0.05:
@@ -670,7 +679,7 @@ class LinkFrictionCandidate(CandidateEffect):
                     "which the Coulomb-plus-viscous shape does not have")
         return ""
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         return ctx.omega_l, "link velocity [rad/s]"
 
 
@@ -689,15 +698,15 @@ class PositionDependentLoadCandidate(CandidateEffect):
 
     free_shape = "harmonics 1-3 of the link angle"
 
-    def free_columns(self, ctx):
+    def free_columns(self, ctx: Context) -> list[Column]:
         th = ctx.theta_l
         return self.columns(ctx) + [[("link", fn(k * th))] for k in (2, 3) for fn in (np.sin, np.cos)]
 
-    def extend(self, model, coef):
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
         super().extend(model, coef)
-        self.detail["compensated"] = self.effect.values_from(coef)["compensated"]
+        self.detail["compensated"] = self.plant.values_from(coef)["compensated"]
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # The robot compensates a fraction c in [0, 1] of the load it knows: its columns carry -c times the
         # link's. Far more there than on the link is a constant or a slope of the command channel, not a load.
         # Where the robot is described, the amplitude must be a gravity load the arm can have at its pose
@@ -713,7 +722,7 @@ class PositionDependentLoadCandidate(CandidateEffect):
 
     alike = ("link_spring",)
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         return ctx.theta_l, "link position [rad]"
 
 
@@ -746,7 +755,7 @@ class LinkSpringCandidate(CandidateEffect):
         #: Whether the curvature is fitted (a spring the model carries acts with all its terms).
         self.curved = True
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         th = np.concatenate([b.ctx.theta_l[b.mask] for b in blocks])
         self._travel = (float(th.min()), float(th.max())) if len(th) else (0.0, 0.0)
@@ -756,13 +765,13 @@ class LinkSpringCandidate(CandidateEffect):
         self.curved = self.ranges is not None and self.ranges.load_nm[1] <= SPRING_CURVED_MAX_LOAD_NM
         return self._travel[1] > self._travel[0]
 
-    def n_columns(self):
+    def n_columns(self) -> int:
         return 3 if self.curved else 2
 
-    def columns(self, ctx):
+    def columns(self, ctx: Context) -> list[Column]:
         return super().columns(ctx)[:self.n_columns()]
 
-    def total(self, coef):
+    def total(self, coef: np.ndarray) -> np.ndarray:
         base = self.base_coef
         return coef + base[:len(coef)] if base is not None else coef
 
@@ -773,27 +782,27 @@ class LinkSpringCandidate(CandidateEffect):
             return np.asarray(coef, float)
         return np.array([*coef, float(self.base_coef[2]) if self.base_coef is not None else 0.0])
 
-    def parameters(self, coef):
-        return self.effect.reported(self._full(coef))
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
+        return self.plant.reported(self._full(coef))
 
-    def extend(self, model, coef):
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
         super().extend(model, self._full(coef))
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # A spring that restores at its rest angle, no stiffer than cables make, the rest angle one the model file
         # holds (beyond, it is an offset and a slope).
-        v = self.effect.values_from(self._full(coef))
-        rest = next(p for p in self.effect.params if p.name == "rest_rad")
+        v = self.plant.values_from(self._full(coef))
+        rest = next(p for p in self.plant.params if p.name == "rest_rad")
         return 0.0 < v["stiffness_nm_rad"] <= SPRING_MAX_NM_RAD and rest.lower <= v["rest_rad"] <= rest.upper
 
-    def relevant(self, coef):
+    def relevant(self, coef: np.ndarray) -> bool:
         # Its slope must show over the travel beside its torque there; else it is a constant (an offset's shape).
         k, c = float(coef[0]), float(coef[1])
         lo, hi = self._travel
         mid = -k * 0.5 * (lo + hi) + c
         return abs(k) * (hi - lo) >= SPRING_MIN_SLOPE_SHARE * abs(mid)
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         return ctx.theta_l, "link position [rad]"
 
 
@@ -807,20 +816,20 @@ class TorqueSensorOffsetCandidate(CandidateEffect):
 
     _split = True  # both columns, until prepare() finds no command channel
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         # Where the loop sees the offset and where it does not differ only in the torque response to a
         # command: without one, the whole offset is taken as the loop's (the second column left empty).
         self._split = any(b.channel == "command" for b in blocks)
         return True
 
-    def columns(self, ctx):
+    def columns(self, ctx: Context) -> list[Column]:
         cols = super().columns(ctx)
         return cols if self._split else [cols[0], [("logged", np.zeros_like(ctx.t))]]
 
     free_shape = "an offset and a drift of its own in each dataset"
 
-    def free_columns(self, ctx):
+    def free_columns(self, ctx: Context) -> list[Column]:
         return self.columns(ctx) + own_dataset_columns(self.signals(ctx), "sensor",
                                                        [np.ones_like(ctx.t), ctx.t - ctx.t[0]])
 
@@ -843,16 +852,16 @@ class TorqueSensorScaleCandidate(CandidateEffect):
     name = "torque_sensor_scale"
 
 
-    def relevant(self, coef):
+    def relevant(self, coef: np.ndarray) -> bool:
         # A scale within SCALE_RELEVANT of 1 is below a torque sensor's calibration (and the 1 % the diagnosis is
         # held to): what a filter's or a table's small misfit leaves in the fast band, not a finding.
-        return abs(self.effect.values_from(coef)["scale"] - 1.0) >= SCALE_RELEVANT
+        return abs(self.plant.values_from(coef)["scale"] - 1.0) >= SCALE_RELEVANT
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # A torque sensor off by more than a factor 1.5 is not a calibration error.
-        return coef[0] < 1 and 0.67 <= self.effect.values_from(coef)["scale"] <= 1.5
+        return coef[0] < 1 and 0.67 <= self.plant.values_from(coef)["scale"] <= 1.5
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         return ctx.tau, "measured joint torque [Nm]"
 
 
@@ -892,6 +901,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
 
     name = "torque_log_filter"
     n_nonlinear = 1
+    effect: TorqueLogFilter
 
     def __init__(self) -> None:
         super().__init__()
@@ -930,10 +940,10 @@ class TorqueLogFilterCandidate(CandidateEffect):
         """The shape's low-frequency lag [s] (:attr:`TorqueLogFilter.lag_s`)."""
         return self.effect.lag_s
 
-    def n_columns(self):
+    def n_columns(self) -> int:
         return 1
 
-    def columns(self, ctx):
+    def columns(self, ctx: Context) -> list[Column]:
         col: Column = []
         named = self._named.get(ctx.index, {}) if ctx.log_filter is None else {}
         for ch, point in (("command", "command_raw"), ("link", "link_raw")):
@@ -959,7 +969,7 @@ class TorqueLogFilterCandidate(CandidateEffect):
             out[ctx.index] = acc
         return out
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         self._named = self._sum_named(blocks)
         fs = 1.0 / max(b.ctx.dt for b in blocks)
@@ -998,28 +1008,28 @@ class TorqueLogFilterCandidate(CandidateEffect):
                        **{f"sse_{k.replace(' ', '_')}_vs_best": v[1] / low if low > 0 else 1.0 for k, v in best.items()}}
         return True
 
-    def parameters(self, coef):
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
         return self.effect.reported(coef)
 
-    def extend(self, model, coef):
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
         self._replace_effect(model, self.effect.clip(self.effect.to_dict()))
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # The column is the filter's whole action: a coefficient far from 1 is some other lag or misfit. Named
         # after other effects, their unfiltered columns trade with it (1.32-1.57 on the real joint 1, whose second
         # pass, the filter held whole, then predicts the held-out runs at 9-10 %): the screen is that wide.
         return 0.5 <= float(coef[0]) <= 1.5
 
-    def carried(self, coef):
+    def carried(self, coef: np.ndarray) -> np.ndarray:
         # The model file holds the cut-off: the filter acts whole.
         return np.ones_like(coef)
 
-    def from_values(self, values):
-        self.effect = make_effect(self.name, values)
+    def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
+        self.effect = TorqueLogFilter(values, f"effects.{self.name}")
         self.shape = {0.0: "pure delay", 1.0: "first order", 2.0: "second order"}[self.effect.values["order"]]
         return np.array([1.0])
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         return ctx.t, "time [s]"
 
 
@@ -1035,6 +1045,7 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
 
     name = "periodic_disturbance"
     n_nonlinear = 1
+    effect: PeriodicDisturbance
 
     @property
     def frequency(self) -> float:
@@ -1049,7 +1060,7 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
 
     per_dataset = True
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         # Per dataset, the fullest-band channel: the command channel when there is one.
         best: dict[int, tuple[Block, np.ndarray]] = {}
@@ -1084,14 +1095,15 @@ class PeriodicDisturbanceCandidate(CandidateEffect):
 
     free_shape = "harmonics 1-3 of the frequency"
 
-    def free_columns(self, ctx):
+    def free_columns(self, ctx: Context) -> list[Column]:
         sig = self.signals(ctx)
         return self.columns(ctx) + self.effect.harmonic_columns(sig, 2) + self.effect.harmonic_columns(sig, 3)
 
-    def from_values(self, values):
-        return np.tile(super().from_values(values), self.n_datasets)
+    def from_values(self, values: dict[str, Any]) -> np.ndarray | None:
+        coef = super().from_values(values)
+        return None if coef is None else np.tile(coef, self.n_datasets)
 
-    def evidence_axis(self, ctx):
+    def evidence_axis(self, ctx: Context) -> tuple[np.ndarray, str]:
         period = 1.0 / self.frequency
         return np.mod(ctx.t - ctx.t[0], period), f"time mod {period * 1e3:.2f} ms [s]"
 
@@ -1163,7 +1175,7 @@ class ModelParametersCandidate(CandidateEffect):
         self._predictions: dict[tuple, np.ndarray] = {}
 
 
-    def n_columns(self):
+    def n_columns(self) -> int:
         return 1
 
     def _changes(self, ctx: Context, params: dict[str, float]) -> dict[str, np.ndarray]:
@@ -1181,7 +1193,7 @@ class ModelParametersCandidate(CandidateEffect):
             out[ch] = self._predictions[key]
         return out
 
-    def prepare(self, blocks, residuals) -> bool:
+    def prepare(self, blocks: Sequence[Block], residuals: Sequence[np.ndarray]) -> bool:
         super().prepare(blocks, residuals)
         self._predictions = {}
         self._model = dict(blocks[0].ctx.params)
@@ -1241,7 +1253,7 @@ class ModelParametersCandidate(CandidateEffect):
         self._cache = {}
         return True
 
-    def columns(self, ctx):
+    def columns(self, ctx: Context) -> list[Column]:
         if ctx.index not in self._cache:
             changes = self._changes(ctx, self.refit) if self.refit else {}
             self._cache[ctx.index] = changes
@@ -1259,23 +1271,23 @@ class ModelParametersCandidate(CandidateEffect):
         c = float(coef[0]) if len(coef) else 1.0
         return {k: self._model[k] + c * (self.refit[k] - self._model[k]) for k in _MODEL_KEYS}
 
-    def parameters(self, coef):
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
         return {_MODEL_JSON[k]: v for k, v in self._values(coef).items()}
 
-    def relevant(self, coef):
+    def relevant(self, coef: np.ndarray) -> bool:
         values = self._values(coef)
         if abs(values["Td"] - self._model["Td"]) > MODEL_PARAMETER_RELEVANT_TD_S:
             return True
         return any(abs(values[k] / self._model[k] - 1.0) > MODEL_PARAMETER_RELEVANT for k in ("Jc", "bc", "K", "Jl"))
 
-    def plausible(self, coef):
+    def plausible(self, coef: np.ndarray) -> bool:
         # Positive; and where the robot is described, a link inertia the arm can have at its pose.
         values = self._values(coef)
         if self.ranges is not None and not self.ranges.Jl_kgm2[0] <= values["Jl"] <= self.ranges.Jl_kgm2[1]:
             return False
         return all(v > 0 for v in values.values())
 
-    def extend(self, model, coef):
+    def extend(self, model: JointModel, coef: np.ndarray) -> None:
         for k, v in self._values(coef).items():
             model.parameters[k].value = float(v)
             model.parameters[k].std = None

@@ -22,7 +22,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -37,6 +37,7 @@ from iiwa_ident.diagnose.candidates import (
     LOG_FILTER_OTHER_SHAPE,
     Block,
     CandidateEffect,
+    TorqueLogFilterCandidate,
     block_columns,
     block_sse,
     contribution,
@@ -57,7 +58,7 @@ from iiwa_ident.diagnose.select import (
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import PhysicalRanges, against_description, check_model_matches, payload_of_load, physical_ranges
 from iiwa_ident.model import JointModel
-from iiwa_ident.sim import make_effect
+from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["ACROSS_RUNS_WORSE_PCT", "LARGE_GAIN", "OTHER_SHAPE_LEFT_PCT", "SIGN_RMS_RATIO", "reversed_sign", "undecided_sentence", "EffectReport", "ChannelReport", "Diagnosis", "diagnose",
            "residual_rms"]
@@ -247,8 +248,8 @@ class Diagnosis:
         lines = []
         for r in self.sign_reversed:
             lines.append(f"the torque's sign: {r['dataset']}: {r['why']} (diagnosed below with the torque turned over)")
-        for r in self.replaced:
-            old = ", ".join(f"{k} = {v:.6g}" for k, v in r["old_parameters"].items())
+        for rep in self.replaced:
+            old = ", ".join(f"{k} = {v:.6g}" for k, v in rep["old_parameters"].items())
             why = (f"is part of {r['or_shape_of']} in another shape: beyond that shape it adds nothing on held-out "
                    f"data" if r["or_shape_of"] else f"is contradicted by the data: without it the held-out RMS is "
                    f"{r['gain_pct']:.1f} % lower")
@@ -397,7 +398,7 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
     before the log goes into the contexts first: the other effects' torques reach the log through it."""
     for entry in model.effects:
         if entry["name"] == "torque_log_filter":
-            lf = make_effect(entry["name"], {k: v for k, v in entry.items() if k != "name"})
+            lf = TorqueLogFilter({k: v for k, v in entry.items() if k != "name"}, "effects.torque_log_filter")
             for ctx in contexts:
                 ctx.log_filter, ctx.effects_filtered = lf, True
     known = {}
@@ -515,8 +516,8 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
     tested = {(ctx.index, ch): channel_comparison(ctx, ch, ctx.residual[ch]) for ctx in contexts for ch in ctx.channels}
     blocks = _blocks(contexts)
     if not blocks:
-        names = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
-        raise IiwaIdentError(f"{names}: nothing to compare (too short, or contact without a measured external torque)")
+        files = ", ".join(str(ds.path or f"dataset {i}") for i, ds in enumerate(datasets))
+        raise IiwaIdentError(f"{files}: nothing to compare (too short, or contact without a measured external torque)")
     ys = ys0 = [b.ctx.residual[b.channel][b.mask] * b.weight for b in blocks]
     names = list(candidates) if candidates is not None else list(CANDIDATES)
     ranges = physical_ranges(model)
@@ -607,7 +608,8 @@ def _without(st: _Search, drop: list[str]) -> list[dict[str, Any]]:
     back: dict[int, dict[str, np.ndarray]] = {ctx.index: {} for ctx in contexts}
     for n in drop:
         for ctx in contexts:
-            for ch, v in contribution(*known[n], ctx).items():
+            cand, coef = known[n]
+            for ch, v in contribution(cand, coef, ctx).items():
                 back[ctx.index][ch] = back[ctx.index].get(ch, 0.0) + v
     ys_b = [y + back[b.ctx.index].get(b.channel, np.zeros_like(b.ctx.t))[b.mask] * b.weight
             for y, b in zip(st.ys, blocks)]
@@ -806,8 +808,9 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
             c.base_coef = known[c.name][1]
     sel = select_effects(blocks, ys, cands, **selection_options, first=first)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
-    if refine and first and first[0][0].name == "torque_log_filter" and contexts[0].log_filter is not None:
-        _refine_log_filter(sel, blocks, ys)
+    held = first[0][0] if refine and first else None
+    if isinstance(held, TorqueLogFilterCandidate) and contexts[0].log_filter is not None:
+        _refine_log_filter(sel, held, blocks, ys)
     # A named effect whose shape holds a simpler one's must still be more than that in the final fit: a spring
     # that later effects turned into an offset (a slope of nothing or of the wrong sign) is not named, and the
     # rest named again without it (the offset then stands on its own).
@@ -875,7 +878,7 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     is, of three runs or more, the one that predicts each run best from the others (:func:`_run_sse`), of one
     or two the one with the least held-out residual: one run at one speed does not split a friction into its
     Coulomb and viscous parts, and predicts the other run's speed from an arbitrary split."""
-    named_filter = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
+    named_filter = next((c for c in sel.selected if isinstance(c, TorqueLogFilterCandidate)), None)
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     if named_filter is None or any(ctx.log_filter is not None for ctx in contexts):
         return None
@@ -885,30 +888,31 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
     chosen = {c.name for c in sel.selected}
     # (named alone or in a pair: "a + b")
     record = next(s for s in sel.steps if s.accepted and named_filter.name in s.name.split(" + "))
-    first_shape = (named_filter.shape, named_filter.cutoff_hz, float(named_filter.effect.values["damping"]))
+    first_shape = _FilterShape.of(named_filter)
     # A delay, the fast band as it is, and the first order of its lag, which attenuates it, lead the others to
     # different fits there: both tried, the one whose naming predicts the held-out data better kept (the shape is
     # searched again once the others are named).
-    starts = [first_shape] if first_shape[0] != "pure delay" else [("first order", first_shape[1]), first_shape]
+    starts = [first_shape] if first_shape.shape != "pure delay" else \
+        [_FilterShape("first order", first_shape.cutoff_hz, 1.0), first_shape]
     names = [n for n in names if n != "model_parameters" or n in chosen]
     if len(contexts) > 1:
         starts += _own_filters(names, work, model, known, blocks, ys, selection_options, ranges)
     best: tuple[float, Any, list[Any]] | None = None
-    tried: list[tuple[str, float, float]] = []
+    tried: list[_FilterShape] = []
     for shape in starts:
-        if len(shape) > 3 and any(_alike_filter(shape, t) for t in tried):
+        if shape.own_run is not None and any(_alike_filter(shape, t) for t in tried):
             continue  # a run's own filter another start reached already
         trial_filter = copy.copy(named_filter)  # the first pass's filter stays as it is
         trial_filter.detail = dict(named_filter.detail)
-        trial_filter.set_shape(*shape[:3])
-        if len(shape) > 3:
+        trial_filter.set_shape(shape.shape, shape.cutoff_hz, shape.damping)
+        if shape.own_run is not None:
             # A run's own filter, held: its shapes compared on that run, not the first pass's comparison.
             trial_filter.detail = {**{k: v for k, v in trial_filter.detail.items() if not k.endswith("_vs_best")},
-                                   **shape[3]}
+                                   **shape.own_run}
         for ctx in contexts:
             ctx.log_filter = trial_filter.effect
         again = _selected(names, work, model, known, blocks, ys, selection_options, ranges,
-                          first=[(trial_filter, record)], refine=len(shape) < 4)
+                          first=[(trial_filter, record)], refine=shape.own_run is None)
         # Kept where the filter, whole, still explains the data beside the others: they fit better through it
         # than without it.
         sse_filtered = block_sse(again.selection.columns(blocks, held=1), _without_filter(ys, blocks, trial_filter))[0]
@@ -916,8 +920,7 @@ def _named_through_filter(sel: Selection, names: list[str], work: JointModel, mo
         for ctx in contexts:
             ctx.log_filter = None
         trial = again.selection
-        tried.append((trial.selected[0].shape, trial.selected[0].cutoff_hz,
-                      float(trial.selected[0].effect.values["damping"])))
+        tried.append(_FilterShape.of(trial_filter))  # held first: the selection's first
         possible = all(c.plausible(c.total(trial.coef[sl]))
                        for c, sl in zip(trial.selected[1:], trial.slices[1:]) if c.name not in trial.other_shape)
         if possible and sse_filtered < block_sse(again.selection.columns(blocks, held=1), ys)[0]:
@@ -978,14 +981,28 @@ def _run_sse(Xs: list[np.ndarray], ys: list[np.ndarray], blocks: list[Block]) ->
     return out
 
 
-def _alike_filter(a: Sequence[Any], b: Sequence[Any]) -> bool:
-    """Two filters (shape, cut-off [Hz], damping) the same within 5 % of the cut-off and 0.05 of the damping."""
-    return a[0] == b[0] and abs(math.log(a[1] / b[1])) < 0.05 and abs(a[2] - b[2]) < 0.05
+class _FilterShape(NamedTuple):
+    """A filter before the log to start a naming from."""
+
+    shape: str  # one of LOG_FILTER_SHAPES
+    cutoff_hz: float
+    damping: float
+    #: A run's own filter: its shapes compared on that run (:attr:`EffectReport.detail` keys); None otherwise.
+    own_run: dict[str, Any] | None = None
+
+    @classmethod
+    def of(cls, f: TorqueLogFilterCandidate, own_run: dict[str, Any] | None = None) -> _FilterShape:
+        return cls(f.shape, f.cutoff_hz, float(f.effect.values["damping"]), own_run)
+
+
+def _alike_filter(a: _FilterShape, b: _FilterShape) -> bool:
+    """Two filters the same shape within 5 % of the cut-off and 0.05 of the damping."""
+    return a.shape == b.shape and abs(math.log(a.cutoff_hz / b.cutoff_hz)) < 0.05 and abs(a.damping - b.damping) < 0.05
 
 
 def _own_filters(names: list[str], work: JointModel, model: JointModel, known: dict, blocks: list[Block],
                  ys: list[np.ndarray], selection_options: dict[str, Any], ranges: PhysicalRanges | None
-                 ) -> list[tuple[str, float, float, dict[str, Any]]]:
+                 ) -> list[_FilterShape]:
     """Each run's own filter before the log (shape, cut-off [Hz], damping, and its shapes compared on that run,
     as :attr:`EffectReport.detail` keys): the one its naming alone holds."""
     out = []
@@ -1001,11 +1018,10 @@ def _own_filters(names: list[str], work: JointModel, model: JointModel, known: d
         if key not in own[0].ctx.memo:
             sel = _selected(names, work, model, known, own, [ys[i] for i in idx], selection_options, ranges).selection
             own[0].ctx.log_filter = None
-            f = next((c for c in sel.selected if c.name == "torque_log_filter"), None)
+            f = next((c for c in sel.selected if isinstance(c, TorqueLogFilterCandidate)), None)
             compared = {} if f is None else {k: v for k, v in f.detail.items() if k.endswith("_vs_best")}
-            own[0].ctx.memo[key] = None if f is None else (
-                f.shape, f.cutoff_hz, float(f.effect.values["damping"]),
-                {**compared, "shape": f.shape, "own_run": own[0].ctx.name})
+            own[0].ctx.memo[key] = None if f is None else _FilterShape.of(
+                f, {**compared, "shape": f.shape, "own_run": own[0].ctx.name})
         if own[0].ctx.memo[key] is not None:
             out.append(own[0].ctx.memo[key])
     return out
@@ -1016,8 +1032,9 @@ def _without_filter(ys: list[np.ndarray], blocks: list[Block], log_filter: Candi
     return [y - X[:, 0] for y, X in zip(ys, block_columns(blocks, log_filter.columns, 1))]
 
 
-def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]) -> None:
-    """The shape and cut-off of the filter the selection holds first, searched again with every named effect's
+def _refine_log_filter(sel: Selection, cand: TorqueLogFilterCandidate, blocks: list[Block], ys: list[np.ndarray]
+                       ) -> None:
+    """The shape and cut-off of the filter ``cand`` the selection holds first, searched again with every named effect's
     columns through it, and the selection's coefficients refitted there: the first pass searched it beside the
     others' fit without the filter, which lends the filter some of their torque's shape.
 
@@ -1026,7 +1043,6 @@ def _refine_log_filter(sel: Selection, blocks: list[Block], ys: list[np.ndarray]
     neighbours) and the pure delay (the delay at the cut-off's lag). The first order (the delay, where the
     others were named through it) is kept unless another leaves at most :data:`LOG_FILTER_OTHER_SHAPE` of its
     residual with every named effect physically possible through it (the one of least residual that does)."""
-    cand = sel.selected[0]
     contexts = list({b.ctx.index: b.ctx for b in blocks}.values())
     top = math.log(0.4 / max(ctx.dt for ctx in contexts))
     lag = cand.lag_s
@@ -1102,7 +1118,7 @@ def _acting(cand: CandidateEffect, blocks: list[Block]) -> list[int]:
     return [i for i, X in enumerate(block_columns(blocks, cand.columns, cand.n_columns())) if np.any(X)]
 
 
-def _sse(parts: list[np.ndarray], idx: list[int]) -> float:
+def _sse(parts: list[np.ndarray], idx: Iterable[int]) -> float:
     """Sum of squares of the blocks ``idx`` of held-out residuals."""
     return sum(float(np.sum(parts[i] ** 2)) for i in idx)
 
@@ -1212,7 +1228,7 @@ def _shape_fit(cand: CandidateEffect, blocks: list[Block], ys: list[np.ndarray],
     reach = _sse(without, acts) - _sse(res, acts)
     share = 1.0 if reach <= 0 else (_sse(without, acts) - _sse(after, acts)) / reach
     left = {i: 1.0 - _sse(res, [i]) / _sse(after, [i]) for i in acts if _sse(after, [i]) > 0}
-    worst = max(left, key=left.get) if left else acts[0]
+    worst = max(left, key=lambda i: left[i]) if left else acts[0]
     return {"shape_fit": float(np.clip(share, 0.0, 1.0)), "free_shape": cand.free_shape,
             "shape_left_pct": float(100.0 * max(left.get(worst, 0.0), 0.0)),
             "shape_left_in": f"{blocks[worst].ctx.name} {blocks[worst].channel}"}

@@ -175,17 +175,19 @@ class Context:
         """The link channel's zero-phase low-pass of ``x``: :func:`scipy.signal.sosfiltfilt` with its default
         odd extension, the filter's steady state computed once (a diagnosis low-passes tens of thousands of
         columns)."""
+        sos = self._sos
+        if sos is None:
+            raise ValueError(f"{self.name}: no link channel to low-pass")
         if "lowpass_zi" not in self.memo:
-            sos = self._sos
             edge = 3 * (2 * len(sos) + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum())))
             self.memo["lowpass_zi"] = (signal.sosfilt_zi(sos), edge)
         zi, edge = self.memo["lowpass_zi"]
         x = np.asarray(x, float)
         if len(x) <= edge:
-            return signal.sosfiltfilt(self._sos, x)  # (which says why it cannot)
+            return signal.sosfiltfilt(sos, x)  # (which says why it cannot)
         ext = np.concatenate([2 * x[0] - x[edge:0:-1], x, 2 * x[-1] - x[-2:-edge - 2:-1]])
-        y = signal.sosfilt(self._sos, ext, zi=zi * ext[0])[0]
-        y = signal.sosfilt(self._sos, y[::-1], zi=zi * y[-1])[0]
+        y = signal.sosfilt(sos, ext, zi=zi * ext[0])[0]
+        y = signal.sosfilt(sos, y[::-1], zi=zi * y[-1])[0]
         return y[::-1][edge:-edge]
 
     def ddt(self, x: np.ndarray) -> np.ndarray:
@@ -267,6 +269,8 @@ def command_prediction(ctx: Context, Td: float, params: dict[str, float] | None 
     The delay is ``Td`` [s], realised as whole samples plus a linear
     interpolation for the fraction; ``params``: other Jc, bc, K, Jl than the model's.
     """
+    if ctx.tau_c is None:
+        raise ValueError(f"{ctx.name}: no commanded torque tau_c to predict from")
     n = max(Td, 0.0) / ctx.dt
     k = int(math.floor(n))
     frac = n - k
