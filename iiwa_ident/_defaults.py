@@ -12,21 +12,21 @@ import math
 __all__ = ["DESIGN_BETA", "DEFAULT_PREFILTER_HZ", "FEEDFORWARD_MODES", "PERIOD_MIN_RAD", "PERIOD_MAX_RAD",
            "DEFAULT_PORT", "TASKS", "TAU_EXT_SOURCES", "LOOPS"]
 
-#: beta of the filter a design deploys (:mod:`iiwa_ident.design.spatial_filter`; observer, eq (14), and
+#: beta of the filter a design deploys (:mod:`iiwa_ident.design._spatial_filter`; observer, eq (14), and
 #: controller feedback, eq (15)) [-]. The paper's 5 stays the default of ``SpatialFilter``; inside the torque
 #: loop it costs margin: on the simulated joint the outer-loop kappa_max of the additive controller is 20.9
 #: with beta = 5 (2.8x the built-in 7.6) and 26-28 with beta = 2 (3.5-3.7x), and below the notch ``1 - H^2``
 #: boosts a 2 Hz torque at 0.3 rad/s by 1.24 dB with beta = 5, 0.17 dB with 2.
 DESIGN_BETA = 2.0
-#: Reference pre-filter of the feed-forward, natural frequency (:mod:`iiwa_ident.design.additive`) [Hz].
+#: Reference pre-filter of the feed-forward, natural frequency (:mod:`iiwa_ident.design._additive`) [Hz].
 #: 250 Hz keeps eq (22) close to the paper's unfiltered inverse below 50 Hz (0.2 rad of lag at 25 Hz; 50 Hz
 #: would lag a 25 Hz reference by 0.93 rad, ~12 Nm of error at 15 Nm). An ideal step through it commands
 #: ~7x its height at the peak, which is why the runtime rate-limits the reference
 #: (:mod:`iiwa_ident.deploy.checks`, ``reference_range``).
 DEFAULT_PREFILTER_HZ = 250.0
-#: Ways of combining ``Kr`` and the feed-forward (:mod:`iiwa_ident.design.additive`).
+#: Ways of combining ``Kr`` and the feed-forward (:mod:`iiwa_ident.design._additive`).
 FEEDFORWARD_MODES = ("reference", "paper", "none")
-#: Search range of the ripple's period (:mod:`iiwa_ident.ident.ripple`): 2000 down to 50 cycles per motor
+#: Search range of the ripple's period (:mod:`iiwa_ident.ident._ripple`): 2000 down to 50 cycles per motor
 #: revolution (the paper's joint has 320; other gear ratios have other counts) [rad].
 PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
 PERIOD_MAX_RAD = 2.0 * math.pi / 50.0

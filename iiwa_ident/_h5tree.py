@@ -93,9 +93,13 @@ def _dataclass(name: str, packages: tuple[str, ...]) -> type:
     module, _, qualname = name.partition(":")
     if not any(module == p or module.startswith(p + ".") for p in packages):
         raise ValueError(f"{name}: not a result of {', '.join(packages)}")
-    obj: Any = importlib.import_module(module)
-    for part in qualname.split("."):
-        obj = getattr(obj, part)
+    try:
+        obj: Any = importlib.import_module(module)
+        for part in qualname.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError):
+        # Written by another version of the package, whose modules or classes were named otherwise.
+        raise ValueError(f"{name}: no such class in this version of {module.partition('.')[0]}") from None
     if not (isinstance(obj, type) and dataclasses.is_dataclass(obj)):
         raise ValueError(f"{name}: not a dataclass")
     return obj

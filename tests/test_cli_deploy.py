@@ -11,10 +11,10 @@ from typer.testing import CliRunner
 
 from iiwa_ident.cli import app
 from iiwa_ident.deploy import read_config
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.design_file import make_record, write_design
-from iiwa_ident.design.margins import HumanArm, OuterLoopMargins, outer_loop_margins
-from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.design._additive import design_controller
+from iiwa_ident.design._design_file import make_record, write_design
+from iiwa_ident.design._margins import HumanArm, OuterLoopMargins, outer_loop_margins
+from iiwa_ident.ident._model_file import read_model
 from iiwa_ident.model import JointParameters
 
 runner = CliRunner()

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from iiwa_ident.cli import app
 from iiwa_ident.cli.design_cmd import parse_poles
-from iiwa_ident.design.design_file import read_design
+from iiwa_ident.design._design_file import read_design
 from iiwa_ident.errors import IiwaIdentError
 
 runner = CliRunner()

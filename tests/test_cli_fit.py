@@ -17,7 +17,7 @@ from iiwa_ident.cli.fit_cmd import format_fit
 from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_dataset
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, write_model
-from iiwa_ident.ident.tf_fit import fit_transfer_function
+from iiwa_ident.ident._tf_fit import fit_transfer_function
 from iiwa_ident.model import PARAMETER_NAMES, table1_model
 from iiwa_ident.sim import SimulatedJoint, default_plant
 

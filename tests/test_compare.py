@@ -141,7 +141,7 @@ def test_the_bode_band_says_its_width(tmp_path):
 def test_a_prediction_worse_than_the_mean_never_passes(chirp):
     # The residual tests judge the residual's shape; a prediction worse than the measured mean is no model of
     # the channel however white what it leaves (a held-out run was marked PASS beside a fit of -23 %).
-    from iiwa_ident.diagnose.channels import AT_NOISE_FACTOR
+    from iiwa_ident.diagnose._channels import AT_NOISE_FACTOR
 
     model, ds = chirp
     rows = compare([ds], model)

@@ -25,9 +25,9 @@ from iiwa_ident.deploy import (
     step_peak_gain,
     write_config,
 )
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.design_file import make_record
-from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.design._additive import design_controller
+from iiwa_ident.design._design_file import make_record
+from iiwa_ident.design._margins import outer_loop_margins
 from iiwa_ident.ident import read_model
 from iiwa_ident.model import JointParameters, RippleTable, Source
 

@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from iiwa_ident.design.analysis import (
+from iiwa_ident.design._analysis import (
     AdditiveTorqueControl,
     BuiltinTorqueControl,
     ClosedLoopRun,

@@ -8,7 +8,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from iiwa_ident.design.additive import (
+from iiwa_ident.design._additive import (
     FEEDFORWARD_MODES,
     PAPER_OBSERVER_POLES,
     PAPER_POLES,
@@ -22,8 +22,8 @@ from iiwa_ident.design.additive import (
     natural_frequency_damping,
     realisation,
 )
-from iiwa_ident.design.controller import AdditiveController
-from iiwa_ident.design.margins import (
+from iiwa_ident.design._controller import AdditiveController
+from iiwa_ident.design._margins import (
     HumanArm,
     arm_plant,
     exact_delay_spectral_radius,
@@ -31,7 +31,7 @@ from iiwa_ident.design.margins import (
     outer_loop_margins,
     outer_loop_matrix,
 )
-from iiwa_ident.design.paper import (
+from iiwa_ident.design._paper import (
     PAPER_VALUES,
     format_reproduction,
     paper_reproduction,

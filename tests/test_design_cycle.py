@@ -7,7 +7,7 @@ import doctest
 import numpy as np
 import pytest
 
-import iiwa_ident.design.cycle as cycle_module
+import iiwa_ident.design._cycle as cycle_module
 from iiwa_ident.design import (
     DESIGN_BETA,
     RIPPLE_PERIOD_RAD,

@@ -12,8 +12,8 @@ import pytest
 
 from iiwa_ident._toml import dumps_toml
 from iiwa_ident.design import FilterSettings
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.design_file import (
+from iiwa_ident.design._additive import design_controller
+from iiwa_ident.design._design_file import (
     DESIGN_FORMAT,
     DesignFileError,
     design_from_dict,
@@ -22,7 +22,7 @@ from iiwa_ident.design.design_file import (
     read_design,
     write_design,
 )
-from iiwa_ident.design.margins import HumanArm, OuterLoopMargins
+from iiwa_ident.design._margins import HumanArm, OuterLoopMargins
 from iiwa_ident.ident import write_model
 from iiwa_ident.model import JointParameters, RippleTable, table1_model
 

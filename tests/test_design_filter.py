@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from iiwa_ident.design.spatial_filter import (
+from iiwa_ident.design._spatial_filter import (
     DESIGN_BETA,
     RIPPLE_PERIOD_RAD,
     SpatialFilter,

@@ -7,7 +7,7 @@ import pytest
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.design import FilterSettings
-from iiwa_ident.design.observers import (
+from iiwa_ident.design._observers import (
     OBSERVERS,
     BuiltinObserver,
     FilteredObserver,
@@ -20,7 +20,7 @@ from iiwa_ident.design.observers import (
 )
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, HandGuided, record
-from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.ident._ripple import identify_ripple
 from iiwa_ident.model import RippleTable, table1_model
 from iiwa_ident.sim import SimulatedJoint, default_plant
 

@@ -65,7 +65,7 @@ class TestPrediction:
         # afresh, also through a filter before the log set after it was cached.
         from scipy import signal
 
-        from iiwa_ident.diagnose.predict import channel_columns
+        from iiwa_ident.diagnose._predict import channel_columns
         from iiwa_ident.sim import TorqueLogFilter
 
         ds = simulate_case(Case(6))[0]
@@ -92,7 +92,7 @@ class TestPrediction:
         # shows as v + (F - 1)(1 + P) / (1 + P (1 - F)) v, P = (Jl s^2 + 2 zeta sqrt(K Jl) s) / K. Steady
         # sinusoids below, near and above the link's resonance against that response written here in
         # continuous time (the sampled derivatives and filter differ by well under 1 % at 1 kHz up to 30 Hz).
-        from iiwa_ident.diagnose.predict import EQ9_LINK_DAMPING, logged_change
+        from iiwa_ident.diagnose._predict import EQ9_LINK_DAMPING, logged_change
         from iiwa_ident.sim import TorqueLogFilter
 
         ctx = build_context(simulate_case(Case(6))[0], table1_model())

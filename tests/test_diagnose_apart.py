@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iiwa_ident.diagnose.predict import build_context
+from iiwa_ident.diagnose._predict import build_context
 from iiwa_ident.model import table1_model
 from iiwa_ident.testing import ApartCase, draw_apart_case, final_effects, simulate_apart_case
 
@@ -98,7 +98,7 @@ class TestUserProtocol:
 
 class TestWhatAFindingSays:
     def test_a_load_is_compensated_by_a_fraction_of_itself(self):
-        from iiwa_ident.diagnose.candidates import PositionDependentLoadCandidate
+        from iiwa_ident.diagnose._candidates import PositionDependentLoadCandidate
 
         load = PositionDependentLoadCandidate()
         assert load.plausible(np.array([3.0, 1.0, -3.0, -1.0]))  # fully compensated

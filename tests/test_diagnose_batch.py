@@ -53,7 +53,7 @@ class TestRandomBatch:
         # nothing needs naming; against Table I's 5 ms the diagnosis names it.
         case = Case(5, hidden={"input_delay": {"extra_s": 0.002}})
         data = simulate_case(case, chirp_s=10.0)
-        from iiwa_ident.ident.joint_fit import fit_joint
+        from iiwa_ident.ident._joint_fit import fit_joint
 
         res = fit_joint(data[:1])
         assert res.parameters["Td"] == pytest.approx(0.007, abs=1e-4)

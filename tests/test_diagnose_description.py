@@ -77,7 +77,7 @@ def test_runs_at_one_speed_name_the_friction_at_that_speed():
 def test_an_offset_and_a_friction_that_pass_only_together(monkeypatch):
     # Long passes back and forth at one speed: each held-out stretch of time holds mostly one direction, so an
     # offset alone or a friction alone gains on some folds and loses on others; the two together gain on all.
-    from iiwa_ident.diagnose import select
+    from iiwa_ident.diagnose import _select as select
     from iiwa_ident.model import table1_model
     from iiwa_ident.sim import make_effect
 
@@ -110,7 +110,7 @@ def test_a_reversed_torque_sign_is_named_first_not_as_a_load():
     assert d.effects == [] and not d.explained
     assert d.summary().startswith("the torque's sign: dataset 0: tau_j reads the other way round")
     assert d.as_json()["sign_reversed"] == d.sign_reversed
-    from iiwa_ident.diagnose.diagnosis import reversed_sign
+    from iiwa_ident.diagnose._diagnosis import reversed_sign
 
     assert all(reversed_sign(ds, start) is None for ds in _runs(start, 2, 7))
 

@@ -27,7 +27,7 @@ MODULES = _modules_with_examples()
 
 
 def test_the_examples_are_found():
-    assert {"iiwa_ident.ident.resid", "iiwa_ident.model._eq4", "iiwa_ident.diagnose.channels"} <= set(MODULES)
+    assert {"iiwa_ident.ident._resid", "iiwa_ident.model._eq4", "iiwa_ident.diagnose._channels"} <= set(MODULES)
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -24,10 +24,10 @@ from conftest import wait_for
 from iiwa_ident.datasets import LOG_SHM_PREFIX as SHM_PREFIX
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import deploy, write_config
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.design_file import make_record
-from iiwa_ident.design.margins import outer_loop_margins
+from iiwa_ident.design._additive import design_controller
+from iiwa_ident.design._analysis import identified_model
+from iiwa_ident.design._design_file import make_record
+from iiwa_ident.design._margins import outer_loop_margins
 from iiwa_ident.emulator import EmulatorConfig, Faults, spawn_emulator
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite import Chirp, record

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from iiwa_ident.deploy import deploy
-from iiwa_ident.design.additive import design_controller
-from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.design_file import make_record
-from iiwa_ident.design.margins import outer_loop_margins
-from iiwa_ident.design.spatial_filter import SpatialFilter
+from iiwa_ident.design._additive import design_controller
+from iiwa_ident.design._analysis import identified_model
+from iiwa_ident.design._design_file import make_record
+from iiwa_ident.design._margins import outer_loop_margins
+from iiwa_ident.design._spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.fri.connection import FriConnection, parse_host_port
 from iiwa_ident.fri.protocol import (
@@ -33,7 +33,7 @@ from iiwa_ident.fri.protocol import (
     encode_monitoring,
 )
 from iiwa_ident.fri.robot import FriRobot
-from iiwa_ident.ident.model_file import read_model
+from iiwa_ident.ident._model_file import read_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command, Measurement
 from iiwa_ident.runtime import TASKS, ControllerRuntime, KappaTask, TaskInput, Watchdog, make_task

@@ -93,6 +93,18 @@ def test_a_class_outside_the_named_packages_is_refused(tmp_path):
         f.create_dataset("structure", data=np.frombuffer(text.encode(), dtype=np.uint8))
     with pytest.raises(IiwaIdentError, match="not a dataclass"):
         read_tree(path, HERE)
+    # A class another version named elsewhere (a module or a class this one does not have) is refused, not raised.
+    for gone in (f"{__name__}.gone:Leaf", f"{__name__}:Gone"):
+        with h5py.File(path, "r+") as f:
+            text = bytes(f["structure"][()]).decode().replace(f"{__name__}:same", gone)
+            del f["structure"]
+            f.create_dataset("structure", data=np.frombuffer(text.encode(), dtype=np.uint8))
+        with pytest.raises(IiwaIdentError, match="no such class in this version"):
+            read_tree(path, HERE)
+        with h5py.File(path, "r+") as f:
+            text = bytes(f["structure"][()]).decode().replace(gone, f"{__name__}:same")
+            del f["structure"]
+            f.create_dataset("structure", data=np.frombuffer(text.encode(), dtype=np.uint8))
 
 
 def test_what_cannot_be_stored_leaves_the_file_as_it_was(tmp_path):

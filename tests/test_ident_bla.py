@@ -8,7 +8,7 @@ from scipy.signal import freqz, lfilter
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Multisine, record
-from iiwa_ident.ident.bla import BestLinearApproximation, best_linear_approximation, bla_from_arrays
+from iiwa_ident.ident._bla import BestLinearApproximation, best_linear_approximation, bla_from_arrays
 from iiwa_ident.references import odd_lines, odd_multisine
 from iiwa_ident.sim import SimulatedJoint, default_plant
 
@@ -100,7 +100,7 @@ class TestFitBla:
     def test_recovers_a_random_joint_within_its_std(self, seed):
         # A random truth within +-40 % of Table I on a joint the model describes exactly (no ripple, no
         # friction): every parameter within 3 std, and chi2/dof near 1 (the weights are the BLA's variance).
-        from iiwa_ident.ident.bla import fit_bla
+        from iiwa_ident.ident._bla import fit_bla
 
         rng = np.random.default_rng(100 + seed)
         plant = default_plant().without_effects()
@@ -117,7 +117,7 @@ class TestFitBla:
 
 
 def test_sampled_response_is_the_fit_models_and_adds_the_link_terms():
-    from iiwa_ident.ident.bla import sampled_response
+    from iiwa_ident.ident._bla import sampled_response
     from iiwa_ident.model import discretize
 
     p = {"Jc": 1.03, "bc": 55.0, "K": 18000.0, "Jl": 5.6, "Td": 0.0053}
@@ -130,7 +130,7 @@ def test_sampled_response_is_the_fit_models_and_adds_the_link_terms():
 
 
 def test_warnings_name_a_misfit_and_a_nonlinear_band():
-    from iiwa_ident.ident.bla import BlaFit
+    from iiwa_ident.ident._bla import BlaFit
 
     f = np.array([1.0, 2.0, 3.0, 5.0])
     G = np.ones((2, 4), complex)

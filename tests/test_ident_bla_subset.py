@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iiwa_ident.ident.bla import best_linear_approximation, fit_bla
+from iiwa_ident.ident._bla import best_linear_approximation, fit_bla
 from iiwa_ident.testing import draw_scenario, simulate_scenario_multisine
 
 _SEEDS = list(range(7000, 7012))

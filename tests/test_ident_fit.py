@@ -22,9 +22,9 @@ from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_datase
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, write_model
-from iiwa_ident.ident.initial import initial_estimate
-from iiwa_ident.ident.joint_fit import fit_joint, fit_model
-from iiwa_ident.ident.tf_fit import cramer_rao_std, fit_transfer_function
+from iiwa_ident.ident._initial import initial_estimate
+from iiwa_ident.ident._joint_fit import fit_joint, fit_model
+from iiwa_ident.ident._tf_fit import cramer_rao_std, fit_transfer_function
 from iiwa_ident.model import PARAMETER_NAMES, discretize, frequency_response, simulate_outputs, table1_model
 from iiwa_ident.sim import SimulatedJoint, TorqueLogFilter, default_plant, make_effect
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.signal import freqz, lfilter
 
-from iiwa_ident.ident.frf import (
+from iiwa_ident.ident._frf import (
     cross_spectra,
     ess_harmonics,
     h1_estimate,

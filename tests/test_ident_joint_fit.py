@@ -12,10 +12,10 @@ import pytest
 
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident.idim import fit_idim
-from iiwa_ident.ident.joint_fit import fit_joint
-from iiwa_ident.ident.records import held_windows, prepare_record
-from iiwa_ident.ident.tf_fit import fit_transfer_function
+from iiwa_ident.ident._idim import fit_idim
+from iiwa_ident.ident._joint_fit import fit_joint
+from iiwa_ident.ident._records import held_windows, prepare_record
+from iiwa_ident.ident._tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
 from iiwa_ident.sim import SimulatedJoint, default_plant, plant_from_model
 from iiwa_ident.sim.effects import TransmissionRipple

@@ -1,11 +1,11 @@
-"""Spectral lines against a broadband background (:mod:`iiwa_ident.ident.lines`)."""
+"""Spectral lines against a broadband background (:mod:`iiwa_ident.ident._lines`)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from iiwa_ident.ident.lines import line_ratio
+from iiwa_ident.ident._lines import line_ratio
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -16,9 +16,9 @@ from iiwa_ident.cli import app
 from iiwa_ident.datasets import write_dataset
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model
-from iiwa_ident.ident.joint_fit import fit_joint
-from iiwa_ident.ident.log_filter import estimate_log_filter, unfiltered_torque
-from iiwa_ident.ident.records import prepare_records
+from iiwa_ident.ident._joint_fit import fit_joint
+from iiwa_ident.ident._log_filter import estimate_log_filter, unfiltered_torque
+from iiwa_ident.ident._records import prepare_records
 from iiwa_ident.sim import SimulatedJoint, TorqueLogFilter, default_plant, make_effect
 
 TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}

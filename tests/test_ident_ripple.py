@@ -16,8 +16,8 @@ from iiwa_ident.datasets import Dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record
 from iiwa_ident.ident import read_model
-from iiwa_ident.ident.ripple import identify_ripple
-from iiwa_ident.ident.ripple_passes import deflection
+from iiwa_ident.ident._ripple import identify_ripple
+from iiwa_ident.ident._ripple_passes import deflection
 from iiwa_ident.model import RippleTable, joint_position, link_position
 from iiwa_ident.sim import SimulatedJoint, TransmissionRipple, default_plant
 

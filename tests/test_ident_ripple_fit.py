@@ -12,8 +12,8 @@ from scipy.signal import lsim
 from conftest import quiet, smooth_command
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.ident.records import prepare_record
-from iiwa_ident.ident.tf_fit import RippleTerms, fit_transfer_function
+from iiwa_ident.ident._records import prepare_record
+from iiwa_ident.ident._tf_fit import RippleTerms, fit_transfer_function
 from iiwa_ident.model import PARAMETER_NAMES, RippleTable, discretize, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant
 from iiwa_ident.sim.effects import TransmissionRipple

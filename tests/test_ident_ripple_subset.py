@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from iiwa_ident.ident.ripple import identify_ripple
+from iiwa_ident.ident._ripple import identify_ripple
 from iiwa_ident.sim import TransmissionRipple
 from iiwa_ident.testing import draw_ripple_scenario, simulate_ripple_scenario
 

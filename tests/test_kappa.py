@@ -28,8 +28,8 @@ from iiwa_ident.design import (
     outer_loop_margins,
     write_design,
 )
-from iiwa_ident.design.analysis import identified_model
-from iiwa_ident.design.margins import outer_loop_matrix
+from iiwa_ident.design._analysis import identified_model
+from iiwa_ident.design._margins import outer_loop_matrix
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointParameters
 from iiwa_ident.pipeline import run_kappa_sweep

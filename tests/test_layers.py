@@ -119,6 +119,16 @@ def test_packages_are_imported_through_their_public_api():
     assert not bad, "\n".join(bad)
 
 
+#: Packages whose modules are all private (``_name``), behind a curated ``__init__``.
+PRIVATE_MODULES = ("model", "datasets", "description", "fleet", "testing", "ident", "design", "diagnose")
+
+
+def test_the_packages_of_private_modules_keep_them_private():
+    public = [f"{p}/{m.name}" for p in PRIVATE_MODULES for m in sorted((ROOT / p).glob("*.py"))
+              if m.name != "__init__.py" and not m.name.startswith("_")]
+    assert not public, f"modules of {', '.join(PRIVATE_MODULES)} are private (_name): {public}"
+
+
 def test_bench_and_the_harness_use_the_public_api_only():
     # What they measure and draw is what a user runs: packages, never their modules or private names.
     files = sorted((ROOT.parent / "bench").rglob("*.py")) + sorted((ROOT / "testing").rglob("*.py"))

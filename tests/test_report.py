@@ -234,7 +234,7 @@ def test_page_one_and_the_fit_page_say_one_thing_of_the_residual(workdir):
     # Page 1 read "residual independent of the command" from the fit's own residual (the ripple's harmonics
     # fitted alongside) while the fit page ran model.toml, which holds no table: 93.6 %, independence FAILED.
     from iiwa_ident.diagnose import compare
-    from iiwa_ident.diagnose.channels import INDEPENDENCE
+    from iiwa_ident.diagnose._channels import INDEPENDENCE
     from iiwa_ident.report.pdf import _compared_model
     from iiwa_ident.report.verdict import verdict_rows
 

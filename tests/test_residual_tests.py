@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy import signal, stats
 
-from iiwa_ident.ident import resid, residual_tests
+from iiwa_ident.ident import _resid as resid
+from iiwa_ident.ident import residual_tests
 
 
 def _ar1(rng, n, a):

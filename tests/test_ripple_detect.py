@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.ident.ripple import identify_ripple
-from iiwa_ident.ident.ripple_detect import (
+from iiwa_ident.ident._ripple import identify_ripple
+from iiwa_ident.ident._ripple_detect import (
     RunSensitivity,
     detectable_amplitude,
     detection_probability,
@@ -24,7 +24,7 @@ from iiwa_ident.ident.ripple_detect import (
     pooled_detection_probability,
     required_travel,
 )
-from iiwa_ident.ident.ripple_passes import deflection
+from iiwa_ident.ident._ripple_passes import deflection
 
 _K, _SIGMA_NM, _RATE = 18500.0, 0.05, 200.0
 _PSD = 2.0 * (_SIGMA_NM / _K) ** 2 / _RATE  # one-sided, of the deflection's white noise [rad^2/Hz]
@@ -117,7 +117,7 @@ def test_ripple_says_what_each_run_detects_and_what_run_would(tmp_path):
 
 
 def test_a_run_too_fast_for_the_line_is_told_a_slower_one():
-    from iiwa_ident.ident.ripple_detect import sensitivity
+    from iiwa_ident.ident._ripple_detect import sensitivity
 
     rng = np.random.default_rng(5)
     ds = _run(rng, 4.0, 2.0, 300.0, 0.0)  # 320 cycles at 2 rad/s: 102 Hz, beyond 0.9 x 100 Hz

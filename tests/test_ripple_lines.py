@@ -1,4 +1,4 @@
-"""The test of a given line in a given run (:func:`iiwa_ident.ident.ripple_lines.line_test`): its false-alarm
+"""The test of a given line in a given run (:func:`iiwa_ident.ident._ripple_lines.line_test`): its false-alarm
 probability on realistic null data (white, coloured, a torque filtered before logging, a temporal line nearby),
 its amplitude std against Monte Carlo, and its windows and limits.
 
@@ -16,8 +16,8 @@ import pytest
 import scipy.signal as sg
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.ident.ripple_lines import line_test
-from iiwa_ident.ident.ripple_passes import deflection
+from iiwa_ident.ident._ripple_lines import line_test
+from iiwa_ident.ident._ripple_passes import deflection
 
 TICK = 5.989e-8
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from iiwa_ident.ident.joint_fit import fit_joint
+from iiwa_ident.ident._joint_fit import fit_joint
 from iiwa_ident.model import PARAMETER_NAMES
 from iiwa_ident.testing import draw_scenario, simulate_scenario
 

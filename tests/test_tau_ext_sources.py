@@ -9,7 +9,7 @@ import pytest
 from iiwa_ident.datasets import read_dataset
 from iiwa_ident.deploy import deploy, write_config
 from iiwa_ident.design import design_controller, make_record, outer_loop_margins
-from iiwa_ident.design.analysis import identified_model
+from iiwa_ident.design._analysis import identified_model
 from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import FriRobot

@@ -60,7 +60,7 @@ def format_fit(result: FitResult) -> str:
     Parameters
     ----------
     result : FitResult
-        A fit from :func:`iiwa_ident.ident.tf_fit.fit_transfer_function`.
+        A fit from :func:`iiwa_ident.ident._tf_fit.fit_transfer_function`.
 
     Returns
     -------

@@ -3,29 +3,29 @@
 Public API
 ----------
 SpatialFilter, FilterSettings, filter_period, spatial_filter_response, ripple_bandpass_coefficients, gamma_weight, ripple_line_cut
-    The spatial filter and its settings of eqs (10)-(12) (:mod:`iiwa_ident.design.spatial_filter`).
+    The spatial filter and its settings of eqs (10)-(12) (:mod:`iiwa_ident.design._spatial_filter`).
 ExternalTorqueObserver, BuiltinObserver, LinkVelocityObserver, FilteredObserver, OBSERVERS, make_observer,
 run_observers, compare_observers, observer_lag
-    The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design.observers`).
+    The three observer variants of eqs (13)-(14) (:mod:`iiwa_ident.design._observers`).
 HumanArm, AdditiveDesign, AdditiveController (runs a DiscreteDesign), OuterLoopMargins, DesignError, PAPER_POLES,
 PAPER_OBSERVER_POLES, design_controller, kappa_max, outer_loop_margins, exact_delay_spectral_radius,
 DeployedLoop, DeployedMargin, deployed_loop_matrix, deployed_kappa_max, deployed_margin
-    The additive torque controller of section V.B: its design (:mod:`iiwa_ident.design.additive`), the
-    controller one sample at a time (:mod:`iiwa_ident.design.controller`) and the outer-loop margin
-    (:mod:`iiwa_ident.design.margins`; the loop as deployed: source, F/T filter, spatial filter).
+    The additive torque controller of section V.B: its design (:mod:`iiwa_ident.design._additive`), the
+    controller one sample at a time (:mod:`iiwa_ident.design._controller`) and the outer-loop margin
+    (:mod:`iiwa_ident.design._margins`; the loop as deployed: source, F/T filter, spatial filter).
 ClosedLoopRun, KappaMargin, AdditiveTorqueControl, analysis_design, identified_model, compare_controllers,
 kappa_margin, sine_tracking
     The closed-loop analysis on the simulated joint: both controllers compared, the outer loop's live
-    margin and the tracking of a sine (:mod:`iiwa_ident.design.analysis`).
+    margin and the tracking of a sine (:mod:`iiwa_ident.design._analysis`).
 ControlCycle
-    Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design.cycle`).
+    Eqs (8)-(18) once per sample, for the analysis and the FRI runtime (:mod:`iiwa_ident.design._cycle`).
 DesignRecord, DesignFileError, make_record, read_design, write_design
-    The design file (:mod:`iiwa_ident.design.design_file`).
+    The design file (:mod:`iiwa_ident.design._design_file`).
 paper_reproduction, format_reproduction, reproduction_cells, ReproductionRow
-    The paper's numbers beside the computed ones (:mod:`iiwa_ident.design.paper`).
+    The paper's numbers beside the computed ones (:mod:`iiwa_ident.design._paper`).
 """
 
-from iiwa_ident.design.additive import (
+from iiwa_ident.design._additive import (
     DEFAULT_PREFILTER_HZ,
     FEEDFORWARD_MODES,
     PAPER_OBSERVER_POLES,
@@ -38,7 +38,7 @@ from iiwa_ident.design.additive import (
     design_controller,
     natural_frequency_damping,
 )
-from iiwa_ident.design.analysis import (
+from iiwa_ident.design._analysis import (
     AdditiveTorqueControl,
     ClosedLoopRun,
     KappaMargin,
@@ -48,9 +48,9 @@ from iiwa_ident.design.analysis import (
     kappa_margin,
     sine_tracking,
 )
-from iiwa_ident.design.controller import AdditiveController, DiscreteDesign
-from iiwa_ident.design.cycle import ControlCycle
-from iiwa_ident.design.design_file import (
+from iiwa_ident.design._controller import AdditiveController, DiscreteDesign
+from iiwa_ident.design._cycle import ControlCycle
+from iiwa_ident.design._design_file import (
     DesignFileError,
     DesignRecord,
     design_json,
@@ -58,7 +58,7 @@ from iiwa_ident.design.design_file import (
     read_design,
     write_design,
 )
-from iiwa_ident.design.margins import (
+from iiwa_ident.design._margins import (
     DeployedLoop,
     DeployedMargin,
     HumanArm,
@@ -70,7 +70,7 @@ from iiwa_ident.design.margins import (
     kappa_max,
     outer_loop_margins,
 )
-from iiwa_ident.design.observers import (
+from iiwa_ident.design._observers import (
     OBSERVERS,
     BuiltinObserver,
     ExternalTorqueObserver,
@@ -82,7 +82,7 @@ from iiwa_ident.design.observers import (
     observer_lag,
     run_observers,
 )
-from iiwa_ident.design.paper import (
+from iiwa_ident.design._paper import (
     REPRODUCTION_COLUMNS,
     REPRODUCTION_POLES,
     ReproductionRow,
@@ -91,7 +91,7 @@ from iiwa_ident.design.paper import (
     reproduction_cells,
     table1_parameters,
 )
-from iiwa_ident.design.spatial_filter import (
+from iiwa_ident.design._spatial_filter import (
     DESIGN_BETA,
     PAPER_BETA,
     PAPER_FILTER,

@@ -15,10 +15,10 @@ build_context, Context
     The model's prediction of a dataset and its residual channels.
 """
 
-from iiwa_ident.diagnose.candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
-from iiwa_ident.diagnose.channels import verdict_text
-from iiwa_ident.diagnose.compare import ChannelComparison, compare, fit_percent
-from iiwa_ident.diagnose.diagnosis import (
+from iiwa_ident.diagnose._candidates import CANDIDATES, CandidateEffect, EvidenceChannel, register_candidate
+from iiwa_ident.diagnose._channels import verdict_text
+from iiwa_ident.diagnose._compare import ChannelComparison, compare, fit_percent
+from iiwa_ident.diagnose._diagnosis import (
                                           ACROSS_RUNS_WORSE_PCT,
                                           ChannelReport,
                                           Diagnosis,
@@ -27,7 +27,7 @@ from iiwa_ident.diagnose.diagnosis import (
                                           residual_rms,
                                           undecided_sentence,
 )
-from iiwa_ident.diagnose.predict import Context, build_context
+from iiwa_ident.diagnose._predict import Context, build_context
 
 __all__ = ["diagnose", "residual_rms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
            "EvidenceChannel", "register_candidate", "build_context", "Context", "compare", "ChannelComparison",

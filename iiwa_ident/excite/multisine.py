@@ -9,7 +9,7 @@ Identification: A Frequency Domain Approach*, 2nd ed., Wiley 2012, ch. 3).
 Each realisation draws new random phases, so the nonlinear distortions differ
 from realisation to realisation while the linear response does not: that is
 what separates the two in the best linear approximation
-(:mod:`iiwa_ident.ident.bla`).
+(:mod:`iiwa_ident.ident._bla`).
 
 The crest factor (peak over RMS) of random phases is about 3-4; the clipping
 algorithm of Van der Ouderaa, Schoukens and Renneboog (IEEE Trans. Instrum.

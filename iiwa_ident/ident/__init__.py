@@ -7,22 +7,22 @@ Cramér-Rao bound), :func:`detection_probability`, :func:`pooled_detection_proba
 :class:`RunSensitivity` (the ripple search's chance of finding a line of a given amplitude).
 """
 
-from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
-from iiwa_ident.ident.joint_fit import METHODS, fit_joint, fit_model
-from iiwa_ident.ident.lines import line_ratio
-from iiwa_ident.ident.log_filter import LOG_FILTER_MIN_HZ, LOG_ONLY, log_filter_text
-from iiwa_ident.ident.model_file import model_from_dict, read_model, write_model
-from iiwa_ident.ident.resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
-from iiwa_ident.ident.ripple import (
+from iiwa_ident.ident._bla import BlaFit, best_linear_approximation, fit_bla
+from iiwa_ident.ident._joint_fit import METHODS, fit_joint, fit_model
+from iiwa_ident.ident._lines import line_ratio
+from iiwa_ident.ident._log_filter import LOG_FILTER_MIN_HZ, LOG_ONLY, log_filter_text
+from iiwa_ident.ident._model_file import model_from_dict, read_model, write_model
+from iiwa_ident.ident._resid import INDEPENDENCE, LEVEL, MAX_LAG, WHITENESS, ResidualTest, ResidualTests, residual_tests
+from iiwa_ident.ident._ripple import (
     PERIOD_MAX_RAD,
     PERIOD_MIN_RAD,
     RippleResult,
     identify_ripple,
     ripple_model,
 )
-from iiwa_ident.ident.ripple_detect import RunSensitivity, detection_probability, pooled_detection_probability
-from iiwa_ident.ident.ripple_passes import find_passes
-from iiwa_ident.ident.starting_model import (
+from iiwa_ident.ident._ripple_detect import RunSensitivity, detection_probability, pooled_detection_probability
+from iiwa_ident.ident._ripple_passes import find_passes
+from iiwa_ident.ident._starting_model import (
     DESCRIPTION_FACTOR,
     LOAD_NEGLIGIBLE_NM,
     PAYLOAD_LEVER_MIN_M,
@@ -36,7 +36,7 @@ from iiwa_ident.ident.starting_model import (
     physical_ranges,
     starting_model,
 )
-from iiwa_ident.ident.tf_fit import FitResult, cramer_rao_std
+from iiwa_ident.ident._tf_fit import FitResult, cramer_rao_std
 
 __all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "ripple_model", "FitResult",
            "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",

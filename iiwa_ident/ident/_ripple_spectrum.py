@@ -5,7 +5,7 @@ Fourier coefficients of the deflection are tested for a common phase-locked
 component (Hotelling's T^2, an F(2, 2(n-1)) law under "no line", calibrated
 on the data's floor). :func:`line_search` gives the spectrum with its most
 significant harmonic family (:func:`family`), from which
-:mod:`iiwa_ident.ident.ripple` refines the period.
+:mod:`iiwa_ident.ident._ripple` refines the period.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from scipy import stats
 from scipy.ndimage import maximum_filter1d, median_filter
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.ripple_passes import Pass
+from iiwa_ident.ident._ripple_passes import Pass
 
 __all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'SEARCH_TRIES_PER_POINT', 'Family', 'LineSpectrum', 'chunk_coefficients', 'chunks_in', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'sidak', 'taper', 'window_logp']
 

@@ -78,7 +78,7 @@ block-wise sandwich estimate, robust to coloured residuals, is computed
 alongside: when it is much larger, the residuals are not white (ripple,
 feasibility filter) and a warning says so, since the model's systematic
 errors are then in neither. Fit quality is reported per octave band against
-the H1 estimate and its uncertainty (:mod:`iiwa_ident.ident.frf`).
+the H1 estimate and its uncertainty (:mod:`iiwa_ident.ident._frf`).
 """
 
 from __future__ import annotations
@@ -94,8 +94,8 @@ from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import frf as _frf
-from iiwa_ident.ident.initial import (
+from iiwa_ident.ident import _frf
+from iiwa_ident.ident._initial import (
     MAX_DELAY_S,
     MIN_COHERENCE,
     coherent_bands,
@@ -103,9 +103,9 @@ from iiwa_ident.ident.initial import (
     record_frf,
     without_known,
 )
-from iiwa_ident.ident.log_filter import LOG_FILTER_MAX_HZ, lowest_cutoff_hz, unfiltered_torque
-from iiwa_ident.ident.records import FitRecord, SampledInputs, prepare_record, prepare_records
-from iiwa_ident.ident.resid import INDEPENDENCE, residual_tests
+from iiwa_ident.ident._log_filter import LOG_FILTER_MAX_HZ, lowest_cutoff_hz, unfiltered_torque
+from iiwa_ident.ident._records import FitRecord, SampledInputs, prepare_record, prepare_records
+from iiwa_ident.ident._resid import INDEPENDENCE, residual_tests
 from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, RippleTable, discretize, simulate_outputs
 from iiwa_ident.model import parameter_values as _as_values
 from iiwa_ident.sim import TorqueLogFilter
@@ -293,7 +293,7 @@ class _Problem:
         self._weights: list[tuple[np.ndarray, np.ndarray, float, Any]] = []
         self.n_evaluations = 0
         #: Model steps per sample for the inputs that are functions of the motion (see
-        #: :meth:`~iiwa_ident.ident.records.FitRecord.ripple_inputs`); 2 only to estimate the error of the usual 1.
+        #: :meth:`~iiwa_ident.ident._records.FitRecord.ripple_inputs`); 2 only to estimate the error of the usual 1.
         self.substeps = 1
         self.update_projections()
 
@@ -314,7 +314,7 @@ class _Problem:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The search's bounds on ``x``: the physical ones, the delay in ``[0, 50 ms]``, a log filter's cut-off
-        from :func:`~iiwa_ident.ident.log_filter.lowest_cutoff_hz` to :data:`LOG_FILTER_MAX_HZ` and 0.45 of the
+        from :func:`~iiwa_ident.ident._log_filter.lowest_cutoff_hz` to :data:`LOG_FILTER_MAX_HZ` and 0.45 of the
         fastest record's sampling rate."""
         lower, upper = [*np.log(_LOWER), 0.0], [*np.log(_UPPER), MAX_DELAY_S * 1e3]
         if self.log_filter_order:
@@ -598,7 +598,7 @@ class FitResult:
         than :attr:`std` when the residuals are not white.
     std_robust : dict of str to float
         The model-error aware std (see
-        :func:`iiwa_ident.ident.joint_fit.fit_joint`): equal to :attr:`std`
+        :func:`iiwa_ident.ident._joint_fit.fit_joint`): equal to :attr:`std`
         where the residual is independent of the command, wider where it is
         not; empty until the joint fit sets it (then :attr:`std` applies).
     correlation : numpy.ndarray
@@ -620,7 +620,7 @@ class FitResult:
     warnings : list of str
         Things a user should know before trusting the result.
     initial : list of dict
-        The start candidates (see :func:`~iiwa_ident.ident.initial.initial_estimate`).
+        The start candidates (see :func:`~iiwa_ident.ident._initial.initial_estimate`).
     labels : list of str
         The datasets' files.
     cost : float
@@ -646,9 +646,9 @@ class FitResult:
     cost: float
     n_evaluations: int
     sample_times_s: list[float] = field(default_factory=list)
-    #: Which estimator (:data:`iiwa_ident.ident.joint_fit.METHODS`).
+    #: Which estimator (:data:`iiwa_ident.ident._joint_fit.METHODS`).
     method: str = "eq4"
-    #: Fitted link-side effects (:class:`iiwa_ident.ident.idim.LinkEffectEstimate`), if any.
+    #: Fitted link-side effects (:class:`iiwa_ident.ident._idim.LinkEffectEstimate`), if any.
     effects: list[Any] = field(default_factory=list)
     #: How :attr:`std` was computed (named in the JSON).
     std_method: str = STD_FISHER
@@ -791,7 +791,7 @@ def _set_ripple_basis(records: list[FitRecord], ripple: RippleTerms) -> None:
 
 def _set_motion(problem: _Problem, x: np.ndarray, model_torque: bool = False) -> None:
     """Each record's motion between samples from the command's response at ``x``, where the ripple's inputs
-    need it (:func:`~iiwa_ident.ident.records.record_motion`).
+    need it (:func:`~iiwa_ident.ident._records.record_motion`).
 
     With ``model_torque`` the torque through it is the model's at ``x`` (the measured one less the residual),
     not the measured one: the reaction multiplies the torque, and the sensor's noise in it drives the motor's
@@ -1065,7 +1065,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         Chirps with ``tau_c``, ``tau_j`` and ``q_m`` sampled once per command.
     initial : dict, optional
         Start values ``Jc, bc, K, Jl`` [SI], ``Td`` [s]; default
-        :func:`~iiwa_ident.ident.initial.initial_estimate` (from the data only).
+        :func:`~iiwa_ident.ident._initial.initial_estimate` (from the data only).
     max_starts : int
         How many delay candidates to refine before keeping the best.
     outer_iterations : int
@@ -1074,7 +1074,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         Per dataset, known torques besides the command as ``(input, signal
         [Nm])`` pairs (:data:`INPUTS`), one value per sample: the link-side
         effects and the robot's gravity model estimated beforehand
-        (:func:`iiwa_ident.ident.joint_fit.fit_joint`).
+        (:func:`iiwa_ident.ident._joint_fit.fit_joint`).
     ripple : RippleTerms, optional
         The transmission ripple: its table (if any) as a known input and the
         coefficients of its first harmonics fitted with the parameters, so

@@ -2,7 +2,7 @@
 
 A deflection line of amplitude ``A`` [rad] in a run of duration ``T`` [s] over noise of one-sided power
 spectral density ``S`` [rad^2/Hz] at the line's frequency gives the search's mean chunk coefficient
-(:func:`~iiwa_ident.ident.ripple_spectrum.hotelling`, Hann-tapered chunks) a signal-to-noise ratio
+(:func:`~iiwa_ident.ident._ripple_spectrum.hotelling`, Hann-tapered chunks) a signal-to-noise ratio
 
     lambda = 2 A^2 T / (3 S)
 
@@ -41,10 +41,10 @@ import numpy as np
 from scipy import optimize, signal, stats
 
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD
-from iiwa_ident.ident.ripple_lines import NYQUIST_SHARE
-from iiwa_ident.ident.ripple_lines import span as span_of
-from iiwa_ident.ident.ripple_passes import Pass
-from iiwa_ident.ident.ripple_spectrum import SEARCH_TRIES_PER_POINT, chunks_in
+from iiwa_ident.ident._ripple_lines import NYQUIST_SHARE
+from iiwa_ident.ident._ripple_lines import span as span_of
+from iiwa_ident.ident._ripple_passes import Pass
+from iiwa_ident.ident._ripple_spectrum import SEARCH_TRIES_PER_POINT, chunks_in
 
 __all__ = ["DETECTION_PROBABILITY", "detection_probability", "detectable_amplitude", "required_travel",
            "noise_psd", "line_frequency_hz", "RunSensitivity", "sensitivity", "pooled_detection_probability"]

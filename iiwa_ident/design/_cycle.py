@@ -1,7 +1,7 @@
 """The additive controller's work in one sample: the one control cycle of analysis and runtime.
 
 :class:`ControlCycle` is stepped once per 1 kHz sample by the closed-loop
-analysis on the simulated joint (:mod:`iiwa_ident.design.analysis`) and by
+analysis on the simulated joint (:mod:`iiwa_ident.design._analysis`) and by
 the FRI runtime on the robot (:mod:`iiwa_ident.runtime`, which adds the
 task, the watchdog and the limits around it). Per sample:
 
@@ -21,8 +21,8 @@ records that state and commands nothing.
 
 from __future__ import annotations
 
-from iiwa_ident.design.controller import AdditiveController
-from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
+from iiwa_ident.design._controller import AdditiveController
+from iiwa_ident.design._spatial_filter import FilterSettings, SpatialFilter
 from iiwa_ident.model import MomentumObserver, RippleTable
 from iiwa_ident.robot import Measurement
 

@@ -2,7 +2,7 @@
 percentage, the RMS and the residual tests, per dataset and channel (``iiwa-ident compare``).
 
 The model predicts with everything it holds: its parameters, its ripple table and its extra effects (from
-``diagnose``); nothing is fitted. One channel's figures: :mod:`iiwa_ident.diagnose.channels`.
+``diagnose``); nothing is fitted. One channel's figures: :mod:`iiwa_ident.diagnose._channels`.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison, fit_percent
-from iiwa_ident.diagnose.diagnosis import _residuals
+from iiwa_ident.diagnose._channels import ChannelComparison, channel_comparison, fit_percent
+from iiwa_ident.diagnose._diagnosis import _residuals
 from iiwa_ident.model import JointModel
 
 __all__ = ["ChannelComparison", "compare", "fit_percent"]

@@ -34,7 +34,7 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.frf import levy_fit
+from iiwa_ident.ident._frf import levy_fit
 
 __all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arrays", "BlaFit", "fit_bla",
            "sampled_response", "LINK_TERMS", "SMOOTH_LINES"]

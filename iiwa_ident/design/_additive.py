@@ -1,7 +1,7 @@
 """Design of the additive joint-torque controller of section V.B.
 
-The controller it designs runs one sample at a time in :mod:`iiwa_ident.design.controller`; its
-outer-loop gain margin is :mod:`iiwa_ident.design.margins`.
+The controller it designs runs one sample at a time in :mod:`iiwa_ident.design._controller`; its
+outer-loop gain margin is :mod:`iiwa_ident.design._margins`.
 
 The plant seen from the FRI is eq (4): the commanded torque ``tau_c`` reaches
 the joint torque ``tau_J`` through the built-in torque loop and the 5 ms
@@ -24,7 +24,7 @@ normalised numerator coefficients. The state is then
 so ``K_FSF`` has units [s^3, s^2, s, 1] and ``L`` [s^-4, s^-3, s^-2, s^-1].
 The printed ``A`` of eq (19) agrees with this; the printed ``B_1 = K/Jc`` of
 eq (20) lacks the factor ``c2``: the transfer function requires
-``b_0 = c2 K / Jc`` (see :mod:`iiwa_ident.design.paper`).
+``b_0 = c2 K / Jc`` (see :mod:`iiwa_ident.design._paper`).
 
 Control law, eqs (16)-(18), at the 1 kHz cycle
 ----------------------------------------------
@@ -101,7 +101,7 @@ from scipy.linalg import matrix_balance
 from scipy.signal import cont2discrete
 
 from iiwa_ident._defaults import DEFAULT_PREFILTER_HZ, FEEDFORWARD_MODES  # one definition, light for the CLI's help
-from iiwa_ident.design.controller import AdditiveController
+from iiwa_ident.design._controller import AdditiveController
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import (
     JointParameters,

@@ -2,7 +2,7 @@
 
 The frequency response of the command to the joint torque (H1 on a log grid
 of the record's band) is fitted by eq (4)'s rational part after removing a
-trial delay (:func:`~iiwa_ident.ident.frf.levy_fit`); the delays whose
+trial delay (:func:`~iiwa_ident.ident._frf.levy_fit`); the delays whose
 residual is a local minimum are the candidates, and the ratio of the motor
 position's response to the torque's gives the inertia scale.
 """
@@ -17,9 +17,9 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import frf as _frf
-from iiwa_ident.ident.frf import levy_fit
-from iiwa_ident.ident.records import FitRecord, prepare_records
+from iiwa_ident.ident import _frf
+from iiwa_ident.ident._frf import levy_fit
+from iiwa_ident.ident._records import FitRecord, prepare_records
 from iiwa_ident.model import discretize
 from iiwa_ident.sim import TorqueLogFilter
 

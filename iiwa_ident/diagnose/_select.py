@@ -90,7 +90,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import signal, stats
 
-from iiwa_ident.diagnose.candidates import Block, CandidateEffect, EvidenceChannel, block_columns
+from iiwa_ident.diagnose._candidates import Block, CandidateEffect, EvidenceChannel, block_columns
 
 __all__ = ["FOLDS", "MIN_GAIN", "NOISE_FACTOR", "FAST_BAND_HZ", "BANDS", "MIN_CONFIDENCE", "MAX_EFFECTS",
            "MIN_GAIN_OTHER_SHAPE", "Step", "Selection", "noise_floor", "cv_residuals", "select_effects"]

@@ -36,8 +36,8 @@ import numpy as np
 from scipy.signal import tf2ss
 
 from iiwa_ident._defaults import TAU_EXT_SOURCES
-from iiwa_ident.design.additive import SAMPLE_TIME_S, AdditiveDesign, DesignError
-from iiwa_ident.design.spatial_filter import FilterSettings, gamma_weight, ripple_bandpass_coefficients
+from iiwa_ident.design._additive import SAMPLE_TIME_S, AdditiveDesign, DesignError
+from iiwa_ident.design._spatial_filter import FilterSettings, gamma_weight, ripple_bandpass_coefficients
 from iiwa_ident.model import (
     RIPPLE_PERIOD_RAD,
     JointParameters,
@@ -333,7 +333,7 @@ class DeployedLoop:
         time-invariant filter (a notch at the ripple frequency ``|v| / rho``, weighted by gamma).
     ripple_period_rad : float
         The ripple period rho the spatial filter works at [rad]: the lookup table's
-        (:func:`~iiwa_ident.design.spatial_filter.filter_period`).
+        (:func:`~iiwa_ident.design._spatial_filter.filter_period`).
     """
 
     source: str = "ideal"

@@ -2,11 +2,11 @@
 
 Two estimators of eqs (1)-(4) exist, each strong where the other is weak:
 
-- :func:`iiwa_ident.ident.idim.fit_idim` (IDIM-IV) uses every channel, is
+- :func:`iiwa_ident.ident._idim.fit_idim` (IDIM-IV) uses every channel, is
   linear in the parameters, fits link friction, a position-dependent load and
   a sensor offset, and needs no start values; but its continuous-time
   equations on sampled data are approximate near the Nyquist frequency.
-- :func:`iiwa_ident.ident.tf_fit.fit_transfer_function` is exact for the
+- :func:`iiwa_ident.ident._tf_fit.fit_transfer_function` is exact for the
   sampled, delayed data and reaches the Cramer-Rao bound on clean data; but
   it needs start values and has no link friction or load.
 
@@ -28,19 +28,19 @@ import numpy as np
 
 from iiwa_ident.datasets import Dataset, band_limited_problem, dataset_pose, read_dataset, sha256_file
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.bla import BlaFit, best_linear_approximation, fit_bla
-from iiwa_ident.ident.idim import (
+from iiwa_ident.ident._bla import BlaFit, best_linear_approximation, fit_bla
+from iiwa_ident.ident._idim import (
     STICK_COULOMB_NM,
     IdimResult,
     LinkEffectEstimate,
     fit_idim,
 )
-from iiwa_ident.ident.initial import initial_estimate
-from iiwa_ident.ident.log_filter import LOG_ONLY, LogFilterEstimate, estimate_log_filter, log_filter_text, unfiltered
-from iiwa_ident.ident.model_file import read_model
-from iiwa_ident.ident.records import prepare_records
-from iiwa_ident.ident.starting_model import check_model_matches
-from iiwa_ident.ident.tf_fit import (
+from iiwa_ident.ident._initial import initial_estimate
+from iiwa_ident.ident._log_filter import LOG_ONLY, LogFilterEstimate, estimate_log_filter, log_filter_text, unfiltered
+from iiwa_ident.ident._model_file import read_model
+from iiwa_ident.ident._records import prepare_records
+from iiwa_ident.ident._starting_model import check_model_matches
+from iiwa_ident.ident._tf_fit import (
     FitResult,
     RippleTerms,
     fit_transfer_function,
@@ -128,9 +128,9 @@ def fit_joint(datasets: Sequence[Dataset], *, method: str = "auto",
     ripple_table : RippleTable, optional
         The ripple's lookup table (from the ripple command), which also gives
         its period (without one IDIM-IV searches the period, see
-        :func:`~iiwa_ident.ident.idim.fit_idim`): the output-error fit takes its deflection as known and
+        :func:`~iiwa_ident.ident._idim.fit_idim`): the output-error fit takes its deflection as known and
         fits the first harmonics' coefficients on top
-        (:class:`~iiwa_ident.ident.tf_fit.RippleTerms`). Without a table, a
+        (:class:`~iiwa_ident.ident._tf_fit.RippleTerms`). Without a table, a
         ripple IDIM-IV finds is fitted by those coefficients alone.
 
     Returns
@@ -196,7 +196,7 @@ _REFIT_CUTOFF_SHARE = 0.01
 def _log_filter_candidate(datasets: Sequence[Dataset]) -> LogFilterEstimate | None:
     """A filter before the log the data ask for: the import's check calls a run band-limited
     (:func:`~iiwa_ident.datasets.band_limited_problem`) or the phase of ``tau_j`` against ``q_m`` shows one
-    (:func:`~iiwa_ident.ident.log_filter.estimate_log_filter`), and the phase has a filter's shape; None
+    (:func:`~iiwa_ident.ident._log_filter.estimate_log_filter`), and the phase has a filter's shape; None
     otherwise."""
     try:
         estimate = estimate_log_filter(prepare_records(datasets))
@@ -212,7 +212,7 @@ def _log_filter_candidate(datasets: Sequence[Dataset]) -> LogFilterEstimate | No
 def _fit_joint(datasets: Sequence[Dataset], method: str, ripple_table: RippleTable | None,
                log_filter: TorqueLogFilter | None) -> FitResult:
     """:func:`fit_joint` with or without a filter before the log: the starts (inverse dynamics, eq (4)'s
-    start values) from the torque with the filter undone (:func:`~iiwa_ident.ident.log_filter.unfiltered`), every
+    start values) from the torque with the filter undone (:func:`~iiwa_ident.ident._log_filter.unfiltered`), every
     output-error fit through it."""
     starts = datasets
     if log_filter is not None:
@@ -484,7 +484,7 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
 
     Chirps go to :func:`fit_joint`; multisines
     (:class:`~iiwa_ident.excite.Multisine`, all files) through their best
-    linear approximation to :func:`~iiwa_ident.ident.bla.fit_bla`, whose
+    linear approximation to :func:`~iiwa_ident.ident._bla.fit_bla`, whose
     ``[fit]`` table carries the std's method, chi2/dof and the BLA's noise and
     nonlinear variance per output and octave band.
 

@@ -87,9 +87,9 @@ from iiwa_ident import tool_version
 from iiwa_ident._json import finite_or_none
 from iiwa_ident._schema import TableReader
 from iiwa_ident._toml import dumps_toml, load_toml, write_atomic
-from iiwa_ident.design.additive import FEEDFORWARD_MODES, AdditiveDesign, DesignError, _scaling, check_poles
-from iiwa_ident.design.margins import HumanArm, OuterLoopMargins
-from iiwa_ident.design.spatial_filter import FilterSettings
+from iiwa_ident.design._additive import FEEDFORWARD_MODES, AdditiveDesign, DesignError, _scaling, check_poles
+from iiwa_ident.design._margins import HumanArm, OuterLoopMargins
+from iiwa_ident.design._spatial_filter import FilterSettings
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import PARAMETER_UNITS, JointModel, JointParameters, ParameterError, RippleTable
 
@@ -154,15 +154,15 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
     Parameters
     ----------
     design, margins
-        From :func:`~iiwa_ident.design.additive.design_controller` and
-        :func:`~iiwa_ident.design.margins.outer_loop_margins`.
+        From :func:`~iiwa_ident.design._additive.design_controller` and
+        :func:`~iiwa_ident.design._margins.outer_loop_margins`.
     model : JointModel
         The model the design is based on (KI and the ripple table are taken from it).
     model_path : path, optional
         Its file; recorded with its sha256.
     filter : FilterSettings, optional
         The spatial filter's beta and v_min (default: the design's); it works at the ripple table's
-        period (:func:`~iiwa_ident.design.spatial_filter.filter_period`).
+        period (:func:`~iiwa_ident.design._spatial_filter.filter_period`).
     """
     sha = None
     if model_path is not None:

@@ -28,8 +28,8 @@ chunks). The period is refined
 by maximising the explained variance of a Fourier series in theta_m, and the
 table f(x_i), ``x_i = i rho / N``, is that series sampled.
 
-The passes and their deflection are :mod:`iiwa_ident.ident.ripple_passes`, the
-spectrum and its harmonic families :mod:`iiwa_ident.ident.ripple_spectrum`;
+The passes and their deflection are :mod:`iiwa_ident.ident._ripple_passes`, the
+spectrum and its harmonic families :mod:`iiwa_ident.ident._ripple_spectrum`;
 here the period is refined, the table fitted and the runs combined.
 """
 
@@ -48,10 +48,10 @@ from scipy import optimize, stats
 from iiwa_ident._defaults import PERIOD_MAX_RAD, PERIOD_MIN_RAD  # one definition, light for the CLI's help
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.ripple_detect import sensitivity
-from iiwa_ident.ident.ripple_lines import CrossRunLines, RunLines, cross_run_lines, pass_speed
-from iiwa_ident.ident.ripple_passes import Pass, deflection, spread_repeated_stamps
-from iiwa_ident.ident.ripple_spectrum import (
+from iiwa_ident.ident._ripple_detect import sensitivity
+from iiwa_ident.ident._ripple_lines import CrossRunLines, RunLines, cross_run_lines, pass_speed
+from iiwa_ident.ident._ripple_passes import Pass, deflection, spread_repeated_stamps
+from iiwa_ident.ident._ripple_spectrum import (
     FAMILY_HARMONICS,
     SEARCH_TRIES_PER_POINT,
     LineSpectrum,
@@ -118,11 +118,11 @@ class RippleResult:
     #: Per-run estimates when several runs were given (each analysed alone), and their agreement.
     runs: list[dict] = field(default_factory=list)
     agreement: dict = field(default_factory=dict)
-    #: Every candidate line tested in every run (several runs only): :class:`~iiwa_ident.ident.ripple_lines.
+    #: Every candidate line tested in every run (several runs only): :class:`~iiwa_ident.ident._ripple_lines.
     #: CrossRunLines`, None with one run.
     lines: CrossRunLines | None = None
     #: What each run detects at the period (the paper's rho where none is detected):
-    #: :class:`~iiwa_ident.ident.ripple_detect.RunSensitivity` per run.
+    #: :class:`~iiwa_ident.ident._ripple_detect.RunSensitivity` per run.
     sensitivity: list = field(default_factory=list)
     #: Standard error of ``amplitude_rad`` [rad] (the combined table's jackknife; None without a detection or
     #: below three passes).
@@ -537,7 +537,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     three combined std and 0.1 %; the pooled period's std is at least the spread of the runs'
     fundamentals (their weighted mean's std times the Birge ratio sqrt(chi2 / dof)) and half the
     distance between that mean and the pooled period. Then every candidate line (each run's own lines
-    times 1/4..4, the paper's rho) is tested in every run (:mod:`iiwa_ident.ident.ripple_lines`): the period
+    times 1/4..4, the paper's rho) is tested in every run (:mod:`iiwa_ident.ident._ripple_lines`): the period
     compensated is the shortest whose harmonics are the lines reproduced at two speeds or more, refined on
     the runs that show them (``lines``); where no line is reproduced the joint analysis stands, withdrawn when
     a line of its family is periodic in time, and where the runs disagree the data do not decide.
@@ -572,7 +572,7 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     amplitude_of_interest : float
         Deflection amplitude [rad] for which the result's ``sensitivity`` says, per run that does not detect it
         with probability 0.95, what run would: at its speed or the fastest slower one
-        (:mod:`iiwa_ident.ident.ripple_detect`).
+        (:mod:`iiwa_ident.ident._ripple_detect`).
 
     Returns
     -------

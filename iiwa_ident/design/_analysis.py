@@ -36,7 +36,7 @@ Outer-loop gain margin
 ----------------------
 :func:`kappa_margin` closes ``tau_r = kappa tau_ext`` on the F/T reference
 ``tau_ext_ref`` while an :class:`~iiwa_ident.sim.agents.ImpedanceAgent`
-(hand stiffness and damping of :class:`~iiwa_ident.design.margins.HumanArm`)
+(hand stiffness and damping of :class:`~iiwa_ident.design._margins.HumanArm`)
 moves the link along a slow sine, so that the joint never stands still (the
 robot suppresses torque control at standstill below 1 Nm) and the ripple is
 excited as in a real interaction. A run is judged unstable (:func:`judge_stability`)
@@ -44,7 +44,7 @@ when the oscillatory part of tau_J (above ``highpass_hz``) grows from the
 first to the last hand period by more than ``growth_limit`` and is above a
 noise floor, when it exceeds an absolute level, or when the limit guard
 stops the run. The largest stable ``kappa`` is bracketed around the linear
-prediction :func:`~iiwa_ident.design.margins.kappa_max` and bisected.
+prediction :func:`~iiwa_ident.design._margins.kappa_max` and bisected.
 
 Measured on the default plant (Table I, ripple on, identified ripple table)
 -----------------------------------------------------------------------------
@@ -79,17 +79,17 @@ from typing import NamedTuple
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-from iiwa_ident.design.additive import (
+from iiwa_ident.design._additive import (
     DEFAULT_PREFILTER_HZ,
     AdditiveDesign,
     DesignError,
     builtin_poles,
     design_controller,
 )
-from iiwa_ident.design.controller import AdditiveController
-from iiwa_ident.design.cycle import ControlCycle
-from iiwa_ident.design.margins import HumanArm, kappa_max
-from iiwa_ident.design.spatial_filter import FilterSettings, SpatialFilter
+from iiwa_ident.design._controller import AdditiveController
+from iiwa_ident.design._cycle import ControlCycle
+from iiwa_ident.design._margins import HumanArm, kappa_max
+from iiwa_ident.design._spatial_filter import FilterSettings, SpatialFilter
 from iiwa_ident.excite import ClientState, Experiment, LimitGuard, record
 from iiwa_ident.model import JointModel, JointParameters, RippleTable, joint_position, table1_model
 from iiwa_ident.references import square
@@ -162,7 +162,7 @@ class BuiltinTorqueControl(TorqueControl):
 
 
 class AdditiveTorqueControl(TorqueControl):
-    """The additive controller of section V.B: the runtime's :class:`~iiwa_ident.design.cycle.ControlCycle`.
+    """The additive controller of section V.B: the runtime's :class:`~iiwa_ident.design._cycle.ControlCycle`.
 
     Per cycle: ``theta_j`` from the motor position by eq (8) (if a ripple
     table is given, else ``q_m``), ``tau_J,filt`` by the spatial filter of
@@ -227,7 +227,7 @@ def identified_model(plant: Plant | None = None, seed: int = 1, base: JointModel
                      speeds: tuple[float, ...] = (0.3, 0.6, 1.2), range_rad: float = 1.0) -> JointModel:
     """``base`` (Table I) with the ripple table identified from a simulated constant-velocity run.
 
-    The table is what a user would get from :func:`~iiwa_ident.ident.ripple.identify_ripple`
+    The table is what a user would get from :func:`~iiwa_ident.ident._ripple.identify_ripple`
     on the plant, never the plant's own truth.
     """
     from iiwa_ident.excite import ConstantVelocity
@@ -752,7 +752,7 @@ class KappaMargin:
     kappa_unstable : float
         Smallest gain judged unstable [-] (inf if none).
     linear : float
-        Linear prediction of :func:`~iiwa_ident.design.margins.kappa_max` (no ripple, no filter) [-].
+        Linear prediction of :func:`~iiwa_ident.design._margins.kappa_max` (no ripple, no filter) [-].
     trials : list of KappaTrial
         Every run, in the order made.
     """
@@ -770,7 +770,7 @@ def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm
                  seed: int = 0, **trial_kwargs) -> KappaMargin:
     """Largest stable outer-loop gain ``kappa`` of ``tau_r = kappa tau_ext`` found by simulation.
 
-    The bracket starts at the linear prediction (:func:`~iiwa_ident.design.margins.kappa_max`
+    The bracket starts at the linear prediction (:func:`~iiwa_ident.design._margins.kappa_max`
     on the model, with the same arm), widens by factors of 1.5 until it holds
     a stable and an unstable gain, then bisects (geometrically) until their
     ratio is below ``1 + rel_tol``.

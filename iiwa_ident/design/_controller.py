@@ -1,6 +1,6 @@
 """The additive controller of section V.B, one call per 1 kHz cycle: eqs (16)-(18) of a design.
 
-The design (gains, feed-forward, reference model) is :mod:`iiwa_ident.design.additive`;
+The design (gains, feed-forward, reference model) is :mod:`iiwa_ident.design._additive`;
 what runs on the robot is :class:`AdditiveController`, stepped by the control
 cycle (:class:`~iiwa_ident.design.ControlCycle`) in the closed-loop analysis and
 the FRI runtime alike.
@@ -32,7 +32,7 @@ class AdditiveController:
     """The discrete additive controller, one call per 1 kHz cycle.
 
     ``tau_c = step(tau_r, tau_j_filt)`` runs eqs (16)-(18) of the design's
-    feed-forward mode (:mod:`iiwa_ident.design.additive`). Feed the spatially filtered joint
+    feed-forward mode (:mod:`iiwa_ident.design._additive`). Feed the spatially filtered joint
     torque of eq (15) as ``tau_j_filt`` and send the returned ``tau_c`` in
     the same cycle.
 

@@ -1,6 +1,6 @@
 """A given spatial line tested in a given run: the cross-run evidence of the ripple search.
 
-A run's own search (:func:`~iiwa_ident.ident.ripple_spectrum.line_search`) looks at every frequency and pays
+A run's own search (:func:`~iiwa_ident.ident._ripple_spectrum.line_search`) looks at every frequency and pays
 for it in its false-alarm probability; a line that another run predicts is tested at that one frequency,
 far more sensitively. :func:`line_test` does it: the Hann-tapered Fourier coefficient of the run's
 deflection ``f`` at ``k`` [cycles/rad] of the motor position, pooled over the run's passes (a position-periodic
@@ -18,7 +18,7 @@ is searched over a window of that width, and the probability corrected for the i
 Examples
 --------
 >>> import numpy as np
->>> from iiwa_ident.ident.ripple_passes import Pass
+>>> from iiwa_ident.ident._ripple_passes import Pass
 >>> rng = np.random.default_rng(1)
 >>> theta = 0.5 * np.arange(4000) / 1000.0                    # 0.5 rad/s for 4 s at 1 kHz
 >>> f = 2e-6 * np.sin(2 * np.pi * 51.0 * theta) + 2e-6 * rng.standard_normal(theta.size)
@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from iiwa_ident.ident.ripple_passes import Pass
-from iiwa_ident.ident.ripple_spectrum import MIN_SUBHARMONIC_POWER, sidak, taper
+from iiwa_ident.ident._ripple_passes import Pass
+from iiwa_ident.ident._ripple_spectrum import MIN_SUBHARMONIC_POWER, sidak, taper
 
 __all__ = ["span", "pass_speed", "NEIGHBOURS", "RATIOS", "SAME_SPEED_RATIO", "FAMILY_MAX_HARMONIC", "LineTest", "line_test", "RunLines", "Candidate",
            "CrossRunLines", "cross_run_lines", "distinct_speeds"]

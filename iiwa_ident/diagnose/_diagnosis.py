@@ -1,13 +1,13 @@
 """``diagnose``: what the model gets wrong, which effects explain it, and what they gain.
 
-1. Every dataset is predicted with the model (:mod:`~iiwa_ident.diagnose.predict`);
+1. Every dataset is predicted with the model (:mod:`~iiwa_ident.diagnose._predict`);
    the effects the model file already lists are part of the prediction (an
    ``input_delay`` as a longer ``Td``; the ripple through the ``[ripple]``
    table only, not as an ``[[effects]]`` entry).
-2. The candidate library (:mod:`~iiwa_ident.diagnose.candidates`) is tested
-   by blocked cross-validation and greedy selection (:mod:`~iiwa_ident.diagnose.select`).
+2. The candidate library (:mod:`~iiwa_ident.diagnose._candidates`) is tested
+   by blocked cross-validation and greedy selection (:mod:`~iiwa_ident.diagnose._select`).
 3. The named effects are refitted on all data and added to a copy of the
-   model: the ripple as a :class:`~iiwa_ident.ident.model_file.RippleTable`,
+   model: the ripple as a :class:`~iiwa_ident.ident._model_file.RippleTable`,
    a delay as a corrected ``Td``, the others as ``[[effects]]`` tables the
    simulator runs (:func:`~iiwa_ident.sim.plant_from_model`).
 4. The gain is measured on held-out data: residual RMS [Nm] before and after
@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset, torque_sign_problem
-from iiwa_ident.diagnose.candidates import (
+from iiwa_ident.diagnose._candidates import (
     CANDIDATES,
     LOG_FILTER_DAMPINGS,
     LOG_FILTER_MIN_HZ,
@@ -43,9 +43,9 @@ from iiwa_ident.diagnose.candidates import (
     contribution,
     make_candidate,
 )
-from iiwa_ident.diagnose.channels import ChannelComparison, channel_comparison
-from iiwa_ident.diagnose.predict import Context, build_context
-from iiwa_ident.diagnose.select import (
+from iiwa_ident.diagnose._channels import ChannelComparison, channel_comparison
+from iiwa_ident.diagnose._predict import Context, build_context
+from iiwa_ident.diagnose._select import (
     BANDS,
     MIN_GAIN,
     NOISE_FACTOR,
@@ -87,7 +87,7 @@ class EffectReport:
     confidence : float
         Probability (one-sided t-test over held-out block-folds) that the effect reduces the residual.
     parameters : dict of str to float
-        Reported parameters (units in :mod:`iiwa_ident.diagnose.candidates`).
+        Reported parameters (units in :mod:`iiwa_ident.diagnose._candidates`).
     rms_before, rms_after : float
         Held-out residual RMS [Nm] without and with the effect (all other named
         effects included), on the channels it acts on.
@@ -192,7 +192,7 @@ class Diagnosis:
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length, as
-        the extended model carries them (:meth:`~iiwa_ident.diagnose.candidates.CandidateEffect.carried`)."""
+        the extended model carries them (:meth:`~iiwa_ident.diagnose._candidates.CandidateEffect.carried`)."""
         total = np.zeros_like(ctx.t)
         for cand, sl in zip(self.selection.selected, self.selection.slices):
             if only is None or cand.name == only:
@@ -206,7 +206,7 @@ class Diagnosis:
     @property
     def unexplained_channels(self) -> list[ChannelReport]:
         """Channels the model with the named effects does not explain: their residual fails the tests that judge the
-        model and is above the sensor noise (:attr:`~iiwa_ident.diagnose.channels.ChannelComparison.explained`);
+        model and is above the sensor noise (:attr:`~iiwa_ident.diagnose._channels.ChannelComparison.explained`);
         what is left there is not in the library or not in its shape."""
         return [c for c in self.channels if c.after is not None and not c.after.explained]
 
@@ -483,7 +483,7 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         Names of the effects to test (default: the whole library, :data:`CANDIDATES`).
     **selection_options
         ``min_gain``, ``min_confidence``, ``max_effects`` of
-        :func:`~iiwa_ident.diagnose.select.select_effects`.
+        :func:`~iiwa_ident.diagnose._select.select_effects`.
 
     Returns
     -------
@@ -798,7 +798,7 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
               ) -> _Naming:
     """The selection among the candidates ``names``, its effect reports, the extended model and the held-out
     residuals with the named effects; ``ranges``: what the robot's description makes physically possible;
-    ``first``: effects named before the search (:func:`~iiwa_ident.diagnose.select.select_effects`)."""
+    ``first``: effects named before the search (:func:`~iiwa_ident.diagnose._select.select_effects`)."""
     cands = [make_candidate(n) for n in names]
     for c in cands:
         c.ranges = ranges

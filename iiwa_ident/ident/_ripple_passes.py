@@ -2,7 +2,7 @@
 
 A pass is a stretch of one run at constant speed in one direction without
 gaps (:func:`find_passes`). Along it :func:`deflection` estimates
-``f = theta_m - theta_j`` by either method of :mod:`iiwa_ident.ident.ripple`
+``f = theta_m - theta_j`` by either method of :mod:`iiwa_ident.ident._ripple`
 (static with the link reference, dynamic with the link's own motion restored
 from the torque), high-passed for the periods searched.
 """

@@ -4,20 +4,20 @@ Each candidate is a :class:`CandidateEffect` subclass (in the spirit of a
 feature library of sparse regression): it knows
 
 * its *columns*: signals it injects at a physical point of the joint
-  (:data:`iiwa_ident.diagnose.predict.INJECTIONS`), each scaled by one
-  unknown coefficient; :func:`~iiwa_ident.diagnose.predict.channel_columns`
+  (:data:`iiwa_ident.diagnose._predict.INJECTIONS`), each scaled by one
+  unknown coefficient; :func:`~iiwa_ident.diagnose._predict.channel_columns`
   turns them into regressors of the residual channels, so the residual is
   linear in the coefficients;
 * how to find its few *nonlinear* parameters (period, frequency, delay) by a
   search on the current residual (:meth:`CandidateEffect.prepare`);
 * how coefficients become the reported parameters and how they extend a
-  :class:`~iiwa_ident.ident.model_file.JointModel`;
+  :class:`~iiwa_ident.ident._model_file.JointModel`;
 * optionally, an *evidence channel* of its own (:meth:`CandidateEffect.evidence`):
   a residual outside the torque channels where the effect shows more
   plainly, with the effect's regressors there (the transmission ripple's
   deflection in the motor position of a position-controlled arm, where its
   torque signature is hundredths of a Nm). The selection judges it by the
-  same held-out tests as the residual channels (:mod:`~iiwa_ident.diagnose.select`).
+  same held-out tests as the residual channels (:mod:`~iiwa_ident.diagnose._select`).
 
 The physics of every candidate but the model's own parameters is the plant
 effect of the same name (:mod:`iiwa_ident.sim.effects`): its regressors,
@@ -63,7 +63,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.diagnose.predict import Context, channel_columns, logged_change, predict_channel
+from iiwa_ident.diagnose._predict import Context, channel_columns, logged_change, predict_channel
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import LOG_FILTER_MIN_HZ, LOG_ONLY, PhysicalRanges, line_ratio
 from iiwa_ident.model import JointModel, RippleTable
@@ -233,7 +233,7 @@ class CandidateEffect:
     is_effect: ClassVar[bool] = True
 
     #: Least held-out gain for the effect to be named, beyond the selection's own
-    #: (:data:`~iiwa_ident.diagnose.select.MIN_GAIN`).
+    #: (:data:`~iiwa_ident.diagnose._select.MIN_GAIN`).
     min_gain: ClassVar[float] = 0.0
 
     #: Candidates whose shape this one's holds with more parameters (a spring's constant is a sensor offset on
@@ -316,7 +316,7 @@ class CandidateEffect:
 
     def free_columns(self, ctx: Context) -> list[Column]:
         """Columns of the effect's family in a freer shape (the effect's own columns first, then more), for the
-        shape-fit measure of :func:`~iiwa_ident.diagnose.diagnosis.diagnose`; [] when there is none."""
+        shape-fit measure of :func:`~iiwa_ident.diagnose._diagnosis.diagnose`; [] when there is none."""
         return []
 
     def relevant(self, coef: np.ndarray) -> bool:
@@ -419,7 +419,7 @@ class _Identified(NamedTuple):
 class TransmissionRippleCandidate(CandidateEffect):
     """Position-periodic transmission deflection f(theta_m mod rho), eq (5).
 
-    The period comes from :func:`iiwa_ident.ident.ripple.identify_ripple`
+    The period comes from :func:`iiwa_ident.ident._ripple.identify_ripple`
     (section III.B; on the motor position corrected by the model's own table,
     so only what the table misses is looked for) and is refined by the
     residual fit; the deflection is a Fourier series of :attr:`harmonics`
@@ -1150,7 +1150,7 @@ class ModelParametersCandidate(CandidateEffect):
     sensor scale for a wrong K, a delay for a wrong bc) names something the
     joint does not have. The parameters are searched on the current residual
     through the exact predictions of both channels
-    (:func:`~iiwa_ident.diagnose.predict.predict_channel`): first the delay
+    (:func:`~iiwa_ident.diagnose._predict.predict_channel`): first the delay
     alone on a grid (a delay error of a few ms is far from linear on a
     chirp), then all of them by nonlinear least squares, each within a factor
     :data:`MODEL_PARAMETER_FACTOR` of the model's and the delay within

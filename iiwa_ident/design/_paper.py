@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from iiwa_ident.design.additive import (
+from iiwa_ident.design._additive import (
     PAPER_OBSERVER_POLES,
     PAPER_POLES,
     _acker,
@@ -196,7 +196,7 @@ def paper_reproduction(params: JointParameters | None = None) -> list[Reproducti
                                 f"= {p.K / p.Jc / kr_ratio:.0f} s^-2 instead of {p.K / p.Jc:.0f} "
                                 f"({100 * (1 / kr_ratio - 1):.1f} %, within the rounding of Jc = {p.Jc:g}). "
                                 "With tau_ff of eq (22) added, the overall DC gain is not 1; the implementation "
-                                "makes it 1 (iiwa_ident.design.additive)"))
+                                "makes it 1 (iiwa_ident.design._additive)"))
     return rows
 
 

@@ -1,7 +1,7 @@
 """One channel of one dataset as a model predicts it: the measured and predicted signals, the fit percentage,
 the RMS and the residual tests (shared by ``compare`` and ``diagnose``).
 
-The channels are the diagnosis's (:mod:`iiwa_ident.diagnose.predict`): ``command``, the joint torque's
+The channels are the diagnosis's (:mod:`iiwa_ident.diagnose._predict`): ``command``, the joint torque's
 response to the torque command (torque-commanded data), and ``link``, the link equation's torque (eq (2),
 low-passed at its cut-off).
 """
@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from iiwa_ident.diagnose.predict import Context
+from iiwa_ident.diagnose._predict import Context
 from iiwa_ident.ident import INDEPENDENCE, LEVEL, MAX_LAG, ResidualTests, residual_tests
 
 __all__ = ["FEEDBACK_EXPERIMENTS", "AT_NOISE_FACTOR", "ChannelComparison", "channel_comparison", "fit_percent",

@@ -6,9 +6,9 @@ two outputs of one chirp disagree in phase by the filter's lag. From eqs (2)-(3)
 the phase of ``H_tau / H_q``, both H1 from the command, is the filter's phase modulo pi, whatever the joint's
 parameters, the delay or the torque loop. :func:`estimate_log_filter` fits the cut-off of one or two
 first-order stages to it (weighted by the H1's phase std); the output-error fit refines it with the
-parameters (:func:`~iiwa_ident.ident.tf_fit.fit_transfer_function`).
+parameters (:func:`~iiwa_ident.ident._tf_fit.fit_transfer_function`).
 
-The inverse-dynamics start (:func:`~iiwa_ident.ident.idim.fit_idim`) needs the torque itself:
+The inverse-dynamics start (:func:`~iiwa_ident.ident._idim.fit_idim`) needs the torque itself:
 :func:`unfiltered` undoes the filter in the frequency domain up to the excitation's top and holds the inverse's
 gain beyond it, so that the sensor's noise is not amplified without bound.
 """
@@ -24,8 +24,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.ident.initial import record_frf
-from iiwa_ident.ident.records import FitRecord
+from iiwa_ident.ident._initial import record_frf
+from iiwa_ident.ident._records import FitRecord
 from iiwa_ident.sim import TorqueLogFilter
 
 __all__ = ["LogFilterEstimate", "estimate_log_filter", "unfiltered", "unfiltered_torque", "log_filter_text", "LOG_FILTER_MIN_LAG_SIGMA", "LOG_FILTER_MIN_EXPLAINED",
@@ -101,7 +101,7 @@ class LogFilterEstimate:
 
 
 def log_filter_text(fit: dict[str, float]) -> str:
-    """A fitted log filter (:attr:`~iiwa_ident.ident.tf_fit.FitResult.log_filter`) in words: its stages and
+    """A fitted log filter (:attr:`~iiwa_ident.ident._tf_fit.FitResult.log_filter`) in words: its stages and
     cut-off with its std."""
     stages = "one first-order stage" if int(fit["order"]) == 1 else f"{int(fit['order'])} first-order stages"
     text = f"{stages} at {fit['cutoff_hz']:.4g} +- {fit['std']:.2g} Hz"
@@ -153,7 +153,7 @@ def estimate_log_filter(records: Sequence[FitRecord]) -> LogFilterEstimate | Non
     Parameters
     ----------
     records : sequence of FitRecord
-        Chirps of one joint (:func:`~iiwa_ident.ident.records.prepare_records`).
+        Chirps of one joint (:func:`~iiwa_ident.ident._records.prepare_records`).
 
     Returns
     -------

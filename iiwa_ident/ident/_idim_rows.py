@@ -1,13 +1,13 @@
 """The inverse-dynamics fit's regression rows: a record filtered, differentiated exactly and turned into columns.
 
-Each record (:class:`~iiwa_ident.ident.records.FitRecord`) is extended
+Each record (:class:`~iiwa_ident.ident._records.FitRecord`) is extended
 evenly, low-passed without phase and differentiated in the frequency domain
 (:class:`Spectral`); :func:`prepare_rows` keeps the samples away from its
 ends and builds the motor equation's and the link equation's columns (the
 robot's gravity model, the ripple's reaction and link acceleration,
 spectral lines fitted as free sinusoids). :func:`dealiased` takes the
 hold's aliased images out of a record at the current estimate. The
-equations are those of :mod:`iiwa_ident.ident.idim`.
+equations are those of :mod:`iiwa_ident.ident._idim`.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from scipy import fft as _fft
 from scipy.fft import next_fast_len
 
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.initial import MAX_DELAY_S
-from iiwa_ident.ident.lines import block_weights, fit_sinusoid
-from iiwa_ident.ident.records import BLOCK_S, FitRecord
+from iiwa_ident.ident._initial import MAX_DELAY_S
+from iiwa_ident.ident._lines import block_weights, fit_sinusoid
+from iiwa_ident.ident._records import BLOCK_S, FitRecord
 from iiwa_ident.model import frequency_response
 
 __all__ = ["FILTER_ORDER", "FC_MAX", "EDGE_S", "LINE_BAND_HZ", "Spectral", "Prepared", "Lines", "prepare_rows",

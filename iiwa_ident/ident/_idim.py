@@ -42,7 +42,7 @@ lines), ``tau_s = tau_j + h``, enters the link equation as
 ``(1 - Jl w^2 / K) h`` and the motor equation through the torque loop:
 at each line one free sine and cosine per record in both equations. The
 lines are searched in the link equation's residual (:func:`_line_search`,
-:mod:`iiwa_ident.ident.lines`), their frequencies refined on the reading,
+:mod:`iiwa_ident.ident._lines`), their frequencies refined on the reading,
 and the link's angle and speed of eq (9) are computed from the reading
 without them (a hum in ``tau_s' / K`` passes through the friction's tanh).
 
@@ -105,7 +105,7 @@ from scipy.optimize import minimize_scalar
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident.idim_rows import (
+from iiwa_ident.ident._idim_rows import (
     Lines,
     Narrowband,
     Prepared,
@@ -118,14 +118,14 @@ from iiwa_ident.ident.idim_rows import (
     ripple_basis,
     ripple_link_columns,
 )
-from iiwa_ident.ident.initial import MAX_DELAY_S
-from iiwa_ident.ident.lines import (
+from iiwa_ident.ident._initial import MAX_DELAY_S
+from iiwa_ident.ident._lines import (
     BACKGROUND_CELLS,
     block_weights,
     fit_sinusoid,
     line_ratio,
 )
-from iiwa_ident.ident.records import FitRecord, prepare_records
+from iiwa_ident.ident._records import FitRecord, prepare_records
 from iiwa_ident.model import PARAMETER_NAMES, frequency_response, resonance_hz
 
 __all__ = ["LinkEffectEstimate", "IdimResult", "fit_idim", "FRICTION_SMOOTHING_RAD_S", "LOAD_MIN_RANGE_RAD",
@@ -227,7 +227,7 @@ class IdimResult:
     method: str = "IDIM-IV"
     warnings: list[str] = field(default_factory=list)
     #: Per dataset, the estimated torques besides the command as ``(input, signal [Nm])`` for
-    #: :func:`iiwa_ident.ident.tf_fit.fit_transfer_function`: link friction and load on the link,
+    #: :func:`iiwa_ident.ident._tf_fit.fit_transfer_function`: link friction and load on the link,
     #: the robot's gravity model on the motor side. Each signal is the mean over its sample (the
     #: model holds an input over the sample).
     known_inputs: list[list[tuple[str, np.ndarray]]] = field(default_factory=list)
@@ -469,7 +469,7 @@ def _line_search(preps: list[Prepared], load: str) -> tuple[float, ...]:
 
     The residual of a least-squares fit of the link equation (no physical check: it only has to
     expose the lines); a line is a cell whose periodogram over its running median
-    (:func:`~iiwa_ident.ident.lines.line_ratio`), geometric mean over the records, exceeds
+    (:func:`~iiwa_ident.ident._lines.line_ratio`), geometric mean over the records, exceeds
     :data:`LINE_RATIO`; its frequency refined by the power a sinusoid explains, it is projected out and
     the next is searched, up to :data:`MAX_LINES`.
     """

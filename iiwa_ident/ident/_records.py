@@ -1,8 +1,8 @@
 """The joint fit's data: one dataset prepared as a record (command, outputs, band, drift basis, noise blocks).
 
 Both estimators of the joint model read their data through here: the
-output-error fit (:mod:`iiwa_ident.ident.tf_fit`) and the instrumental-variable
-inverse dynamics (:mod:`iiwa_ident.ident.idim`). A record is refused, in one
+output-error fit (:mod:`iiwa_ident.ident._tf_fit`) and the instrumental-variable
+inverse dynamics (:mod:`iiwa_ident.ident._idim`). A record is refused, in one
 line naming the dataset, when it has no torque command, is too short, too
 little excited, sampled too slowly for its sweep or has lost too many robot
 cycles (a few lost FRI cycles are filled: the robot held the command).
@@ -36,7 +36,7 @@ from scipy.interpolate import BSpline, CubicSpline
 
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.ident import frf as _frf
+from iiwa_ident.ident import _frf
 from iiwa_ident.model import discretize, sample_means, sample_slopes
 
 __all__ = ["MIN_DURATION_S", "MIN_COMMAND_STD_NM", "BLOCK_S", "MAX_LOST_SHARE", "MAX_LOST_RUN", "FitRecord",

@@ -40,7 +40,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 from iiwa_ident.datasets import Dataset
-from iiwa_ident.design.spatial_filter import PAPER_FILTER, FilterSettings, SpatialFilter
+from iiwa_ident.design._spatial_filter import PAPER_FILTER, FilterSettings, SpatialFilter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointModel, MomentumObserver, joint_position, link_position
 

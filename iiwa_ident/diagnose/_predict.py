@@ -342,8 +342,8 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
         Any experiment of format v1 (torque-commanded or position-controlled, 200 Hz to 1 kHz).
     model : JointModel
         The model; its ripple table and extra effects are part of the prediction
-        only through :mod:`iiwa_ident.diagnose.candidates` (known effects are
-        added by :func:`iiwa_ident.diagnose.diagnosis.diagnose`).
+        only through :mod:`iiwa_ident.diagnose._candidates` (known effects are
+        added by :func:`iiwa_ident.diagnose._diagnosis.diagnose`).
     index : int
         Position in the diagnosed list.
     cutoff_hz : float
