@@ -104,6 +104,21 @@ def test_vocabulary():
     assert set(model.__all__) <= set(dir(model))
 
 
+def test_every_parameter_source_gives_the_same_values():
+    """JointParameters, a mapping, a model file's joint model, a sequence and an array name one parameter set."""
+    from types import MappingProxyType
+
+    from iiwa_ident.model import ParameterSource, table1_model
+
+    want = parameter_values(TABLE1)
+    sources: list[ParameterSource] = [TABLE1, TABLE1.as_dict(), MappingProxyType(TABLE1.as_dict()), table1_model(),
+                                      list(want), tuple(want), np.array(want)]
+    for source in sources:
+        assert parameter_values(source) == want, type(source)
+    with pytest.raises(ValueError, match="five parameters"):
+        parameter_values(np.array(want)[:4])
+
+
 @pytest.mark.parametrize("field, value, message", [
     ("Jc", 0.0, "Jc must be positive"), ("K", float("nan"), "K must be positive"),
     ("bc", -1.0, "bc must be non-negative"), ("Td", float("inf"), "Td must be positive"),

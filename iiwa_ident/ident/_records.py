@@ -37,7 +37,7 @@ from scipy.interpolate import BSpline, CubicSpline
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident import _frf
-from iiwa_ident.model import discretize, sample_means, sample_slopes
+from iiwa_ident.model import ParameterSource, discretize, sample_means, sample_slopes
 
 __all__ = ["MIN_DURATION_S", "MIN_COMMAND_STD_NM", "BLOCK_S", "MAX_LOST_SHARE", "MAX_LOST_RUN", "FitRecord",
            "prepare_record", "prepare_records", "check_joints", "fill_lost_cycles", "record_label", "spline_basis",
@@ -112,7 +112,7 @@ class SampledInputs:
                    substeps=substeps)
 
 
-def record_motion(u: np.ndarray, q: np.ndarray, tau: np.ndarray, T: float, params: Any) -> Motion:
+def record_motion(u: np.ndarray, q: np.ndarray, tau: np.ndarray, T: float, params: ParameterSource) -> Motion:
     """The motion between samples: the command's modelled response at ``params`` (its speed jumps exact,
     :func:`~iiwa_ident.model.discretize` at ``T / MOTION_SUBSTEPS``) plus a cubic through what it leaves at
     the samples (smooth: the response to the ripple, the link's torques, the drift).
@@ -294,7 +294,7 @@ class FitRecord:
             self.ripple_basis = [(D[:, j], RX[:, j]) for j in range(D.shape[1])]
         self._inputs.clear()
 
-    def set_motion(self, params: Any, q: np.ndarray | None = None, tau: np.ndarray | None = None) -> None:
+    def set_motion(self, params: ParameterSource, q: np.ndarray | None = None, tau: np.ndarray | None = None) -> None:
         """Resolve the motion between samples from the command's response at ``params``
         (:func:`record_motion`), through ``q`` [rad] (absolute) and the carried ``tau`` [Nm] at the samples
         (default: the measured ones)."""

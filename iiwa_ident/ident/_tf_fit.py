@@ -106,7 +106,15 @@ from iiwa_ident.ident._initial import (
 from iiwa_ident.ident._log_filter import LOG_FILTER_MAX_HZ, lowest_cutoff_hz, unfiltered_torque
 from iiwa_ident.ident._records import FitRecord, SampledInputs, prepare_record, prepare_records
 from iiwa_ident.ident._resid import INDEPENDENCE, residual_tests
-from iiwa_ident.model import INPUTS, PARAMETER_NAMES, PARAMETER_UNITS, RippleTable, discretize, simulate_outputs
+from iiwa_ident.model import (
+    INPUTS,
+    PARAMETER_NAMES,
+    PARAMETER_UNITS,
+    ParameterSource,
+    RippleTable,
+    discretize,
+    simulate_outputs,
+)
 from iiwa_ident.model import parameter_values as _as_values
 from iiwa_ident.sim import TorqueLogFilter
 
@@ -207,12 +215,12 @@ class RippleTerms:
         return D, RX
 
 
-def _input_response(params: Any, T: float, kind: str, signal: np.ndarray) -> np.ndarray:
+def _input_response(params: ParameterSource, T: float, kind: str, signal: np.ndarray) -> np.ndarray:
     """Outputs ``(2, n)`` for one known torque (no delay, so ``Td`` does not enter)."""
     return discretize(params, T, kind).simulate(signal)
 
 
-def _motion_response(params: Any, T: float, inputs: SampledInputs) -> np.ndarray:
+def _motion_response(params: ParameterSource, T: float, inputs: SampledInputs) -> np.ndarray:
     """Outputs ``(2, n, columns)`` of deflection and reaction columns (:class:`SampledInputs`) through the
     model sampled as finely as they are."""
     s = inputs.substeps
@@ -221,7 +229,7 @@ def _motion_response(params: Any, T: float, inputs: SampledInputs) -> np.ndarray
     return Y[:, ::s] if s > 1 else Y
 
 
-def _simulate_record(params: Any, rec: FitRecord, substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
+def _simulate_record(params: ParameterSource, rec: FitRecord, substeps: int = 1, known: np.ndarray | None = None) -> np.ndarray:
     """Outputs for a record's command and its known torques; a non-physical ``params`` gives NaN.
 
     ``known``: the known torques' response at ``params`` when the caller has it (:func:`_known_response`).
@@ -230,7 +238,7 @@ def _simulate_record(params: Any, rec: FitRecord, substeps: int = 1, known: np.n
         + (_known_response(params, rec, substeps) if known is None else known)
 
 
-def _known_response(params: Any, rec: FitRecord, substeps: int = 1) -> np.ndarray:
+def _known_response(params: ParameterSource, rec: FitRecord, substeps: int = 1) -> np.ndarray:
     """The outputs ``(2, n)`` of a record's known torques (zero without; NaN for a non-physical ``params``):
     no delay in them, so ``Td`` does not enter."""
     def simulate() -> np.ndarray:
@@ -1162,7 +1170,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
 # Cramer-Rao bound
 
 
-def cramer_rao_std(params: Any, datasets: Sequence[Dataset], tau_noise_nm: float, q_noise_rad: float,
+def cramer_rao_std(params: ParameterSource, datasets: Sequence[Dataset], tau_noise_nm: float, q_noise_rad: float,
                    *, nuisance: bool = True) -> dict[str, float]:
     """Cramer-Rao lower bound of the parameters' std for white noise of known level.
 

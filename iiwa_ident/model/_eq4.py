@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from iiwa_ident.model._parameters import JointParameters, parameter_values
+from iiwa_ident.model._parameters import JointParameters, ParameterSource, parameter_values
 
 if TYPE_CHECKING:
     import control as ct  # imported where used: python-control is slow to import
@@ -103,7 +103,7 @@ def transfer_function(p: JointParameters, delay: str = "pade") -> ct.TransferFun
     return ct.tf(*coefficients(p, delay))
 
 
-def polynomials(p, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
+def polynomials(p: ParameterSource, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
     """Numerator and denominator of ``tau_J`` per input without the delay, highest power first.
 
     The denominator is eq (4)'s ``Jc Jl s^2 + Jl bc s + (Jc + Jl) K`` for every
@@ -142,7 +142,7 @@ def polynomials(p, input: str = "command") -> tuple[np.ndarray, np.ndarray]:
     return np.array([Jl * bc, Jl * K]), den
 
 
-def frequency_response(p, f_hz: np.ndarray | float, input: str = "command") -> np.ndarray:
+def frequency_response(p: ParameterSource, f_hz: np.ndarray | float, input: str = "command") -> np.ndarray:
     """The continuous-time response of ``tau_J`` at ``f_hz`` [Hz], the delay exact.
 
     Parameters

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, Protocol, Union, runtime_checkable
+
+import numpy as np
 
 from iiwa_ident.errors import IiwaIdentError
 
 __all__ = ["Param", "ParameterError", "JOINT_PARAMETERS", "PARAMETER_NAMES", "PARAMETER_UNITS", "JointParameters",
-           "parameter_values", "RIPPLE_PERIOD_RAD", "OBSERVER_GAIN"]
+           "parameter_values", "ParameterSource", "HasParameterValues", "RIPPLE_PERIOD_RAD", "OBSERVER_GAIN"]
 
 
 class ParameterError(IiwaIdentError):
@@ -100,12 +103,12 @@ class JointParameters:
             raise ParameterError(f"bc must be non-negative and finite, got {self.bc!r}")
 
     @classmethod
-    def from_model(cls, model) -> JointParameters:
+    def from_model(cls, model: HasParameterValues) -> JointParameters:
         """The parameters of anything with ``value(name)`` (a model file's joint model)."""
         return cls(*parameter_values(model))
 
     @classmethod
-    def from_mapping(cls, values) -> JointParameters:
+    def from_mapping(cls, values: Mapping[str, float]) -> JointParameters:
         """The parameters of a mapping ``{"Jc": .., ...}`` [SI]."""
         return cls(*parameter_values(values))
 
@@ -124,15 +127,27 @@ class ParameterValues(NamedTuple):
     Td: float
 
 
-def parameter_values(params) -> ParameterValues:
-    """``(Jc, bc, K, Jl, Td)`` [SI] of :class:`JointParameters`, a mapping, a model file's joint model
-    (anything with ``value(name)``) or a sequence of five numbers; not validated."""
+@runtime_checkable
+class HasParameterValues(Protocol):
+    """Anything that gives a parameter's value by name (a model file's joint model)."""
+
+    def value(self, name: str) -> float: ...
+
+
+#: Where eqs (1)-(4) take the joint's parameters from (:func:`parameter_values`): :class:`JointParameters`,
+#: a mapping ``{"Jc": .., ...}``, a model file's joint model, or the five numbers in the order of
+#: :data:`PARAMETER_NAMES` (a sequence or an array: the estimators' vectors) [SI].
+ParameterSource = Union[JointParameters, Mapping[str, float], HasParameterValues, Sequence[float], np.ndarray]
+
+
+def parameter_values(params: ParameterSource) -> ParameterValues:
+    """``(Jc, bc, K, Jl, Td)`` [SI] of a :data:`ParameterSource`; not validated."""
     if isinstance(params, JointParameters):
         return ParameterValues(params.Jc, params.bc, params.K, params.Jl, params.Td)
-    if hasattr(params, "value") and callable(params.value):
-        return ParameterValues(*(float(params.value(n)) for n in PARAMETER_NAMES))
-    if isinstance(params, dict):
+    if isinstance(params, Mapping):
         return ParameterValues(*(float(params[n]) for n in PARAMETER_NAMES))
+    if isinstance(params, HasParameterValues):
+        return ParameterValues(*(float(params.value(n)) for n in PARAMETER_NAMES))
     vals = [float(v) for v in params]
     if len(vals) != len(PARAMETER_NAMES):
         raise ValueError("expected the five parameters Jc, bc, K, Jl, Td")

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
@@ -40,7 +40,7 @@ from scipy.signal import cont2discrete, lfilter
 
 from iiwa_ident.model._eq4 import INPUTS
 from iiwa_ident.model._matrices import StrictlyProperMatrices
-from iiwa_ident.model._parameters import parameter_values
+from iiwa_ident.model._parameters import ParameterSource, parameter_values
 
 __all__ = ["zoh", "delayed_hold", "sample_means", "sample_slopes", "state_matrices", "DiscreteModel", "discretize",
            "simulate_outputs"]
@@ -266,7 +266,7 @@ def _slope_hold(A: np.ndarray, B: np.ndarray, T: float) -> np.ndarray:
     return -0.5 * E[:n, n] + E[:n, n + 1]
 
 
-def state_matrices(p, input: str = "command") -> StrictlyProperMatrices:
+def state_matrices(p: ParameterSource, input: str = "command") -> StrictlyProperMatrices:
     """``(A, B, C)`` of eqs (1)-(3), state ``(theta_m, z, theta_l, omega_l)``, outputs ``(tau_J, theta_m)``.
 
     Eq (1) integrated once: ``Jc theta_m' = (bc / K)(tau_c - tau_J) + z``,
@@ -294,7 +294,7 @@ def state_matrices(p, input: str = "command") -> StrictlyProperMatrices:
     return StrictlyProperMatrices(A, B, C)
 
 
-def discretize(params: Any, sample_time_s: float, input: str = "command") -> DiscreteModel:
+def discretize(params: ParameterSource, sample_time_s: float, input: str = "command") -> DiscreteModel:
     """Exact ZOH discretisation of eqs (1)-(3) with the fractional delay ``Td``.
 
     Parameters
@@ -364,7 +364,7 @@ def discretize(params: Any, sample_time_s: float, input: str = "command") -> Dis
                          sampled_motion=motion, num_resonant_slope=num_rg, num_rigid_slope=num_jg)
 
 
-def simulate_outputs(params: Any, tau_c: np.ndarray, sample_time_s: float) -> np.ndarray:
+def simulate_outputs(params: ParameterSource, tau_c: np.ndarray, sample_time_s: float) -> np.ndarray:
     """``tau_j`` [Nm] and ``theta_m - theta_m(0)`` [rad] for the command ``tau_c`` [Nm], from rest.
 
     Returns
