@@ -21,6 +21,7 @@ from iiwa_ident.diagnose._compare import ChannelComparison, compare, fit_percent
 from iiwa_ident.diagnose._diagnosis import (
                                           ACROSS_RUNS_WORSE_PCT,
                                           ChannelReport,
+                                          ChannelRms,
                                           Diagnosis,
                                           EffectReport,
                                           diagnose,
@@ -29,6 +30,6 @@ from iiwa_ident.diagnose._diagnosis import (
 )
 from iiwa_ident.diagnose._predict import Context, build_context
 
-__all__ = ["diagnose", "residual_rms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
+__all__ = ["diagnose", "residual_rms", "ChannelRms", "Diagnosis", "EffectReport", "ChannelReport", "CandidateEffect", "CANDIDATES",
            "EvidenceChannel", "register_candidate", "build_context", "Context", "compare", "ChannelComparison",
            "fit_percent", "verdict_text", "undecided_sentence", "ACROSS_RUNS_WORSE_PCT"]

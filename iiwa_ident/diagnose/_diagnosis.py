@@ -372,9 +372,9 @@ def reversed_sign(dataset: Dataset, model: JointModel, logged_rms: float | None 
     if why is not None or not dataset.has("tau_j"):
         return why
     try:
-        logged = _rms([np.array([r[2] for r in residual_rms([dataset], model)])]) if logged_rms is None \
+        logged = _rms([np.array([r.rms_nm for r in residual_rms([dataset], model)])]) if logged_rms is None \
             else logged_rms
-        turned = _rms([np.array([r[2] for r in residual_rms([_turned_over(dataset)], model)])])
+        turned = _rms([np.array([r.rms_nm for r in residual_rms([_turned_over(dataset)], model)])])
     except IiwaIdentError:
         return None
     if logged > 0 and turned <= SIGN_RMS_RATIO * logged:
@@ -419,11 +419,20 @@ def _known_effects(model: JointModel, contexts: list[Context]) -> dict[str, tupl
     return known
 
 
-def residual_rms(datasets: Sequence[Dataset], model: JointModel) -> list[tuple[str, str, float]]:
-    """How well ``model`` (with its effects and ripple table) predicts each dataset: ``(dataset, channel, RMS
-    [Nm])`` per residual channel, over the samples the diagnosis uses (nothing is fitted)."""
+class ChannelRms(NamedTuple):
+    """One residual channel of one dataset as a model predicts it (:func:`residual_rms`)."""
+
+    dataset: str
+    channel: str
+    rms_nm: float
+
+
+def residual_rms(datasets: Sequence[Dataset], model: JointModel) -> list[ChannelRms]:
+    """How well ``model`` (with its effects and ripple table) predicts each dataset: the RMS [Nm] per residual
+    channel, over the samples the diagnosis uses (nothing is fitted)."""
     _, contexts, _ = _residuals(datasets, model)
-    return [(ctx.name, ch, _rms([ctx.residual[ch][ctx.masks[ch]]])) for ctx in contexts for ch in ctx.channels]
+    return [ChannelRms(ctx.name, ch, _rms([ctx.residual[ch][ctx.masks[ch]]]))
+            for ctx in contexts for ch in ctx.channels]
 
 
 class _Residuals(NamedTuple):

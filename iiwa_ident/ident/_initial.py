@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -32,7 +33,15 @@ MIN_COHERENCE = 0.5
 MAX_DELAY_S = 0.05
 
 
-def delay_candidates(est: _frf.FRFEstimate, T: float) -> list[tuple[float, np.ndarray, float]]:
+class DelayCandidate(NamedTuple):
+    """A delay and the rational part of eq (4) it lets explain H1 (:func:`~iiwa_ident.ident._frf.levy_fit`)."""
+
+    Td: float  # [s]
+    levy: np.ndarray  # (a, b0, a0)
+    error: float  # relative RMS error of the fit
+
+
+def delay_candidates(est: _frf.FRFEstimate, T: float) -> list[DelayCandidate]:
     """Delays whose phase best lets eq (4)'s rational part explain H1, best first."""
     f = est.f_mean_hz
     s = 2j * np.pi * f
@@ -48,14 +57,14 @@ def delay_candidates(est: _frf.FRFEstimate, T: float) -> list[tuple[float, np.nd
     # Local minima of the coarse score, refined on a fine grid.
     order = [i for i in np.argsort(scores) if np.isfinite(scores[i])
              and (i == 0 or scores[i] <= scores[i - 1]) and (i == len(coarse) - 1 or scores[i] <= scores[i + 1])]
-    out: list[tuple[float, np.ndarray, float]] = []
+    out: list[DelayCandidate] = []
     for i in order[:3]:
         fine = np.linspace(max(coarse[i] - 0.25e-3, 0.0), coarse[i] + 0.25e-3, 11)
         best = min(((score(td), td) for td in fine), key=lambda z: z[0][0])
         (err, x), td = best
         if x is not None:
-            out.append((float(td), x, float(err)))
-    out.sort(key=lambda z: z[2])
+            out.append(DelayCandidate(float(td), x, float(err)))
+    out.sort(key=lambda z: z.error)
     return out
 
 

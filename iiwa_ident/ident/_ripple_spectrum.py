@@ -23,7 +23,7 @@ from scipy.ndimage import maximum_filter1d, median_filter
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.ident._ripple_passes import Pass
 
-__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'SEARCH_TRIES_PER_POINT', 'Family', 'LineSpectrum', 'chunk_coefficients', 'chunks_in', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'sidak', 'taper', 'window_logp']
+__all__ = ['FAMILY_HARMONICS', 'MIN_SUBHARMONIC_POWER', 'SEARCH_TRIES_PER_POINT', 'Chunk', 'Family', 'LineSpectrum', 'chunk_coefficients', 'chunks_in', 'cut_chunks', 'false_alarm_probability', 'harmonic_family', 'hotelling', 'line_pvalues', 'line_search', 'lines_logp', 'lobe_reach', 'peak_power', 'sidak', 'taper', 'window_logp']
 
 #: Harmonics summed per candidate fundamental in the family search.
 FAMILY_HARMONICS = 5
@@ -38,18 +38,23 @@ _REFINED = 32
 SEARCH_TRIES_PER_POINT = 1.0
 
 
-def cut_chunks(passes: list[Pass], span: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """Cut passes into chunks of at least two of their longest periods (about span / 8).
+class Chunk(NamedTuple):
+    """A piece of a pass: it speaks only for spatial frequencies above ``k_min`` = 1 / (its pass's longest
+    period) [cycles/rad]."""
 
-    Each chunk is ``(theta, f, k_min)``: it speaks only for spatial
-    frequencies above ``k_min`` = 1 / (its pass's longest period).
-    """
+    theta: np.ndarray  # motor angle [rad]
+    f: np.ndarray  # deflection [rad]
+    k_min: float
+
+
+def cut_chunks(passes: list[Pass], span: float) -> list[Chunk]:
+    """Cut passes into chunks of at least two of their longest periods (about span / 8)."""
     out = []
     for p in passes:
         n = chunks_in(abs(p.theta[-1] - p.theta[0]), p.period_max, span)
         for idx in np.array_split(np.arange(len(p.theta)), n):
             if len(idx) >= 8:
-                out.append((p.theta[idx], p.f[idx], 1.0 / p.period_max))
+                out.append(Chunk(p.theta[idx], p.f[idx], 1.0 / p.period_max))
     return out
 
 
@@ -59,7 +64,7 @@ def chunks_in(travel: float, period_max: float, span: float) -> int:
     return max(1, int(travel // max(2.0 * period_max, span / 8)))
 
 
-def chunk_coefficients(chunks, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def chunk_coefficients(chunks: list[Chunk], k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hann-tapered complex Fourier coefficients of each chunk at ``k`` [cycles/rad], and validity.
 
     The taper keeps strong slow leftovers from leaking into the ripple band;
@@ -97,7 +102,7 @@ class Hotelling(NamedTuple):
     chunks: np.ndarray
 
 
-def hotelling(chunks, k: np.ndarray) -> Hotelling:
+def hotelling(chunks: list[Chunk], k: np.ndarray) -> Hotelling:
     """Hotelling T^2 of the chunks' Fourier coefficients at ``k`` [cycles/rad].
 
     Returns T^2, the power of the mean coefficient, and the number of chunks

@@ -284,8 +284,9 @@ def _stage_diagnose(ctx: PipelineContext) -> dict[str, Any]:
     return record_diagnosis(ctx, diagnose(runs, _start(ctx)), [ds.path for ds in runs])
 
 
-def _rms(rows: list[tuple[str, str, float]]) -> float:
-    return float(np.sqrt(np.mean([r[2] ** 2 for r in rows]))) if rows else float("nan")
+def _rms(rms_nm: list[float]) -> float:
+    """The RMS of the channels' RMS [Nm]; NaN of none."""
+    return float(np.sqrt(np.mean(np.square(rms_nm)))) if rms_nm else float("nan")
 
 
 def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
@@ -301,8 +302,8 @@ def _stage_held_out(ctx: PipelineContext) -> dict[str, Any]:
         extended = diagnose(rest, start).extended
         # As an identification engineer checks a model on held-out data: the RMS, the fit and the residual tests.
         checks = compare([ds], extended)
-        before = _rms(residual_rms([ds], start))
-        after = _rms([(c.dataset, c.channel, c.rms_nm) for c in checks])
+        before = _rms([r.rms_nm for r in residual_rms([ds], start)])
+        after = _rms([c.rms_nm for c in checks])
         rows.append({"run": ds.path.stem, "before_nm": before, "after_nm": after,
                      "ratio": after / before if before > 0 else None,
                      "fit_pct": {c.channel: c.fit_pct for c in checks},
