@@ -72,8 +72,10 @@ class Spectral:
         return U * self.hold * np.exp(-self.jw * (delay_s + 0.5 * self.T))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Prepared:
+    """A record through the inverse dynamics' low-passes: the signals its rows are built from."""
+
     rec: FitRecord
     sp: Spectral
     fc: float
@@ -144,9 +146,10 @@ def prepare_rows(rec: FitRecord, ripple: tuple[float, int] | None = None, lines:
         for f in lines.freqs:
             h, dh = line_of(sp, TSw, f, keep, block)
             tau_w, dtau_w = tau_w - h, dtau_w - dh
-    p = Prepared(rec, sp, fc, sp.spectrum(rec.u), keep, block, sp.back(TS), sp.back(TS, 1), sp.back(TS, 2),
-                  rec.q0 + sp.back(Q), sp.back(Q, 1), sp.back(Q, 2), q_w, dq_w, ddq_w, tau_w, dtau_w,
-                  robot_model_terms(sp, q_w, dq_w))
+    p = Prepared(rec=rec, sp=sp, fc=fc, U=sp.spectrum(rec.u), keep=keep, block=block, tau_s=sp.back(TS),
+                 dtau_s=sp.back(TS, 1), ddtau_s=sp.back(TS, 2), q=rec.q0 + sp.back(Q), dq=sp.back(Q, 1),
+                 ddq=sp.back(Q, 2), q_w=q_w, dq_w=dq_w, ddq_w=ddq_w, tau_w=tau_w, dtau_w=dtau_w,
+                 g_cols=robot_model_terms(sp, q_w, dq_w))
     if ripple is not None:
         p.ripple = ripple
         p.rm_cols, p.rl_cols = ripple_terms(p, *ripple)

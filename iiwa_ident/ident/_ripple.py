@@ -94,7 +94,7 @@ class MethodResult:
     amplitude_std_rad: float = math.nan
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RippleResult:
     """Outcome of :func:`identify_ripple` (all angles in rad, at the motor side)."""
 
@@ -922,10 +922,12 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, k0: float, runs: 
     # The pooled fit's own consistency warnings are of its table: the family's replace them.
     warnings = [w for w in pooled.warnings if "disagree" not in w and not w.startswith(_CONSISTENCY)] + \
         _consistency_warnings(table, combined)
-    return RippleResult(True, period, std_k / k_hat ** 2, lines.false_alarm(), pooled.statistic, combined.lut,
-                        combined.amplitude_rad, methods, pooled.spectrum_k, pooled.spectrum_stat,
-                        pooled.spectrum_power, table, passes, warnings, pooled.K, pooled.Jl,
-                        motion, runs=runs, agreement=agreement, lines=lines,
+    return RippleResult(detected=True, period_rad=period, period_std_rad=std_k / k_hat ** 2,
+                        false_alarm=lines.false_alarm(), statistic=pooled.statistic, lut=combined.lut,
+                        amplitude_rad=combined.amplitude_rad, methods=methods, spectrum_k=pooled.spectrum_k,
+                        spectrum_stat=pooled.spectrum_stat, spectrum_power=pooled.spectrum_power,
+                        velocity_table=table, passes=passes, warnings=warnings, K=pooled.K, Jl=pooled.Jl,
+                        link_motion=motion, runs=runs, agreement=agreement, lines=lines,
                         amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad))
 
 
@@ -1019,13 +1021,17 @@ def _identify_pooled(datasets: list[Dataset], o: _Search) -> RippleResult:
     stat = float(spec.t2[spec.i_best])
     period, period_std = best.period, best.period_std
     if period is None:
-        return RippleResult(False, None, None, fap, stat, None, None, {}, spec.k, spec.t2, spec.power, [], passes,
-                            warnings, K, Jl, best.name)
+        return RippleResult(detected=False, period_rad=None, period_std_rad=None, false_alarm=fap, statistic=stat,
+                            lut=None, amplitude_rad=None, methods={}, spectrum_k=spec.k, spectrum_stat=spec.t2,
+                            spectrum_power=spec.power, velocity_table=[], passes=passes, warnings=warnings, K=K,
+                            Jl=Jl, link_motion=best.name)
     methods, combined = _methods(passes, period, max_harmonics, bins)
     table = _velocity_table(passes, period)
-    return RippleResult(True, period, period_std, fap, stat, combined.lut, combined.amplitude_rad, methods,
-                        spec.k, spec.t2, spec.power, table, passes, warnings + _consistency_warnings(table, combined),
-                        K, Jl, best.name, amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad))
+    return RippleResult(detected=True, period_rad=period, period_std_rad=period_std, false_alarm=fap,
+                        statistic=stat, lut=combined.lut, amplitude_rad=combined.amplitude_rad, methods=methods,
+                        spectrum_k=spec.k, spectrum_stat=spec.t2, spectrum_power=spec.power, velocity_table=table,
+                        passes=passes, warnings=warnings + _consistency_warnings(table, combined), K=K, Jl=Jl,
+                        link_motion=best.name, amplitude_std_rad=_finite_or_none(combined.amplitude_std_rad))
 
 
 def _finite_or_none(x: float) -> float | None:
