@@ -901,10 +901,12 @@ def _family_result(pooled: RippleResult, lines: CrossRunLines, k0: float, runs: 
     # Where the runs' own periods already agreed on this family, their agreement stands and its std (widened by
     # the Birge ratio) is kept when it is the larger.
     p, p_std = pooled.period_rad, pooled.period_std_rad
-    agreed = pooled.detected and p is not None and p_std is not None and pooled.agreement.get("verdict") == "agree" \
-        and abs(1.0 / p - k_hat) <= 3e-3 * k_hat + 3.0 * p_std / p ** 2
-    if agreed and p is not None and p_std is not None:
-        std_k = max(std_k, p_std / p ** 2)
+    agreed = False
+    if pooled.detected and p is not None and p_std is not None and pooled.agreement.get("verdict") == "agree":
+        s_pooled = p_std / p ** 2  # [cycles/rad]
+        agreed = abs(1.0 / p - k_hat) <= 3e-3 * k_hat + 3.0 * s_pooled
+        if agreed:
+            std_k = max(std_k, s_pooled)
     period = 1.0 / k_hat
     methods, combined = _methods(passes, period, o.max_harmonics, o.bins)
     for r in runs:
