@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
+from iiwa_ident import fri as P
 from iiwa_ident.deploy import deploy, write_config
 from iiwa_ident.design import design_controller, identified_model, make_record, outer_loop_margins
 from iiwa_ident.emulator import DEFAULT_JOINT_POSITIONS
-from iiwa_ident.fri import protocol as P
 from iiwa_ident.model import JointParameters
 
 HERE = Path(__file__).resolve().parent

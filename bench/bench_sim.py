@@ -6,7 +6,7 @@ at 1 kHz with 10 RK4 substeps a cycle, and prints medians of repeated runs:
 - the compiled cycle function (batch, ``SimulatedJoint.run_open_loop``),
 - the same function on casadi's virtual machine (the fallback without a C compiler),
 - the closed-loop path through the robot interface (``start`` + ``step`` per cycle),
-- the baseline: the plain NumPy model of :mod:`iiwa_ident.sim.reference`
+- the baseline: the plain NumPy model of :mod:`iiwa_ident.sim._reference`
   integrated by ``scipy.integrate.solve_ivp`` (RK45, rtol 1e-9), run on the
   first ``--baseline-seconds`` of the chirp because it is slow; its speed is
   given per simulated second, like the others.

@@ -22,7 +22,7 @@ DESIGN_BETA = 2.0
 #: 250 Hz keeps eq (22) close to the paper's unfiltered inverse below 50 Hz (0.2 rad of lag at 25 Hz; 50 Hz
 #: would lag a 25 Hz reference by 0.93 rad, ~12 Nm of error at 15 Nm). An ideal step through it commands
 #: ~7x its height at the peak, which is why the runtime rate-limits the reference
-#: (:mod:`iiwa_ident.deploy.checks`, ``reference_range``).
+#: (:mod:`iiwa_ident.deploy._checks`, ``reference_range``).
 DEFAULT_PREFILTER_HZ = 250.0
 #: Ways of combining ``Kr`` and the feed-forward (:mod:`iiwa_ident.design._additive`).
 FEEDFORWARD_MODES = ("reference", "paper", "none")
@@ -30,11 +30,11 @@ FEEDFORWARD_MODES = ("reference", "paper", "none")
 #: revolution (the paper's joint has 320; other gear ratios have other counts) [rad].
 PERIOD_MIN_RAD = 2.0 * math.pi / 2000.0
 PERIOD_MAX_RAD = 2.0 * math.pi / 50.0
-#: UDP port the FRI client listens on (:mod:`iiwa_ident.fri.connection`).
+#: UDP port the FRI client listens on (:mod:`iiwa_ident.fri._connection`).
 DEFAULT_PORT = 30200
-#: Task names of the deployed runtime (:mod:`iiwa_ident.runtime.tasks`).
+#: Task names of the deployed runtime (:mod:`iiwa_ident.runtime._tasks`).
 TASKS = ("zero", "constant", "step", "sine", "chirp", "multisine", "kappa")
-#: Where the runtime's external torque comes from (:mod:`iiwa_ident.runtime.run`): its own observer of eq (14),
+#: Where the runtime's external torque comes from (:mod:`iiwa_ident.runtime._run`): its own observer of eq (14),
 #: KUKA's estimate in the FRI monitoring message, or an F/T sensor over RDT.
 TAU_EXT_SOURCES = ("estimate", "fri", "ft")
 #: The torque loops the runtime can close: the additive controller, or the reference sent as the command.

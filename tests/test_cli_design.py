@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from iiwa_ident.cli import app
-from iiwa_ident.cli.design_cmd import parse_poles
+from iiwa_ident.cli._design_cmd import parse_poles
 from iiwa_ident.design._design_file import read_design
 from iiwa_ident.errors import IiwaIdentError
 

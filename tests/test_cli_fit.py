@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from iiwa_ident.cli import app
-from iiwa_ident.cli.fit_cmd import format_fit
+from iiwa_ident.cli._fit_cmd import format_fit
 from iiwa_ident.datasets import Dataset, read_dataset, sha256_file, write_dataset
 from iiwa_ident.excite import Chirp, record
 from iiwa_ident.ident import read_model, write_model

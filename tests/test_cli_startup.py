@@ -25,7 +25,7 @@ def test_help_imports_no_numerical_library():
                         f"for c in {commands!r}:\n"
                         "    r = CliRunner().invoke(app, [c, '--help'])\n"
                         "    assert r.exit_code == 0 and 'Usage' in r.output, (c, r.output)")
-    assert "iiwa_ident.cli.design_cmd" in mods
+    assert "iiwa_ident.cli._design_cmd" in mods
     for name in NOT_AT_START:
         assert name not in mods, name
 

@@ -123,7 +123,7 @@ def test_the_bode_band_says_its_width(tmp_path):
     import re
 
     from iiwa_ident.ident import fit_model
-    from iiwa_ident.report.fit_figures import bode_figure
+    from iiwa_ident.report._fit_figures import bode_figure
 
     data = write_dataset(tmp_path / "c.h5", record(SimulatedJoint(plant_from_model(table1_model()), seed=4),
                                                    Chirp(0.5, 100, 8, 8, 3, 30)))
@@ -159,7 +159,7 @@ def test_a_prediction_worse_than_the_mean_never_passes(chirp):
 def test_a_live_kappa_row_names_where_a_loop_met_the_torque_rate_limit():
     # The additive loop on the observer's estimate fell to 8.1 against a linear 18.6 on the demo: its command
     # sat at the runtime's torque-rate limit from kappa 4.18, which the prediction does not have.
-    from iiwa_ident.report.verdict import verdict_rows
+    from iiwa_ident.report._verdict import verdict_rows
 
     kl = {"ratio_live": 0.42, "ratio_linear": 0.87,
           "builtin": {"live_limit": 19.2, "unstable_at": 21.1, "linear_limit": 21.5, "linear_error_pct": 1.9,
@@ -173,7 +173,7 @@ def test_a_live_kappa_row_names_where_a_loop_met_the_torque_rate_limit():
 
 
 def test_the_held_out_verdict_is_never_pass_beside_a_negative_fit():
-    from iiwa_ident.report.verdict import verdict_rows
+    from iiwa_ident.report._verdict import verdict_rows
 
     runs = [{"run": "a", "ratio": 0.5, "fit_pct": {"link": 40.0}}, {"run": "b", "ratio": 0.7, "fit_pct": {"link": 10.0}}]
     doc = {"stages": [{"name": "held_out", "status": "ok", "headline": {"runs": runs}}]}

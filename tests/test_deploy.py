@@ -74,7 +74,7 @@ class TestChecks:
 
 class TestReferenceLimit:
     def test_reversal_at_the_clamp_peaks_at_the_torque_limit(self, record):
-        from iiwa_ident.deploy.checks import _reversal_peak, _step_response
+        from iiwa_ident.deploy._checks import _reversal_peak, _step_response
         ref = reference_limit(record, 320.0, 8000.0)
         step, dc = _step_response(record, 2000)
         # Bisection to 0.1 %: at the clamp the peak is at the limit, a little above it is beyond.
@@ -82,7 +82,7 @@ class TestReferenceLimit:
         assert _reversal_peak(step, dc, ref * 1.01, 8.0) > 320.0
 
     def test_slow_reversal_peaks_at_the_dc_gain(self, record):
-        from iiwa_ident.deploy.checks import _reversal_peak, _step_response
+        from iiwa_ident.deploy._checks import _reversal_peak, _step_response
         step, dc = _step_response(record, 4000)
         # Eq (22) has the DC gain (Jc + Jl) / Jl: 1.184 on Table I; a slow ramp barely overshoots it.
         assert dc == pytest.approx((1.03 + 5.6) / 5.6, rel=1e-3)

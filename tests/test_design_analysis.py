@@ -21,7 +21,7 @@ from iiwa_ident.design._analysis import (
     tracking_errors,
 )
 from iiwa_ident.model import table1_model
-from iiwa_ident.report.control_figures import kappa_figure, pole_figure, tracking_figure
+from iiwa_ident.report._control_figures import kappa_figure, pole_figure, tracking_figure
 from iiwa_ident.robot import Measurement
 
 
@@ -40,8 +40,8 @@ def result(model):
 def _fake_run(tau_r, tau_j, dt=1e-3, stopped=""):
     n = len(tau_r)
     t = np.arange(n) * dt
-    run = ClosedLoopRun("builtin", t, np.asarray(tau_r), np.asarray(tau_r), np.asarray(tau_r), np.asarray(tau_j),
-                        np.zeros(n), np.zeros(n), stopped)
+    run = ClosedLoopRun(kind="builtin", t=t, r=np.asarray(tau_r), tau_r=np.asarray(tau_r), tau_c=np.asarray(tau_r),
+                        tau_j=np.asarray(tau_j), q_m=np.zeros(n), tau_ext_ref=np.zeros(n), stopped=stopped)
     run.tau_j_filt = np.asarray(tau_j)
     return run
 

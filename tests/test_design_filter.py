@@ -262,7 +262,7 @@ class TestPassband:
 
 class TestSpatialFilterFigure:
     def test_draws_every_speed(self, constant_velocity_dataset, tmp_path):
-        from iiwa_ident.report.design_figures import spatial_filter_figure
+        from iiwa_ident.report._design_figures import spatial_filter_figure
 
         fig = spatial_filter_figure(constant_velocity_dataset)
         titles = " ".join(ax.get_title() for ax in fig.axes)

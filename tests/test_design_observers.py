@@ -196,7 +196,7 @@ class TestCompareObservers:
 
 class TestObserverFigure:
     def test_draws_the_comparison(self, hand_guided, model, tmp_path):
-        from iiwa_ident.report.design_figures import observer_figure
+        from iiwa_ident.report._design_figures import observer_figure
 
         fig = observer_figure(hand_guided, model)
         labels = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]

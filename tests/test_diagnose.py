@@ -18,7 +18,7 @@ from iiwa_ident.excite import ConstantVelocity, record
 from iiwa_ident.ident import dataset_model, model_from_dict, read_model, write_model
 from iiwa_ident.model import ModelError, table1_model
 from iiwa_ident.sim import SimulatedJoint, plant_from_model
-from iiwa_ident.sim.effects import make_effect
+from iiwa_ident.sim._effects import make_effect
 from iiwa_ident.testing import Case, case_model, score_case, simulate_case
 
 PAPER_RHO = 0.01963

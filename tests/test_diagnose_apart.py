@@ -139,7 +139,7 @@ class TestTheModelsOwnEffects:
                            [{"name": "torque_sensor_offset", "offset_nm": -0.4}])
         assert [r["old"] for r in d.replaced] == ["torque_sensor_offset"]
         assert d.replaced[0]["gain_pct"] < 3.0
-        from iiwa_ident.report.diagnose_figures import gain_table_figure
+        from iiwa_ident.report._diagnose_figures import gain_table_figure
 
         fig = gain_table_figure(d)
         cells = [c.get_text().get_text() for c in fig.axes[0].tables[0].get_celld().values()]
@@ -159,7 +159,7 @@ class TestTheModelsOwnEffects:
             [("torque_sensor_offset", "position_dependent_load")]
         assert "undecided: torque_sensor_offset" in d.summary()
         assert d.as_json()["undecided"][0]["name"] == "torque_sensor_offset"
-        from iiwa_ident.report.diagnose_figures import gain_table_figure
+        from iiwa_ident.report._diagnose_figures import gain_table_figure
 
         fig = gain_table_figure(d)
         cells = [c.get_text().get_text() for c in fig.axes[0].tables[0].get_celld().values()]

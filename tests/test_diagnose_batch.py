@@ -145,7 +145,7 @@ class TestRandomBatch:
             assert a["or_shape_of"] == "position_dependent_load" and a["gain_beyond_pct"] < 3.0
         assert d.as_json()["ambiguous"] == d.ambiguous
         assert "the data do not decide" in d.summary()
-        from iiwa_ident.report.diagnose_figures import gain_table_figure
+        from iiwa_ident.report._diagnose_figures import gain_table_figure
 
         fig = gain_table_figure(d)
         cells = [c.get_text().get_text() for c in fig.axes[0].tables[0].get_celld().values()]
@@ -172,7 +172,7 @@ class TestSpringAndLoad:
     def test_over_two_radians_both_are_named(self):
         from iiwa_ident.excite import ConstantVelocity, HandGuided, record
         from iiwa_ident.sim import SimulatedJoint, plant_from_model
-        from iiwa_ident.sim.effects import make_effect
+        from iiwa_ident.sim._effects import make_effect
 
         plant = plant_from_model(table1_model()).without_effects().with_effects(
             *[make_effect(n, v) for n, v in self.HIDDEN.items()])
@@ -227,7 +227,7 @@ class TestTorqueLogFilter:
             assert a.fit_pct == pytest.approx(r.fit_pct, abs=0.05) and a.passed == r.passed, (r.dataset, r.channel)
 
     def test_the_report_says_the_filter_acts_on_the_log_only(self):
-        from iiwa_ident.report.pdf import _diagnose_pages
+        from iiwa_ident.report._pdf import _diagnose_pages
 
         d = diagnose(simulate_case(Case(83, hidden={"torque_log_filter": {"cutoff_hz": 11.0}})), table1_model())
         page = next(p for p in _diagnose_pages({"diagnosis": d}) if p.title == "Evidence for torque_log_filter")

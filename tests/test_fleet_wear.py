@@ -77,7 +77,7 @@ def test_rows_not_judged_say_why():
 
 
 def test_the_command_line_names_the_worn_joints():
-    from iiwa_ident.cli.fleet_cmd import _wear_line
+    from iiwa_ident.cli._fleet_cmd import _wear_line
 
     rng = np.random.default_rng(3)
     rows = _fleet(rng, 12, 0.1, 0.05, {("r4", 6): 4.0})

@@ -34,7 +34,7 @@ from iiwa_ident.emulator import (
     spawn_emulator,
 )
 from iiwa_ident.errors import IiwaIdentError
-from iiwa_ident.fri.protocol import (
+from iiwa_ident.fri._protocol import (
     COMMAND_MESSAGE_ID,
     ClientCommandMode,
     CommandData,

@@ -31,8 +31,8 @@ from iiwa_ident.design._margins import outer_loop_margins
 from iiwa_ident.emulator import EmulatorConfig, Faults, spawn_emulator
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
 from iiwa_ident.excite import Chirp, record
-from iiwa_ident.fri.protocol import ClientCommandMode, SessionState, decode_monitoring
-from iiwa_ident.fri.robot import FriRobot
+from iiwa_ident.fri._protocol import ClientCommandMode, SessionState, decode_monitoring
+from iiwa_ident.fri._robot import FriRobot
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command
 from iiwa_ident.runtime import make_task, run_controller

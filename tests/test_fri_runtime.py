@@ -18,8 +18,8 @@ from iiwa_ident.design._design_file import make_record
 from iiwa_ident.design._margins import outer_loop_margins
 from iiwa_ident.design._spatial_filter import SpatialFilter
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
-from iiwa_ident.fri.connection import FriConnection, parse_host_port
-from iiwa_ident.fri.protocol import (
+from iiwa_ident.fri._connection import FriConnection, parse_host_port
+from iiwa_ident.fri._protocol import (
     COMMAND_MESSAGE_ID,
     MONITORING_MESSAGE_ID,
     ClientCommandMode,
@@ -32,7 +32,7 @@ from iiwa_ident.fri.protocol import (
     decode_command,
     encode_monitoring,
 )
-from iiwa_ident.fri.robot import FriRobot
+from iiwa_ident.fri._robot import FriRobot
 from iiwa_ident.ident._model_file import read_model
 from iiwa_ident.model import JointParameters
 from iiwa_ident.robot import Command, Measurement
@@ -441,7 +441,7 @@ class TestRealtimeProcess:
 def test_report_says_when_no_log_file_was_kept(tmp_path):
     # A robot that vanished after one cycle: the writer keeps no file of one row, and the summary said
     # "log: 1 rows in run.h5" for a file that was not there.
-    from iiwa_ident.cli.run_cmd import format_report
+    from iiwa_ident.cli._run_cmd import format_report
     from iiwa_ident.runtime import RunReport
 
     gone = RunReport(cycles=0, duration_s=0.0, stop_reason="FRI: no message from the robot for 500 ms", logged=1,

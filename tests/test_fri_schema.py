@@ -68,10 +68,10 @@ def test_kuka_field_numbers():
 
 def test_the_written_enums_are_the_schemas():
     """protocol's IntEnums (written out for the type checker) hold the schema's members, prefix dropped."""
-    from iiwa_ident.fri import protocol
+    from iiwa_ident import fri
 
     _, enums = schema_blocks()
     for name, members in enums.items():
         prefix = re.sub(r"(?<!^)(?=[A-Z])", "_", name).upper() + "_"
-        written = {m.name: m.value for m in getattr(protocol, name)}
+        written = {m.name: m.value for m in getattr(fri, name)}
         assert written == {k.removeprefix(prefix): v for k, v in members.items()}, name

@@ -18,7 +18,7 @@ from iiwa_ident.ident._records import held_windows, prepare_record
 from iiwa_ident.ident._tf_fit import fit_transfer_function
 from iiwa_ident.model import resonance_hz
 from iiwa_ident.sim import SimulatedJoint, default_plant, plant_from_model
-from iiwa_ident.sim.effects import TransmissionRipple
+from iiwa_ident.sim._effects import TransmissionRipple
 from iiwa_ident.testing import draw_scenario, simulate_scenario
 
 _REL = 0.03

@@ -107,7 +107,7 @@ class TestFitThroughTheFilter:
 
 
 def test_the_reports_fit_page_says_the_filter_acts_on_the_log_only():
-    from iiwa_ident.report.pdf import _fit_pages
+    from iiwa_ident.report._pdf import _fit_pages
 
     ds, _ = chirp(16, 10.0, duration_s=6.0)
     result = fit_joint([ds])

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from conftest import real_constant_velocity
 from iiwa_ident.cli import app
-from iiwa_ident.cli.ripple_cmd import format_ripple
+from iiwa_ident.cli._ripple_cmd import format_ripple
 from iiwa_ident.datasets import Dataset, write_dataset
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.excite import ConstantVelocity, QuasiStatic, record

@@ -16,7 +16,7 @@ from iiwa_ident.ident._records import prepare_record
 from iiwa_ident.ident._tf_fit import RippleTerms, fit_transfer_function
 from iiwa_ident.model import PARAMETER_NAMES, RippleTable, discretize, frequency_response
 from iiwa_ident.sim import SimulatedJoint, default_plant
-from iiwa_ident.sim.effects import TransmissionRipple
+from iiwa_ident.sim._effects import TransmissionRipple
 
 TABLE1 = {"Jc": 1.03, "bc": 55.0, "K": 18500.0, "Jl": 5.6, "Td": 0.005}
 

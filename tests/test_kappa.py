@@ -33,7 +33,7 @@ from iiwa_ident.design._margins import outer_loop_matrix
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.model import JointParameters
 from iiwa_ident.pipeline import run_kappa_sweep
-from iiwa_ident.pipeline.kappa import prediction_error_pct
+from iiwa_ident.pipeline._kappa import prediction_error_pct
 from iiwa_ident.runtime import KappaSweep, SweepSettings, TaskInput
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
@@ -94,7 +94,7 @@ class TestJudgement:
 
 def test_rate_limited_share_per_step(tmp_path):
     from iiwa_ident.datasets import Dataset, write_dataset
-    from iiwa_ident.pipeline.kappa import rate_limited_pct
+    from iiwa_ident.pipeline._kappa import rate_limited_pct
 
     t = np.arange(4000) * 1e-3
     tau_c = np.zeros_like(t)
@@ -232,7 +232,7 @@ def test_the_robot_path_sweeps_both_loops_in_turn(files, tmp_path):
     """On the robot the sweep runs two sessions one after the other, the F/T at its own address; here the
     robot is the emulator (in lockstep only so that the test does not depend on the machine's timing)."""
     from iiwa_ident.emulator import EmulatorConfig, spawn_emulator
-    from iiwa_ident.pipeline.session import free_udp_port
+    from iiwa_ident.pipeline._session import free_udp_port
 
     _, rec, cfg = files
     with pytest.raises(IiwaIdentError, match="needs the sensor's address"):
@@ -287,7 +287,7 @@ def test_any_valid_sweep_finishes_with_a_consistent_verdict():
 def test_a_session_never_gets_one_port_twice(monkeypatch):
     # The system may hand a port just closed out again; a session's FRI and F/T sockets open later, so two
     # calls must give two ports (a repeated one once ended a sweep "cannot listen on UDP port: in use").
-    import iiwa_ident.pipeline.session as session
+    import iiwa_ident.pipeline._session as session
 
     given = iter([61001, 61001, 61002])
 

@@ -18,7 +18,7 @@ from iiwa_ident.deploy import read_config
 from iiwa_ident.design import read_design
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import FILES, STAGES, ValidationSettings, run_pipeline, run_validation
-from iiwa_ident.report.pdf import build_report
+from iiwa_ident.report._pdf import build_report
 from iiwa_ident.runtime import SweepSettings
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
@@ -60,7 +60,7 @@ class TestShortPipeline:
         assert doc["effects"] == [] and doc["replaced"] == [] and doc["ambiguous"] == [] and doc["undecided"] == []
 
     def test_summary_says_what_the_diagnosis_replaced(self, tmp_path):
-        from iiwa_ident.pipeline.core import PipelineResult, format_summary
+        from iiwa_ident.pipeline._core import PipelineResult, format_summary
 
         h = {"named_effects": [{"name": "position_dependent_load", "gain_pct": 98.0, "confidence": 1.0}],
              "model_explained": False, "ambiguous_effects": [],
@@ -128,7 +128,7 @@ class TestShortPipeline:
         assert pages == stated + extra
 
     def test_validation_pages_render(self, short_run, tmp_path):
-        from iiwa_ident.report.pdf import build_report
+        from iiwa_ident.report._pdf import build_report
 
         workdir, _, _ = short_run
         titles = build_report(tmp_path / "v.pdf", workdir, stage="validation", png_dir=tmp_path / "png")

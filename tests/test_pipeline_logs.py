@@ -143,7 +143,7 @@ def test_real_joint2_through_the_cli(tmp_path):
 
 def test_the_report_of_measured_data(logs_run, tmp_path):
     from iiwa_ident.report import build_report
-    from iiwa_ident.report.pdf import banner
+    from iiwa_ident.report._pdf import banner
 
     workdir, result, _ = logs_run
     doc = json.loads((workdir / FILES["pipeline_json"]).read_text())
@@ -162,7 +162,7 @@ def test_the_report_of_measured_data(logs_run, tmp_path):
     # neither passed nor warned (no torque command: fit, design and deploy), its reason said once.
     import pypdf
 
-    from iiwa_ident.report.verdict import verdict_rows
+    from iiwa_ident.report._verdict import verdict_rows
 
     pages = pypdf.PdfReader(tmp_path / "r.pdf").pages
     assert {(round(float(p.mediabox.width)), round(float(p.mediabox.height))) for p in pages} == {(792, 612)}
@@ -178,7 +178,7 @@ def test_the_report_of_measured_data(logs_run, tmp_path):
 
 
 def test_the_simulated_report_says_so():
-    from iiwa_ident.report.pdf import banner
+    from iiwa_ident.report._pdf import banner
 
     assert banner({"inputs": {"plant": "default plant"}, "headline": {}}) == "SIMULATED: default plant"
     assert banner(None) == ""
@@ -379,7 +379,7 @@ def test_a_figure_shown_twice_in_a_logs_report_is_the_same_figure(logs_run, tmp_
 
 def test_the_report_of_logs_draws_the_ripple_the_pipeline_kept(logs_run, monkeypatch):
     import iiwa_ident.ident as ident
-    from iiwa_ident.report.pdf import load_results
+    from iiwa_ident.report._pdf import load_results
 
     def ran_again(*_a, **_k):
         raise IiwaIdentError("ran again")

@@ -19,7 +19,7 @@ import pytest
 from conftest import assert_diagnosis_shown_alike, assert_not_blank, figures_agree, pdf_pages
 from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.pipeline import run_pipeline
-from iiwa_ident.report.pdf import REPORT_STAGES, build_report, load_results, report_pages
+from iiwa_ident.report._pdf import REPORT_STAGES, build_report, load_results, report_pages
 
 CLI = [str(Path(sys.executable).with_name("iiwa-ident"))]
 
@@ -141,7 +141,7 @@ class TestVerdictPage:
         # pipeline.json and its verdict, the page index, page numbers; the sha256 in the appendix.
         import pypdf
 
-        from iiwa_ident.report.verdict import verdict_rows
+        from iiwa_ident.report._verdict import verdict_rows
 
         out = tmp_path / "report.pdf"
         titles = build_report(out, workdir)
@@ -170,7 +170,7 @@ class TestVerdictPage:
 
     def test_the_verdicts_follow_the_data(self, workdir):
         # The same run as if another plant had made it: every row is computed from pipeline.json, none typed.
-        from iiwa_ident.report.verdict import verdict_rows
+        from iiwa_ident.report._verdict import verdict_rows
 
         doc = json.loads((workdir / "pipeline.json").read_text())
         by = {s["name"]: s for s in doc["stages"]}
@@ -220,7 +220,7 @@ def test_the_spatial_spectrum_says_which_line_is_the_tallest():
     # The note read "look for one sharp line" on pages whose detected period was not the tallest line.
     from types import SimpleNamespace
 
-    from iiwa_ident.report.ripple_figures import _spectrum_note
+    from iiwa_ident.report._ripple_figures import _spectrum_note
 
     period = np.array([0.0049, 0.0098, 0.0196, 0.04])
     tallest_there = SimpleNamespace(detected=True, period_rad=0.0196, spectrum_stat=np.array([1.0, 2.0, 9.0, 1.0]))
@@ -235,8 +235,8 @@ def test_page_one_and_the_fit_page_say_one_thing_of_the_residual(workdir):
     # fitted alongside) while the fit page ran model.toml, which holds no table: 93.6 %, independence FAILED.
     from iiwa_ident.diagnose import compare
     from iiwa_ident.diagnose._channels import INDEPENDENCE
-    from iiwa_ident.report.pdf import _compared_model
-    from iiwa_ident.report.verdict import verdict_rows
+    from iiwa_ident.report._pdf import _compared_model
+    from iiwa_ident.report._verdict import verdict_rows
 
     doc = json.loads((workdir / "pipeline.json").read_text())
     results = load_results(workdir, doc, ("fit", "ripple"))
@@ -257,7 +257,7 @@ def test_page_one_and_the_fit_page_say_one_thing_of_the_residual(workdir):
 def test_a_channel_said_explained_is_not_shown_failing_alone(workdir):
     # The diagnosis page's title said "model explains the data" above a channel "FAIL / FAIL": a channel
     # explained at the sensor's noise now says so beside its verdict.
-    from iiwa_ident.report.diagnose_figures import gain_table_figure
+    from iiwa_ident.report._diagnose_figures import gain_table_figure
 
     doc = json.loads((workdir / "pipeline.json").read_text())
     d = load_results(workdir, doc, ("diagnose",))["diagnosis"]
@@ -356,7 +356,7 @@ def test_the_report_draws_what_the_pipeline_kept(workdir, tmp_path, monkeypatch)
 def test_the_paper_reproduction_page_is_a_table_of_the_printed_cells():
     # It was the text table in a monospace font; now a table whose cells are the ones `design` prints.
     from iiwa_ident.design import REPRODUCTION_COLUMNS, paper_reproduction, reproduction_cells, table1_parameters
-    from iiwa_ident.report.design_figures import reproduction_figure
+    from iiwa_ident.report._design_figures import reproduction_figure
 
     t1, source = table1_parameters()
     rows = paper_reproduction(t1)

@@ -131,7 +131,8 @@ def test_a_run_too_fast_for_the_line_is_told_a_slower_one():
 
 
 def _sensitivity(travels, speed, cpr=320.0, span=None):
-    return RunSensitivity(0, speed, max(travels), _RATE, cpr, _PSD, math.inf, 0.0, None,
+    return RunSensitivity(dataset=0, speed_rad_s=speed, travel_rad=max(travels), rate_hz=_RATE, cycles_per_rev=cpr,
+                          psd_rad2_hz=_PSD, detectable_rad=math.inf, amplitude_rad=0.0, required_travel_rad=None,
                           pass_travel_rad=list(travels), pass_speed_rad_s=[speed] * len(travels),
                           span_rad=max(travels) if span is None else span)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from iiwa_ident.model import resonance_hz
-from iiwa_ident.sim.plant import default_plant
+from iiwa_ident.sim._plant import default_plant
 from iiwa_ident.testing import (
     HIDDEN_OTHER_SHAPES,
     HIDDEN_RANGES,

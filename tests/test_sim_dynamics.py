@@ -9,7 +9,7 @@ import pytest
 from conftest import smooth_command
 from iiwa_ident.robot import Command
 from iiwa_ident.sim import LinkFriction, SimulatedJoint, default_plant
-from iiwa_ident.sim.reference import simulate_reference
+from iiwa_ident.sim._reference import simulate_reference
 
 
 def eq4(plant, s):

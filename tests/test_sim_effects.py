@@ -16,7 +16,7 @@ from iiwa_ident.sim import (
     TorqueSensorScale,
     TransmissionRipple,
 )
-from iiwa_ident.sim.agents import ImpedanceAgent
+from iiwa_ident.sim._agents import ImpedanceAgent
 
 
 def cruise(plant, speed=0.6, seconds=2.0, stiffness=20000.0):

@@ -8,7 +8,7 @@ import pytest
 from conftest import smooth_command
 from iiwa_ident.robot import Command
 from iiwa_ident.sim import SimulatedJoint, default_plant
-from iiwa_ident.sim.agents import ImpedanceAgent
+from iiwa_ident.sim._agents import ImpedanceAgent
 
 
 def constant_push(torque: float, seconds: float = 10.0) -> ImpedanceAgent:

@@ -15,7 +15,7 @@ from iiwa_ident.errors import IiwaIdentError
 from iiwa_ident.fri import FriRobot
 from iiwa_ident.model import JointParameters
 from iiwa_ident.netft import JointAxisProjection, NetFtSensor, NetFtSettings
-from iiwa_ident.pipeline.session import free_udp_port
+from iiwa_ident.pipeline._session import free_udp_port
 from iiwa_ident.runtime import ControllerRuntime, make_task, run_controller
 
 

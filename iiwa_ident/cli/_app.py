@@ -15,7 +15,8 @@ import typer
 from iiwa_ident._toml import write_atomic
 from iiwa_ident.errors import IiwaIdentError
 
-__all__ = ["app", "fail", "json_text", "write_json", "parse_pose", "json_option", "figures_option"]
+__all__ = ["app", "fail", "json_text", "write_json", "parse_pose", "json_option", "figures_option",
+           "datasets_argument", "model_option", "plant_option", "STARTING_MODEL"]
 
 #: Width the help is laid out for: a terminal of 80 columns, less the margins rich keeps.
 HELP_WIDTH = 78
@@ -224,6 +225,26 @@ def _main(
 def json_option(what: str):
     """The ``--json OUT`` option of a command: write ``what`` as JSON."""
     return typer.Option("--json", help=f"Write {what} as JSON.")
+
+
+#: Where a command that checks a model against datasets takes it from without ``--model``.
+STARTING_MODEL = "the joint's starting model from the robot's description at the datasets' pose"
+
+
+def datasets_argument(what: str):
+    """The DATA argument of an analysis command: dataset files of ``what``, or folders of them."""
+    return typer.Argument(help=f"{what}, or folders of them.")
+
+
+def model_option(what: str, default: str = STARTING_MODEL):
+    """The ``--model FILE`` option of a command: the model file ``what``, else ``default``."""
+    return typer.Option("--model", help=f"{what} (default: {default}).")
+
+
+def plant_option(condition: str = ""):
+    """The ``--plant FILE`` option of a command that simulates the joint (``condition``: when it applies)."""
+    return typer.Option("--plant", help=f"{condition}{'plant' if condition else 'Plant'} TOML file of the simulated "
+                                        "joint (default: the shipped default plant).")
 
 
 def figures_option(what: str = "PNG figures"):

@@ -7,7 +7,7 @@ the sha256 of its own content, and :func:`controller_from_config` rebuilds
 the per-cycle controller from it.
 """
 
-from iiwa_ident.deploy.checks import (
+from iiwa_ident.deploy._checks import (
     DEFAULT_RATE_RISE_TIME_S,
     DEFAULT_REFERENCE_RISE_TIME_S,
     MAX_SPECTRAL_RADIUS,
@@ -23,7 +23,7 @@ from iiwa_ident.deploy.checks import (
     reference_limit,
     step_peak_gain,
 )
-from iiwa_ident.deploy.config_file import (
+from iiwa_ident.deploy._config_file import (
     CONFIG_FORMAT,
     CONFIG_FORMAT_VERSION,
     ConfigError,

@@ -185,7 +185,7 @@ def flange_axis(robot: str, joint: int, q: Sequence[float] | np.ndarray) -> tupl
     return R.T @ axis_w, R.T @ lever_w
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JointDescription:
     """What the description says about one joint at one pose of the others.
 
@@ -228,5 +228,6 @@ def describe_joint(robot: str, joint: int, pose: Sequence[float] | np.ndarray | 
     """
     q = check_pose(np.zeros(7) if pose is None else pose, robot)
     amp, phase = gravity_sinusoid(robot, joint, q)
-    return JointDescription(robot, int(joint), tuple(float(x) for x in q), link_inertia(robot, joint, q), amp,
-                            phase, joint_limits(robot, joint), SOURCES[robot])
+    return JointDescription(robot=robot, joint=int(joint), pose_rad=tuple(float(x) for x in q),
+                            Jl_kgm2=link_inertia(robot, joint, q), gravity_nm=amp, gravity_phase_rad=phase,
+                            limits=joint_limits(robot, joint), source=SOURCES[robot])

@@ -35,7 +35,7 @@ signal its observer sees). Peak and RMS are taken in steady state (after
 Outer-loop gain margin
 ----------------------
 :func:`kappa_margin` closes ``tau_r = kappa tau_ext`` on the F/T reference
-``tau_ext_ref`` while an :class:`~iiwa_ident.sim.agents.ImpedanceAgent`
+``tau_ext_ref`` while an :class:`~iiwa_ident.sim._agents.ImpedanceAgent`
 (hand stiffness and damping of :class:`~iiwa_ident.design._margins.HumanArm`)
 moves the link along a slow sine, so that the joint never stands still (the
 robot suppresses torque control at standstill below 1 Nm) and the ripple is
@@ -244,7 +244,7 @@ def identified_model(plant: Plant | None = None, seed: int = 1, base: JointModel
 # ---------------------------------------------------------------------------
 # Running a closed loop
 # ---------------------------------------------------------------------------
-@dataclass
+@dataclass(kw_only=True)
 class ClosedLoopRun:
     """Signals of one closed-loop run, one sample per cycle.
 
@@ -320,7 +320,7 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
     """Run ``controller`` on a simulated joint for ``duration_s``.
 
     ``tau_r = r(t) - hold_stiffness (q - q0) - hold_damping v + kappa tau_ext_ref``
-    each cycle, commands pass the :class:`~iiwa_ident.excite.safety.LimitGuard`; the loop is
+    each cycle, commands pass the :class:`~iiwa_ident.excite._safety.LimitGuard`; the loop is
     :func:`~iiwa_ident.excite.record`'s, as for every experiment (after a stop it brakes the joint).
 
     Parameters
@@ -358,8 +358,9 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
     sig = ds.signals
     n = len(sig["t"])
     tau_ext_ref = sig.get("tau_ext_ref", np.full(n, np.nan))
-    run = ClosedLoopRun(controller.kind, sig["t"], np.array(loop.r[:n]), np.array(loop.tau_r[:n]), sig["tau_c"],
-                        sig["tau_j"], sig["q_m"], tau_ext_ref, stopped=ds.experiment_attrs.get("stopped_reason", ""))
+    run = ClosedLoopRun(kind=controller.kind, t=sig["t"], r=np.array(loop.r[:n]), tau_r=np.array(loop.tau_r[:n]),
+                        tau_c=sig["tau_c"], tau_j=sig["tau_j"], q_m=sig["q_m"], tau_ext_ref=tau_ext_ref,
+                        stopped=ds.experiment_attrs.get("stopped_reason", ""))
     dt = robot.sample_time_s
     ripple = model.ripple if model is not None else getattr(controller, "ripple", None)
     theta = np.asarray(joint_position(run.q_m, ripple), float)

@@ -20,7 +20,7 @@ feature library of sparse regression): it knows
   same held-out tests as the residual channels (:mod:`~iiwa_ident.diagnose._select`).
 
 The physics of every candidate but the model's own parameters is the plant
-effect of the same name (:mod:`iiwa_ident.sim.effects`): its regressors,
+effect of the same name (:mod:`iiwa_ident.sim._effects`): its regressors,
 the coefficients of a known effect, the values an estimate extends a model
 with and the parameters it reports. A candidate adds only what the
 diagnosis needs beyond the effect: the search for its nonlinear parameters,

@@ -69,7 +69,7 @@ def sensor_noise_nm(tau_j: np.ndarray) -> float:
     return float(np.median(np.abs(d3)) / (0.6745 * np.sqrt(20.0))) if len(d3) else 0.0
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ChannelComparison:
     """One dataset's channel: the signals over the samples compared and the figures of merit.
 
@@ -168,6 +168,7 @@ def channel_comparison(ctx: Context, channel: str, residual: np.ndarray) -> Chan
     lags = min(MAX_LAG, len(e) // 4)
     tests = (residual_tests(e, None if u is None else np.asarray(u)[m][::step], max_lag=lags)
              if lags >= _MIN_LAGS else ResidualTests(n=len(e), level=LEVEL))
-    return ChannelComparison(ctx.name, channel, ctx.t[m], measured, predicted, fit_percent(measured, predicted),
-                             float(np.sqrt(np.mean((measured - predicted) ** 2))), tests, step * ctx.dt,
-                             ctx.experiment, sensor_noise_nm(ctx.tau))
+    return ChannelComparison(dataset=ctx.name, channel=channel, t=ctx.t[m], measured=measured, predicted=predicted,
+                             fit_pct=fit_percent(measured, predicted),
+                             rms_nm=float(np.sqrt(np.mean((measured - predicted) ** 2))), tests=tests,
+                             lag_s=step * ctx.dt, experiment=ctx.experiment, noise_nm=sensor_noise_nm(ctx.tau))

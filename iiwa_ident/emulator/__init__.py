@@ -8,23 +8,23 @@ dataset; :func:`spawn_emulator` runs it in a process of its own.
 Public API
 ----------
 EmulatorConfig, Faults, QualityThresholds, check_config, DEFAULT_JOINT_POSITIONS, AGENTS
-    The settings (:mod:`iiwa_ident.emulator.config`).
+    The settings (:mod:`iiwa_ident.emulator._config`).
 RobotEmulator, BRAKE_SETTLE_S
-    The robot side: session, safety, cycle (:mod:`iiwa_ident.emulator.robot_side`).
+    The robot side: session, safety, cycle (:mod:`iiwa_ident.emulator._robot_side`).
 OVERRUN_S, RESEND_S
-    Real time or lockstep (:mod:`iiwa_ident.emulator.clocks`).
+    Real time or lockstep (:mod:`iiwa_ident.emulator._clocks`).
 connection_quality
-    How the quality is judged (:mod:`iiwa_ident.emulator.quality`).
+    How the quality is judged (:mod:`iiwa_ident.emulator._quality`).
 EmulatorReport
-    What a run reports (:mod:`iiwa_ident.emulator.report`).
+    What a run reports (:mod:`iiwa_ident.emulator._report`).
 EmulatorProcess, spawn_emulator
-    The emulator in its own process (:mod:`iiwa_ident.emulator.process`).
+    The emulator in its own process (:mod:`iiwa_ident.emulator._process`).
 
-The injected faults are applied by :mod:`iiwa_ident.emulator.faults`.
+The injected faults are applied by :mod:`iiwa_ident.emulator._faults`.
 """
 
-from iiwa_ident.emulator.clocks import OVERRUN_S, RESEND_S
-from iiwa_ident.emulator.config import (
+from iiwa_ident.emulator._clocks import OVERRUN_S, RESEND_S
+from iiwa_ident.emulator._config import (
                                         AGENTS,
                                         DEFAULT_JOINT_POSITIONS,
                                         EmulatorConfig,
@@ -32,10 +32,10 @@ from iiwa_ident.emulator.config import (
                                         QualityThresholds,
                                         check_config,
 )
-from iiwa_ident.emulator.process import EmulatorProcess, spawn_emulator
-from iiwa_ident.emulator.quality import connection_quality
-from iiwa_ident.emulator.report import EmulatorReport
-from iiwa_ident.emulator.robot_side import BRAKE_SETTLE_S, RobotEmulator
+from iiwa_ident.emulator._process import EmulatorProcess, spawn_emulator
+from iiwa_ident.emulator._quality import connection_quality
+from iiwa_ident.emulator._report import EmulatorReport
+from iiwa_ident.emulator._robot_side import BRAKE_SETTLE_S, RobotEmulator
 
 __all__ = ["AGENTS", "BRAKE_SETTLE_S", "DEFAULT_JOINT_POSITIONS", "OVERRUN_S", "RESEND_S", "EmulatorConfig",
            "EmulatorProcess", "EmulatorReport", "Faults", "QualityThresholds", "RobotEmulator", "check_config",

@@ -19,22 +19,22 @@ EXPERIMENTS
     Program class by dataset experiment name.
 """
 
-from iiwa_ident.excite._runner import (
-                                         ClientState,
-                                         Experiment,
-                                         record,
-                                         velocity_filter_coefficient,
-)
-from iiwa_ident.excite.chirp import Chirp
-from iiwa_ident.excite.multisine import Multisine
-from iiwa_ident.excite.programs import (
+from iiwa_ident.excite._chirp import Chirp
+from iiwa_ident.excite._multisine import Multisine
+from iiwa_ident.excite._programs import (
                                          ConstantVelocity,
                                          HandGuided,
                                          QuasiStatic,
                                          SineTorque,
                                          StepTorque,
 )
-from iiwa_ident.excite.safety import LimitGuard
+from iiwa_ident.excite._runner import (
+                                         ClientState,
+                                         Experiment,
+                                         record,
+                                         velocity_filter_coefficient,
+)
+from iiwa_ident.excite._safety import LimitGuard
 
 EXPERIMENTS = {cls.name: cls for cls in (Chirp, Multisine, ConstantVelocity, QuasiStatic, HandGuided, StepTorque,
                                          SineTorque)}

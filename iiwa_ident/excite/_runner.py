@@ -3,7 +3,7 @@
 An :class:`Experiment` decides each cycle's command from the time and the
 client-side state estimate; :func:`record` drives any
 :class:`~iiwa_ident.robot.RobotInterface` with it under a
-:class:`~iiwa_ident.excite.safety.LimitGuard` and returns the dataset.
+:class:`~iiwa_ident.excite._safety.LimitGuard` and returns the dataset.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 from iiwa_ident._realtime import no_gc_pauses
 from iiwa_ident.datasets import Dataset
 from iiwa_ident.errors import IiwaIdentError, SafetyStop
-from iiwa_ident.excite.safety import LimitGuard
+from iiwa_ident.excite._safety import LimitGuard
 from iiwa_ident.robot import Command, Measurement, RobotInterface
 
 __all__ = ["Experiment", "ClientState", "record", "velocity_filter_coefficient"]

@@ -223,7 +223,7 @@ def octave_bands(f_lo_hz: float, f_hi_hz: float) -> list[tuple[float, float]]:
 # H1 on a log grid
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FRFEstimate:
     """H1 estimate pooled on log-spaced bands, with its uncertainty.
 
@@ -301,9 +301,11 @@ class FRFEstimate:
         new_index = -np.ones(len(mask), int)
         new_index[mask] = np.arange(int(mask.sum()))
         keep = mask[self.bin_band]
-        return FRFEstimate(self.f_hz[mask], self.lo_hz[mask], self.hi_hz[mask], self.f_mean_hz[mask], self.H[mask],
-                           self.coherence[mask], self.std_mag[mask], self.std_phase_rad[mask], self.n_terms[mask],
-                           self.bin_f_hz[keep], self.bin_weight[keep], new_index[self.bin_band[keep]], self.delay_s)
+        return FRFEstimate(f_hz=self.f_hz[mask], lo_hz=self.lo_hz[mask], hi_hz=self.hi_hz[mask],
+                           f_mean_hz=self.f_mean_hz[mask], H=self.H[mask], coherence=self.coherence[mask],
+                           std_mag=self.std_mag[mask], std_phase_rad=self.std_phase_rad[mask],
+                           n_terms=self.n_terms[mask], bin_f_hz=self.bin_f_hz[keep], bin_weight=self.bin_weight[keep],
+                           bin_band=new_index[self.bin_band[keep]], delay_s=self.delay_s)
 
 
 def multi_resolution_spectra(u: np.ndarray, ys: np.ndarray, fs: float, f_lo_hz: float,
@@ -435,7 +437,7 @@ def sweep_signal(n: int, fs: float, f0_hz: float, f1_hz: float, duration_s: floa
     return x
 
 
-@dataclass
+@dataclass(kw_only=True)
 class HarmonicResponses:
     """Harmonic frequency responses of an exponential sweep.
 
@@ -586,8 +588,9 @@ def ess_harmonics(y: np.ndarray, fs: float, f0_hz: float, f1_hz: float, duration
             floor += np.where(valid, np.abs(np.fft.rfft(nseg, N)) ** 2, 0.0)
             count += valid
         noise.append(floor / np.maximum(count, 1))
-    return HarmonicResponses(F, np.array(out), np.array(noise), inband, float(amplitude), float(f0_hz), float(f1_hz),
-                             float(L), centres[:n_harmonics])
+    return HarmonicResponses(f_hz=F, H=np.array(out), noise=np.array(noise), valid=inband, amplitude=float(amplitude),
+                             f0_hz=float(f0_hz), f1_hz=float(f1_hz), sweep_rate_s=float(L),
+                             delays_s=centres[:n_harmonics])
 
 
 @dataclass

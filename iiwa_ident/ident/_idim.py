@@ -3,7 +3,7 @@
 Model
 -----
 Eqs (1)-(3) of the paper with the link-side effects of
-:mod:`iiwa_ident.sim.effects` (the simulator's own names and parameters):
+:mod:`iiwa_ident.sim._effects` (the simulator's own names and parameters):
 the motor side under the internal torque loop, which regulates the torque
 *reading* ``tau_s = tau_j + offset`` to the command after the delay and
 the robot's own gravity model ``g_m``::
@@ -177,7 +177,7 @@ class LinkEffectEstimate:
     Attributes
     ----------
     name : str
-        Effect name in :data:`iiwa_ident.sim.effects.EFFECTS`.
+        Effect name in :data:`iiwa_ident.sim._effects.EFFECTS`.
     values, std : dict of str to float
         Parameter values and their std (the effect's units).
     significant : bool
@@ -825,7 +825,7 @@ def _finish(preps: list[Prepared], records: list[FitRecord], prm: dict[str, floa
 
 
 def _ripple_effect(period: float, xl: np.ndarray, names: list[str], cov: np.ndarray, Jl: float) -> LinkEffectEstimate:
-    """The fitted ripple in :class:`~iiwa_ident.sim.effects.TransmissionRipple`'s terms.
+    """The fitted ripple in :class:`~iiwa_ident.sim._effects.TransmissionRipple`'s terms.
 
     ``cov``: the link equation's covariance. Harmonic ``k`` has the amplitude ``A_k`` [rad] and phase
     ``phi_k`` [rad] of ``A_k sin(2 pi k q_m / rho + phi_k)``; the link equation's coefficients are ``Jl``

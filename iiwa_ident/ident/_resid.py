@@ -48,7 +48,7 @@ MAX_LAG = 25
 LEVEL = 0.99
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ResidualTest:
     """One test: its correlations at ``lags``, the per-lag bound, the lags outside it and the verdict.
 
@@ -179,8 +179,9 @@ def residual_tests(residual: np.ndarray, u: np.ndarray | None = None, max_lag: i
     q = float(n * (n + 2) * np.sum(r ** 2 / (n - lags)))
     p = float(stats.chi2.sf(q, max_lag))
     bound = np.full(max_lag, z / math.sqrt(n))
-    out.tests.append(ResidualTest(WHITENESS, lags, r, bound, [int(k) for k in lags[np.abs(r) > bound]], q,
-                                  max_lag, p, p >= 1 - level))
+    out.tests.append(ResidualTest(name=WHITENESS, lags=lags, correlation=r, bound=bound,
+                                  failing=[int(k) for k in lags[np.abs(r) > bound]], statistic=q, dof=max_lag,
+                                  p_value=p, passed=p >= 1 - level))
     if u is not None:
         x = np.asarray(u, float)
         if len(x) != n:
@@ -198,6 +199,7 @@ def residual_tests(residual: np.ndarray, u: np.ndarray | None = None, max_lag: i
         dof = len(lags2)
         p2 = float(stats.chi2.sf(q2, dof))
         bound2 = np.full(dof, z / math.sqrt(n))
-        out.tests.append(ResidualTest(INDEPENDENCE, lags2, r2, bound2,
-                                      [int(k) for k in lags2[np.abs(r2) > bound2]], q2, dof, p2, p2 >= 1 - level))
+        out.tests.append(ResidualTest(name=INDEPENDENCE, lags=lags2, correlation=r2, bound=bound2,
+                                      failing=[int(k) for k in lags2[np.abs(r2) > bound2]], statistic=q2, dof=dof,
+                                      p_value=p2, passed=p2 >= 1 - level))
     return out

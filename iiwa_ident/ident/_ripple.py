@@ -77,7 +77,7 @@ __all__ = [
 ENCODER_TICK_RAD = 5.989e-8
 
 
-@dataclass
+@dataclass(kw_only=True)
 class MethodResult:
     """Lookup table and fit of one method (or of all passes together)."""
 
@@ -416,8 +416,9 @@ def _method_result(name: str, passes: list[Pass], period: float, max_harmonics: 
     coef, _, _ = _fourier_fit(passes, period, h)
     lut = _table(coef, period, h, bins)
     resid = _residual(passes, period, h, coef)
-    return MethodResult(name, lut, h, float((lut.max() - lut.min()) / 2), float(np.sqrt(np.mean(lut ** 2))),
-                        float(np.sqrt(np.mean(resid ** 2))), len(passes), len(resid),
+    return MethodResult(method=name, lut=lut, harmonics=h, amplitude_rad=float((lut.max() - lut.min()) / 2),
+                        rms_rad=float(np.sqrt(np.mean(lut ** 2))), residual_rms_rad=float(np.sqrt(np.mean(resid ** 2))),
+                        n_passes=len(passes), n_samples=len(resid),
                         amplitude_std_rad=_amplitude_std(passes, period, h, bins))
 
 

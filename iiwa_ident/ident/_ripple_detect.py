@@ -178,7 +178,7 @@ def noise_psd(passes: list[Pass], frequency_hz: float, band: float = 0.3) -> flo
     return float(np.median(values)) if values else math.nan
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunSensitivity:
     """What one run can detect: its longest pass, the noise at the line's frequency and the amplitudes."""
 
@@ -263,9 +263,12 @@ def sensitivity(passes: list[Pass], cycles_per_rev: float, amplitude_rad: float,
                     break
         else:
             detectable = math.inf
-        out.append(RunSensitivity(index, speed, travel, rate, cycles_per_rev, psd, detectable, amplitude_rad, need,
-                                  at, false_alarm, [float(abs(p.theta[-1] - p.theta[0])) for p in own],
-                                  [float(p.speed) for p in own], span))
+        out.append(RunSensitivity(dataset=index, speed_rad_s=speed, travel_rad=travel, rate_hz=rate,
+                                  cycles_per_rev=cycles_per_rev, psd_rad2_hz=psd, detectable_rad=detectable,
+                                  amplitude_rad=amplitude_rad, required_travel_rad=need, required_speed_rad_s=at,
+                                  false_alarm=false_alarm,
+                                  pass_travel_rad=[float(abs(p.theta[-1] - p.theta[0])) for p in own],
+                                  pass_speed_rad_s=[float(p.speed) for p in own], span_rad=span))
     return out
 
 

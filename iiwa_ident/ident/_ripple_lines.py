@@ -22,7 +22,8 @@ Examples
 >>> rng = np.random.default_rng(1)
 >>> theta = 0.5 * np.arange(4000) / 1000.0                    # 0.5 rad/s for 4 s at 1 kHz
 >>> f = 2e-6 * np.sin(2 * np.pi * 51.0 * theta) + 2e-6 * rng.standard_normal(theta.size)
->>> p = Pass(0, "dynamic", 0.5, theta, f, theta / 0.5, f, np.ones((theta.size, 1)) / 63.25, 0.2)
+>>> p = Pass(dataset=0, method="dynamic", speed=0.5, theta=theta, f=f, t=theta / 0.5, tau_hp=f,
+...          nuisance=np.ones((theta.size, 1)) / 63.25, period_max=0.2)
 >>> line_test([p], 51.0, 1000.0).p_value < 1e-6, line_test([p], 37.0, 1000.0).p_value > 1e-3
 (True, True)
 """

@@ -22,7 +22,7 @@ from iiwa_ident.errors import IiwaIdentError
 __all__ = ['Pass', 'deflection', 'find_passes', 'smooth_velocity', 'spread_repeated_stamps']
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Pass:
     """One stretch of constant-speed motion in one direction, without gaps.
 
@@ -230,5 +230,6 @@ def deflection(dataset: Dataset, index: int, K: float, Jl: float, period_max: fl
         f_cut = 0.5 * abs(speed) / longest
         f, th, Q = _pass_deflection(t[i0:i1], q[i0:i1], tau[i0:i1], None if q_l is None else q_l[i0:i1], K,
                                     Jl if link_motion == "restored" else None, f_cut)
-        out.append(Pass(index, method, speed, q[i0:i1], f, t[i0:i1], th, Q, longest))
+        out.append(Pass(dataset=index, method=method, speed=speed, theta=q[i0:i1], f=f, t=t[i0:i1], tau_hp=th,
+                        nuisance=Q, period_max=longest))
     return out

@@ -36,7 +36,7 @@ The file is TOML, format version 1, read (and validated, effects included) by
     [fit]                        # diagnostics of the fit (free-form numbers and strings)
 
     [[effects]]                  # optional extra plant effects (``diagnose``), plant-effect vocabulary
-    name = "link_friction"       # of iiwa_ident/sim/effects.py; validated on read
+    name = "link_friction"       # of iiwa_ident/sim/_effects.py; validated on read
     coulomb_nm = 1.2
     viscous_nms_rad = 0.8
 
@@ -214,7 +214,7 @@ class JointModel:
     ripple: RippleTable | None = None
     fit: dict[str, Any] = field(default_factory=dict)
     sources: list[Source] = field(default_factory=list)
-    #: Extra plant effects as ``{"name": ..., <parameter>: value, ...}`` tables (see ``iiwa_ident.sim.effects``).
+    #: Extra plant effects as ``{"name": ..., <parameter>: value, ...}`` tables (see ``iiwa_ident.sim._effects``).
     effects: list[dict[str, Any]] = field(default_factory=list)
     joint: int | None = None
     robot_model: str | None = None

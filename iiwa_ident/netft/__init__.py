@@ -8,19 +8,19 @@ Public API
 ----------
 RDT_PORT, RdtCommand, RdtRecord, RdtError, Calibration, encode_request, decode_request, encode_record,
 decode_record
-    The protocol's datagrams (:mod:`iiwa_ident.netft.rdt`).
+    The protocol's datagrams (:mod:`iiwa_ident.netft._rdt`).
 JointAxisProjection
     The sensor's wrench about a joint's axis, from the robot's description or a lever arm
-    (:mod:`iiwa_ident.netft.projection`).
+    (:mod:`iiwa_ident.netft._projection`).
 NetFtSensor, SensorStats
     The client: one torque per control cycle, lost and late records counted, a fault past a limit
-    (:mod:`iiwa_ident.netft.sensor`).
+    (:mod:`iiwa_ident.netft._sensor`).
 NetFtSettings, RdtServer, EmulatedNetFt
-    The sensor side, for the emulator (:mod:`iiwa_ident.netft.server`).
+    The sensor side, for the emulator (:mod:`iiwa_ident.netft._server`).
 """
 
-from iiwa_ident.netft.projection import JointAxisProjection
-from iiwa_ident.netft.rdt import (
+from iiwa_ident.netft._projection import JointAxisProjection
+from iiwa_ident.netft._rdt import (
     RDT_PORT,
     RECORD_BYTES,
     REQUEST_BYTES,
@@ -33,8 +33,8 @@ from iiwa_ident.netft.rdt import (
     encode_record,
     encode_request,
 )
-from iiwa_ident.netft.sensor import NetFtSensor, SensorStats
-from iiwa_ident.netft.server import EmulatedNetFt, NetFtSettings, RdtServer
+from iiwa_ident.netft._sensor import NetFtSensor, SensorStats
+from iiwa_ident.netft._server import EmulatedNetFt, NetFtSettings, RdtServer
 
 __all__ = ["RDT_PORT", "RECORD_BYTES", "REQUEST_BYTES", "RdtCommand", "RdtRecord", "RdtError", "Calibration",
            "encode_request", "decode_request", "encode_record", "decode_record", "JointAxisProjection",

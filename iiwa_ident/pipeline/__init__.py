@@ -14,12 +14,12 @@ save_results, load_saved_results, RESULT_PACKAGES
     A stage's results kept in the work folder for the report, with the sha256 of the files they came from.
 run_kappa_sweep, HoldingHand
     The outer loop's gain margin measured live through FRI for both controllers, beside its linear
-    prediction (:mod:`iiwa_ident.pipeline.kappa`).
+    prediction (:mod:`iiwa_ident.pipeline._kappa`).
 run_validation, ValidationSettings, reference_of
     The closed-loop validation stage on its own: both controllers through FRI; its reference.
 """
 
-from iiwa_ident.pipeline.core import (
+from iiwa_ident.pipeline._core import (
     FILES,
     STAGES,
     PipelineContext,
@@ -32,10 +32,10 @@ from iiwa_ident.pipeline.core import (
     read_pipeline_json,
     run_pipeline,
 )
-from iiwa_ident.pipeline.kappa import HoldingHand, run_kappa_sweep
-from iiwa_ident.pipeline.logs import LOG_FILES, LOG_STAGES, find_log_runs, run_log_pipeline
-from iiwa_ident.pipeline.saved import RESULT_PACKAGES, load_saved_results, save_results
-from iiwa_ident.pipeline.validation import (
+from iiwa_ident.pipeline._kappa import HoldingHand, run_kappa_sweep
+from iiwa_ident.pipeline._logs import LOG_FILES, LOG_STAGES, find_log_runs, run_log_pipeline
+from iiwa_ident.pipeline._saved import RESULT_PACKAGES, load_saved_results, save_results
+from iiwa_ident.pipeline._validation import (
     ValidationSettings,
     reference_of,
     run_validation,

@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 import casadi as ca
 import numpy as np
 
-from iiwa_ident.sim.plant import Plant
+from iiwa_ident.sim._plant import Plant
 
 __all__ = ["STATE", "INPUTS", "OUTPUTS", "CycleModel", "output_function", "cache_dir"]
 

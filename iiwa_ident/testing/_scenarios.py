@@ -418,7 +418,7 @@ class HiddenEffectScenario:
     ----------
     seed : int
     hidden : dict
-        Plant-effect tables by name (:mod:`iiwa_ident.sim.effects`), the truth a diagnosis must not see.
+        Plant-effect tables by name (:mod:`iiwa_ident.sim._effects`), the truth a diagnosis must not see.
     dynamics : dict
         The joint's Jc, bc, K, Jl, Td [SI] (Table I unless drawn).
     reshaped : list of str
