@@ -38,7 +38,8 @@ def chirps(tmp_path_factory):
         ds = record(SimulatedJoint(default_plant(), seed=seed), Chirp(f0_hz=1.0, duration_s=10.0))
         paths.append(write_dataset(folder / f"chirp{seed}.h5", ds))
     ds = read_dataset(paths[0])
-    other = Dataset(dict(ds.signals), "chirp", "simulation", 2, ds.sample_rate_hz, dict(ds.experiment_attrs))
+    other = Dataset(signals=dict(ds.signals), experiment="chirp", source="simulation", joint=2,
+                    sample_rate_hz=ds.sample_rate_hz, experiment_attrs=dict(ds.experiment_attrs))
     paths.append(write_dataset(folder / "joint2.h5", other))
     return paths
 
@@ -127,7 +128,8 @@ class TestFitErrors:
     def test_no_torque_command(self, chirps, tmp_path):
         ds = read_dataset(chirps[0])
         signals = {k: v for k, v in ds.signals.items() if k != "tau_c"}
-        path = write_dataset(tmp_path / "no_tau_c.h5", Dataset(signals, "chirp", "simulation", 1, 1000.0))
+        path = write_dataset(tmp_path / "no_tau_c.h5", Dataset(signals=signals, experiment="chirp", source="simulation",
+                                                               joint=1, sample_rate_hz=1000.0))
         out, js = tmp_path / "m.toml", tmp_path / "m.json"
         res = invoke("fit", path, "--out", out, "--json", js)
         self.assert_refused(res, f"{path}: no torque command: fit needs a torque-commanded chirp", out, js)

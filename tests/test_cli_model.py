@@ -68,8 +68,9 @@ def test_model_command_takes_robot_joint_and_pose_from_a_dataset(tmp_path):
     rng = np.random.default_rng(3)
     pose = [0.0, 0.4, 0.0, -0.6, 0.0, 0.3, 0.0]
     n = 200
-    ds = Dataset({"t": np.arange(n) * 1e-3, "q_m": rng.normal(0, 0.01, n), "tau_j": rng.normal(0, 1, n)},
-                 "constant_velocity", "import", 4, 1000.0, {"robot_model": "iiwa7", "pose_rad": np.array(pose)})
+    ds = Dataset(signals={"t": np.arange(n) * 1e-3, "q_m": rng.normal(0, 0.01, n), "tau_j": rng.normal(0, 1, n)},
+                 experiment="constant_velocity", source="import", joint=4, sample_rate_hz=1000.0,
+                 experiment_attrs={"robot_model": "iiwa7", "pose_rad": np.array(pose)})
     path = write_dataset(tmp_path / "run.h5", ds)
     out = tmp_path / "m.toml"
     r = invoke("model", "--data", str(path), "--out", str(out))
@@ -147,8 +148,9 @@ def test_dataset_model_refusals():
     def ds(joint, pose, robot="iiwa14"):
         n = 50
         attrs = {"robot_model": robot} if pose is None else {"robot_model": robot, "pose_rad": np.array(pose)}
-        return Dataset({"t": np.arange(n) * 1e-3, "q_m": np.zeros(n), "tau_j": np.zeros(n)}, "constant_velocity",
-                       "import", joint, 1000.0, attrs)
+        return Dataset(signals={"t": np.arange(n) * 1e-3, "q_m": np.zeros(n), "tau_j": np.zeros(n)},
+                       experiment="constant_velocity", source="import", joint=joint, sample_rate_hz=1000.0,
+                       experiment_attrs=attrs)
 
     zero = [0.0] * 7
     tilted = [0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0]
@@ -169,8 +171,9 @@ def test_dataset_model_refusals():
 
 def test_fit_refuses_a_base_model_of_another_joint(tmp_path):
     n = 500
-    ds = Dataset({"t": np.arange(n) * 1e-3, "q_m": np.zeros(n), "tau_j": np.zeros(n), "tau_c": np.zeros(n)},
-                 "chirp", "import", 1, 1000.0, {"robot_model": "iiwa14", "pose_rad": np.zeros(7)})
+    ds = Dataset(signals={"t": np.arange(n) * 1e-3, "q_m": np.zeros(n), "tau_j": np.zeros(n), "tau_c": np.zeros(n)},
+                 experiment="chirp", source="import", joint=1, sample_rate_hz=1000.0,
+                 experiment_attrs={"robot_model": "iiwa14", "pose_rad": np.zeros(7)})
     path = write_dataset(tmp_path / "chirp.h5", ds)
     j4 = tmp_path / "j4.toml"
     assert invoke("model", "--joint", "4", "--out", str(j4)).exit_code == 0

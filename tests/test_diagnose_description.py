@@ -4,6 +4,7 @@ error said in physical terms."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import re
 
 import numpy as np
@@ -184,7 +185,7 @@ def test_a_payload_the_pose_does_not_determine():
 
     ranges = physical_ranges(starting_model("iiwa14", 6))
     assert payload_of_load(ranges, ranges.load_described_nm, 0.0).determined
-    r7 = type(ranges)(ranges.Jl_kgm2, ranges.load_nm, ranges.Jl_described_kgm2, 1.0, "iiwa14", 7, ranges.pose_rad)
+    r7 = dataclasses.replace(ranges, load_described_nm=1.0, robot="iiwa14", joint=7)
     pay = payload_of_load(r7, 2.0, 0.3)
     assert not pay.determined and "the pose does not determine a payload" in pay.text()
 

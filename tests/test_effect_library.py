@@ -61,7 +61,7 @@ def test_columns_times_coefficients_are_the_hooks(name):
     omega_l = rng.normal(0, 0.3, n)
     tau = rng.normal(0, 10, n)
     hooks, reading = _hooks(effect, t, q_m, theta_l, omega_l, tau)
-    cols = effect.columns(EffectSignals(t, q_m, theta_l, omega_l, reading))
+    cols = effect.columns(EffectSignals(t=t, q_m=q_m, theta_l=theta_l, omega_l=omega_l, tau_j=reading))
     coef = effect.coefficients()
     assert len(cols) == len(coef) > 0
     got = {p: np.zeros(n) for p in INJECTIONS}

@@ -142,6 +142,7 @@ def test_warnings_name_a_misfit_and_a_nonlinear_band():
     assert any("chi2/dof 5" in x for x in w)
     assert any("not linear in 2-4 Hz" in x for x in w) and not any("1-2 Hz" in x for x in w)
     quiet = BlaFit(parameters={}, std={}, covariance=np.eye(5), chi2_dof=1.0,
-                   blas=[BestLinearApproximation(f, np.arange(4), ("tau_j", "q_m"), G, np.full((2, 4), 1e-6),
-                                                 np.full((2, 4), 1e-6), 4, 2)], labels=["ms.h5"])
+                   blas=[BestLinearApproximation(f_hz=f, lines=np.arange(4), outputs=("tau_j", "q_m"), G=G,
+                                                 var_total=np.full((2, 4), 1e-6), var_noise=np.full((2, 4), 1e-6),
+                                                 realisations=4, periods=2)], labels=["ms.h5"])
     assert quiet.warnings() == []

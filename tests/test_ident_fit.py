@@ -305,20 +305,22 @@ class TestRefusals:
         return simulate_chirp(TABLE1, 1, ripple=False, duration_s=3.0, f0_hz=2.0, f1_hz=100.0)
 
     def test_no_torque_command(self, short_chirp):
-        ds = Dataset({k: v for k, v in short_chirp.signals.items() if k != "tau_c"}, "chirp", "simulation", 1, 1000.0)
+        ds = Dataset(signals={k: v for k, v in short_chirp.signals.items() if k != "tau_c"}, experiment="chirp",
+                     source="simulation", joint=1, sample_rate_hz=1000.0)
         with pytest.raises(IiwaIdentError, match="dataset 1: no torque command: fit needs a torque-commanded chirp"):
             fit_transfer_function([ds])
 
     def test_too_short(self, short_chirp):
-        ds = Dataset({k: v[:1500] for k, v in short_chirp.signals.items()}, "chirp", "simulation", 1, 1000.0,
-                     dict(short_chirp.experiment_attrs))
+        ds = Dataset(signals={k: v[:1500] for k, v in short_chirp.signals.items()}, experiment="chirp",
+                     source="simulation", joint=1, sample_rate_hz=1000.0,
+                     experiment_attrs=dict(short_chirp.experiment_attrs))
         with pytest.raises(IiwaIdentError, match="too short for a fit"):
             fit_transfer_function([ds])
 
     def test_too_little_excitation(self, short_chirp):
         signals = dict(short_chirp.signals)
         signals["tau_c"] = 3.0 + 0.01 * np.sin(np.arange(len(signals["t"])) * 0.1)
-        ds = Dataset(signals, "chirp", "simulation", 1, 1000.0)
+        ds = Dataset(signals=signals, experiment="chirp", source="simulation", joint=1, sample_rate_hz=1000.0)
         with pytest.raises(IiwaIdentError, match="too little excitation"):
             fit_transfer_function([ds])
 
@@ -326,12 +328,14 @@ class TestRefusals:
         rng = np.random.default_rng(0)
         signals = dict(short_chirp.signals)
         signals["tau_c"] = rng.standard_normal(len(signals["t"]))  # unrelated to tau_j
-        ds = Dataset(signals, "chirp", "simulation", 1, 1000.0, dict(short_chirp.experiment_attrs))
+        ds = Dataset(signals=signals, experiment="chirp", source="simulation", joint=1, sample_rate_hz=1000.0,
+                     experiment_attrs=dict(short_chirp.experiment_attrs))
         with pytest.raises(IiwaIdentError, match="no band with coherence"):
             fit_transfer_function([ds])
 
     def test_inconsistent_joints(self, short_chirp, tmp_path):
-        other = Dataset(dict(short_chirp.signals), "chirp", "simulation", 2, 1000.0, dict(short_chirp.experiment_attrs))
+        other = Dataset(signals=dict(short_chirp.signals), experiment="chirp", source="simulation", joint=2,
+                        sample_rate_hz=1000.0, experiment_attrs=dict(short_chirp.experiment_attrs))
         a, b = write_dataset(tmp_path / "a.h5", short_chirp), write_dataset(tmp_path / "b.h5", other)
         with pytest.raises(IiwaIdentError, match=r"b\.h5: joint 2, but .*a\.h5 is joint 1"):
             fit_model([a, b])
@@ -339,7 +343,8 @@ class TestRefusals:
     def test_decimated_log(self, short_chirp):
         # Every fifth cycle of a sweep up to 100 Hz: the command between samples is lost.
         signals = {k: v[::5] for k, v in short_chirp.signals.items()}
-        ds = Dataset(signals, "chirp", "simulation", 1, 200.0, dict(short_chirp.experiment_attrs))
+        ds = Dataset(signals=signals, experiment="chirp", source="simulation", joint=1, sample_rate_hz=200.0,
+                     experiment_attrs=dict(short_chirp.experiment_attrs))
         with pytest.raises(IiwaIdentError, match="recorded at 200 Hz, too slow for a sweep up to 100 Hz"):
             fit_transfer_function([ds])
 
@@ -349,7 +354,8 @@ class TestRefusals:
         t[100:] += 0.0004
         signals["t"] = t
         with pytest.raises(IiwaIdentError, match="not uniform"):
-            fit_transfer_function([Dataset(signals, "chirp", "simulation", 1, 1000.0)])
+            fit_transfer_function([Dataset(signals=signals, experiment="chirp", source="simulation", joint=1,
+                                           sample_rate_hz=1000.0)])
 
 
 class TestLostCycles:
@@ -366,7 +372,8 @@ class TestLostCycles:
         keep = np.setdiff1d(np.arange(len(u)), lost)
         signals = {"t": chirp["t"][keep], "q_m": trace.measured["q_m"][keep], "tau_j": trace.measured["tau_j"][keep],
                    "tau_c": u[keep]}
-        return Dataset(signals, "chirp", "robot", 1, 1000.0, dict(chirp.experiment_attrs))
+        return Dataset(signals=signals, experiment="chirp", source="robot", joint=1, sample_rate_hz=1000.0,
+                       experiment_attrs=dict(chirp.experiment_attrs))
 
     def test_few_lost_cycles_are_filled_and_reported(self):
         rng = np.random.default_rng(0)

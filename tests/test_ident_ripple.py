@@ -287,7 +287,8 @@ def _position_controlled(speed: float, lines: list[tuple[float, float]], seed: i
         tau += k_nm_rad * amp * np.sin(cpr * q + rng.uniform(0, 2 * np.pi))
     for h in range(1, hum_harmonics + 1) if temporal_hz else ():
         tau += k_nm_rad * 1.5e-5 * np.sin(2 * np.pi * h * temporal_hz * t + rng.uniform(0, 2 * np.pi))
-    return Dataset({"t": t, "q_m": q, "tau_j": tau}, "constant_velocity", "import", 1, 200.0)
+    return Dataset(signals={"t": t, "q_m": q, "tau_j": tau}, experiment="constant_velocity", source="import", joint=1,
+                   sample_rate_hz=200.0)
 
 
 class TestReproducedAcrossSpeeds:
@@ -393,7 +394,8 @@ def test_a_line_reached_through_a_subharmonic_family_is_not_taken_for_its_chunk_
     t = np.arange(int(2.0 / speed * 1000)) / 1000
     q = speed * t
     tau = 4.0 + 185.0 * 1e-4 * np.sin(cpr * q + rng.uniform(0, 2 * np.pi)) + 0.02 * rng.standard_normal(t.size)
-    r = identify_ripple([Dataset({"t": t, "q_m": q, "tau_j": tau}, "constant_velocity", "import", 1, 1000.0)])
+    r = identify_ripple([Dataset(signals={"t": t, "q_m": q, "tau_j": tau}, experiment="constant_velocity",
+                                 source="import", joint=1, sample_rate_hz=1000.0)])
     # The neighbour is one over the chunk length away (6.5 %); a single pass has no jackknife std, and near the link's
     # resonance its restored estimate is 0.3 % off (seed 1): the tolerance tells the neighbour, not that.
     assert r.detected and abs(r.cycles_per_rev / cpr - 1) < 5e-3, (cpr, speed, r.cycles_per_rev)

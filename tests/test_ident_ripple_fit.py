@@ -97,8 +97,8 @@ def test_ripple_inputs_reproduce_the_simulated_joint(delay_s):
         + discretize(params, 1e-3, "reaction").simulate(RX[:, 0])
     assert np.sqrt(np.mean((tau - at_samples[0]) ** 2)) < 2e-3 * np.sqrt(np.mean(effect**2))
 
-    ds = Dataset({"t": np.arange(len(u)) * 1e-3, "tau_c": u, "tau_j": tau, "q_m": q}, "chirp", "simulation", 1,
-                 1000.0)
+    ds = Dataset(signals={"t": np.arange(len(u)) * 1e-3, "tau_c": u, "tau_j": tau, "q_m": q}, experiment="chirp",
+                 source="simulation", joint=1, sample_rate_hz=1000.0)
     rec = prepare_record(ds, 0)
     rec.set_ripple(None, terms.table_signals)
     rec.set_motion(params)

@@ -128,7 +128,7 @@ class TestLinearModelOfTheDeployedLoop:
             np.testing.assert_allclose(deployed_loop_matrix(p, k, des), outer_loop_matrix(p, k, des), rtol=0,
                                        atol=1e-12)
             # An F/T sensor without a filter, a spatial filter at standstill: the same loop.
-            same = DeployedLoop("ft", ft_cutoff_hz=None, filter=FilterSettings(),
+            same = DeployedLoop(source="ft", ft_cutoff_hz=None, filter=FilterSettings(),
                                 ripple_period_rad=filter_period(model.ripple))
             assert max(abs(np.linalg.eigvals(deployed_loop_matrix(p, k, des, loop=same)))) == pytest.approx(
                 max(abs(np.linalg.eigvals(outer_loop_matrix(p, k, des)))), abs=1e-9)
@@ -138,17 +138,17 @@ class TestLinearModelOfTheDeployedLoop:
         ideal = kappa_max(p)
         # A filter moves the margin both ways: a sensor at 152 Hz barely, one at 30 Hz cuts the loop's
         # gain at the built-in loop's 22 Hz crossover and raises it.
-        assert deployed_kappa_max(p, loop=DeployedLoop("ft", ft_cutoff_hz=152.0)) == pytest.approx(ideal, rel=0.03)
-        assert deployed_kappa_max(p, loop=DeployedLoop("ft", ft_cutoff_hz=30.0)) > ideal
+        assert deployed_kappa_max(p, loop=DeployedLoop(source="ft", ft_cutoff_hz=152.0)) == pytest.approx(ideal, rel=0.03)
+        assert deployed_kappa_max(p, loop=DeployedLoop(source="ft", ft_cutoff_hz=30.0)) > ideal
         # The runtime's observer of eq (13) lags by 1/KI: a fast one comes close to the true torque's loop.
-        margins = [deployed_kappa_max(p, loop=DeployedLoop("estimate", KI=ki)) for ki in (50.0, 200.0, 1000.0)]
+        margins = [deployed_kappa_max(p, loop=DeployedLoop(source="estimate", KI=ki)) for ki in (50.0, 200.0, 1000.0)]
         assert margins[0] > margins[1] > margins[2]
         assert margins[2] == pytest.approx(ideal, rel=0.05)
 
     def test_speed_enters_through_the_spatial_filter(self, model):
         p = JointParameters.from_model(model)
         d = design_controller(p)
-        loop = DeployedLoop("ideal", filter=FilterSettings(),
+        loop = DeployedLoop(source="ideal", filter=FilterSettings(),
                             ripple_period_rad=filter_period(model.ripple))
         m = deployed_margin(p, d, HumanArm(), loop, [0.0, 0.2, 0.45])
         assert m.by_speed[0] == pytest.approx(kappa_max(p, d), rel=1e-3)

@@ -194,3 +194,25 @@ def test_no_import_circle_between_modules():
         if module not in state:
             circle = walk(module, [module])
             assert circle is None, " -> ".join(circle)
+
+
+#: A dataclass with this many fields or more is built by field name only (``kw_only``): a call that passes
+#: them by position reads as a row of numbers and breaks silently when a field is added or moved.
+KEYWORD_ONLY_FIELDS = 7
+
+
+def test_wide_dataclasses_are_built_by_field_name():
+    import dataclasses
+    import importlib
+    import inspect
+    import pkgutil
+
+    wide = []
+    for info in pkgutil.walk_packages(iiwa_ident.__path__, "iiwa_ident."):
+        module = importlib.import_module(info.name)
+        for name, obj in vars(module).items():
+            if inspect.isclass(obj) and dataclasses.is_dataclass(obj) and obj.__module__ == info.name:
+                fields = [f for f in dataclasses.fields(obj) if f.init]
+                if len(fields) >= KEYWORD_ONLY_FIELDS and not all(f.kw_only for f in fields):
+                    wide.append(f"{info.name}.{name} ({len(fields)} fields)")
+    assert not wide, f"dataclasses of {KEYWORD_ONLY_FIELDS} or more fields are kw_only: {wide}"

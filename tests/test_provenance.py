@@ -24,8 +24,10 @@ def _sweep(joint: int, pose, sign: float, seed: int = 0) -> Dataset:
     amp, phase = gravity_sinusoid("iiwa14", joint, pose)
     tau = sign * (amp * np.sin(q + phase) + 1.5 * np.tanh(w / 0.01) + 3.0 * w) + rng.normal(0, 0.3, t.size)
     pose_arr = np.array(pose, float)
-    return Dataset({"t": t, "q_m": q, "tau_j": tau}, "constant_velocity", "import", joint, 200.0,
-                   {"robot_model": "iiwa14", "pose_rad": pose_arr, "joint_travel_rad": np.eye(7)[joint - 1] * 1.2})
+    return Dataset(signals={"t": t, "q_m": q, "tau_j": tau}, experiment="constant_velocity", source="import", joint=joint,
+                   sample_rate_hz=200.0,
+                   experiment_attrs={"robot_model": "iiwa14", "pose_rad": pose_arr,
+                                     "joint_travel_rad": np.eye(7)[joint - 1] * 1.2})
 
 
 @pytest.mark.parametrize("joint", [2, 4, 6])
@@ -60,7 +62,8 @@ def test_friction_of_another_shape_and_coloured_noise_decide_the_same():
     friction = (1.2 + 0.8 * np.exp(-np.abs(w) / 0.05)) * np.tanh(w / 0.05) + 0.5 * w
     noise = signal.lfilter([1.0], [1.0, -0.95], rng.normal(0, 0.05, t.size)) + 0.2 * np.sin(2 * np.pi * t / 30)
     for sign, named in ((+1.0, False), (-1.0, True)):
-        ds = Dataset({"t": t, "q_m": q, "tau_j": sign * friction + noise}, "free", "import", 1, 500.0)
+        ds = Dataset(signals={"t": t, "q_m": q, "tau_j": sign * friction + noise}, experiment="free", source="import",
+                     joint=1, sample_rate_hz=500.0)
         assert (torque_sign_problem(ds) is not None) == named
 
 
@@ -180,7 +183,8 @@ def test_a_position_that_is_the_command_is_named():
 
     t = np.arange(0, 2, 1e-3)
     q = 0.3 * np.sin(t)
-    ds = Dataset({"t": t, "q_m": q, "tau_j": np.zeros_like(t), "q_cmd": q.copy()}, "sine", "import", 2, 1000.0)
+    ds = Dataset(signals={"t": t, "q_m": q, "tau_j": np.zeros_like(t), "q_cmd": q.copy()}, experiment="sine",
+                 source="import", joint=2, sample_rate_hz=1000.0)
     assert "q_m equals q_cmd" in substituted_position_problem(ds)
     ds.signals["q_m"] = q + 1e-6 * np.random.default_rng(0).normal(size=t.size)
     assert substituted_position_problem(ds) is None

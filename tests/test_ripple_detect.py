@@ -35,7 +35,8 @@ def _run(rng, travel, speed, cpr, amplitude):
     q = 0.3 + speed * t
     tau = 4.0 + _K * amplitude * np.sin(cpr * q + rng.uniform(0, 2 * math.pi)) + _SIGMA_NM * rng.standard_normal(t.size)
     tick = 5.989e-8
-    return Dataset({"t": t, "q_m": np.round(q / tick) * tick, "tau_j": tau}, "constant_velocity", "import", 1, _RATE)
+    return Dataset(signals={"t": t, "q_m": np.round(q / tick) * tick, "tau_j": tau}, experiment="constant_velocity",
+                   source="import", joint=1, sample_rate_hz=_RATE)
 
 
 @functools.cache

@@ -120,7 +120,7 @@ def _now_utc() -> str:
     return datetime.now(UTC).isoformat(timespec="seconds")
 
 
-@dataclass(eq=False)  # eq on numpy arrays would be ambiguous, so compare explicitly
+@dataclass(eq=False, kw_only=True)  # eq on numpy arrays would be ambiguous, so compare explicitly
 class Dataset:
     """One recorded or simulated experiment on one joint.
 

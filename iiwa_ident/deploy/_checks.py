@@ -103,7 +103,7 @@ class DeployError(IiwaIdentError):
     """A design was refused for deployment, or a deployment setting is invalid."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Check:
     """One deployment check.
 
@@ -280,23 +280,25 @@ def check_design(record: DesignRecord, limits: ControllerLimits | None = None,
     """
     checks: list[Check] = []
     bad = _non_finite(record)
-    checks.append(Check("finite", float(bad), 0.0, bad == 0, "<=", "entries",
-                        "" if bad == 0 else "the design holds NaN or infinite numbers"))
+    checks.append(Check(name="finite", value=float(bad), threshold=0.0, passed=bad == 0, comparison="<=",
+                        unit="entries", detail="" if bad == 0 else "the design holds NaN or infinite numbers"))
     T = record.design.sample_time_s
     ok_T = math.isfinite(T) and abs(T - SAMPLE_TIME_S) <= 1e-12
-    checks.append(Check("sample_time", T, SAMPLE_TIME_S, ok_T, "==", "s",
-                        "" if ok_T else "the FRI runs at 1 ms; redesign at that cycle"))
+    checks.append(Check(name="sample_time", value=T, threshold=SAMPLE_TIME_S, passed=ok_T, comparison="==", unit="s",
+                        detail="" if ok_T else "the FRI runs at 1 ms; redesign at that cycle"))
     finite = bad == 0
 
     radius = _closed_loop_radius(record) if finite else math.nan
     ok = radius <= MAX_SPECTRAL_RADIUS
-    checks.append(Check("closed_loop_spectral_radius", radius, MAX_SPECTRAL_RADIUS, ok, "<=", "-",
-                        "" if ok else ("the 1 kHz closed loop is unstable" if radius >= 1 else
-                                       "the 1 kHz closed loop is too close to instability")))
+    checks.append(Check(name="closed_loop_spectral_radius", value=radius, threshold=MAX_SPECTRAL_RADIUS, passed=ok,
+                        comparison="<=", unit="-",
+                        detail="" if ok else ("the 1 kHz closed loop is unstable" if radius >= 1 else
+                                              "the 1 kHz closed loop is too close to instability")))
     radius_exact = exact_delay_spectral_radius(record.design) if finite else math.nan
     ok = radius_exact <= MAX_SPECTRAL_RADIUS
-    checks.append(Check("exact_delay_spectral_radius", radius_exact, MAX_SPECTRAL_RADIUS, ok, "<=", "-",
-                        "" if ok else "unstable or nearly so with the exact delay instead of Pade"))
+    checks.append(Check(name="exact_delay_spectral_radius", value=radius_exact, threshold=MAX_SPECTRAL_RADIUS,
+                        passed=ok, comparison="<=", unit="-",
+                        detail="" if ok else "unstable or nearly so with the exact delay instead of Pade"))
 
     stable = finite and radius < 1.0 and radius_exact < 1.0
     m = record.margins
@@ -309,9 +311,10 @@ def check_design(record: DesignRecord, limits: ControllerLimits | None = None,
         ok = math.isinf(verified) and m.additive >= need
     else:
         need, value, ok = MIN_KAPPA_MARGIN, math.nan, False
-    checks.append(Check("outer_loop_kappa_margin", value, need, ok, ">=", "-",
-                        "" if ok else "the outer loop tau_r = kappa tau_ext is not stable up to the required gain "
-                                      "(minimum 1 and the built-in controller's kappa_max)"))
+    checks.append(Check(name="outer_loop_kappa_margin", value=value, threshold=need, passed=ok, comparison=">=",
+                        unit="-",
+                        detail="" if ok else "the outer loop tau_r = kappa tau_ext is not stable up to the required "
+                                             "gain (minimum 1 and the built-in controller's kappa_max)"))
 
     if limits is not None and data_sheet is not None:
         ratios = [limits.torque_nm / data_sheet.torque_nm, limits.velocity_rad_s / data_sheet.velocity_rad_s,
@@ -321,14 +324,15 @@ def check_design(record: DesignRecord, limits: ControllerLimits | None = None,
         ok = worst <= 1.0
         names = ("torque", "velocity", "torque rate", "reference rate")
         which = ", ".join(n for n, r in zip(names, ratios) if not r <= 1.0)
-        checks.append(Check("limits_within_data_sheet", worst, 1.0, ok, "<=", "-",
-                            "" if ok else f"{which} limit above the joint's data sheet"))
+        checks.append(Check(name="limits_within_data_sheet", value=worst, threshold=1.0, passed=ok, comparison="<=",
+                            unit="-", detail="" if ok else f"{which} limit above the joint's data sheet"))
         ref = reference_limit(record, limits.torque_nm, limits.reference_rate_nm_s) if stable else math.nan
         frac = ref / limits.torque_nm
         ok = frac >= MIN_REFERENCE_FRACTION
-        checks.append(Check("reference_range", frac, MIN_REFERENCE_FRACTION, ok, ">=", "-",
-                            "" if ok else f"references beyond {ref:.3g} Nm at {limits.reference_rate_nm_s:g} Nm/s "
-                                          "would command more than the torque limit, less than half of it"))
+        checks.append(Check(name="reference_range", value=frac, threshold=MIN_REFERENCE_FRACTION, passed=ok,
+                            comparison=">=", unit="-",
+                            detail="" if ok else f"references beyond {ref:.3g} Nm at {limits.reference_rate_nm_s:g} "
+                                                 "Nm/s would command more than the torque limit, less than half of it"))
     return checks
 
 

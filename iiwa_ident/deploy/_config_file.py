@@ -173,7 +173,7 @@ class Provenance:
     datasets: tuple[Source, ...] = ()
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ControllerConfig:
     """Content of a controller config (module docstring for units and layout).
 
@@ -243,7 +243,7 @@ class ControllerConfig:
 # ---------------------------------------------------------------------------
 # Running the controller from a config
 # ---------------------------------------------------------------------------
-@dataclass
+@dataclass(kw_only=True)
 class _DiscreteDesign:
     """The part of a design :class:`AdditiveController` runs on (the config holds no continuous data)."""
 
@@ -264,9 +264,9 @@ def controller_from_config(config: ControllerConfig) -> AdditiveController:
     design the config was deployed from. Limits are not applied here; the
     runtime clamps reference and command with ``config.limits``.
     """
-    return AdditiveController(_DiscreteDesign(
-        config.Ad, config.Bd, config.Kd, config.Ld, config.Kr_d, config.feedforward, config.prefilter,
-        config.sample_time_s))
+    return AdditiveController(_DiscreteDesign(Ad=config.Ad, Bd=config.Bd, Kd=config.Kd, Ld=config.Ld, Kr_d=config.Kr_d,
+                                              feedforward=config.feedforward, ffd=config.prefilter,
+                                              sample_time_s=config.sample_time_s))
 
 
 # ---------------------------------------------------------------------------
@@ -528,8 +528,9 @@ def _checks(r: _Reader) -> list[Check]:
     for i, c in enumerate(raw):
         key = f"checks[{i}]"
         try:
-            check = Check(str(c["name"]), float(c["value"]), float(c["threshold"]), bool(c["passed"]),
-                          str(c["comparison"]), str(c.get("unit", "-")), str(c.get("detail", "")))
+            check = Check(name=str(c["name"]), value=float(c["value"]), threshold=float(c["threshold"]),
+                          passed=bool(c["passed"]), comparison=str(c["comparison"]), unit=str(c.get("unit", "-")),
+                          detail=str(c.get("detail", "")))
         except (KeyError, TypeError, ValueError):
             raise r.fail(key, "expected name, value, threshold, passed and comparison") from None
         if not check.passed:

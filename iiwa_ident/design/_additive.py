@@ -318,7 +318,7 @@ def feedforward_transfer_function(params: JointParameters, prefilter_hz: float =
 # ---------------------------------------------------------------------------
 # The design
 # ---------------------------------------------------------------------------
-@dataclass
+@dataclass(kw_only=True)
 class AdditiveDesign:
     """A complete additive controller design: continuous and 1 kHz matrices.
 

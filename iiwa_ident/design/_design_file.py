@@ -114,7 +114,7 @@ class DesignFileError(IiwaIdentError):
     """A design file is missing, unreadable or invalid."""
 
 
-@dataclass
+@dataclass(kw_only=True)
 class DesignRecord:
     """A design file's content.
 

@@ -306,7 +306,7 @@ def outer_loop_margins(design: AdditiveDesign, arm: HumanArm = HumanArm(),
 # ---------------------------------------------------------------------------------------------------------
 # The loop as deployed: where tau_ext comes from, the spatial filter, the F/T sensor's filter
 # ---------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DeployedLoop:
     """What the deployed outer loop adds to the model of :func:`outer_loop_matrix`.
 

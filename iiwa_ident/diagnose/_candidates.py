@@ -271,7 +271,8 @@ class CandidateEffect:
 
     def signals(self, ctx: Context) -> EffectSignals:
         """The dataset's signals as the effects' regressors take them (the wide-band link velocity)."""
-        return EffectSignals(ctx.t, ctx.q_m, ctx.theta_l, ctx.omega_fast, ctx.tau, ctx.index, max(self.n_datasets, 1))
+        return EffectSignals(t=ctx.t, q_m=ctx.q_m, theta_l=ctx.theta_l, omega_l=ctx.omega_fast, tau_j=ctx.tau,
+                             dataset=ctx.index, n_datasets=max(self.n_datasets, 1))
 
     # -- structure ---------------------------------------------------------
     #: Whether the effect has coefficients of each dataset's own (a phase per recording).

@@ -77,7 +77,7 @@ SIGN_RMS_RATIO = 0.5
 _REDUNDANT_SHARE = 0.25  # of its own held-out gain, at most, that an ambiguous effect keeps beyond the other's shape
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EffectReport:
     """One named effect.
 
@@ -112,7 +112,7 @@ class EffectReport:
                 "detail": self.detail}
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ChannelReport:
     """Held-out residual RMS of one channel of one dataset [Nm]; the model's prediction of it, before and
     after the named effects (in-sample: fit %, residual tests), as ``compare`` gives it."""
@@ -149,7 +149,7 @@ class _Naming:
         return _sse(self.after, range(len(self.after)))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Diagnosis:
     """Outcome of :func:`diagnose` (see the module docstring)."""
 
@@ -560,8 +560,10 @@ def diagnose(datasets: Sequence[Dataset], model: JointModel, candidates: Sequenc
         key = (b.ctx.index, b.channel)
         changed = bool(effects) or bool(replaced)
         diag.channels.append(ChannelReport(
-            b.ctx.name, b.ctx.experiment, b.channel, _rms([rb / b.weight]), _rms([ra / b.weight]), tested[key],
-            channel_comparison(b.ctx, b.channel, diag.residual_after(b.ctx, b.channel)) if changed else tested[key]))
+            dataset=b.ctx.name, experiment=b.ctx.experiment, channel=b.channel, rms_before=_rms([rb / b.weight]),
+            rms_after=_rms([ra / b.weight]), before=tested[key],
+            after=(channel_comparison(b.ctx, b.channel, diag.residual_after(b.ctx, b.channel)) if changed
+                   else tested[key])))
     # One meaning of "explained" everywhere: nothing left for the library to name, and every channel's
     # residual passes the tests that judge the model (or is not judged).
     diag.explained = not effects and not suspects and not named.ambiguous and not replaced and not sign_reversed \
@@ -861,9 +863,10 @@ def _selected(names: list[str], work: JointModel, model: JointModel, known: dict
             physical.update(payload=pay.text(), payload_kg=pay.mass_kg, payload_std_kg=pay.mass_std_kg,
                             payload_lever_m=pay.lever_m, com_moment_kgm=pay.moment_kgm,
                             com_moment_std_kgm=pay.moment_std_kgm)
-        effects.append(EffectReport(cand.name, sel.confidence[cand.name], params, rb, ra,
-                                    100.0 * (1 - ra / rb) if rb > 0 else 0.0,
-                                    {**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
+        effects.append(EffectReport(name=cand.name, confidence=sel.confidence[cand.name], parameters=params,
+                                    rms_before=rb, rms_after=ra,
+                                    gain_pct=100.0 * (1 - ra / rb) if rb > 0 else 0.0,
+                                    detail={**{k: v for k, v in cand.detail.items() if isinstance(v, (int, float, str))},
                                      **physical,
                                      "selected_in": sel.band[cand.name],
                                      **shape,

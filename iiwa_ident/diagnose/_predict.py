@@ -90,7 +90,7 @@ _CONTACT = ("hand_guided", "quasi_static")  # experiments where someone pushes t
 _FREE_MOTION = ("chirp", "multisine", "constant_velocity", "step", "sine")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Context:
     """One dataset seen through the model (all arrays per sample, SI units).
 
@@ -375,10 +375,10 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
     from_eq9 = not dataset.has("q_l_ref")
     theta_raw = q_m - f0 - tau / p["K"] if from_eq9 else np.asarray(dataset["q_l_ref"], float)
     tau_c = np.asarray(dataset["tau_c"], float) if dataset.has("tau_c") else None
-    ctx = Context(index=index, name=name,
-                  experiment=dataset.experiment, dt=dt, t=t, q_m=q_m, tau=tau, theta_l=np.zeros_like(t),
-                  omega_l=np.zeros_like(t), omega_fast=np.zeros_like(t), tau_ext=tau_ext, link_from_eq9=from_eq9, tau_c=tau_c, params=p,
-                  cutoff_hz=fc, f0=f0 if model.ripple is not None else None,
+    ctx = Context(index=index, name=name, experiment=dataset.experiment, dt=dt, t=t, q_m=q_m, tau=tau,
+                  theta_l=np.zeros_like(t), omega_l=np.zeros_like(t), omega_fast=np.zeros_like(t), tau_ext=tau_ext,
+                  link_from_eq9=from_eq9, tau_c=tau_c, params=p, cutoff_hz=fc,
+                  f0=f0 if model.ripple is not None else None,
                   reaction=tau * model.ripple.slope(q_m) if model.ripple is not None else None, _sos=sos,
                   _tf=_transfer_functions(p, dt))
     ctx.theta_l = ctx.lowpass(theta_raw)

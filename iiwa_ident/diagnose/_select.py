@@ -171,7 +171,7 @@ def _n_eff(res: Sequence[np.ndarray]) -> float:
     return max(total, 10.0)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Step:
     """One candidate tried at one greedy step, in one band (``full``, ``fast``, or its own evidence channel's name)."""
 
@@ -194,7 +194,7 @@ class Step:
     unconfirmed: bool = False
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Selection:
     """Outcome of :func:`select_effects`.
 
@@ -289,7 +289,7 @@ def _score(step: int, name: str, band: str, Xs: list[np.ndarray], Xc: list[np.nd
     sd = diff.std(ddof=1)
     t = diff.mean() / (sd / math.sqrt(len(diff))) if sd > 0 else (math.inf if diff.mean() > 0 else 0.0)
     conf = float(stats.t.cdf(t, len(diff) - 1)) if math.isfinite(t) else 1.0
-    return Step(step, name, gain, dbic, conf, band=band), res
+    return Step(step=step, name=name, gain=gain, delta_bic=dbic, confidence=conf, band=band), res
 
 
 _OWN = "own evidence channel"

@@ -98,7 +98,7 @@ class _Link(Protocol):
     def sendto(self, data: bytes) -> None: ...
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ClockPort:
     """The robot side as its clock sees it: its socket, link, report, sent messages and client, and the two
     calls the clock needs: ``drain()`` collects the answers that arrived, ``session()`` looks at the session."""

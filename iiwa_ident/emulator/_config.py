@@ -81,7 +81,7 @@ class Faults:
         return bool(self.loss or self.jitter_s or self.duplicate or self.reorder or self.corrupt)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class QualityThresholds:
     """How the emulator judges the connection quality (:mod:`iiwa_ident.emulator._quality`).
 
@@ -123,7 +123,7 @@ class QualityThresholds:
                 raise IiwaIdentError(f"quality.{name} must be a positive number of seconds, got {v!r}")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EmulatorConfig:
     """Settings of a :class:`RobotEmulator`.
 

@@ -46,7 +46,7 @@ class Histogram:
         return self.max
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EmulatorReport:
     """What happened during an emulator run.
 

@@ -83,7 +83,7 @@ def _newer(seq: int, last: int) -> bool:
     return 0 < (seq - last) % _UINT32 < _UINT32 // 2
 
 
-@dataclass
+@dataclass(kw_only=True)
 class ConnectionStats:
     """Datagram counters of a session.
 

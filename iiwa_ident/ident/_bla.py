@@ -40,7 +40,7 @@ __all__ = ["BestLinearApproximation", "best_linear_approximation", "bla_from_arr
            "sampled_response", "LINK_TERMS", "SMOOTH_LINES"]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BestLinearApproximation:
     """The BLA of ``tau_c`` to the outputs at the excited lines.
 
@@ -192,7 +192,7 @@ NONLINEAR_WARN_REL = 1e-3
 SMOOTH_LINES = 7
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BlaFit:
     """Eq (4) with delay fitted to a best linear approximation.
 

@@ -73,7 +73,7 @@ _HANN_HALF_OVERLAP_CORR = 1.0 / 6.0
 # Welch cross-spectra
 
 
-@dataclass
+@dataclass(kw_only=True)
 class CrossSpectra:
     """Welch auto- and cross-spectra of one input and one or more outputs.
 
@@ -174,7 +174,8 @@ def cross_spectra(u: np.ndarray, ys: np.ndarray, fs: float, nperseg: int) -> Cro
         pyy.append(np.sum(np.abs(Y) ** 2, axis=0))
         puy.append(np.sum(np.conj(U) * Y, axis=0))
     f = np.fft.rfftfreq(nperseg, 1.0 / fs)
-    return CrossSpectra(f, puu, np.array(pyy), np.array(puy), n_seg, nperseg, float(fs))
+    return CrossSpectra(f_hz=f, puu=puu, pyy=np.array(pyy), puy=np.array(puy), n_segments=n_seg, nperseg=nperseg,
+                        fs=float(fs))
 
 
 def _effective_terms(n_bins: int, n_segments: int) -> float:

@@ -204,7 +204,7 @@ class LinkEffectEstimate:
         return out
 
 
-@dataclass
+@dataclass(kw_only=True)
 class IdimResult:
     """Outcome of :func:`fit_idim`.
 

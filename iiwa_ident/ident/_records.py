@@ -90,7 +90,7 @@ class Motion:
     substeps: int
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SampledInputs:
     """Deflection [rad] and reaction [Nm] columns as a model sampled ``substeps`` times per sample sees them:
     values at its points, means and slopes over its intervals (:class:`~iiwa_ident.model.DiscreteModel`),
@@ -201,7 +201,7 @@ def _fine_signal(signal: np.ndarray, substeps: int) -> _Fine:
     return _Fine(fine, sample_means(fine), sample_slopes(fine))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FitRecord:
     """One dataset prepared for the joint fit (:func:`prepare_record`)."""
 

@@ -430,7 +430,7 @@ def _circular_shift(reference: np.ndarray, other: np.ndarray) -> int:
 
 # --------------------------------------------------------------------------- main entry
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class _Search:
     """What :func:`identify_ripple` was asked for (its arguments, same names and units)."""
 
@@ -445,7 +445,7 @@ class _Search:
     link_motion: str
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Candidate:
     """One deflection estimate (a choice of link motion) with its line and refined period."""
 
@@ -584,8 +584,8 @@ def identify_ripple(datasets: list[Dataset], K: float = 18500.0, Jl: float = 5.6
     IiwaIdentError
         When no usable motion is found (too short, too slow, standing still).
     """
-    options = _Search(K=K, Jl=Jl, period_min=period_min, period_max=period_max, bins=bins,
-                      max_harmonics=max_harmonics, min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
+    options = _Search(K=K, Jl=Jl, period_min=period_min, period_max=period_max, bins=bins, max_harmonics=max_harmonics,
+                      min_speed=min_speed, false_alarm=false_alarm, link_motion=link_motion)
     pooled = _identify_pooled(datasets, options)
     if len(datasets) < 2:
         speed = pass_speed(pooled.passes) if pooled.passes else _median_speed(datasets[0]) if datasets else 0.0
@@ -810,8 +810,8 @@ def _run_lines(name: str, ds: Dataset, r: RippleResult | None, speed: float, opt
             if all(abs(k[i] - s) > 4 * (k[1] - k[0] if len(k) > 1 else 0.0) for s, _ in seeds):
                 seeds.append((float(k[i]), 0.0))
     detected = int(r is not None and r.detected and r.period_rad is not None)
-    return RunLines(name, passes, pass_speed(passes) if passes else speed, ds.sample_rate_hz, seeds, searched,
-                    detected)
+    return RunLines(name=name, passes=passes, speed=pass_speed(passes) if passes else speed, rate_hz=ds.sample_rate_hz,
+                    seeds=seeds, searched=searched, detected=detected)
 
 
 def _decide(result: RippleResult, lines: CrossRunLines, runs: list[dict], datasets: list[Dataset],
@@ -988,7 +988,7 @@ def _identify_pooled(datasets: list[Dataset], o: _Search) -> RippleResult:
                                  f"{4 * period_min:g} rad) to identify a position-periodic deflection from")
         dynamic = any(p.method == "dynamic" for p in passes)
         name = motion if dynamic else "measured"
-        candidates.append(_Candidate(name, passes, line_search(passes, period_min, period_max),
+        candidates.append(_Candidate(name=name, passes=passes, spectrum=line_search(passes, period_min, period_max),
                                      link_motion=motion))
         if not dynamic:
             break  # static passes only: the link is measured, nothing to choose

@@ -244,7 +244,7 @@ FAMILY_MAX_HARMONIC = 8
 FAMILY_RTOL = 3e-3
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunLines:
     """One run as the cross-run test sees it.
 
@@ -282,7 +282,7 @@ class RunLines:
         return 1.0 / max(span(self.passes), 1e-12)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Candidate:
     """A candidate spatial line, tested in every run."""
 
@@ -460,10 +460,11 @@ def _candidates(runs: list[RunLines], extra: list[tuple[float, str]], k_min: flo
             for q in RATIOS:
                 if k_min <= q * k <= k_max:
                     origin = r.name if q == 1 else f"{r.name} x {_fraction(q)}"
-                    raw.append(Candidate(q * k, q * std, origin, picked if q == 1 else {}, q == 1, set(predicted)))
+                    raw.append(Candidate(k=q * k, k_std=q * std, origin=origin, looked=picked if q == 1 else {},
+                                         own=q == 1, predicted=set(predicted)))
     for k, origin in extra:
         if k_min <= k <= k_max:
-            raw.append(Candidate(k, 0.0, origin))
+            raw.append(Candidate(k=k, k_std=0.0, origin=origin))
     if not raw:
         return []
     finest = min(r.cell for r in runs if r.passes) if any(r.passes for r in runs) else 0.0

@@ -141,7 +141,7 @@ def sidak(p: float, tries: float) -> float:
     return float(min(1.0, -math.expm1(tries * math.log1p(-min(p, 1 - 1e-16)))))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class LineSpectrum:
     """Hotelling spectrum of a set of passes over the searched spatial frequencies."""
 
@@ -220,7 +220,8 @@ def line_search(passes: list[Pass], period_min: float, period_max: float) -> Lin
     reach = lobe_reach(chunks, dk)
     floor = median_filter(t2_raw, size=max(51, len(k) // 10) | 1, mode="nearest")
     t2 = t2_raw * np.minimum(1.0, math.log(2.0) / np.maximum(floor, 1e-300))
-    spec = LineSpectrum(k, t2, power, count, dk, int(np.argmax(t2)), warnings, lobe_reach=reach)
+    spec = LineSpectrum(k=k, t2=t2, power=power, count=count, dk=dk, i_best=int(np.argmax(t2)), warnings=warnings,
+                        lobe_reach=reach)
     spec.family = harmonic_family(spec)
     return spec
 

@@ -144,7 +144,7 @@ def check_model_matches(model: JointModel, datasets: Sequence[Dataset], where: s
 DESCRIPTION_FACTOR = 2.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PhysicalRanges:
     """What is physically possible for one joint at one pose, from the robot's description.
 
@@ -179,9 +179,9 @@ def physical_ranges(model: JointModel) -> PhysicalRanges | None:
     a, a_p = gravity_sinusoid(robot, joint, pose)[0], gravity_sinusoid(robot, joint, pose, payload)[0]
     a = a if a > LOAD_NEGLIGIBLE_NM else 0.0
     a_p = a_p if a_p > LOAD_NEGLIGIBLE_NM else 0.0
-    return PhysicalRanges((jl / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * jl_p),
-                          (a / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * a_p), jl, a, robot, joint,
-                          tuple(float(x) for x in pose))
+    return PhysicalRanges(Jl_kgm2=(jl / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * jl_p),
+                          load_nm=(a / DESCRIPTION_FACTOR, DESCRIPTION_FACTOR * a_p), Jl_described_kgm2=jl,
+                          load_described_nm=a, robot=robot, joint=joint, pose_rad=tuple(float(x) for x in pose))
 
 
 #: Shortest lever of the flange about the joint's axis (horizontal part, at the pose) that determines a payload
@@ -189,7 +189,7 @@ def physical_ranges(model: JointModel) -> PhysicalRanges | None:
 PAYLOAD_LEVER_MIN_M = 0.01
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Payload:
     """The payload a gravity load beyond the description's stands for, at the pose (:func:`payload_of_load`).
 
@@ -255,11 +255,13 @@ def payload_of_load(ranges: PhysicalRanges, amplitude_nm: float, phase_rad: floa
     moment_std = math.sqrt(max(float(e @ c @ e), 0.0)) / ne / GRAVITY_M_S2 if ne > 0 else \
         math.sqrt(max(float(np.trace(c)) / 2, 0.0)) / GRAVITY_M_S2
     if lever < PAYLOAD_LEVER_MIN_M:
-        return Payload(False, float("nan"), float("nan"), lever, ne / GRAVITY_M_S2, moment_std, ne)
+        return Payload(determined=False, mass_kg=float("nan"), mass_std_kg=float("nan"), lever_m=lever,
+                       moment_kgm=ne / GRAVITY_M_S2, moment_std_kgm=moment_std, other_phase_nm=ne)
     m = float(e @ u) / nu ** 2
     m_std = math.sqrt(max(float(u @ c @ u), 0.0)) / nu ** 2
     across = abs(float(e[0] * u[1] - e[1] * u[0])) / nu
-    return Payload(True, m, m_std, lever, ne / GRAVITY_M_S2, moment_std, across)
+    return Payload(determined=True, mass_kg=m, mass_std_kg=m_std, lever_m=lever, moment_kgm=ne / GRAVITY_M_S2,
+                   moment_std_kgm=moment_std, other_phase_nm=across)
 
 
 def against_description(ranges: PhysicalRanges, Jl_kgm2: float | None = None,

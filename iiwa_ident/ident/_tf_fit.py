@@ -588,7 +588,7 @@ class BandQuality:
     coherence: float
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FitResult:
     """Outcome of :func:`fit_transfer_function`.
 
@@ -977,7 +977,7 @@ def _covariance(problem: _Problem, x: np.ndarray, ripple: RippleTerms | None, or
     return _Covariance(cov, cov_s, D, std_method, log_filter_fit)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _RecordChecks:
     """Per record at the estimate: the residuals' RMS, H1 and the model over its bands, the band quality, the
     sweep's harmonics and nonlinear share, the residual tests (None where the lengths differ)."""
@@ -994,7 +994,7 @@ class _RecordChecks:
 def _record_checks(problem: _Problem, x: np.ndarray, records: list[FitRecord], values: dict[str, float],
                    lf: TorqueLogFilter | None) -> _RecordChecks:
     """What each record says of the fit at ``x`` (:class:`_RecordChecks`)."""
-    checks = _RecordChecks([], [], [], [], [], [], [])
+    checks = _RecordChecks(noise=[], frf=[], model_frf=[], bands=[], harmonics=[], nonlinear=[], tests=[])
     noise, frfs, model_frfs, bands = checks.noise, checks.frf, checks.model_frf, checks.bands
     harmonics, nonlinear, tests = checks.harmonics, checks.nonlinear, checks.tests
     for rec, (e_t, e_q), y_ripple in zip(records, problem.unweighted(x), problem.ripple_response(x)):

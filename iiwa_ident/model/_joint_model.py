@@ -204,7 +204,7 @@ class Source:
     role: str = "fit"
 
 
-@dataclass
+@dataclass(kw_only=True)
 class JointModel:
     """The identified joint model (see the module docstring for the file layout)."""
 

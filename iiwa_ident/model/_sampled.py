@@ -96,7 +96,7 @@ def delayed_hold(A: np.ndarray, B: np.ndarray, T: float, delay: float
     return DelayedHold(Phi, Ga, Pa @ zoh(A, B, tau)[1], d)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class DiscreteModel:
     """The ZOH-sampled eq (1)-(4) model with a fractional input delay.
 
@@ -360,8 +360,9 @@ def discretize(params: ParameterSource, sample_time_s: float, input: str = "comm
         num_rg = np.array([[0.0, c @ gr, -(c @ P @ gr), 0.0] for c in Cm[:, :2]])
         a = -Bm[3] * T * T / 12.0
         num_jg = np.array([[0.0, c[0] * a, -c[0] * a, 0.0] for c in Cm[:, 2:]])
-    return DiscreteModel(T, d, np.array([1.0, -tr, det]), num_r, np.array(num_j), feed,
-                         sampled_motion=motion, num_resonant_slope=num_rg, num_rigid_slope=num_jg)
+    return DiscreteModel(sample_time_s=T, delay_samples=d, den_resonant=np.array([1.0, -tr, det]), num_resonant=num_r,
+                         num_rigid=np.array(num_j), feedthrough=feed, sampled_motion=motion, num_resonant_slope=num_rg,
+                         num_rigid_slope=num_jg)
 
 
 def simulate_outputs(params: ParameterSource, tau_c: np.ndarray, sample_time_s: float) -> np.ndarray:

@@ -37,7 +37,7 @@ __all__ = ["SensorStats", "NetFtSensor"]
 _U32 = 1 << 32
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SensorStats:
     """Counters of an RDT stream (module docstring)."""
 

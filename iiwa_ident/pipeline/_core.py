@@ -46,7 +46,7 @@ FILES = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PipelineSettings:
     """Experiment lengths of one pipeline run (:meth:`full` or :meth:`short`).
 
@@ -123,7 +123,7 @@ class Stage:
     run: Callable[[PipelineContext], dict[str, Any]]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class StageRecord:
     """Outcome of one stage: ``status`` is ``ok``, ``failed`` or ``skipped``; ``duration_s`` in s."""
 
@@ -140,7 +140,7 @@ class StageRecord:
                 "error": self.error, "outputs": self.outputs, "headline": self.headline}
 
 
-@dataclass
+@dataclass(kw_only=True)
 class PipelineContext:
     """What the stages share: the work folder, the target and the in-memory results by key."""
 
@@ -770,10 +770,10 @@ def run_stages(ctx: PipelineContext, stages: tuple[Stage, ...], inputs: dict[str
     for i, stage in enumerate(stages, 1):
         blocked = [d for d in stage.needs if status.get(d) != "ok"]
         if stage.name in skip:
-            rec = StageRecord(stage.name, stage.title, "skipped", error="skipped on request")
+            rec = StageRecord(name=stage.name, title=stage.title, status="skipped", error="skipped on request")
             progress(f"[{i}/{n}] {stage.name}: skipped on request")
         elif blocked:
-            rec = StageRecord(stage.name, stage.title, "skipped",
+            rec = StageRecord(name=stage.name, title=stage.title, status="skipped",
                               error=f"skipped: needs {', '.join(blocked)}, which did not succeed")
             progress(f"[{i}/{n}] {stage.name}: skipped ({', '.join(blocked)} did not succeed)")
         else:
@@ -781,14 +781,14 @@ def run_stages(ctx: PipelineContext, stages: tuple[Stage, ...], inputs: dict[str
             t0 = time.perf_counter()
             try:
                 headline_ = stage.run(ctx)
-                rec = StageRecord(stage.name, stage.title, "ok", headline=_jsonable(headline_))
+                rec = StageRecord(name=stage.name, title=stage.title, status="ok", headline=_jsonable(headline_))
             except StageSkipped as why:
-                rec = StageRecord(stage.name, stage.title, "skipped", error=f"skipped: {why}")
+                rec = StageRecord(name=stage.name, title=stage.title, status="skipped", error=f"skipped: {why}")
             except IiwaIdentError as err:
-                rec = StageRecord(stage.name, stage.title, "failed", error=str(err))
+                rec = StageRecord(name=stage.name, title=stage.title, status="failed", error=str(err))
             except Exception as err:  # noqa: BLE001  (a bug in one stage must not cost the report)
                 where = traceback.extract_tb(err.__traceback__)[-1]
-                rec = StageRecord(stage.name, stage.title, "failed",
+                rec = StageRecord(name=stage.name, title=stage.title, status="failed",
                                   error=f"{type(err).__name__}: {err} ({Path(where.filename).name}:{where.lineno})")
             rec.duration_s = time.perf_counter() - t0
             rec.outputs = [FILES[k] for k in stage.outputs if ctx.path(k).exists()]
@@ -801,7 +801,7 @@ def run_stages(ctx: PipelineContext, stages: tuple[Stage, ...], inputs: dict[str
     if report is not None:
         progress(f"[{n}/{n}] report: PDF of every stage ...")
         t0 = time.perf_counter()
-        rec = StageRecord("report", "PDF report", "ok")
+        rec = StageRecord(name="report", title="PDF report", status="ok")
         try:
             result.wall_s = time.perf_counter() - t_start
             pages = report(ctx.path("report"), ctx.workdir, result.as_json(), ctx.results)

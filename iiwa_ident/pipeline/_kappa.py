@@ -191,8 +191,8 @@ def run_kappa_sweep(config: ControllerConfig, outdir: Path, *, record: DesignRec
     for loop, row in rows.items():
         row["linear_limit"] = row["linear_at_speed_rad_s"] = None
         if record is not None:
-            the_loop = DeployedLoop(tau_ext, ft_settings.cutoff_hz, ft_settings.rate_hz, record.KI, record.filter,
-                                    ripple_period_rad=filter_period(record.ripple))
+            the_loop = DeployedLoop(source=tau_ext, ft_cutoff_hz=ft_settings.cutoff_hz, ft_rate_hz=ft_settings.rate_hz,
+                                    KI=record.KI, filter=record.filter, ripple_period_rad=filter_period(record.ripple))
             _predict(row, record, record.design if loop == "additive" else None, arm, the_loop)
     b, a = rows["builtin"], rows["additive"]
     return {"tau_ext": tau_ext, "target": target, "clock": "lockstep" if lockstep else "realtime",

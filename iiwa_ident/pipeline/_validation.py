@@ -39,7 +39,7 @@ from iiwa_ident.sim import Plant
 __all__ = ["ValidationSettings", "run_validation", "tracking_metrics", "reference_of", "free_udp_port"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ValidationSettings:
     """Lengths and amplitudes of the validation runs.
 

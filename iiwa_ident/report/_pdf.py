@@ -451,8 +451,9 @@ def _title_page(workdir: Path, doc: dict[str, Any] | None, stage: str | None) ->
             for k, v in inputs.items():
                 lines.append(f"  {k}: {v}")
             lines.append("")
-            recs = [StageRecord(s["name"], s.get("title", ""), s["status"], s.get("duration_s", 0.0),
-                                s.get("error", ""), s.get("outputs", []), s.get("headline", {}))
+            recs = [StageRecord(name=s["name"], title=s.get("title", ""), status=s["status"],
+                                duration_s=s.get("duration_s", 0.0), error=s.get("error", ""),
+                                outputs=s.get("outputs", []), headline=s.get("headline", {}))
                     for s in doc.get("stages", [])]
             res = PipelineResult(workdir, recs, doc.get("headline", {}), None, doc.get("wall_s", 0.0))
             summary = format_summary(res).strip("\n")

@@ -34,7 +34,7 @@ from iiwa_ident.runtime._tasks import Task, TaskInput
 __all__ = ["SweepSettings", "InstabilityDetector", "KappaSweep"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SweepSettings:
     """Kappa steps and the judgement of instability (module docstring).
 

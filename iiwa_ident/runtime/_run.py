@@ -256,7 +256,7 @@ class ControllerRuntime:
         return self.tau_c
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RunReport:
     """Outcome of :func:`run_controller`.
 
@@ -464,7 +464,8 @@ def run_controller(config: ControllerConfig, robot: RobotInterface, task: Task, 
     early = not (runtime.stop_reason and runtime.stop_reason in ("duration", task.done, signals.flag))
     reason = reason or runtime.stop_reason
     facts = robot.describe()
-    return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, ended_early=early, watchdog_events=list(runtime.watchdog.events),
-                     compute_us=_percentiles(compute[:k]), logged=stats.written, lost_log_rows=stats.lost,
-                     connection=facts.get("connection", {}), log=str(log), first_answer_s=facts.get("first_answer_s"),
+    return RunReport(cycles=k, duration_s=k * dt, stop_reason=reason, ended_early=early,
+                     watchdog_events=list(runtime.watchdog.events), compute_us=_percentiles(compute[:k]),
+                     logged=stats.written, lost_log_rows=stats.lost, connection=facts.get("connection", {}),
+                     log=str(log), first_answer_s=facts.get("first_answer_s"),
                      sensor=sensor.stats.as_dict() if sensor is not None else {})

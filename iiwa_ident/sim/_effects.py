@@ -94,7 +94,7 @@ INJECTIONS = ("deflection", "link", "command", "sensor", "reading_scale", "logge
 Column = list[tuple[str, np.ndarray]]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class EffectSignals:
     """What an effect's regressors are functions of, per sample of one dataset (SI units).
 

@@ -72,7 +72,7 @@ SECTIONS: dict[str, tuple[Param, ...]] = {
 _FLAGS = {"sensors": ("ft_sensor", "link_encoder")}
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Plant:
     """Everything the simulated joint needs.
 

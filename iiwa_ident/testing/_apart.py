@@ -363,9 +363,10 @@ def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0, amplitude_nm: fl
         return (bias + amp * math.sin(phase) if k >= 0 else bias) - kh * (q - q0) - dh * v
 
     n = int(round(chirp_s / _T))
-    out = [Dataset(_simulate(case, chirp, None, n, s + 1), "chirp", "simulation", 1, 1 / _T,
-                   {"sweep": "linear", "f0_hz": f0, "f1_hz": f1, "duration_s": chirp_s, "amplitude_nm": amp,
-                    "bias_nm": bias})]
+    out = [Dataset(signals=_simulate(case, chirp, None, n, s + 1), experiment="chirp", source="simulation", joint=1,
+                   sample_rate_hz=1 / _T,
+                   experiment_attrs={"sweep": "linear", "f0_hz": f0, "f1_hz": f1, "duration_s": chirp_s,
+                                     "amplitude_nm": amp, "bias_nm": bias})]
     speeds, travel = (0.3, 0.8), 0.6
     qr, vr, ar = _trapezoids(speeds, travel, 3.0)
 
@@ -373,8 +374,9 @@ def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0, amplitude_nm: fl
         i = min(max(k, 0), len(qr) - 1)
         return 5.0 * ar[i] + 350.0 * (q0 + qr[i] - q) + 70.0 * (vr[i] - v)
 
-    out.append(Dataset(_simulate(case, cv, None, len(qr), s + 2), "constant_velocity", "simulation", 1, 1 / _T,
-                       {"velocity_rad_s": np.array(speeds), "range_rad": travel, "mode": "torque"}))
+    out.append(Dataset(signals=_simulate(case, cv, None, len(qr), s + 2), experiment="constant_velocity",
+                       source="simulation", joint=1, sample_rate_hz=1 / _T,
+                       experiment_attrs={"velocity_rad_s": np.array(speeds), "range_rad": travel, "mode": "torque"}))
     rng = np.random.default_rng([case.seed, 3])
     lines = [(2 * math.pi * float(f), float(p), a) for f, p, a in
              zip(np.array([0.2, 0.37, 0.6]) * rng.uniform(0.9, 1.1, 3), rng.uniform(0, 2 * np.pi, 3),
@@ -387,6 +389,6 @@ def simulate_apart_case(case: ApartCase, chirp_s: float = 10.0, amplitude_nm: fl
         vel = sum(a * w * math.cos(w * t + p) for w, p, a in lines)
         return _Hold(250.0, 35.0, pos, vel)
 
-    out.append(Dataset(_simulate(case, lambda k, q, v, q0: 0.0, hand, 6000, s + 3), "hand_guided", "simulation", 1,
-                       1 / _T, {"duration_s": 6.0}))
+    out.append(Dataset(signals=_simulate(case, lambda k, q, v, q0: 0.0, hand, 6000, s + 3), experiment="hand_guided",
+                       source="simulation", joint=1, sample_rate_hz=1 / _T, experiment_attrs={"duration_s": 6.0}))
     return out

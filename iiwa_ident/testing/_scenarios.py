@@ -257,7 +257,7 @@ def simulate_scenario_multisine(sc: Scenario, period_s: float = 2.0, periods: in
 RIPPLE_NUISANCES: tuple[str, ...] = ("friction", "gravity", "hum", "coloured_noise", "gaps")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RippleScenario:
     """One draw for the ripple identification: a joint's runs at constant speeds, with or without a ripple.
 
@@ -345,7 +345,7 @@ def draw_ripple_scenario(seed: int, *, null: bool = False, nuisances: Sequence[s
         after["coloured_noise"] = (rng.uniform(0.005, 0.03), rng.uniform(0.9, 0.99))
     if "gaps" in on:
         after["gaps"] = (int(rng.integers(1, 7)), rng.uniform(0.01, 0.04))
-    return RippleScenario(seed, ripple, runs, rate, effects, after, on)
+    return RippleScenario(seed=seed, ripple=ripple, runs=runs, rate_hz=rate, effects=effects, after=after, nuisances=on)
 
 
 def simulate_ripple_scenario(sc: RippleScenario) -> list[Dataset]:
