@@ -75,6 +75,7 @@ def test_the_command(chirp, tmp_path):
     write_model(tmp_path / "j2.toml", other)
     res = CliRunner().invoke(app, ["compare", "--model", str(tmp_path / "j2.toml"), str(data)])
     assert res.exit_code == 2 and "a model of joint 2 on data of joint 1" in res.stderr, res.output
+    assert res.stderr.startswith(f"error: {tmp_path / 'j2.toml'}: "), res.stderr  # names the file
 
 
 def test_real_joint_with_the_diagnosed_model(tmp_path):

@@ -57,12 +57,12 @@ def compare_cmd(
     """
     from iiwa_ident.datasets import dataset_files, read_dataset
     from iiwa_ident.diagnose import compare
-    from iiwa_ident.ident import dataset_model, read_model
+    from iiwa_ident.ident import model_for
 
     try:
         data = dataset_files(data)
         datasets = [read_dataset(p) for p in data]
-        base = read_model(model) if model is not None else dataset_model(datasets)
+        base = model_for(datasets, model)
         with progress(f"running the model on {len(datasets)} dataset(s)"):
             rows = compare(datasets, base)
         if not rows:

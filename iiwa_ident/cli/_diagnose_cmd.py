@@ -45,17 +45,14 @@ def diagnose_cmd(
     """
     from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
     from iiwa_ident.diagnose import diagnose
-    from iiwa_ident.ident import check_model_matches, dataset_model, read_model, write_model
+    from iiwa_ident.ident import model_for, write_model
     from iiwa_ident.model import Source
 
     try:
         data = dataset_files(data)
         datasets = [read_dataset(p) for p in data]
-        if model is not None:
-            base = read_model(model)
-            check_model_matches(base, datasets, f"{model}: ")
-        else:
-            base = dataset_model(datasets)
+        base = model_for(datasets, model)
+        if model is None:
             typer.echo(f"model: {base.description}")
         with progress(f"diagnosing {len(datasets)} dataset(s): testing the candidate effects"):
             result = diagnose(datasets, base)

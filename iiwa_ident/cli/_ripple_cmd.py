@@ -176,17 +176,13 @@ def ripple_cmd(
       iiwa-ident ripple cv.h5 --model model.toml --out model_ripple.toml --json ripple.json
     """
     from iiwa_ident.datasets import dataset_files, read_dataset, sha256_file
-    from iiwa_ident.ident import check_model_matches, dataset_model, read_model, ripple_model, write_model
+    from iiwa_ident.ident import model_for, ripple_model, write_model
     from iiwa_ident.model import Source
 
     try:
         data = dataset_files(data)
         datasets = [read_dataset(p) for p in data]
-        if model is not None:
-            base = read_model(model)
-            check_model_matches(base, datasets, f"{model}: ")
-        else:
-            base = dataset_model(datasets, borrow=True)
+        base = model_for(datasets, model, borrow=True)
         with progress(f"searching the ripple's period in {len(datasets)} run(s)"):
             model_out, result = ripple_model(base, datasets, [Source(str(p), sha256_file(p), "ripple") for p in data],
                                              period_min=period_min, period_max=period_max, bins=bins,

@@ -32,6 +32,7 @@ from iiwa_ident.ident._starting_model import (
     against_description,
     check_model_matches,
     dataset_model,
+    model_for,
     payload_of_load,
     physical_ranges,
     starting_model,
@@ -39,7 +40,7 @@ from iiwa_ident.ident._starting_model import (
 from iiwa_ident.ident._tf_fit import FitResult, cramer_rao_std
 
 __all__ = ["model_from_dict", "read_model", "write_model", "BlaFit", "METHODS", "fit_joint", "fit_model", "line_ratio", "PERIOD_MAX_RAD", "PERIOD_MIN_RAD", "RippleResult", "find_passes", "identify_ripple", "ripple_model", "FitResult",
-           "starting_model", "dataset_model", "check_model_matches", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
+           "starting_model", "dataset_model", "check_model_matches", "model_for", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD",
            "DESCRIPTION_FACTOR", "PhysicalRanges", "physical_ranges", "against_description",
            "Payload", "payload_of_load", "PAYLOAD_LEVER_MIN_M", "ResidualTest",
            "ResidualTests", "residual_tests", "WHITENESS", "INDEPENDENCE", "LEVEL", "MAX_LAG", "LOG_FILTER_MIN_HZ", "LOG_ONLY", "log_filter_text",

@@ -9,6 +9,7 @@ Table I (joint 1 of an iiwa 14) until a chirp fit measures them, and the file sa
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,9 +18,10 @@ import numpy as np
 from iiwa_ident.datasets import Dataset, dataset_pose
 from iiwa_ident.description import GRAVITY_M_S2, describe_joint
 from iiwa_ident.errors import IiwaIdentError
+from iiwa_ident.ident._model_file import read_model
 from iiwa_ident.model import JointModel, Parameter, table1_model
 
-__all__ = ["starting_model", "dataset_model", "check_model_matches", "PhysicalRanges", "physical_ranges",
+__all__ = ["starting_model", "dataset_model", "check_model_matches", "model_for", "PhysicalRanges", "physical_ranges",
            "against_description", "Payload", "payload_of_load", "PAYLOAD_LEVER_MIN_M", "LOAD_NEGLIGIBLE_NM", "POSE_TOLERANCE_RAD", "DESCRIPTION_FACTOR"]
 
 #: A gravity amplitude below this is no load (a vertical axis) [Nm]: numerical zero of the description.
@@ -137,6 +139,17 @@ def check_model_matches(model: JointModel, datasets: Sequence[Dataset], where: s
                                  f"every joint has its own; start from {start}")
         if model.robot_model and robot and model.robot_model != robot:
             raise IiwaIdentError(f"{where}a model of an {model.robot_model} on data of an {robot} ({name})")
+
+
+def model_for(datasets: Sequence[Dataset], path: str | os.PathLike | None = None, borrow: bool = False) -> JointModel:
+    """The model a command checks or extends with the datasets: the model file at ``path``, refused (one line
+    naming it) when it is of another joint or robot (:func:`check_model_matches`); without a file, the datasets'
+    starting model (:func:`dataset_model`, ``borrow`` as there)."""
+    if path is None:
+        return dataset_model(datasets, borrow=borrow)
+    model = read_model(path)
+    check_model_matches(model, datasets, f"{path}: ")
+    return model
 
 
 #: A described value may be off by this factor either way and still be physical (figures from CAD and a

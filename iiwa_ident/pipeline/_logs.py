@@ -233,16 +233,13 @@ def _stage_import(ctx: PipelineContext) -> dict[str, Any]:
 
 def _stage_ripple(ctx: PipelineContext) -> dict[str, Any]:
     from iiwa_ident.datasets import sha256_file
-    from iiwa_ident.ident import dataset_model, ripple_model, write_model
+    from iiwa_ident.ident import dataset_model, model_for, ripple_model, write_model
     from iiwa_ident.model import Source
 
     runs = _runs(ctx)
     given = ctx.results.get("log_model")
     if given is not None:
-        from iiwa_ident.ident import check_model_matches, read_model
-
-        model = read_model(given)
-        check_model_matches(model, runs, f"{given}: ")
+        model = model_for(runs, given)
     else:
         try:
             model = dataset_model(runs)
