@@ -619,8 +619,8 @@ def _feedback_poles(design: AdditiveDesign, discrete: bool) -> np.ndarray:
     """Eigenvalues of model + observer-based feedback (reference and feed-forward excluded)."""
     A, B, C = design.model_matrices(discrete)
     S = _scaling(design.A)
-    K = (design.Kd if discrete else design.K_fsf) @ S
+    gain = (design.Kd if discrete else design.K_fsf) @ S
     L = np.linalg.inv(S) @ (design.Ld if discrete else design.L)
-    M = np.block([[A, -np.outer(B, K)], [np.outer(L, C), A - np.outer(B, K) - np.outer(L, C)]])
+    M = np.block([[A, -np.outer(B, gain)], [np.outer(L, C), A - np.outer(B, gain) - np.outer(L, C)]])
     ev = np.linalg.eigvals(M)
     return np.array(sorted(ev, key=lambda z: (round(abs(z), 9), z.imag)))

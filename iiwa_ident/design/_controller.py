@@ -54,7 +54,7 @@ class AdditiveController:
         if Ad.shape != (4, 4) or any(v.shape != (4,) for v in (Bd, Kd, Ld)):
             raise ValueError(f"additive controller: a 4-state model is expected, got Ad of shape {Ad.shape}")
         self._A = [float(v) for v in Ad.ravel()]  # row-major
-        self._B, self._K, self._L = ([float(v) for v in m] for m in (Bd, Kd, Ld))
+        self._B, self._Kd, self._L = ([float(v) for v in m] for m in (Bd, Kd, Ld))
         self._kr = float(design.Kr_d)
         self._reference = design.feedforward == "reference"
         if design.ffd is not None:
@@ -97,8 +97,8 @@ class AdditiveController:
         """One cycle: reference [Nm] and filtered joint torque [Nm] -> commanded torque [Nm]."""
         r = float(tau_r)
         x = self.x_hat
-        K = self._K
-        tau_fb = self._kr * r - (K[0] * x[0] + K[1] * x[1] + K[2] * x[2] + K[3] * x[3])  # eq (16)
+        Kd = self._Kd
+        tau_fb = self._kr * r - (Kd[0] * x[0] + Kd[1] * x[1] + Kd[2] * x[2] + Kd[3] * x[3])  # eq (16)
         tau_ff = 0.0
         y_ref = 0.0
         if self._Af is not None:
