@@ -3,10 +3,10 @@
 For a fixed truth (``bench_fit.TRUTH``) it simulates ``--seeds`` multisine experiments (1-100 Hz odd lines,
 2 s period, 2 steady-state periods x 4 realisations, 10 Nm peak, 3 Nm bias, 6 s lead-in: 30 s, as long as
 ``bench_fit``'s chirp), fits each through its best linear approximation
-(:func:`iiwa_ident.ident._bla.fit_bla`) and prints per parameter the bias, the std over seeds, the mean
+(:func:`iiwa_ident.ident.fit_bla`) and prints per parameter the bias, the std over seeds, the mean
 reported std, their ratio (calibration), the share of 95 % intervals covering the truth and the
 Cramer-Rao bound of the same data for white noise at the sensor levels
-(:func:`iiwa_ident.ident._tf_fit.cramer_rao_std`, the time-domain model on each seed's command; for any
+(:func:`iiwa_ident.ident.cramer_rao_std`, the time-domain model on each seed's command; for any
 unbiased estimator from these samples). Cases: the default plant (the paper's ripple), the plant without
 effects, and the model exact (no effects, no slew limit, no standstill suppression).
 

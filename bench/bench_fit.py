@@ -4,7 +4,7 @@ For a fixed truth (Table I, Td = 5 ms) it simulates ``--seeds`` 30 s chirps
 (default ``Chirp()``: 0.5-200 Hz, 10 Nm, 3 Nm bias) with the default sensor
 noise, each seed starting at a random position within one encoder tick (the
 quantisation error of a given trajectory is otherwise the same in every
-seed and would show as bias, not spread), fits each with :func:`iiwa_ident.ident._joint_fit.fit_joint`
+seed and would show as bias, not spread), fits each with :func:`iiwa_ident.ident.fit_joint`
 (``--method``, default ``eq4``: the output-error fit of eq (4) from start values of the data), and prints
 per parameter:
 
@@ -146,7 +146,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--duration", type=float, default=30.0, help="chirp duration [s]")
     ap.add_argument("--method", default="eq4", choices=METHODS,
-                    help="estimator (iiwa_ident.ident._joint_fit.METHODS; the fit command's default is auto)")
+                    help="estimator (iiwa_ident.ident.METHODS; the fit command's default is auto)")
     ap.add_argument("--cases", type=int, nargs="*", default=None,
                     help="which cases to run, by number from 1 (default all)")
     args = ap.parse_args()

@@ -4,7 +4,7 @@ Draws ``--draws`` scenarios of the shared generator (:func:`iiwa_ident.testing.d
 truths from wrist to base joints, chirp protocols, held or free links, 0-3 nuisances), half logged at 200 Hz and
 half at 1 kHz, 20 s each. Each is simulated twice: with a first-order ``torque_log_filter`` of cut-off
 log-uniform in 5-50 Hz (the simulator's effect: after the robot's loop, on the logged ``tau_j`` only), and
-without it. :func:`iiwa_ident.ident._joint_fit.fit_joint` fits each, never told which. Printed per rate:
+without it. :func:`iiwa_ident.ident.fit_joint` fits each, never told which. Printed per rate:
 
 - filtered: the share fitted with ``K`` and ``Jl`` within 3 % and ``Td`` within 0.5 ms (the target), the
   same with ``Jc`` and ``bc`` too, the share with the filter in the model, the cut-off's median relative error

@@ -13,8 +13,8 @@ joints of the fleet carry ``--worn-factor`` times their ripple.
 Prints: wall time, joint-runs per second per worker, the peak memory of a worker process over the run (max RSS);
 per joint size the ripples detected against the detection curve's prediction at each group's true amplitude
 and period, from each run's noise level as ``ripple`` measured it: for the search over all the group's passes
-pooled (:func:`iiwa_ident.ident._ripple_detect.pooled_detection_probability`) and, as a lower bound, the groups
-where at least one run's longest pass alone detects (:func:`~iiwa_ident.ident._ripple_detect.detection_probability`);
+pooled (:func:`iiwa_ident.ident.pooled_detection_probability`) and, as a lower bound, the groups
+where at least one run's longest pass alone detects (:func:`~iiwa_ident.ident.detection_probability`);
 and the joints the library flags as worn
 (:func:`iiwa_ident.fleet.flag_worn`) against the worn ones, with each worn joint's ratio to the fleet's median and
 its p-value.

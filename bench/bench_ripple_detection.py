@@ -7,7 +7,7 @@ third AR(1) with pole 0.9, a third white noise through a first-order 12 Hz low-p
 the same level), the position quantised like the iiwa's encoder. A draw counts as detected when the search
 reports the line's period within 0.5 %; detections at another period are counted apart.
 
-The prediction (:func:`iiwa_ident.ident._ripple_detect.detection_probability`) is given the noise's spectral
+The prediction (:func:`iiwa_ident.ident.detection_probability`) is given the noise's spectral
 density at the line's frequency in each draw (the generator's own, divided by K^2), as ``ripple`` reads it off
 a run. Prints per cell (rate, speed, travel, amplitude) the detected share, the share at a wrong period and the
 predicted probability, and the cells where the detected share falls more than two binomial std below the

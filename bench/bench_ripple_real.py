@@ -2,7 +2,7 @@
 
 Imports every run of every joint under ``../shared/data/real/iiwa14-constant-velocity`` (200 Hz, constant
 speeds back and forth) and the joint-6 position chirp under ``../shared/data/real/iiwa14-position-chirp``
-(1 kHz with gaps, speeds up to 3.3 rad/s), in memory, and runs :func:`iiwa_ident.ident._ripple.identify_ripple`
+(1 kHz with gaps, speeds up to 3.3 rad/s), in memory, and runs :func:`iiwa_ident.ident.identify_ripple`
 on each joint's runs together (every run is also analysed alone). Prints, per joint, the per-run periods
 (cycles per revolution, with the harmonic of the joint's period each run sees), the joint's answer with its
 std, the runs' agreement (chi2 p-value), the table's amplitude in rad and as a torque at Table I's K, and the

@@ -2,7 +2,7 @@
 
 ``fit``: draws ``--draws`` scenarios (:mod:`iiwa_ident.testing`: random truths from wrist to base joints,
 chirp protocols at 200-1000 Hz, held or free links, and 0-3 nuisance effects, some of shapes the fit does not
-assume), simulates each, runs :func:`iiwa_ident.ident._joint_fit.fit_joint` on it (``--method``) and prints:
+assume), simulates each, runs :func:`iiwa_ident.ident.fit_joint` on it (``--method``) and prints:
 
 - the share of draws where ``Jc, bc, K, Jl`` are all within 3 % and ``Td`` within 0.5 ms (target: 95 %),
 - the same per nuisance (a draw counts under each nuisance it has; ``none`` has none),
@@ -17,7 +17,7 @@ engine of ``iiwa-ident fleet``).
 ``ripple``: draws ``--draws`` ripple scenarios and as many null ones
 (:func:`iiwa_ident.testing.draw_ripple_scenario`: 100-800 cycles per revolution, harmonics stronger than
 the fundamental, two or three runs at 0.05-1.3 rad/s, 200-1000 Hz, friction, load, hum with harmonics, coloured
-noise, gaps), runs :func:`iiwa_ident.ident._ripple.identify_ripple` on each draw's runs together and prints:
+noise, gaps), runs :func:`iiwa_ident.ident.identify_ripple` on each draw's runs together and prints:
 
 - the share of ripple draws whose period is within 1e-3 relative (target 95 %), also by amplitude;
 - the share of null draws with no detection (target 95 %), by nuisance;

@@ -20,7 +20,7 @@ can show all of them. The thresholds and why they were chosen:
     formally stable.
 ``exact_delay_spectral_radius``
     The same loop on eq (4) with the exact input delay instead of Padé
-    (:func:`~iiwa_ident.design._margins.exact_delay_spectral_radius`),
+    (:func:`~iiwa_ident.design.exact_delay_spectral_radius`),
     same threshold: poles too fast for the delay pass the Padé check only.
 ``outer_loop_kappa_margin``
     Outer-loop gain margin ``kappa_max`` of ``tau_r = kappa tau_ext`` with the
@@ -266,7 +266,7 @@ def check_design(record: DesignRecord, limits: ControllerLimits | None = None,
     Parameters
     ----------
     record : DesignRecord
-        The design (from :func:`~iiwa_ident.design._design_file.read_design`).
+        The design (from :func:`~iiwa_ident.design.read_design`).
     limits : ControllerLimits, optional
         The requested limits; with ``data_sheet`` enables the limit checks.
     data_sheet : JointLimits, optional

@@ -1,6 +1,6 @@
 """The controller config: everything an FRI runtime needs to run a design at 1 kHz.
 
-Written by ``iiwa-ident deploy`` after :func:`~iiwa_ident.deploy._checks.check_design`
+Written by ``iiwa-ident deploy`` after :func:`~iiwa_ident.deploy.check_design`
 passed; self-contained (no other file is needed to run it) and protected by
 the sha256 of its own content. TOML, format version 2::
 
@@ -628,12 +628,12 @@ def deploy(record: DesignRecord, robot_model: str, joint: int, *, torque_limit: 
         Clamp of the commanded torque [Nm]; default and maximum: the data sheet.
     rate_limit : float, optional
         Clamp of the torque rate [Nm/s]; default and maximum:
-        :func:`~iiwa_ident.deploy._checks.default_rate_limit`.
+        :func:`~iiwa_ident.deploy.default_rate_limit`.
     velocity_limit : float, optional
         Joint speed at which the runtime stops [rad/s]; default and maximum: the data sheet.
     reference_rate_limit : float, optional
         Clamp of the reference rate [Nm/s]; default
-        :func:`~iiwa_ident.deploy._checks.default_reference_rate`, maximum the torque-rate default.
+        :func:`~iiwa_ident.deploy.default_reference_rate`, maximum the torque-rate default.
     watchdog_timeout_s : float
         Stop after this long without a robot message [s] (default 5 ms).
     design_file, design_sha256 : str

@@ -35,8 +35,8 @@ signal its observer sees). Peak and RMS are taken in steady state (after
 Outer-loop gain margin
 ----------------------
 :func:`kappa_margin` closes ``tau_r = kappa tau_ext`` on the F/T reference
-``tau_ext_ref`` while an :class:`~iiwa_ident.sim._agents.ImpedanceAgent`
-(hand stiffness and damping of :class:`~iiwa_ident.design._margins.HumanArm`)
+``tau_ext_ref`` while an :class:`~iiwa_ident.sim.ImpedanceAgent`
+(hand stiffness and damping of :class:`~iiwa_ident.design.HumanArm`)
 moves the link along a slow sine, so that the joint never stands still (the
 robot suppresses torque control at standstill below 1 Nm) and the ripple is
 excited as in a real interaction. A run is judged unstable (:func:`judge_stability`)
@@ -44,7 +44,7 @@ when the oscillatory part of tau_J (above ``highpass_hz``) grows from the
 first to the last hand period by more than ``growth_limit`` and is above a
 noise floor, when it exceeds an absolute level, or when the limit guard
 stops the run. The largest stable ``kappa`` is bracketed around the linear
-prediction :func:`~iiwa_ident.design._margins.kappa_max` and bisected.
+prediction :func:`~iiwa_ident.design.kappa_max` and bisected.
 
 Measured on the default plant (Table I, ripple on, identified ripple table)
 -----------------------------------------------------------------------------
@@ -162,7 +162,7 @@ class BuiltinTorqueControl(TorqueControl):
 
 
 class AdditiveTorqueControl(TorqueControl):
-    """The additive controller of section V.B: the runtime's :class:`~iiwa_ident.design._cycle.ControlCycle`.
+    """The additive controller of section V.B: the runtime's :class:`~iiwa_ident.design.ControlCycle`.
 
     Per cycle: ``theta_j`` from the motor position by eq (8) (if a ripple
     table is given, else ``q_m``), ``tau_J,filt`` by the spatial filter of
@@ -227,7 +227,7 @@ def identified_model(plant: Plant | None = None, seed: int = 1, base: JointModel
                      speeds: tuple[float, ...] = (0.3, 0.6, 1.2), range_rad: float = 1.0) -> JointModel:
     """``base`` (Table I) with the ripple table identified from a simulated constant-velocity run.
 
-    The table is what a user would get from :func:`~iiwa_ident.ident._ripple.identify_ripple`
+    The table is what a user would get from :func:`~iiwa_ident.ident.identify_ripple`
     on the plant, never the plant's own truth.
     """
     from iiwa_ident.excite import ConstantVelocity
@@ -320,7 +320,7 @@ def run_closed_loop(controller: TorqueControl, plant: Plant | None, reference: C
     """Run ``controller`` on a simulated joint for ``duration_s``.
 
     ``tau_r = r(t) - hold_stiffness (q - q0) - hold_damping v + kappa tau_ext_ref``
-    each cycle, commands pass the :class:`~iiwa_ident.excite._safety.LimitGuard`; the loop is
+    each cycle, commands pass the :class:`~iiwa_ident.excite.LimitGuard`; the loop is
     :func:`~iiwa_ident.excite.record`'s, as for every experiment (after a stop it brakes the joint).
 
     Parameters
@@ -753,7 +753,7 @@ class KappaMargin:
     kappa_unstable : float
         Smallest gain judged unstable [-] (inf if none).
     linear : float
-        Linear prediction of :func:`~iiwa_ident.design._margins.kappa_max` (no ripple, no filter) [-].
+        Linear prediction of :func:`~iiwa_ident.design.kappa_max` (no ripple, no filter) [-].
     trials : list of KappaTrial
         Every run, in the order made.
     """
@@ -771,7 +771,7 @@ def kappa_margin(controller_kind: str, plant: Plant | None = None, arm: HumanArm
                  seed: int = 0, **trial_kwargs) -> KappaMargin:
     """Largest stable outer-loop gain ``kappa`` of ``tau_r = kappa tau_ext`` found by simulation.
 
-    The bracket starts at the linear prediction (:func:`~iiwa_ident.design._margins.kappa_max`
+    The bracket starts at the linear prediction (:func:`~iiwa_ident.design.kappa_max`
     on the model, with the same arm), widens by factors of 1.5 until it holds
     a stable and an unstable gain, then bisects (geometrically) until their
     ratio is below ``1 + rel_tol``.

@@ -154,15 +154,15 @@ def make_record(design: AdditiveDesign, margins: OuterLoopMargins, model: JointM
     Parameters
     ----------
     design, margins
-        From :func:`~iiwa_ident.design._additive.design_controller` and
-        :func:`~iiwa_ident.design._margins.outer_loop_margins`.
+        From :func:`~iiwa_ident.design.design_controller` and
+        :func:`~iiwa_ident.design.outer_loop_margins`.
     model : JointModel
         The model the design is based on (KI and the ripple table are taken from it).
     model_path : path, optional
         Its file; recorded with its sha256.
     filter : FilterSettings, optional
         The spatial filter's beta and v_min (default: the design's); it works at the ripple table's
-        period (:func:`~iiwa_ident.design._spatial_filter.filter_period`).
+        period (:func:`~iiwa_ident.design.filter_period`).
     """
     sha = None
     if model_path is not None:

@@ -333,7 +333,7 @@ class DeployedLoop:
         time-invariant filter (a notch at the ripple frequency ``|v| / rho``, weighted by gamma).
     ripple_period_rad : float
         The ripple period rho the spatial filter works at [rad]: the lookup table's
-        (:func:`~iiwa_ident.design._spatial_filter.filter_period`).
+        (:func:`~iiwa_ident.design.filter_period`).
     """
 
     source: str = "ideal"

@@ -298,7 +298,7 @@ class SpatialFilter:
 
     @classmethod
     def from_model(cls, model: JointModel, dt: float = 1e-3, **kwargs: float) -> SpatialFilter:
-        """A filter at the period of ``model.ripple`` (a :class:`~iiwa_ident.ident._model_file.JointModel`)."""
+        """A filter at the period of ``model.ripple`` (a :class:`~iiwa_ident.model.JointModel`)."""
         if model.ripple is None:
             raise ValueError("spatial filter: the model has no ripple table, so no period to filter at")
         return cls(model.ripple.period_rad, dt=dt, **kwargs)

@@ -11,7 +11,7 @@ feature library of sparse regression): it knows
 * how to find its few *nonlinear* parameters (period, frequency, delay) by a
   search on the current residual (:meth:`CandidateEffect.prepare`);
 * how coefficients become the reported parameters and how they extend a
-  :class:`~iiwa_ident.ident._model_file.JointModel`;
+  :class:`~iiwa_ident.model.JointModel`;
 * optionally, an *evidence channel* of its own (:meth:`CandidateEffect.evidence`):
   a residual outside the torque channels where the effect shows more
   plainly, with the effect's regressors there (the transmission ripple's
@@ -317,7 +317,7 @@ class CandidateEffect:
 
     def free_columns(self, ctx: Context) -> list[Column]:
         """Columns of the effect's family in a freer shape (the effect's own columns first, then more), for the
-        shape-fit measure of :func:`~iiwa_ident.diagnose._diagnosis.diagnose`; [] when there is none."""
+        shape-fit measure of :func:`~iiwa_ident.diagnose.diagnose`; [] when there is none."""
         return []
 
     def relevant(self, coef: np.ndarray) -> bool:
@@ -420,7 +420,7 @@ class _Identified(NamedTuple):
 class TransmissionRippleCandidate(CandidateEffect):
     """Position-periodic transmission deflection f(theta_m mod rho), eq (5).
 
-    The period comes from :func:`iiwa_ident.ident._ripple.identify_ripple`
+    The period comes from :func:`iiwa_ident.ident.identify_ripple`
     (section III.B; on the motor position corrected by the model's own table,
     so only what the table misses is looked for) and is refined by the
     residual fit; the deflection is a Fourier series of :attr:`harmonics`

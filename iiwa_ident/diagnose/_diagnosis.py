@@ -7,7 +7,7 @@
 2. The candidate library (:mod:`~iiwa_ident.diagnose._candidates`) is tested
    by blocked cross-validation and greedy selection (:mod:`~iiwa_ident.diagnose._select`).
 3. The named effects are refitted on all data and added to a copy of the
-   model: the ripple as a :class:`~iiwa_ident.ident._model_file.RippleTable`,
+   model: the ripple as a :class:`~iiwa_ident.model.RippleTable`,
    a delay as a corrected ``Td``, the others as ``[[effects]]`` tables the
    simulator runs (:func:`~iiwa_ident.sim.plant_from_model`).
 4. The gain is measured on held-out data: residual RMS [Nm] before and after
@@ -192,7 +192,7 @@ class Diagnosis:
 
     def contribution(self, ctx: Context, channel: str, only: str | None = None) -> np.ndarray:
         """What the named effects (or only the effect ``only``) add to a channel of ``ctx`` [Nm], full length, as
-        the extended model carries them (:meth:`~iiwa_ident.diagnose._candidates.CandidateEffect.carried`)."""
+        the extended model carries them (:meth:`~iiwa_ident.diagnose.CandidateEffect.carried`)."""
         total = np.zeros_like(ctx.t)
         for cand, sl in zip(self.selection.selected, self.selection.slices):
             if only is None or cand.name == only:
@@ -206,7 +206,7 @@ class Diagnosis:
     @property
     def unexplained_channels(self) -> list[ChannelReport]:
         """Channels the model with the named effects does not explain: their residual fails the tests that judge the
-        model and is above the sensor noise (:attr:`~iiwa_ident.diagnose._channels.ChannelComparison.explained`);
+        model and is above the sensor noise (:attr:`~iiwa_ident.diagnose.ChannelComparison.explained`);
         what is left there is not in the library or not in its shape."""
         return [c for c in self.channels if c.after is not None and not c.after.explained]
 

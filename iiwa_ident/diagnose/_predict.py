@@ -343,7 +343,7 @@ def build_context(dataset: Dataset, model: JointModel, index: int = 0,
     model : JointModel
         The model; its ripple table and extra effects are part of the prediction
         only through :mod:`iiwa_ident.diagnose._candidates` (known effects are
-        added by :func:`iiwa_ident.diagnose._diagnosis.diagnose`).
+        added by :func:`iiwa_ident.diagnose.diagnose`).
     index : int
         Position in the diagnosed list.
     cutoff_hz : float

@@ -134,7 +134,7 @@ class EmulatorConfig:
     bind : (str, int)
         Address of the robot-side socket; port 0 picks a free port.
     plant : Plant or None
-        The simulated joint (default: :func:`~iiwa_ident.sim._plant.default_plant`);
+        The simulated joint (default: :func:`~iiwa_ident.sim.default_plant`);
         its cycle must equal the send period.
     seed : int
         Seed of the simulated sensor noise.

@@ -1,10 +1,10 @@
-"""The UDP link to the client, with the injected faults of :class:`~iiwa_ident.emulator._config.Faults`.
+"""The UDP link to the client, with the injected faults of :class:`~iiwa_ident.emulator.Faults`.
 
 :class:`FaultyLink` drops, delays, duplicates, reorders and corrupts
 datagrams with seeded random generators (one per direction, so that which
 cycle an answer falls into cannot change the faults injected into the
 robot's messages) and counts each injected fault in the run's
-:attr:`EmulatorReport.faults <iiwa_ident.emulator._report.EmulatorReport>`.
+:attr:`EmulatorReport.faults <iiwa_ident.emulator.EmulatorReport>`.
 Without faults a message goes straight to the socket.
 """
 

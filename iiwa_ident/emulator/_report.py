@@ -89,7 +89,7 @@ class EmulatorReport:
     cycle_delay_median_s, cycle_delay_p99_s, cycle_delay_max_s : float or None
         How late cycles started after their deadline [s].
     overruns : int
-        Cycles that started more than :data:`~iiwa_ident.emulator._clocks.OVERRUN_S` late.
+        Cycles that started more than :data:`~iiwa_ident.emulator.OVERRUN_S` late.
     resent : int
         Lockstep: monitoring messages sent again to a client that was not
         (yet) answering.

@@ -88,7 +88,7 @@ Safety
 ------
 Every cycle of ``COMMANDING_ACTIVE`` the robot side checks the simulated
 joint against its robot model's data-sheet limits
-(:attr:`Plant.limits <iiwa_ident.sim._plant.Plant>`, from
+(:attr:`Plant.limits <iiwa_ident.sim.Plant>`, from
 :func:`~iiwa_ident.robot.joint_limits`): the speed (from the last two
 measured positions), the joint torque, and the range, watched ahead by the
 distance the joint still covers when stopped now (the reaction, one cycle

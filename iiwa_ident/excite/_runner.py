@@ -3,7 +3,7 @@
 An :class:`Experiment` decides each cycle's command from the time and the
 client-side state estimate; :func:`record` drives any
 :class:`~iiwa_ident.robot.RobotInterface` with it under a
-:class:`~iiwa_ident.excite._safety.LimitGuard` and returns the dataset.
+:class:`~iiwa_ident.excite.LimitGuard` and returns the dataset.
 """
 
 from __future__ import annotations

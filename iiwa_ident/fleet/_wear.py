@@ -4,7 +4,7 @@ The comparison is in the logarithm of the amplitude, where a joint's ripple is
 a factor away from the fleet's: for joint ``j`` of robot ``r``,
 ``d = ln(A_rj / median_r' A_r'j)``, whose uncertainty combines
 
-- the amplitude's own standard error (:attr:`~iiwa_ident.ident._ripple.RippleResult.amplitude_std_rad`,
+- the amplitude's own standard error (:attr:`~iiwa_ident.ident.RippleResult.amplitude_std_rad`,
   ``std / A`` in the logarithm),
 - the spread of healthy joints around the median, ``sigma_fleet``: of the groups whose ``d`` lies within 3.5
   robust (median absolute deviation) spreads, pooled over the joint numbers, the spread beyond each one's own
@@ -73,7 +73,7 @@ def flag_worn(groups: list[dict[str, Any]], false_alarm: float = WEAR_FALSE_ALAR
     ----------
     groups : list of dict
         The rows of :func:`~iiwa_ident.fleet.run_fleet` for the ripple stage (``robot``, ``joint``,
-        ``ripple``: the :meth:`~iiwa_ident.ident._ripple.RippleResult.to_json` document, ``error``).
+        ``ripple``: the :meth:`~iiwa_ident.ident.RippleResult.to_json` document, ``error``).
     false_alarm : float
         Probability that any healthy joint of the fleet is flagged (0-1).
 

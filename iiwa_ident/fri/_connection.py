@@ -260,7 +260,7 @@ class FriConnection:
         ------
         SafetyStop
             If a commanding answer lacks a value per joint or holds a non-finite number
-            (:func:`~iiwa_ident.fri._protocol.message_problem`).
+            (:func:`~iiwa_ident.fri.message_problem`).
         """
         state = msg.connection_info.session_state if msg.HasField("connection_info") else SessionState.IDLE
         if state == SessionState.IDLE or self._reply_to is None:

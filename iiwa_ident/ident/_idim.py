@@ -177,7 +177,7 @@ class LinkEffectEstimate:
     Attributes
     ----------
     name : str
-        Effect name in :data:`iiwa_ident.sim._effects.EFFECTS`.
+        Effect name in :data:`iiwa_ident.sim.EFFECTS`.
     values, std : dict of str to float
         Parameter values and their std (the effect's units).
     significant : bool
@@ -469,7 +469,7 @@ def _line_search(preps: list[Prepared], load: str) -> tuple[float, ...]:
 
     The residual of a least-squares fit of the link equation (no physical check: it only has to
     expose the lines); a line is a cell whose periodogram over its running median
-    (:func:`~iiwa_ident.ident._lines.line_ratio`), geometric mean over the records, exceeds
+    (:func:`~iiwa_ident.ident.line_ratio`), geometric mean over the records, exceeds
     :data:`LINE_RATIO`; its frequency refined by the power a sinusoid explains, it is projected out and
     the next is searched, up to :data:`MAX_LINES`.
     """
@@ -825,7 +825,7 @@ def _finish(preps: list[Prepared], records: list[FitRecord], prm: dict[str, floa
 
 
 def _ripple_effect(period: float, xl: np.ndarray, names: list[str], cov: np.ndarray, Jl: float) -> LinkEffectEstimate:
-    """The fitted ripple in :class:`~iiwa_ident.sim._effects.TransmissionRipple`'s terms.
+    """The fitted ripple in :class:`~iiwa_ident.sim.TransmissionRipple`'s terms.
 
     ``cov``: the link equation's covariance. Harmonic ``k`` has the amplitude ``A_k`` [rad] and phase
     ``phi_k`` [rad] of ``A_k sin(2 pi k q_m / rho + phi_k)``; the link equation's coefficients are ``Jl``

@@ -484,7 +484,7 @@ def fit_model(paths: Sequence[str | os.PathLike], base_model: str | os.PathLike 
 
     Chirps go to :func:`fit_joint`; multisines
     (:class:`~iiwa_ident.excite.Multisine`, all files) through their best
-    linear approximation to :func:`~iiwa_ident.ident._bla.fit_bla`, whose
+    linear approximation to :func:`~iiwa_ident.ident.fit_bla`, whose
     ``[fit]`` table carries the std's method, chi2/dof and the BLA's noise and
     nonlinear variance per output and octave band.
 

@@ -101,7 +101,7 @@ class LogFilterEstimate:
 
 
 def log_filter_text(fit: dict[str, float]) -> str:
-    """A fitted log filter (:attr:`~iiwa_ident.ident._tf_fit.FitResult.log_filter`) in words: its stages and
+    """A fitted log filter (:attr:`~iiwa_ident.ident.FitResult.log_filter`) in words: its stages and
     cut-off with its std."""
     stages = "one first-order stage" if int(fit["order"]) == 1 else f"{int(fit['order'])} first-order stages"
     text = f"{stages} at {fit['cutoff_hz']:.4g} +- {fit['std']:.2g} Hz"

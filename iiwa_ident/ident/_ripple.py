@@ -122,7 +122,7 @@ class RippleResult:
     #: CrossRunLines`, None with one run.
     lines: CrossRunLines | None = None
     #: What each run detects at the period (the paper's rho where none is detected):
-    #: :class:`~iiwa_ident.ident._ripple_detect.RunSensitivity` per run.
+    #: :class:`~iiwa_ident.ident.RunSensitivity` per run.
     sensitivity: list = field(default_factory=list)
     #: Standard error of ``amplitude_rad`` [rad] (the combined table's jackknife; None without a detection or
     #: below three passes).

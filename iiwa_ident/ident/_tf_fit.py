@@ -606,7 +606,7 @@ class FitResult:
         than :attr:`std` when the residuals are not white.
     std_robust : dict of str to float
         The model-error aware std (see
-        :func:`iiwa_ident.ident._joint_fit.fit_joint`): equal to :attr:`std`
+        :func:`iiwa_ident.ident.fit_joint`): equal to :attr:`std`
         where the residual is independent of the command, wider where it is
         not; empty until the joint fit sets it (then :attr:`std` applies).
     correlation : numpy.ndarray
@@ -654,7 +654,7 @@ class FitResult:
     cost: float
     n_evaluations: int
     sample_times_s: list[float] = field(default_factory=list)
-    #: Which estimator (:data:`iiwa_ident.ident._joint_fit.METHODS`).
+    #: Which estimator (:data:`iiwa_ident.ident.METHODS`).
     method: str = "eq4"
     #: Fitted link-side effects (:class:`iiwa_ident.ident._idim.LinkEffectEstimate`), if any.
     effects: list[Any] = field(default_factory=list)
@@ -1082,7 +1082,7 @@ def fit_transfer_function(datasets: Sequence[Dataset], *, initial: dict[str, flo
         Per dataset, known torques besides the command as ``(input, signal
         [Nm])`` pairs (:data:`INPUTS`), one value per sample: the link-side
         effects and the robot's gravity model estimated beforehand
-        (:func:`iiwa_ident.ident._joint_fit.fit_joint`).
+        (:func:`iiwa_ident.ident.fit_joint`).
     ripple : RippleTerms, optional
         The transmission ripple: its table (if any) as a known input and the
         coefficients of its first harmonics fitted with the parameters, so

@@ -2,7 +2,7 @@
 
 :class:`NetFtSensor` asks the sensor to bias itself and to stream records without end, then, once per
 control cycle, takes every record that arrived (:meth:`NetFtSensor.poll`) and returns the newest good
-one as a torque about the joint's axis (:class:`~iiwa_ident.netft._projection.JointAxisProjection`).
+one as a torque about the joint's axis (:class:`~iiwa_ident.netft.JointAxisProjection`).
 What it counts, per :class:`SensorStats`:
 
 * records from another address (``foreign``), datagrams that are no record (``invalid``);

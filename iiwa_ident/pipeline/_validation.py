@@ -199,7 +199,7 @@ def run_validation(config: ControllerConfig, outdir: Path, *, kappa_margins: tup
         run: ``name``, ``controller``, ``task``, ``file``, parameters and
         metrics), ``tracking`` (per task: built-in and additive peak errors),
         ``kappa`` (the design's linear margins of section V.C and their ratio, and ``sweeps``: per
-        source the result of :func:`~iiwa_ident.pipeline._kappa.run_kappa_sweep`), ``emulator`` (sim target: per
+        source the result of :func:`~iiwa_ident.pipeline.run_kappa_sweep`), ``emulator`` (sim target: per
         run, what the robot side saw), ``compute_us_median`` (per
         additive run: the runtime's median compute time per cycle [us], the
         one figure that depends on the machine).

@@ -1,7 +1,7 @@
 """Figures of the closed-loop analysis (section V): tracking like Figs. 8-9, pole map, kappa margins.
 
 Every function takes the dictionary of
-:func:`iiwa_ident.design._analysis.compare_controllers` and returns a
+:func:`iiwa_ident.design.compare_controllers` and returns a
 matplotlib Figure (Agg backend); saving is left to the caller.
 """
 
@@ -44,7 +44,7 @@ def tracking_figure(result: dict, delay_s: float = 0.005) -> plt.Figure:
     Parameters
     ----------
     result : dict
-        From :func:`~iiwa_ident.design._analysis.compare_controllers`.
+        From :func:`~iiwa_ident.design.compare_controllers`.
     delay_s : float
         Shift of the plotted reference [s] (the FRI delay the errors are taken at).
     """

@@ -1,7 +1,7 @@
 """Figures of the closed-loop validation through FRI: step and sine (Figs. 8-9), kappa margin, parameter table.
 
 The tracking figures read the run logs of
-:func:`iiwa_ident.pipeline._validation.run_validation`; every function returns
+:func:`iiwa_ident.pipeline.run_validation`; every function returns
 a matplotlib Figure (Agg backend) and leaves saving to the caller.
 """
 

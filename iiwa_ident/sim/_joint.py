@@ -64,7 +64,7 @@ class SimulatedJoint(RobotInterface):
     Parameters
     ----------
     plant : Plant, optional
-        The plant (default: :func:`~iiwa_ident.sim._plant.default_plant`).
+        The plant (default: :func:`~iiwa_ident.sim.default_plant`).
     seed : int, optional
         Seed of the sensor noise.
     q0 : float

@@ -214,7 +214,7 @@ def run_case(seed: int, n_effects: int | None = None, *, shapes: bool = False, f
     :func:`~iiwa_ident.testing.draw_apart_cause_case` with ``causes``).
 
     The model is the case's true eq (4), or with ``fit`` the eq (4) parameters of
-    :func:`~iiwa_ident.ident._joint_fit.fit_joint` on the case's chirp (10 s then; the
+    :func:`~iiwa_ident.ident.fit_joint` on the case's chirp (10 s then; the
     fitted effects are left out: the diagnosis must find them).
     """
     from iiwa_ident.diagnose import diagnose
